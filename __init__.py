@@ -1,0 +1,35 @@
+"""VisiBake: light baking from precomputed visibility (Daubert et al. 2002) for Blender.
+
+Registration in order, unregistration in reverse. The module name is never
+hard-coded: extensions load as ``bl_ext.<repository>.visibake``.
+"""
+import bpy
+
+from . import operators, panels
+from .operators import cli, properties
+
+_classes = operators.classes + panels.classes
+_cli_handle = None
+
+
+def _cli_command(argv):
+    return cli.main(argv)
+
+
+def register():
+    global _cli_handle
+    for cls in _classes:
+        bpy.utils.register_class(cls)
+    properties.register_properties()
+    if hasattr(bpy.utils, "register_cli_command"):
+        _cli_handle = bpy.utils.register_cli_command("visibake", _cli_command)
+
+
+def unregister():
+    global _cli_handle
+    if _cli_handle is not None:
+        bpy.utils.unregister_cli_command(_cli_handle)
+        _cli_handle = None
+    properties.unregister_properties()
+    for cls in reversed(_classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,91 @@
+"""Output images: assembling pass images from samples, EXR files, tone mapping.
+
+Images in the core are stored as Blender stores pixels: (H, W, C) float32 with row 0
+at the bottom (v = 0). EXR files are written top row first, as Blender saves them.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .raster import dilate
+
+
+def sample_image(values: np.ndarray, pixel: np.ndarray, coverage: np.ndarray, margin: int) -> np.ndarray:
+    """Scatter per-sample RGB values into an RGBA image and dilate into the gutter.
+
+    Parameters
+    ----------
+    values : (k, 3) float per-sample values
+    pixel : (k,) int64 flat pixel index
+    coverage : (H, W) bool
+    margin : gutter width in texels
+
+    Returns
+    -------
+    image : (H, W, 4) float32, alpha 1 on covered texels and 0 elsewhere; finite
+    """
+    height, width = coverage.shape
+    rgb = np.zeros((height * width, 3), np.float32)
+    rgb[pixel] = np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
+    rgb = rgb.reshape(height, width, 3)
+    if margin > 0:
+        rgb, _ = dilate(rgb, coverage, margin)
+    image = np.empty((height, width, 4), np.float32)
+    image[..., :3] = rgb
+    image[..., 3] = coverage
+    return image
+
+
+def write_exr(path: str, image: np.ndarray) -> None:
+    """Write an (H, W, 4) bottom-up float image as a 32-bit float RGBA EXR (top row first)."""
+    import OpenEXR
+
+    if not np.all(np.isfinite(image)):
+        raise ValueError(f"refusing to write non-finite values to {path}")
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    top_down = np.ascontiguousarray(image[::-1], dtype=np.float32)
+    with OpenEXR.File(header, {"RGBA": top_down}) as exr:
+        exr.write(path)
+
+
+def read_exr(path: str) -> np.ndarray:
+    """Read an RGBA EXR written by :func:`write_exr` back as a bottom-up (H, W, 4) array."""
+    import OpenEXR
+
+    with OpenEXR.File(path) as exr:
+        channels = exr.channels()
+        if "RGBA" in channels:
+            data = channels["RGBA"].pixels
+        else:
+            data = np.stack([channels[c].pixels for c in "RGBA"], axis=-1)
+    return np.ascontiguousarray(np.asarray(data, np.float32)[::-1])
+
+
+def tonemap(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
+    """Linear radiance to display sRGB in [0, 1] (Reinhard on luminance, then the sRGB curve).
+
+    Parameters
+    ----------
+    image : (H, W, 3 or 4) float; alpha, if present, is kept
+
+    Returns
+    -------
+    display : same shape, float32
+    """
+    rgb = np.clip(np.nan_to_num(image[..., :3] * exposure), 0.0, None)
+    luminance = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    scale = np.divide(1.0, 1.0 + luminance, out=np.ones_like(luminance), where=np.isfinite(luminance))
+    mapped = np.clip(rgb * scale[..., None], 0.0, 1.0)
+    encoded = np.where(mapped <= 0.0031308, 12.92 * mapped, 1.055 * np.power(mapped, 1 / 2.4) - 0.055)
+    out = np.array(image, dtype=np.float32, copy=True)
+    out[..., :3] = encoded
+    return out
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve inverted, for 8-bit colour textures read as stored."""
+    values = np.asarray(values, np.float32)
+    return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4).astype(np.float32)

@@ -1,0 +1,330 @@
+"""The bake: samples -> visibility table -> shadow fractions -> transport -> pass images.
+
+:func:`bake` is the one entry point the operators, the command line, the tests and
+the benchmarks share. It reports progress through a callback that may raise
+:class:`Cancelled` to stop between batches.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .directions import ShadowRegions, direction_set
+from .lights import light_contributions
+from .raster import dilate
+from .rays import RayScene, offset_ray_origins
+from .samples import ObjectSamples, build_samples, face_normals
+from .scene import BakeSettings, Scene
+from .shadows import shadow_fractions
+from .images import sample_image
+from .transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
+from .visibility import table_bytes, trace_table
+from . import tolerances as tol
+
+
+class Cancelled(Exception):
+    """Raised by a progress callback to stop a bake; nothing has been written."""
+
+
+class BakeRefused(ValueError):
+    """The bake cannot run with these inputs; the message says why and what to change."""
+
+
+@dataclass
+class ObjectResult:
+    """Pass images of one output object: pass name -> (H, W, 4) float32, bottom-up."""
+
+    name: str
+    width: int
+    height: int
+    samples: int
+    images: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class BakeResult:
+    objects: list[ObjectResult]
+    report: dict
+
+
+def physical_memory_bytes() -> int:
+    """Installed memory, or 0 where it cannot be read."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def peak_memory_bytes() -> int:
+    """Peak resident memory of this process so far, or 0 where it cannot be read."""
+    try:
+        import resource
+    except ImportError:
+        return 0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)
+
+
+def memory_budget_bytes() -> int:
+    """How much the table may take: half the installed memory (the rest is Blender's)."""
+    physical = physical_memory_bytes()
+    return physical // 2 if physical else 8 << 30
+
+
+def _human_bytes(count: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if count < 1024 or unit == "TiB":
+            return f"{count:.1f} {unit}"
+        count /= 1024
+    return f"{count:.1f} TiB"
+
+
+def check_budget(scene: Scene, settings: BakeSettings, budget: int | None = None) -> None:
+    """Refuse, before anything is allocated, a bake whose table cannot fit in memory.
+
+    The bound uses every texel of every atlas (the covered ones are fewer), so a
+    bake that passes here cannot run out of memory in the table.
+    """
+    budget = memory_budget_bytes() if budget is None else budget
+    texels = sum(int(m.resolution[0]) * int(m.resolution[1]) for m in scene.meshes)
+    for mesh in scene.meshes:
+        width, height = mesh.resolution
+        if width < 1 or height < 1:
+            raise BakeRefused(f"object {mesh.name!r}: resolution must be at least 1x1, got {width}x{height}")
+    # Per texel: coverage, per-sample geometry and colours, radiance atlases and outputs.
+    per_texel = 200
+    need_atlas = texels * per_texel
+    if need_atlas > budget:
+        raise BakeRefused(f"the atlases ({texels} texels) would need about {_human_bytes(need_atlas)}, "
+                          f"more than the {_human_bytes(budget)} available; lower the resolution")
+    need_table = table_bytes(settings.directions, texels)
+    if need_table + need_atlas > budget:
+        raise BakeRefused(f"the visibility table ({settings.directions} directions x up to {texels} texels) "
+                          f"could need {_human_bytes(need_table)}, more than the {_human_bytes(budget - need_atlas)} "
+                          f"available; lower the directions or the resolution")
+
+
+class _Stages:
+    """Wall time per stage and the progress callback, in one place."""
+
+    def __init__(self, progress):
+        self.progress = progress
+        self.times: dict[str, float] = {}
+        self._name = None
+        self._start = 0.0
+
+    def start(self, name: str) -> None:
+        self.stop()
+        self._name = name
+        self._start = time.perf_counter()
+        self.report(0.0)
+
+    def report(self, fraction: float) -> None:
+        if self.progress is not None and self._name is not None:
+            self.progress(self._name, float(fraction))
+
+    def stop(self) -> None:
+        if self._name is not None:
+            self.times[self._name] = self.times.get(self._name, 0.0) + time.perf_counter() - self._start
+            self._name = None
+
+
+def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
+    """Bake every output object of ``scene``.
+
+    Parameters
+    ----------
+    scene : Scene
+        Meshes with a valid bake UV map each, lights and world.
+    settings : BakeSettings
+    progress : callable(stage: str, fraction: float) or None
+        Called often; raise :class:`Cancelled` in it to stop.
+
+    Returns
+    -------
+    BakeResult
+    """
+    settings.validate()
+    check_budget(scene, settings)
+    stages = _Stages(progress)
+    skipped: list[str] = []
+    warnings: list[str] = []
+
+    stages.start("samples")
+    meshes = []
+    for mesh in scene.meshes:
+        if len(mesh.triangles) == 0:
+            warnings.append(f"object {mesh.name!r} has no faces and was skipped")
+            continue
+        meshes.append(mesh)
+    if not any(m.output for m in meshes):
+        raise BakeRefused("there is no mesh with faces to bake")
+    object_samples: list[ObjectSamples] = []
+    for index, mesh in enumerate(meshes):
+        object_samples.append(build_samples(mesh))
+        stages.report((index + 1) / len(meshes))
+    for mesh, samples in zip(meshes, object_samples):
+        if len(samples) == 0:
+            warnings.append(f"object {mesh.name!r}: no texel centre falls inside its UV layout at "
+                            f"{mesh.resolution[0]}x{mesh.resolution[1]}; raise the resolution")
+        if samples.uv_overlap_texels:
+            warnings.append(f"object {mesh.name!r}: {samples.uv_overlap_texels} texels are covered by "
+                            "overlapping UV islands; each was given to one triangle")
+    counts = np.array([len(s) for s in object_samples], np.int64)
+    sample_offset = np.concatenate([[0], np.cumsum(counts)])
+    position = np.concatenate([s.position for s in object_samples])
+    normal = np.concatenate([s.normal for s in object_samples])
+    geometric = np.concatenate([s.geometric_normal for s in object_samples])
+    albedo = np.concatenate([s.albedo for s in object_samples]).astype(np.float64)
+    emission = np.concatenate([s.emission for s in object_samples]).astype(np.float64)
+    layout = AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples])
+    lookup_margin = max(settings.margin, 2)
+
+    def to_atlas(values: np.ndarray) -> np.ndarray:
+        images = []
+        for samples, a, b in zip(object_samples, sample_offset[:-1], sample_offset[1:]):
+            image = np.zeros((samples.height * samples.width, 3), np.float32)
+            image[samples.pixel] = values[a:b]
+            image = image.reshape(samples.height, samples.width, 3)
+            image, _ = dilate(image, samples.coverage, lookup_margin)
+            images.append(image)
+        return layout.pack(images)
+
+    directions = direction_set(settings.directions, settings.rotate, settings.seed)
+    has_emission = bool(np.any(emission > 0))
+    world = np.nan_to_num(np.asarray(scene.world.color, np.float64)[:3], nan=0.0, posinf=0.0)
+    world = np.clip(world, 0.0, None)
+    has_world = bool(np.any(world > 0))
+    wants = set(settings.passes)
+    needs_gather = settings.bounces > 0 or has_emission or has_world
+    needs_table = needs_gather or "ao" in wants or (settings.shadows == "fractions" and scene.lights)
+
+    triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
+    triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
+    ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
+
+    table = None
+    if needs_table:
+        stages.start("visibility")
+        corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] for m in meshes]).astype(np.float32)
+        all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
+        table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
+                            all_face_normals, settings.chunk_rays, stages.report)
+    else:
+        skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
+
+    stages.start("direct")
+    fractions = None
+    if scene.lights and settings.shadows == "fractions":
+        fractions = shadow_fractions(table, ShadowRegions(directions, settings.shadow_regions))
+    lamp_irradiance = np.zeros((len(position), 3))
+    shadow_rays = 0
+    origins = offset_ray_origins(position, geometric) if settings.shadows == "exact" else None
+    for light_index, light in enumerate(scene.lights):
+        for part in light_contributions(light, position, normal, settings.area_light_samples):
+            above = np.einsum("kd,kd->k", part.to_light, geometric) > 0.0
+            lit = above & np.any(part.irradiance > 0, axis=1)
+            if fractions is not None:
+                visibility = np.where(lit, fractions.visibility(part.to_light), 0.0)
+            else:
+                visibility = lit.astype(np.float64)
+                rays = np.nonzero(lit)[0]
+                if len(rays):
+                    distance = part.distance[rays]
+                    limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
+                    blocked = ray_scene.occluded(origins[rays], part.to_light[rays], limit.astype(np.float32))
+                    visibility[rays[blocked]] = 0.0
+                    shadow_rays += len(rays)
+            lamp_irradiance += part.irradiance * visibility[:, None]
+        stages.report((light_index + 1) / len(scene.lights))
+    if settings.shadows == "exact":
+        skipped.append("shadow fractions: shadows are exact")
+
+    gathered_emission = np.zeros_like(lamp_irradiance)
+    gathered = np.zeros_like(lamp_irradiance)
+    gathers = 0
+    if needs_gather:
+        stages.start("transport")
+        scale = gather_normalisation(table, normal)
+        total = settings.bounces + 1
+
+        def step_progress(step):
+            return lambda fraction: stages.report((step + fraction) / total)
+
+        if has_emission or has_world:
+            gathered_emission = gather(table, normal, scale, layout, to_atlas(emission), world, step_progress(0))
+            gathers += 1
+        else:
+            skipped.append("gather of emitted light: the scene has no emission and no world light")
+        incoming = gathered_emission
+        for bounce in range(1, settings.bounces + 1):
+            outgoing = emission + albedo / np.pi * (lamp_irradiance + incoming)
+            incoming = gather(table, normal, scale, layout, to_atlas(outgoing), world, step_progress(bounce))
+            gathers += 1
+        gathered = incoming
+    else:
+        skipped.append("indirect gathers: bounces = 0 and nothing emits")
+        scale = None
+
+    stages.start("outputs")
+    per_pass: dict[str, np.ndarray] = {}
+    irradiance = lamp_irradiance + gathered
+    if "lighting" in wants:
+        per_pass["lighting"] = albedo / np.pi * irradiance
+    if "direct" in wants or "indirect" in wants:
+        direct = albedo / np.pi * (lamp_irradiance + gathered_emission)
+        if "direct" in wants:
+            per_pass["direct"] = direct
+        if "indirect" in wants:
+            per_pass["indirect"] = np.clip(albedo / np.pi * irradiance - direct, 0.0, None)
+    if "irradiance" in wants:
+        per_pass["irradiance"] = irradiance / np.pi
+    if "ao" in wants:
+        if scale is None:
+            scale = gather_normalisation(table, normal)
+        per_pass["ao"] = np.repeat(ambient_occlusion(table, normal, scale)[:, None], 3, axis=1)
+
+    results = []
+    output_meshes = [(i, m) for i, m in enumerate(meshes) if m.output]
+    for done, (index, mesh) in enumerate(output_meshes):
+        samples = object_samples[index]
+        a, b = sample_offset[index], sample_offset[index + 1]
+        result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
+        for name in settings.passes:
+            result.images[name] = sample_image(per_pass[name][a:b], samples.pixel, samples.coverage, settings.margin)
+        results.append(result)
+        stages.report((done + 1) / len(output_meshes))
+    stages.stop()
+
+    occluders = [m.name for m in meshes if not m.output]
+    if occluders:
+        skipped.append(f"outputs of {len(occluders)} objects that only occlude and reflect: {', '.join(occluders)}")
+    report = {
+        "settings": asdict(settings),
+        "objects": [
+            {"name": m.name, "output": m.output, "uv_map": m.bake_uv_map, "resolution": list(m.resolution),
+             "texels": int(counts[i]), "triangles": int(len(m.triangles))}
+            for i, m in enumerate(meshes)
+        ],
+        "stage_seconds": {k: round(v, 4) for k, v in stages.times.items()},
+        "rays": {
+            "visibility_cast": int(table.rays_cast) if table else 0,
+            "visibility_skipped_below_horizon": int(table.rays_below_horizon) if table else 0,
+            "backface_hits": int(table.backface_hits) if table else 0,
+            "shadow_rays": int(shadow_rays),
+        },
+        "gathers": gathers,
+        "table_bytes": int(table.nbytes) if table else 0,
+        "skipped": skipped,
+        "warnings": warnings,
+    }
+    if table is not None and table.backface_hits:
+        share = table.backface_hits / max(table.rays_cast, 1)
+        if share > 0.01:
+            warnings.append(f"{share:.1%} of rays hit the back of a face; backs reflect no light "
+                            "(single-sided geometry or flipped normals)")
+    return BakeResult(objects=results, report=report)

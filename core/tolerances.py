@@ -1,0 +1,30 @@
+"""Every tolerance and epsilon of the core, in one place.
+
+Each value says why it has the size it has; change them here, never inline.
+"""
+
+# Ray origin offset (Waechter & Binder, Ray Tracing Gems ch. 6): below ORIGIN_SCALE
+# the float grid is too fine for an integer-ULP step to help, so a tiny absolute
+# step along the normal is used instead.
+RAY_OFFSET_ORIGIN = 1.0 / 32.0
+RAY_OFFSET_FLOAT_SCALE = 1.0 / 65536.0
+RAY_OFFSET_INT_SCALE = 256.0
+
+# Shadow rays to a point light stop this fraction short of the light, so geometry
+# that touches the light's position is not counted twice.
+SHADOW_RAY_SHORTEN = 1e-4
+
+# A triangle whose doubled area (|cross|) is below this, relative to the square of
+# its longest edge, has no usable normal: it is skipped rather than shaded.
+DEGENERATE_TRIANGLE_RATIO = 1e-12
+
+# Barycentric slack when deciding whether a texel centre lies inside a UV triangle.
+RASTER_EDGE_EPSILON = 1e-7
+
+# Below this the sum of a sample's gather weights is treated as "no open direction".
+MIN_WEIGHT_SUM = 1e-12
+
+# Sample points are kept this far (in barycentric terms) inside their triangle. A
+# texel centre on, or a hair outside, a chart edge otherwise sits on the plane of the
+# adjacent face (a floor meeting a wall) and its rays hit that face at t ~ 0.
+SAMPLE_BARYCENTRIC_INSET = 1e-3

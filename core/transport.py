@@ -1,0 +1,123 @@
+"""Light transport by table lookups (the Method of Dependent Tests), in numpy.
+
+All objects' radiance atlases live in one flat array so a gather over the table
+needs no per-object loop. Each atlas is stored with one extra replicated column and
+row, so a bilinear lookup always finds its four texels without bounds checks.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import tolerances as tol
+from .visibility import BELOW_HORIZON, MISS, VisibilityTable
+
+
+@dataclass
+class AtlasLayout:
+    """Where each object's padded atlas starts in the flat radiance array.
+
+    widths, heights : (O,) int64 atlas sizes in texels (unpadded)
+    offsets : (O,) int64 first flat index of each padded atlas
+    """
+
+    widths: np.ndarray
+    heights: np.ndarray
+    offsets: np.ndarray
+
+    @classmethod
+    def from_sizes(cls, sizes) -> "AtlasLayout":
+        widths = np.array([w for w, _ in sizes], np.int64)
+        heights = np.array([h for _, h in sizes], np.int64)
+        padded = (widths + 1) * (heights + 1)
+        offsets = np.concatenate([[0], np.cumsum(padded)[:-1]]).astype(np.int64)
+        return cls(widths, heights, offsets)
+
+    @property
+    def size(self) -> int:
+        return int(np.sum((self.widths + 1) * (self.heights + 1)))
+
+    def pack(self, images) -> np.ndarray:
+        """Flatten per-object images (H, W, C) into the padded flat array (size, C)."""
+        channels = images[0].shape[2]
+        flat = np.zeros((self.size, channels), np.float32)
+        for image, offset in zip(images, self.offsets):
+            padded = np.pad(image, ((0, 1), (0, 1), (0, 0)), mode="edge")
+            flat[offset:offset + padded.size // channels] = padded.reshape(-1, channels)
+        return flat
+
+    def bilinear(self, flat: np.ndarray, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Bilinear lookup at atlas coordinates ``uv`` (n, 2) of objects ``obj`` (n,)."""
+        width = self.widths[obj]
+        height = self.heights[obj]
+        x = np.clip(uv[:, 0] * width - 0.5, 0.0, width - 1)
+        y = np.clip(uv[:, 1] * height - 0.5, 0.0, height - 1)
+        x0 = np.floor(x)
+        y0 = np.floor(y)
+        fx = (x - x0).astype(np.float32)[:, None]
+        fy = (y - y0).astype(np.float32)[:, None]
+        stride = width + 1
+        base = self.offsets[obj] + y0.astype(np.int64) * stride + x0.astype(np.int64)
+        bottom = flat[base] * (1 - fx) + flat[base + 1] * fx
+        top = flat[base + stride] * (1 - fx) + flat[base + stride + 1] * fx
+        return bottom * (1 - fy) + top * fy
+
+
+def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndarray:
+    """Per-sample factor that makes the weights max(0, d_i . n) of one sample sum to pi.
+
+    With a finite direction set the raw sum is only near pi; normalising makes a
+    white furnace exact for any N (DESIGN.md). Samples with no open direction get 0.
+
+    Returns
+    -------
+    scale : (K,) float64
+    """
+    total = np.zeros(len(normals))
+    for i, direction in enumerate(table.directions):
+        cosine = np.clip(normals @ direction, 0.0, None)
+        total += np.where(table.hit_object[i] != BELOW_HORIZON, cosine, 0.0)
+    return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
+
+
+def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layout: AtlasLayout,
+           radiance: np.ndarray, world: np.ndarray, progress=None) -> np.ndarray:
+    """E(p) = sum_i w_i(p) L(S_i[p]): irradiance from the radiance atlases and the world.
+
+    Parameters
+    ----------
+    normals : (K, 3) float64 shading normals
+    scale : (K,) from :func:`gather_normalisation`
+    radiance : (layout.size, 3) float32 packed outgoing radiance of every object
+    world : (3,) float radiance of rays that leave the scene
+
+    Returns
+    -------
+    irradiance : (K, 3) float64
+    """
+    irradiance = np.zeros((len(normals), 3))
+    world = np.asarray(world, np.float64)[:3]
+    has_world = bool(np.any(world != 0))
+    count = len(table.directions)
+    for i, direction in enumerate(table.directions):
+        weight = np.clip(normals @ direction, 0.0, None) * scale
+        row = table.hit_object[i]
+        hit = np.nonzero(row >= 0)[0]
+        if len(hit):
+            looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), table.hit_uv[i, hit])
+            irradiance[hit] += weight[hit, None] * looked_up
+        if has_world:
+            irradiance += (weight * (row == MISS))[:, None] * world
+        if progress is not None and (i % 16 == 15 or i == count - 1):
+            progress((i + 1) / count)
+    return irradiance
+
+
+def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Cosine-weighted fraction of open directions, (K,) float64 in [0, 1]."""
+    open_weight = np.zeros(len(normals))
+    for i, direction in enumerate(table.directions):
+        weight = np.clip(normals @ direction, 0.0, None) * scale
+        open_weight += weight * (table.hit_object[i] == MISS)
+    return np.clip(open_weight / np.pi, 0.0, 1.0)

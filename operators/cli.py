@@ -1,0 +1,209 @@
+"""The headless command: ``blender -c visibake bake ...`` and ``tools/visibake.py bake ...``.
+
+Exit status: 0 success, 2 bad input (one line on stderr saying why), 1 failure.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import traceback
+
+import bpy
+
+from ..core.pipeline import Cancelled
+from ..core.scene import PASSES
+from . import job
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="visibake", description="Bake lighting from precomputed visibility (VisiBake).")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    bake = commands.add_parser("bake", help="bake a .blend (default: the built-in demo scene)")
+    bake.add_argument("input", nargs="?", help="the .blend to bake; omitted: the built-in demo scene")
+    demo = commands.add_parser("demo", help="bake the built-in demo scene with previews and a summary")
+    for sub in (bake, demo):
+        sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
+        sub.add_argument("--objects", metavar="A,B", help="comma-separated objects to bake (default: all visible meshes)")
+        sub.add_argument("--directions", type=int, metavar="N", help="size of the direction set (default 128)")
+        sub.add_argument("--bounces", type=int, metavar="K", help="diffuse bounces (default 2)")
+        sub.add_argument("--resolution", type=int, metavar="PX", help="atlas size in texels (default 256)")
+        sub.add_argument("--texel-density", type=float, metavar="T", help="texels per unit instead of a fixed size")
+        sub.add_argument("--mode", choices=("auto", "atlas", "vertex"), help="sample layout (default auto)")
+        sub.add_argument("--shadows", choices=("fractions", "exact"), help="shadow method (default fractions)")
+        sub.add_argument("--passes", metavar="P,Q", help=f"comma-separated subset of {','.join(PASSES)} (default lighting)")
+        sub.add_argument("--rotate", action="store_true", default=None, help="randomly rotate the direction set")
+        sub.add_argument("--seed", type=int, help="seed of the rotation")
+        sub.add_argument("--margin", type=int, metavar="PX", help="gutter dilation in texels (default 4)")
+        sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
+        sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
+        sub.add_argument("--previews", action="store_true", default=None, help="also write tone-mapped PNGs")
+        sub.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def _apply_settings(args, props) -> None:
+    """Copy command-line settings onto scene.visibake (the one settings model)."""
+    for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate"):
+        value = getattr(args, name)
+        if value is not None:
+            setattr(props, name, value)
+    if args.texel_density is not None:
+        props.texel_density = args.texel_density
+    if args.passes is not None:
+        passes = [p.strip() for p in args.passes.split(",") if p.strip()]
+        unknown = [p for p in passes if p not in PASSES]
+        if unknown or not passes:
+            raise job.BakeInputError(f"--passes: unknown pass {', '.join(unknown) or '(none)'}; choose from {', '.join(PASSES)}")
+        props.passes = set(passes)
+    for name in ("directions", "bounces", "resolution", "margin"):
+        value = getattr(args, name)
+        if value is not None and value < (1 if name in ("directions", "resolution") else 0):
+            raise job.BakeInputError(f"--{name} must be {'at least 1' if name in ('directions', 'resolution') else 'zero or more'}, got {value}")
+
+
+def _select_objects(args, scene) -> list:
+    from . import extract
+
+    meshes = extract.scene_meshes(scene)
+    if not args.objects:
+        return meshes
+    names = [n.strip() for n in args.objects.split(",") if n.strip()]
+    by_name = {o.name: o for o in meshes}
+    missing = [n for n in names if n not in by_name]
+    if missing:
+        raise job.BakeInputError(f"--objects: no visible mesh object named {', '.join(missing)} in the scene")
+    return [by_name[n] for n in names]
+
+
+class _Progress:
+    """A progress bar on stderr (tqdm where it is installed), one bar per stage."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self.stage = None
+        self.bar = None
+        try:
+            from tqdm import tqdm
+        except ImportError:
+            tqdm = None
+        self.tqdm = tqdm
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if not self.enabled:
+            return
+        if stage != self.stage:
+            self.close()
+            self.stage = stage
+            if self.tqdm is not None:
+                self.bar = self.tqdm(total=100, desc=f"{stage:>10}", unit="%", file=sys.stderr,
+                                     bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
+            else:
+                print(f"visibake: {stage} ...", file=sys.stderr, flush=True)
+        if self.bar is not None:
+            self.bar.update(int(100 * fraction) - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def _load_input(args) -> None:
+    if getattr(args, "input", None):
+        path = os.path.abspath(args.input)
+        if not os.path.isfile(path):
+            raise job.BakeInputError(f"input file not found: {args.input}")
+        if not path.lower().endswith(".blend"):
+            raise job.BakeInputError(f"input must be a .blend file: {args.input}")
+        bpy.ops.wm.open_mainfile(filepath=path)
+    else:
+        from . import demo_scene
+
+        # read_homefile keeps the preferences, so VisiBake stays enabled (factory
+        # settings would disable it in the middle of its own command).
+        bpy.ops.wm.read_homefile(use_empty=True)
+        demo_scene.build_demo_scene(bpy.context.scene)
+
+
+def run(args) -> int:
+    _load_input(args)
+    scene = bpy.context.scene
+    props = scene.visibake
+    _apply_settings(args, props)
+    objects = _select_objects(args, scene)
+    previews = bool(args.previews) or args.command == "demo"
+    out_dir = os.path.abspath(args.out) if args.out else None
+    if args.command == "demo" and out_dir is None:
+        out_dir = os.path.abspath("visibake_demo")
+    progress = _Progress(not args.no_progress)
+    try:
+        outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress)
+    finally:
+        progress.close()
+    report = outcome.report
+    if args.save:
+        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
+        report["files"].append(os.path.abspath(args.save))
+    if args.command == "demo":
+        from . import preview
+
+        started = time.perf_counter()
+        render_path = os.path.join(out_dir, "preview_render.png")
+        uv_maps = {entry["name"]: entry["uv_map"] for entry in report["objects"] if entry["output"]}
+        if preview.render_baked_preview(scene, list(uv_maps), render_path, uv_maps):
+            report["files"].append(render_path)
+        report["stage_seconds"]["preview_render"] = round(time.perf_counter() - started, 4)
+    report_path = args.report or (os.path.join(out_dir, "report.json") if args.command == "demo" else None)
+    if report_path:
+        job.write_report(report_path, report)
+    print(format_summary(report), flush=True)
+    return EXIT_OK
+
+
+def format_summary(report: dict) -> str:
+    lines = ["VisiBake bake finished"]
+    settings = report["settings"]
+    lines.append(f"  settings: {settings['directions']} directions, {settings['bounces']} bounces, "
+                 f"shadows {settings['shadows']}, passes {','.join(settings['passes'])}")
+    for entry in report["objects"]:
+        role = "baked" if entry["output"] else "occluder"
+        lines.append(f"  {entry['name']:<16} {role:<8} {entry['resolution'][0]}x{entry['resolution'][1]} "
+                     f"{entry['texels']:>8} texels  UV map {entry['uv_map']}")
+    rays = report["rays"]
+    lines.append(f"  rays: {rays['visibility_cast']} traced, {rays['visibility_skipped_below_horizon']} skipped "
+                 f"below the horizon, {rays['shadow_rays']} shadow rays")
+    lines.append("  seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in report["stage_seconds"].items())
+                 + f"; total {report['total_seconds']:.2f}")
+    lines.append(f"  peak memory: {report['peak_memory_bytes'] / 2**20:.0f} MiB")
+    for item in report["skipped"]:
+        lines.append(f"  skipped: {item}")
+    for item in report["warnings"]:
+        lines.append(f"  warning: {item}")
+    lines.append(f"  files: {len(report['files'])} written")
+    return "\n".join(lines)
+
+
+def main(argv) -> int:
+    """Entry point of the command; returns the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(list(argv))
+    except SystemExit as exit_request:
+        return int(exit_request.code or 0)
+    try:
+        return run(args)
+    except job.BakeInputError as error:
+        print(f"visibake: error: {error}", file=sys.stderr, flush=True)
+        return EXIT_BAD_INPUT
+    except (Cancelled, KeyboardInterrupt):
+        print("visibake: cancelled; nothing was written", file=sys.stderr, flush=True)
+        return EXIT_FAILURE
+    except Exception:
+        traceback.print_exc()
+        print("visibake: failed (see the traceback above)", file=sys.stderr, flush=True)
+        return EXIT_FAILURE

@@ -1,0 +1,192 @@
+"""Blender -> core: evaluated meshes, materials, lights and world as plain arrays."""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ..core.images import srgb_to_linear
+from ..core.scene import Light, Material, Mesh, World
+
+
+def _matrix(matrix) -> np.ndarray:
+    return np.array([list(row) for row in matrix], dtype=np.float64)
+
+
+def _read(collection, attribute: str, count: int, width: int, dtype) -> np.ndarray:
+    data = np.empty(count * width, dtype=dtype)
+    if count:
+        collection.foreach_get(attribute, data)
+    return data.reshape(count, width) if width > 1 else data
+
+
+def mesh_corner_uv(mesh: bpy.types.Mesh, loops: np.ndarray) -> dict[str, np.ndarray]:
+    """UV maps of ``mesh`` per triangle corner: name -> (m, 3, 2) float32."""
+    maps = {}
+    for layer in mesh.uv_layers:
+        uv = _read(layer.uv, "vector", len(mesh.loops), 2, np.float32)
+        maps[layer.name] = uv[loops]
+    return maps
+
+
+def _image_pixels(image: bpy.types.Image) -> np.ndarray | None:
+    width, height = image.size
+    if width == 0 or height == 0:
+        return None
+    pixels = np.empty(width * height * image.channels, np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(height, width, image.channels)
+    if image.channels < 3:
+        pixels = np.repeat(pixels[..., :1], 3, axis=2)
+    rgb = pixels[..., :3]
+    # Byte images hold their colour space's encoded values; float images are linear.
+    if not image.is_float and image.colorspace_settings.name.lower().startswith("srgb"):
+        rgb = srgb_to_linear(rgb)
+    return np.ascontiguousarray(rgb, np.float32)
+
+
+def _surface_node(material: bpy.types.Material):
+    tree = material.node_tree
+    if tree is None:
+        return None
+    outputs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"]
+    output = next((n for n in outputs if n.is_active_output and n.target in {"ALL", "CYCLES"}), None)
+    output = output or next(iter(outputs), None)
+    if output is None or not output.inputs["Surface"].is_linked:
+        return None
+    return output.inputs["Surface"].links[0].from_node
+
+
+def _linked_texture(socket):
+    """The image, and the UV map it is looked up with, of an Image Texture node linked to ``socket``."""
+    if not socket.is_linked:
+        return None, None
+    node = socket.links[0].from_node
+    if node.bl_idname != "ShaderNodeTexImage" or node.image is None:
+        return None, None
+    uv_map = ""
+    vector = node.inputs["Vector"]
+    if vector.is_linked and vector.links[0].from_node.bl_idname == "ShaderNodeUVMap":
+        uv_map = vector.links[0].from_node.uv_map
+    return node.image, uv_map
+
+
+def read_material(material, default_uv_map: str, warnings: list[str]) -> Material:
+    """Lambert albedo and emission of a Blender material (Principled, Diffuse or Emission)."""
+    if material is None:
+        return Material(name="none")
+    node = _surface_node(material) if material.use_nodes else None
+    if node is None:
+        return Material(name=material.name, base_color=np.array(material.diffuse_color[:3], np.float64))
+    result = Material(name=material.name)
+    if node.bl_idname in {"ShaderNodeBsdfPrincipled", "ShaderNodeBsdfDiffuse"}:
+        color_socket = node.inputs["Base Color" if node.bl_idname == "ShaderNodeBsdfPrincipled" else "Color"]
+        image, uv_map = _linked_texture(color_socket)
+        if image is not None:
+            result.base_color_texture = _image_pixels(image)
+            result.texture_uv_map = uv_map or default_uv_map
+        elif color_socket.is_linked:
+            warnings.append(f"material {material.name!r}: base colour comes from a "
+                            f"{color_socket.links[0].from_node.bl_idname} node; using its default value")
+        result.base_color = np.array(color_socket.default_value[:3], np.float64)
+        if node.bl_idname == "ShaderNodeBsdfPrincipled":
+            strength = float(node.inputs["Emission Strength"].default_value)
+            result.emission = np.array(node.inputs["Emission Color"].default_value[:3], np.float64) * strength
+            if node.inputs["Metallic"].default_value > 0 or node.inputs["Transmission Weight"].default_value > 0:
+                warnings.append(f"material {material.name!r}: metallic and transmission are ignored (Lambert only)")
+    elif node.bl_idname == "ShaderNodeEmission":
+        strength = float(node.inputs["Strength"].default_value)
+        result.base_color = np.zeros(3)
+        result.emission = np.array(node.inputs["Color"].default_value[:3], np.float64) * strength
+    else:
+        warnings.append(f"material {material.name!r}: surface shader {node.bl_idname} is not supported; "
+                        "baked as grey diffuse")
+    return result
+
+
+def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tuple[int, int],
+              output: bool, warnings: list[str]) -> Mesh:
+    """The evaluated mesh of ``obj`` (modifiers applied) in world space, triangulated."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        count = len(mesh.loop_triangles)
+        positions = _read(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
+        triangles = _read(mesh.loop_triangles, "vertices", count, 3, np.int32)
+        loops = _read(mesh.loop_triangles, "loops", count, 3, np.int64)
+        material_index = _read(mesh.loop_triangles, "material_index", count, 1, np.int32)
+        normals = _read(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float64)
+        uv_maps = mesh_corner_uv(mesh, loops)
+        default_uv = next((layer.name for layer in mesh.uv_layers if layer.active_render), "")
+        materials = [read_material(slot.material, default_uv, warnings) for slot in evaluated.material_slots]
+    finally:
+        evaluated.to_mesh_clear()
+
+    matrix = _matrix(obj.matrix_world)
+    linear = matrix[:3, :3]
+    positions = positions @ linear.T + matrix[:3, 3]
+    normal_matrix = np.linalg.inv(linear).T if abs(np.linalg.det(linear)) > 1e-30 else linear
+    corner_normals = (normals[loops] @ normal_matrix.T).astype(np.float32)
+    if np.linalg.det(linear) < 0:
+        # A mirroring transform turns the winding around; restore counter-clockwise
+        # fronts so face normals still point where Blender shows them.
+        order = [0, 2, 1]
+        triangles = triangles[:, order]
+        corner_normals = corner_normals[:, order]
+        uv_maps = {name: uv[:, order] for name, uv in uv_maps.items()}
+    return Mesh(name=obj.name, positions=positions, triangles=triangles, corner_normals=corner_normals,
+                material_index=material_index, materials=materials, uv_maps=uv_maps,
+                bake_uv_map=bake_uv_map, resolution=resolution, output=output)
+
+
+def read_light(obj: bpy.types.Object) -> Light:
+    """A Blender lamp in Cycles' units (energy already includes the lamp's exposure)."""
+    light = obj.data
+    matrix = _matrix(obj.matrix_world)
+    axes = matrix[:3, :3]
+    scale = np.linalg.norm(axes, axis=0)
+    safe = np.where(scale > 0, scale, 1.0)
+    axis_x, axis_y, axis_z = (axes[:, i] / safe[i] for i in range(3))
+    strength = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
+    result = Light(name=obj.name, kind=light.type, color=np.array(light.color[:3], np.float64),
+                   strength=strength, position=matrix[:3, 3].copy(), direction=-axis_z)
+    if light.type == "SPOT":
+        result.spot_size = float(light.spot_size)
+        result.spot_blend = float(light.spot_blend)
+    if light.type == "AREA":
+        result.area_shape = light.shape
+        result.size_x = float(light.size) * scale[0]
+        size_y = light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size
+        result.size_y = float(size_y) * scale[1]
+        result.axis_x, result.axis_y = axis_x, axis_y
+    return result
+
+
+def read_world(scene: bpy.types.Scene, warnings: list[str]) -> World:
+    """Uniform world radiance (colour * strength of the Background node)."""
+    world = scene.world
+    if world is None:
+        return World()
+    if world.node_tree is None:
+        return World(np.array(world.color[:3], np.float64))
+    output = next((n for n in world.node_tree.nodes
+                   if n.bl_idname == "ShaderNodeOutputWorld" and n.is_active_output), None)
+    if output is None or not output.inputs["Surface"].is_linked:
+        return World()
+    node = output.inputs["Surface"].links[0].from_node
+    if node.bl_idname != "ShaderNodeBackground":
+        warnings.append(f"world: {node.bl_idname} is not supported; the world is treated as black")
+        return World()
+    if node.inputs["Color"].is_linked:
+        warnings.append("world: a textured background is not supported yet; using its colour value")
+    return World(np.array(node.inputs["Color"].default_value[:3], np.float64)
+                 * float(node.inputs["Strength"].default_value))
+
+
+def scene_lights(scene: bpy.types.Scene) -> list[bpy.types.Object]:
+    return [o for o in scene.objects if o.type == "LIGHT" and not o.hide_render
+            and o.data.type in {"SUN", "POINT", "SPOT", "AREA"}]
+
+
+def scene_meshes(scene: bpy.types.Scene) -> list[bpy.types.Object]:
+    return [o for o in scene.objects if o.type == "MESH" and not o.hide_render]

@@ -1,0 +1,156 @@
+"""Blender side of the atlas: which UV map each object bakes on, and unwrapping.
+
+A user's UV map is used when it is valid for baking; otherwise the mesh gets a new
+UV map named ``VisiBake`` (unwrapped with xatlas on the base mesh, so modifiers
+interpolate it like any other UV map). Maps VisiBake created are marked on the
+mesh, and only those are ever rewritten or removed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ..core.atlas import unwrap, uv_layout_problems
+
+UV_MAP_NAME = "VisiBake"
+INTERNAL_UV_MAP = "__visibake_internal__"
+OWNED_UV_KEY = "visibake_uv_map"
+# Share of the UV square xatlas typically fills; sizes a texel-density atlas before unwrapping.
+TYPICAL_PACKED_UV_AREA = 0.7
+
+
+class LayoutError(ValueError):
+    """An object cannot get a bake layout; the message says why."""
+
+
+@dataclass
+class LayoutPlan:
+    """How one object is laid out: the UV map to bake on and why it was chosen."""
+
+    uv_map: str
+    resolution: tuple[int, int]
+    reason: str
+    internal_uv: np.ndarray | None = None  # (m, 3, 2) for objects that get no UV map written
+    created: bool = False
+
+
+def owns_uv_map(mesh: bpy.types.Mesh, name: str) -> bool:
+    return mesh.get(OWNED_UV_KEY) == name and name in mesh.uv_layers
+
+
+def object_resolution(obj, settings, world_area: float, uv_area: float) -> tuple[int, int]:
+    """Atlas size: the object's own setting, else texel density, else the scene setting."""
+    own = obj.visibake.resolution if hasattr(obj, "visibake") else 0
+    if own > 0:
+        return own, own
+    if settings.texel_density > 0 and world_area > 0:
+        size = int(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * settings.texel_density))
+        size = int(np.clip(size, 8, 8192))
+        return size, size
+    return settings.resolution, settings.resolution
+
+
+def _triangle_areas(corners: np.ndarray) -> np.ndarray:
+    if corners.shape[-1] == 2:
+        a = corners[:, 1] - corners[:, 0]
+        b = corners[:, 2] - corners[:, 0]
+        return 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+
+
+def _base_triangles(mesh: bpy.types.Mesh):
+    mesh.calc_loop_triangles()
+    count = len(mesh.loop_triangles)
+    triangles = np.empty(count * 3, np.int32)
+    loops = np.empty(count * 3, np.int64)
+    mesh.loop_triangles.foreach_get("vertices", triangles)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    positions = np.empty(len(mesh.vertices) * 3, np.float64)
+    mesh.vertices.foreach_get("co", positions)
+    return positions.reshape(-1, 3), triangles.reshape(-1, 3), loops.reshape(-1, 3)
+
+
+def write_uv_map(mesh: bpy.types.Mesh, loops: np.ndarray, corner_uv: np.ndarray) -> bool:
+    """Write per-corner UVs into the owned ``VisiBake`` map; True if the map was created now."""
+    created = UV_MAP_NAME not in mesh.uv_layers
+    if created:
+        active = mesh.uv_layers.active_index if len(mesh.uv_layers) else -1
+        layer = mesh.uv_layers.new(name=UV_MAP_NAME, do_init=False)
+        if layer is None:
+            raise LayoutError(f"mesh {mesh.name!r} cannot hold another UV map (Blender allows 8)")
+        mesh[OWNED_UV_KEY] = UV_MAP_NAME
+        if active >= 0:
+            mesh.uv_layers.active_index = active
+    layer = mesh.uv_layers[UV_MAP_NAME]
+    per_loop = np.zeros((len(mesh.loops), 2), np.float32)
+    per_loop[loops.ravel()] = corner_uv.reshape(-1, 2)
+    layer.uv.foreach_set("vector", per_loop.ravel())
+    mesh.update()
+    return created
+
+
+def _unwrap(obj, positions, triangles, resolution):
+    try:
+        return unwrap(positions, triangles, resolution)
+    except (RuntimeError, ValueError) as error:
+        raise LayoutError(f"object {obj.name!r}: unwrapping failed at {resolution}x{resolution} ({error}); "
+                          "raise its resolution") from None
+
+
+def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, evaluated_triangles,
+                settings, output: bool) -> LayoutPlan:
+    """Choose (and for output objects, create) the UV layout ``obj`` bakes on.
+
+    ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it.
+    """
+    mesh = obj.data
+    world_area = float(np.sum(_triangle_areas(evaluated_positions[evaluated_triangles]))) if len(evaluated_triangles) else 0.0
+    candidates = []
+    if owns_uv_map(mesh, UV_MAP_NAME):
+        candidates.append(UV_MAP_NAME)
+    active = next((layer.name for layer in mesh.uv_layers if layer.active_render), None)
+    if active and active not in candidates and active != UV_MAP_NAME:
+        candidates.append(active)
+    rejected = []
+    for name in candidates:
+        corner_uv = evaluated_uv.get(name)
+        if corner_uv is None:
+            continue
+        uv_area = float(np.sum(_triangle_areas(corner_uv.astype(np.float64))))
+        resolution = object_resolution(obj, settings, world_area, uv_area)
+        problems = uv_layout_problems(corner_uv, *resolution)
+        if not problems:
+            why = "VisiBake's own UV map" if name == UV_MAP_NAME else "the mesh's UV map is valid for baking"
+            return LayoutPlan(name, resolution, why)
+        rejected.append(f"UV map {name!r}: {'; '.join(problems)}")
+
+    if UV_MAP_NAME in mesh.uv_layers and not owns_uv_map(mesh, UV_MAP_NAME) and output:
+        raise LayoutError(f"object {obj.name!r}: it has a UV map named {UV_MAP_NAME!r} that VisiBake did not "
+                          "create; rename it so VisiBake can add its own")
+    reason = "; ".join(rejected) if rejected else "the mesh has no UV map"
+    if output:
+        positions, triangles, loops = _base_triangles(mesh)
+        if len(triangles) == 0:
+            raise LayoutError(f"object {obj.name!r} has no faces")
+        resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
+        unwrapped = _unwrap(obj, positions, triangles, resolution[0])
+        created = write_uv_map(mesh, loops, unwrapped.corner_uv)
+        return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", created=created)
+    # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
+    # the evaluated mesh in memory and leave the user's mesh alone.
+    resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
+    unwrapped = _unwrap(obj, evaluated_positions, evaluated_triangles, resolution[0])
+    return LayoutPlan(INTERNAL_UV_MAP, resolution, f"unwrapped in memory, no UV map written ({reason})",
+                      internal_uv=unwrapped.corner_uv)
+
+
+def remove_created_uv_maps(created: list[tuple[bpy.types.Mesh, str]]) -> None:
+    """Undo :func:`write_uv_map` for maps created during a bake that did not finish."""
+    for mesh, name in created:
+        layer = mesh.uv_layers.get(name)
+        if layer is not None:
+            mesh.uv_layers.remove(layer)
+        if mesh.get(OWNED_UV_KEY) == name:
+            del mesh[OWNED_UV_KEY]

@@ -1,0 +1,72 @@
+"""The settings model: scene settings (scene.visibake) and per-object settings."""
+import bpy
+
+from ..core.scene import BakeSettings, PASSES
+
+_PASS_ITEMS = [(p, p.capitalize(), f"Write the {p} pass") for p in PASSES]
+
+
+class VisiBakeSceneSettings(bpy.types.PropertyGroup):
+    directions: bpy.props.IntProperty(
+        name="Directions", default=128, min=1, soft_min=16, soft_max=1024,
+        description="Size of the global direction set: rays per texel for visibility (more: less noise, slower)")
+    bounces: bpy.props.IntProperty(
+        name="Bounces", default=2, min=0, soft_max=8,
+        description="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)")
+    shadows: bpy.props.EnumProperty(
+        name="Shadows", default="fractions",
+        items=[("fractions", "Fractions", "Shadows from the precomputed visibility (no ray at lighting time, soft)"),
+               ("exact", "Exact", "One shadow ray per texel and light (sharp, traced at every bake)")],
+        description="How direct light is shadowed")
+    passes: bpy.props.EnumProperty(
+        name="Passes", options={"ENUM_FLAG"}, items=_PASS_ITEMS, default={"lighting"},
+        description="Which passes to write")
+    resolution: bpy.props.IntProperty(
+        name="Resolution", default=256, min=1, soft_min=16, soft_max=4096,
+        description="Atlas width and height in texels for objects without their own resolution")
+    texel_density: bpy.props.FloatProperty(
+        name="Texels per Unit", default=0.0, min=0.0, soft_max=1024.0,
+        description="If above zero, size each atlas from the object's surface area instead of Resolution")
+    mode: bpy.props.EnumProperty(
+        name="Mode", default="auto",
+        items=[("auto", "Auto", "Texture atlas; vertex tables where unwrapping fails"),
+               ("atlas", "Atlas", "Texture atlas (UV map), results as images"),
+               ("vertex", "Vertex", "Per-vertex tables, results as colour attributes (not implemented yet)")],
+        description="Where samples live")
+    bake_all: bpy.props.BoolProperty(
+        name="All Objects", default=False,
+        description="Bake every visible mesh object instead of the selected ones")
+    rotate: bpy.props.BoolProperty(
+        name="Rotate Directions", default=False,
+        description="Randomly rotate the direction set (seeded): structured artefacts become noise")
+    seed: bpy.props.IntProperty(name="Seed", default=0, min=0, description="Seed of the direction rotation")
+    margin: bpy.props.IntProperty(
+        name="Margin", default=4, min=0, soft_max=32,
+        description="Texels the results are extended into the gutter so filtering never pulls in black")
+    output_dir: bpy.props.StringProperty(
+        name="Output Folder", subtype="DIR_PATH", default="",
+        description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")
+
+    def to_bake_settings(self) -> BakeSettings:
+        return BakeSettings(directions=self.directions, bounces=self.bounces, shadows=self.shadows,
+                            rotate=self.rotate, seed=self.seed, margin=self.margin,
+                            passes=tuple(p for p in PASSES if p in self.passes))
+
+
+class VisiBakeObjectSettings(bpy.types.PropertyGroup):
+    resolution: bpy.props.IntProperty(
+        name="Resolution", default=0, min=0, soft_max=4096,
+        description="Atlas size of this object in texels (0: the scene's setting)")
+
+
+classes = (VisiBakeSceneSettings, VisiBakeObjectSettings)
+
+
+def register_properties():
+    bpy.types.Scene.visibake = bpy.props.PointerProperty(type=VisiBakeSceneSettings)
+    bpy.types.Object.visibake = bpy.props.PointerProperty(type=VisiBakeObjectSettings)
+
+
+def unregister_properties():
+    del bpy.types.Object.visibake
+    del bpy.types.Scene.visibake

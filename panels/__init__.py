@@ -1,0 +1,4 @@
+"""User interface: the N-panel."""
+from . import main
+
+classes = main.classes

@@ -1,0 +1,37 @@
+"""The VisiBake tab of the 3D viewport sidebar (N-panel)."""
+import bpy
+
+
+class VIEW3D_PT_visibake(bpy.types.Panel):
+    bl_label = "VisiBake"
+    bl_idname = "VIEW3D_PT_visibake"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "VisiBake"
+
+    def draw(self, context):
+        layout = self.layout
+        props = context.scene.visibake
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        column = layout.column()
+        column.prop(props, "directions")
+        column.prop(props, "bounces")
+        column.prop(props, "shadows")
+        column.prop(props, "resolution")
+        column.prop(props, "texel_density")
+        column.prop(props, "mode")
+        column.prop(props, "bake_all")
+        column.prop(props, "output_dir")
+        layout.label(text="Passes")
+        layout.row().prop(props, "passes", expand=True)
+        obj = context.object
+        if obj is not None and obj.type == "MESH":
+            layout.prop(obj.visibake, "resolution", text=f"{obj.name} Resolution")
+        layout.operator("visibake.bake", icon="RENDER_STILL")
+        last = context.scene.get("visibake_last_report")
+        if last:
+            layout.label(text=last)
+
+
+classes = (VIEW3D_PT_visibake,)

@@ -1,0 +1,114 @@
+"""Test scenes built with bmesh (no operators, no assets) for the bpy tests."""
+import math
+
+import bmesh
+import bpy
+import numpy as np
+
+
+def material(name, color, emission=(0.0, 0.0, 0.0), strength=0.0):
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
+    bsdf.inputs["Roughness"].default_value = 1.0
+    # No specular layer: Principled's diffuse lobe is then exactly Lambert, which is
+    # what VisiBake models (the layer would take a few percent from the diffuse).
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    bsdf.inputs["Emission Color"].default_value = (*emission, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = strength
+    return mat
+
+
+def mesh_object(name, build, mat=None, location=(0.0, 0.0, 0.0), uv_map="UVMap", flip=False):
+    """An object whose mesh ``build(bm, uv_layer)`` fills; optionally facing inwards."""
+    bm = bmesh.new()
+    uv_layer = bm.loops.layers.uv.new(uv_map) if uv_map else None
+    build(bm, uv_layer)
+    if flip:
+        bmesh.ops.reverse_faces(bm, faces=bm.faces)
+    mesh = bpy.data.meshes.new(name)
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location = location
+    if mat is not None:
+        mesh.materials.append(mat)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def grid(size, segments=1):
+    return lambda bm, uv: bmesh.ops.create_grid(bm, x_segments=segments, y_segments=segments, size=size,
+                                                 calc_uvs=uv is not None)
+
+
+def cube(size):
+    return lambda bm, uv: bmesh.ops.create_cube(bm, size=size, calc_uvs=uv is not None)
+
+
+def open_box(size):
+    """A cube without its top face."""
+    def build(bm, uv):
+        bmesh.ops.create_cube(bm, size=size, calc_uvs=uv is not None)
+        top = [f for f in bm.faces if f.normal.z > 0.9]
+        bmesh.ops.delete(bm, geom=top, context="FACES_ONLY")
+    return build
+
+
+def uv_sphere(radius, segments=32, rings=16):
+    return lambda bm, uv: bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=rings, radius=radius,
+                                                     calc_uvs=uv is not None)
+
+
+def sun(strength, tilt_degrees=0.0, name="Sun"):
+    light = bpy.data.lights.new(name, "SUN")
+    light.energy = strength
+    light.angle = 0.0
+    obj = bpy.data.objects.new(name, light)
+    obj.rotation_euler = (math.radians(tilt_degrees), 0.0, 0.0)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def point(power, location, name="Point"):
+    light = bpy.data.lights.new(name, "POINT")
+    light.energy = power
+    light.shadow_soft_size = 0.0
+    obj = bpy.data.objects.new(name, light)
+    obj.location = location
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def black_world():
+    world = bpy.data.worlds.new("Black")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
+    bpy.context.scene.world = world
+
+
+def image_pixels(name):
+    image = bpy.data.images[name]
+    width, height = image.size
+    pixels = np.empty(width * height * 4, np.float32)
+    image.pixels.foreach_get(pixels)
+    return pixels.reshape(height, width, 4)
+
+
+def bake_uv_map(obj):
+    """The UV map VisiBake baked ``obj`` on: its own map if it made one, else the render map."""
+    layers = obj.data.uv_layers
+    if "VisiBake" in layers:
+        return "VisiBake"
+    return next(layer.name for layer in layers if layer.active_render)
+
+
+def relative_rmse(ours, reference, mask):
+    difference = ours[mask][:, :3] - reference[mask][:, :3]
+    return float(np.sqrt(np.mean(difference ** 2)) / np.mean(reference[mask][:, :3]))
+
+
+def select_only(objects):
+    for obj in bpy.context.scene.objects:
+        obj.select_set(obj in objects)

@@ -1,0 +1,93 @@
+"""The headless command: arguments, exit status, files, report, and the bpy-module route."""
+import json
+import os
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_scenes import black_world, cube, grid, material, mesh_object, sun
+from blender_support import REPO_ROOT
+
+
+@pytest.fixture
+def small_blend(clean_scene, tmp_path):
+    black_world()
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    mesh_object("Block", cube(0.5), material("Grey", (0.5, 0.5, 0.5)), location=(0, 0, 0.5), uv_map=None)
+    sun(3.0, tilt_degrees=20.0)
+    path = tmp_path / "small.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    return path
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["bake", "/no/such/file.blend"], "not found"),
+    (["bake", "{blend}", "--directions", "0"], "directions"),
+    (["bake", "{blend}", "--passes", "lighting,shine"], "shine"),
+    (["bake", "{blend}", "--objects", "Nope"], "Nope"),
+    (["bake", "{blend}", "--mode", "vertex"], "not implemented"),
+    (["bake", "{blend}", "--resolution", "-3"], "resolution"),
+    (["bake", "{blend}", "--shadows", "soft"], "invalid choice"),
+])
+def test_bad_input_exits_2_with_one_line(visibake, small_blend, capfd, arguments, message):
+    arguments = [a.format(blend=small_blend) for a in arguments]
+    assert visibake.cli.main(arguments) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert err and message in err[-1]
+
+
+def test_bake_writes_exrs_report_and_blend(visibake, small_blend, tmp_path):
+    out = tmp_path / "out"
+    report_path = tmp_path / "report.json"
+    saved = tmp_path / "saved.blend"
+    status = visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--report", str(report_path),
+                                "--save", str(saved), "--resolution", "32", "--directions", "32",
+                                "--passes", "lighting,ao", "--no-progress"])
+    assert status == 0
+    for name in ("Ground", "Block"):
+        for pass_name in ("lighting", "ao"):
+            assert (out / name / f"{pass_name}.exr").is_file()
+    report = json.loads(report_path.read_text())
+    assert report["settings"]["directions"] == 32
+    assert {o["name"] for o in report["objects"]} == {"Ground", "Block"}
+    ground = next(o for o in report["objects"] if o["name"] == "Ground")
+    assert ground["uv_map"] == "UVMap" and ground["resolution"] == [32, 32] and ground["texels"] == 32 * 32
+    block = next(o for o in report["objects"] if o["name"] == "Block")
+    assert block["uv_map"] == "VisiBake" and block["uv_map_created"]
+    assert report["rays"]["visibility_cast"] > 0 and report["rays"]["visibility_skipped_below_horizon"] > 0
+    assert {"samples", "visibility", "direct", "transport", "outputs"} <= set(report["stage_seconds"])
+    assert report["peak_memory_bytes"] > 0
+    assert str(out / "Ground" / "lighting.exr") in report["files"]
+
+    # EXR row 0 is the top of the UV square, as Blender saves images: the file read
+    # top-down equals the image datablock flipped.
+    import OpenEXR
+    with OpenEXR.File(str(out / "Ground" / "lighting.exr")) as exr:
+        top_down = exr.channels()["RGBA"].pixels
+    bpy.ops.wm.open_mainfile(filepath=str(saved))
+    image = bpy.data.images["VB_Ground_lighting"]
+    pixels = np.empty(32 * 32 * 4, np.float32)
+    image.pixels.foreach_get(pixels)
+    np.testing.assert_allclose(top_down, pixels.reshape(32, 32, 4)[::-1], rtol=1e-6)
+    assert image.packed_file is not None  # the saved .blend carries its results
+    assert "VisiBake" in bpy.data.objects["Block"].data.uv_layers
+    assert np.all(np.isfinite(top_down))
+
+
+def test_tools_script_runs_the_same_command_with_the_bpy_module(small_blend, tmp_path):
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "visibake.py"), "bake", str(small_blend),
+                             "--out", str(out), "--resolution", "32", "--directions", "16", "--no-progress"],
+                            capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (out / "Ground" / "lighting.exr").is_file()
+    assert "VisiBake bake finished" in result.stdout
+    bad = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "visibake.py"), "bake", str(tmp_path / "missing.blend")],
+                         capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert bad.returncode == 2
+    assert "not found" in bad.stderr.strip().splitlines()[-1]

@@ -1,0 +1,133 @@
+"""Packaging: the manifest, the built zip, and the extension installed in bpy."""
+
+import importlib
+import json
+import os
+import re
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+from blender_support import (
+    REPO_ROOT,
+    ensure_built_zip,
+    extension_site_packages,
+    load_manifest,
+    operator_exists,
+)
+
+DEV_DIRS = ("tests/", "benchmarks/", "tools/")
+NEVER_SHIPPED = DEV_DIRS + ("docs/", ".ci/", ".venv/", "dist/", "out/", ".git", "Makefile", "requirements")
+BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR")
+
+
+def _wheel_names(manifest):
+    return [Path(w).name for w in manifest["wheels"]]
+
+
+def test_manifest_identity():
+    manifest = load_manifest()
+    assert manifest["id"] == "visibake"
+    assert manifest["type"] == "add-on"
+    assert manifest["schema_version"] == "1.0.0"
+    assert set(manifest["platforms"]) == {"linux-x64", "windows-x64", "macos-arm64"}
+
+
+def test_manifest_lists_exactly_the_downloaded_wheels():
+    manifest = load_manifest()
+    assert all(w.startswith("./wheels/") for w in manifest["wheels"])
+    on_disk = sorted(p.name for p in (REPO_ROOT / "wheels").glob("*.whl"))
+    assert sorted(_wheel_names(manifest)) == on_disk
+
+
+def test_manifest_wheels_match_pins_one_per_platform():
+    pins = dict(
+        re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (REPO_ROOT / "requirements-wheels.txt").read_text(), re.M)
+    )
+    pins = {name.lower(): version for name, version in pins.items()}
+    platform_tag = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "macosx"}
+    found = set()
+    for wheel in _wheel_names(load_manifest()):
+        dist, version, *_ = wheel.split("-")
+        assert pins.get(dist.lower()) == version, f"{wheel} does not match requirements-wheels.txt"
+        (platform,) = [p for p, tag in platform_tag.items() if tag in wheel]
+        found.add((dist.lower(), platform))
+    assert found == {(d, p) for d in pins for p in platform_tag}
+
+
+def test_manifest_build_excludes_dev_dirs():
+    patterns = load_manifest()["build"]["paths_exclude_pattern"]
+    for d in DEV_DIRS:
+        assert d in patterns or "/" + d in patterns
+
+
+def test_zip_ships_package_and_wheels_only():
+    names = zipfile.ZipFile(ensure_built_zip()).namelist()
+    leaked = [n for n in names if n.startswith(NEVER_SHIPPED) or "__pycache__" in n]
+    assert not leaked
+    assert "blender_manifest.toml" in names
+    assert "__init__.py" in names
+    wheels = {f"wheels/{w}" for w in _wheel_names(load_manifest())}
+    assert wheels <= set(names)
+    assert not [n for n in names if n.startswith("wheels/") and n not in wheels]
+
+
+def test_bake_operator_registered(visibake):
+    assert operator_exists("visibake.bake")
+
+
+def test_extension_module_name(visibake):
+    assert visibake.__name__ == "bl_ext.user_default.visibake"
+    assert Path(visibake.__file__).is_relative_to(extension_site_packages().parents[3])
+
+
+def test_bundled_wheels_importable(visibake):
+    # In-process, as the extension's code would import them.
+    for name in BUNDLED_MODULES:
+        importlib.import_module(name)
+
+
+def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
+    # Blender appends its wheel folder to sys.path, after the venv's copies, so prove the
+    # installed wheels themselves work: a fresh bpy process (same user profile) with that
+    # folder first on sys.path, importing and running each one.
+    site = extension_site_packages()
+    assert site.is_dir()
+    script = textwrap.dedent(
+        """
+        import json, os, sys
+        import bpy  # sets up sys.path from BLENDER_USER_RESOURCES (inherited)
+        import numpy as np
+        site = sys.argv[1]
+        assert site in sys.path, "Blender did not add its extension site-packages to sys.path"
+        sys.path.remove(site)
+        sys.path.insert(0, site)
+        import xatlas, embreex, OpenEXR
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+        tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+        _, indices, uvs = xatlas.parametrize(tri, np.array([[0, 1, 2]], np.uint32))
+        scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene, tri[None])
+        hit = scene.run(np.array([[0.2, 0.2, 1.0]], np.float32), np.array([[0, 0, -1.0]], np.float32))
+        exr = os.path.join(sys.argv[2], "t.exr")
+        OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": np.ones((2, 2, 3), np.float32)}).write(exr)
+        with OpenEXR.File(exr) as f:
+            shape = list(f.channels()["RGB"].pixels.shape)
+        print(json.dumps({
+            "files": {m.__name__: m.__file__ for m in (xatlas, embreex, OpenEXR)},
+            "uvs": list(uvs.shape), "hit": int(hit[0]), "exr": shape,
+        }))
+        """
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", script, str(site), str(tmp_path)],
+        capture_output=True, text=True, timeout=300, env=os.environ.copy(),
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    for name, path in result["files"].items():
+        assert Path(path).is_relative_to(site), f"{name} imported from {path}, not from {site}"
+    assert result["uvs"] == [3, 2] and result["hit"] == 0 and result["exr"] == [2, 2, 3]

@@ -1,0 +1,80 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from core.directions import ShadowRegions, spherical_fibonacci
+from core.shadows import shadow_fractions
+from core.transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
+from core.visibility import BELOW_HORIZON, MISS, VisibilityTable
+
+
+def _table(directions, normals, hit_object, hit_uv):
+    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv)
+
+
+def _open_table(count, normals, code=MISS):
+    d = spherical_fibonacci(count)
+    above = (normals @ d.T).T > 0
+    hit = np.where(above, code, BELOW_HORIZON).astype(np.int16)
+    return _table(d, normals, hit, np.zeros((count, len(normals), 2), np.float32))
+
+
+@pytest.mark.parametrize("count", [1, 7, 32, 128, 513])
+def test_white_furnace_is_exact_for_any_direction_count(count):
+    normals = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -1.0, 0.0]])
+    table = _open_table(count, normals)
+    scale = gather_normalisation(table, normals)
+    layout = AtlasLayout.from_sizes([(2, 2)])
+    radiance = np.zeros((layout.size, 3), np.float32)
+    irradiance = gather(table, normals, scale, layout, radiance, np.ones(3))
+    open_samples = scale > 0
+    np.testing.assert_allclose(irradiance[open_samples], np.pi, rtol=1e-12)
+    np.testing.assert_allclose(ambient_occlusion(table, normals, scale)[open_samples], 1.0)
+
+
+def test_gather_of_uniform_atlas_equals_pi_times_radiance():
+    normals = np.array([[0.0, 0.0, 1.0]] * 4)
+    d = spherical_fibonacci(64)
+    hit = np.where((normals @ d.T).T > 0, 0, BELOW_HORIZON).astype(np.int16)
+    rng = np.random.default_rng(1)
+    uv = rng.uniform(0, 1, size=(64, 4, 2)).astype(np.float32)
+    table = _table(d, normals, hit, uv)
+    layout = AtlasLayout.from_sizes([(8, 4)])
+    flat = layout.pack([np.full((4, 8, 3), 0.25, np.float32)])
+    irradiance = gather(table, normals, gather_normalisation(table, normals), layout, flat, np.zeros(3))
+    np.testing.assert_allclose(irradiance, np.pi * 0.25, rtol=1e-6)
+
+
+@given(st.floats(0, 1), st.floats(0, 1), st.integers(1, 9), st.integers(1, 9))
+@settings(max_examples=100, deadline=None)
+def test_bilinear_reproduces_a_linear_ramp(u, v, width, height):
+    # A ramp in x is reproduced exactly between texel centres and clamped outside.
+    layout = AtlasLayout.from_sizes([(3, 2), (width, height)])
+    x = (np.arange(width) + 0.5) / width
+    ramp = np.repeat(np.repeat(x[None, :, None], height, 0), 3, 2).astype(np.float32)
+    flat = layout.pack([np.zeros((2, 3, 3), np.float32), ramp])
+    value = layout.bilinear(flat, np.array([1]), np.array([[u, v]], np.float32))[0, 0]
+    expected = np.clip(u, x[0], x[-1])
+    assert value == pytest.approx(expected, abs=1e-5)
+
+
+def test_shadow_fractions_count_only_traced_directions():
+    normals = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    d = spherical_fibonacci(256)
+    above = (normals @ d.T).T > 0
+    hit = np.where(above, MISS, BELOW_HORIZON).astype(np.int16)
+    # Sample 1 is covered by a roof: every direction steeper than 45 degrees hits.
+    roof = above[:, 1] & (d[:, 2] > np.cos(np.radians(45)))
+    hit[roof, 1] = 0
+    table = _table(d, normals, hit, np.zeros((256, 2, 2), np.float32))
+    fractions = shadow_fractions(table, ShadowRegions(d, 32))
+    overhead = np.array([[0.0, 0.0, 1.0]] * 2)
+    grazing = np.array([[np.cos(np.radians(10)), 0.0, np.sin(np.radians(10))]] * 2)
+    v_overhead = fractions.visibility(overhead)
+    v_grazing = fractions.visibility(grazing)
+    assert v_overhead[0] == pytest.approx(1.0)
+    assert v_grazing[0] == pytest.approx(1.0)  # below-horizon directions do not darken grazing light
+    assert v_overhead[1] < 0.1
+    assert v_grazing[1] > 0.9
+    f = fractions.fractions()
+    assert np.all((f >= 0) & (f <= 1))
