@@ -21,6 +21,22 @@ UV_RANGE_SLACK = 1e-6
 # would be ignored by xatlas and is dropped up front instead.
 UNWRAP_MIN_DOUBLED_AREA = 8.0 * float(np.finfo(np.float32).eps)
 
+# xatlas (0.0.11 and upstream, jpcy/xatlas#146) grows "planar" regions across any
+# two neighbouring faces whose normals' dot product is within 1e-4 of 1 (0.81
+# degrees), transitively, then projects each region flat. On a finely tessellated
+# smooth surface (e.g. an 80k-face icosphere) such a region wraps round the whole
+# surface: projected flat it overlaps itself, and when closed xatlas segfaults.
+# Regions whose normals stray further than this from their mean are broken up
+# before unwrapping by nudging their vertices along the normal...
+PLANAR_CHAIN_MAX_ANGLE_DEG = 15.0
+# ...by this fraction of the median edge length (tilting neighbouring faces by
+# about a degree, past xatlas's threshold), doubling on each retry.
+PLANAR_CHAIN_NUDGE = 0.02
+PLANAR_CHAIN_TRIES = 4
+# xatlas's test is |dot - 1| <= 1e-4; ours is a little looser so that float32 rounding of
+# the normals cannot hide a chain xatlas would follow.
+PLANAR_CHAIN_DOT_SLACK = 1.05e-4
+
 # xatlas's charting dominates the cost (~85 % at 20k triangles); its defaults are
 # already the fast ones (max_iterations=1, bruteForce=False). Repacking the cut
 # charts is cheap (~0.1 s at 20k triangles), so when the atlas overshoots the
@@ -212,6 +228,7 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     vertices, local = np.unique(tri[kept], return_inverse=True)
     local = local.reshape(-1, 3).astype(np.uint32)
     xpos = np.ascontiguousarray(((pos[vertices] - centre) * scale).astype(np.float32))
+    xpos = _break_planar_chains(xpos, local)
 
     atlas = xatlas.Atlas()
     atlas.add_mesh(xpos, local)
@@ -298,6 +315,99 @@ def _repack(texel_uv: np.ndarray, faces: np.ndarray, resolution: int, padding: i
             return placed, density * scale, _outside_charts(atlas, faces)
         scale *= min(resolution / max(size, 1), 1.0) * UNWRAP_REPACK_SHRINK
     raise RuntimeError(f"xatlas could not fit the charts into one {resolution}x{resolution} atlas")
+
+
+def _break_planar_chains(xpos: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Nudge the vertices of curved near-coplanar face chains so xatlas cannot make them one planar chart.
+
+    Parameters
+    ----------
+    xpos : (v, 3) float32, normalised positions (median edge length 1)
+    faces : (f, 3) uint32
+
+    Returns
+    -------
+    xpos : (v, 3) float32, the input itself when nothing needed breaking
+    """
+    # Colocated vertices are one vertex to xatlas; nudging them apart would tear the mesh.
+    _, weld = np.unique(xpos, axis=0, return_inverse=True)
+    weld = weld.ravel()
+    welded = weld[faces.astype(np.int64)]
+    rng = np.random.default_rng(0)
+    nudge = PLANAR_CHAIN_NUDGE
+    for _ in range(PLANAR_CHAIN_TRIES):
+        hazard = _curved_planar_regions(xpos, faces, welded)
+        if not hazard.any():
+            return xpos
+        corners = xpos[faces[hazard]].astype(np.float64)
+        face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        vertex_normal = np.zeros((weld.max() + 1, 3))
+        for k in range(3):
+            np.add.at(vertex_normal, welded[hazard, k], face_normal)
+        length = np.linalg.norm(vertex_normal, axis=1, keepdims=True)
+        vertex_normal = np.divide(vertex_normal, length, out=np.zeros_like(vertex_normal), where=length > 0)
+        sign = rng.choice([-1.0, 1.0], size=len(vertex_normal))
+        offset = (nudge * sign)[:, None] * vertex_normal
+        xpos = (xpos + offset[weld]).astype(np.float32)
+        nudge *= 2.0
+    if _curved_planar_regions(xpos, faces, welded).any():
+        raise RuntimeError("unwrap: the mesh has smooth curved regions xatlas would flatten into one "
+                           "overlapping (or crashing) planar chart, and nudging them did not help")
+    return xpos
+
+
+def _curved_planar_regions(xpos: np.ndarray, faces: np.ndarray, welded: np.ndarray) -> np.ndarray:
+    """Faces in a chain xatlas would take as planar whose normals stray past PLANAR_CHAIN_MAX_ANGLE_DEG.
+
+    Parameters
+    ----------
+    xpos : (v, 3) float32
+    faces : (f, 3) uint32
+    welded : (f, 3) int64, corner vertices with colocated vertices merged
+
+    Returns
+    -------
+    hazard : (f, 3) bool
+    """
+    corners = xpos[faces].astype(np.float64)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    f = faces.shape[0]
+    # Faces sharing an edge are adjacent in the sorted edge list.
+    a = welded.ravel()
+    b = welded[:, [1, 2, 0]].ravel()
+    key = np.minimum(a, b) * (int(welded.max()) + 1) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    same = key[order[1:]] == key[order[:-1]]
+    f0 = order[:-1][same] // 3
+    f1 = order[1:][same] // 3
+    dot = np.einsum("ij,ij->i", normal[f0], normal[f1])
+    near = np.abs(dot - 1.0) <= PLANAR_CHAIN_DOT_SLACK
+    label = _components(f, f0[near], f1[near])
+    mean = np.zeros((f, 3))
+    np.add.at(mean, label, normal)
+    length = np.linalg.norm(mean, axis=1, keepdims=True)
+    mean = np.divide(mean, length, out=np.zeros_like(mean), where=length > 0)
+    spread = np.einsum("ij,ij->i", normal, mean[label])
+    lowest = np.full(f, np.inf)
+    np.minimum.at(lowest, label, spread)
+    return lowest[label] < np.cos(np.radians(PLANAR_CHAIN_MAX_ANGLE_DEG))
+
+
+def _components(count: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected-component label (the smallest member) of each of ``count`` nodes joined by edges a-b."""
+    parent = np.arange(count)
+    while True:
+        ra, rb = parent[a], parent[b]
+        differ = ra != rb
+        if not differ.any():
+            return parent
+        np.minimum.at(parent, np.maximum(ra[differ], rb[differ]), np.minimum(ra[differ], rb[differ]))
+        while True:
+            up = parent[parent]
+            if np.array_equal(up, parent):
+                break
+            parent = up
 
 
 def _outside_charts(atlas, faces: np.ndarray) -> np.ndarray:

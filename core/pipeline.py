@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .directions import ShadowRegions, direction_set
+from .emitters import emitter_irradiance, find_emitters, sampled_directly
 from .lights import light_contributions
 from .raster import dilate
 from .rays import RayScene, offset_ray_origins
@@ -218,13 +219,25 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
         skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
 
     stages.start("direct")
-    fractions = None
+    regions = None
+    distant_fractions = None
     if scene.lights and settings.shadows == "fractions":
-        fractions = shadow_fractions(table, ShadowRegions(directions, settings.shadow_regions))
-    lamp_irradiance = np.zeros((len(position), 3))
+        regions = ShadowRegions(directions, settings.shadow_regions)
+    # E_d: everything that reaches a sample without a bounce (lamps, sampled emitters,
+    # gathered emission and world). Bounces then only ever carry reflected light.
+    direct_irradiance = np.zeros((len(position), 3))
     shadow_rays = 0
-    origins = offset_ray_origins(position, geometric) if settings.shadows == "exact" else None
+    origins = offset_ray_origins(position, geometric)
     for light_index, light in enumerate(scene.lights):
+        fractions = None
+        if regions is not None:
+            if light.kind == "SUN":
+                if distant_fractions is None:
+                    distant_fractions = shadow_fractions(table, regions)
+                fractions = distant_fractions
+            else:
+                light_distance = np.linalg.norm(position - np.asarray(light.position, np.float64), axis=1)
+                fractions = shadow_fractions(table, regions, light_distance)
         for part in light_contributions(light, position, normal, settings.area_light_samples):
             above = np.einsum("kd,kd->k", part.to_light, geometric) > 0.0
             lit = above & np.any(part.irradiance > 0, axis=1)
@@ -239,14 +252,31 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
                     blocked = ray_scene.occluded(origins[rays], part.to_light[rays], limit.astype(np.float32))
                     visibility[rays[blocked]] = 0.0
                     shadow_rays += len(rays)
-            lamp_irradiance += part.irradiance * visibility[:, None]
-        stages.report((light_index + 1) / len(scene.lights))
+            direct_irradiance += part.irradiance * visibility[:, None]
+        stages.report((light_index + 1) / (len(scene.lights) + 1))
     if settings.shadows == "exact":
         skipped.append("shadow fractions: shadows are exact")
 
-    gathered_emission = np.zeros_like(lamp_irradiance)
-    gathered = np.zeros_like(lamp_irradiance)
+    exclude = None
+    emitters = find_emitters(meshes, settings.emitter_samples) if needs_gather else []
+    emitter_rays = 0
+    for emitter in emitters:
+        direct = sampled_directly(emitter, position, settings.directions)
+        if not np.any(direct):
+            continue
+        if exclude is None:
+            exclude = np.zeros((len(position), len(meshes)), bool)
+        exclude[:, emitter.object_index] = direct
+        chosen = np.nonzero(direct)[0]
+        irradiance, rays = emitter_irradiance(emitter, position[chosen], normal[chosen], geometric[chosen],
+                                              origins[chosen], ray_scene)
+        direct_irradiance[chosen] += irradiance
+        emitter_rays += rays
+    stages.report(1.0)
+
+    gathered = np.zeros_like(direct_irradiance)
     gathers = 0
+    scale = None
     if needs_gather:
         stages.start("transport")
         scale = gather_normalisation(table, normal)
@@ -256,31 +286,29 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
             return lambda fraction: stages.report((step + fraction) / total)
 
         if has_emission or has_world:
-            gathered_emission = gather(table, normal, scale, layout, to_atlas(emission), world, step_progress(0))
+            direct_irradiance += gather(table, normal, scale, layout, to_atlas(emission), world,
+                                        step_progress(0), exclude, settings.threads)
             gathers += 1
         else:
             skipped.append("gather of emitted light: the scene has no emission and no world light")
-        incoming = gathered_emission
+        no_world = np.zeros(3)
         for bounce in range(1, settings.bounces + 1):
-            outgoing = emission + albedo / np.pi * (lamp_irradiance + incoming)
-            incoming = gather(table, normal, scale, layout, to_atlas(outgoing), world, step_progress(bounce))
+            reflected = albedo / np.pi * (direct_irradiance + gathered)
+            gathered = gather(table, normal, scale, layout, to_atlas(reflected), no_world, step_progress(bounce),
+                              threads=settings.threads)
             gathers += 1
-        gathered = incoming
     else:
         skipped.append("indirect gathers: bounces = 0 and nothing emits")
-        scale = None
 
     stages.start("outputs")
     per_pass: dict[str, np.ndarray] = {}
-    irradiance = lamp_irradiance + gathered
+    irradiance = direct_irradiance + gathered
     if "lighting" in wants:
         per_pass["lighting"] = albedo / np.pi * irradiance
-    if "direct" in wants or "indirect" in wants:
-        direct = albedo / np.pi * (lamp_irradiance + gathered_emission)
-        if "direct" in wants:
-            per_pass["direct"] = direct
-        if "indirect" in wants:
-            per_pass["indirect"] = np.clip(albedo / np.pi * irradiance - direct, 0.0, None)
+    if "direct" in wants:
+        per_pass["direct"] = albedo / np.pi * direct_irradiance
+    if "indirect" in wants:
+        per_pass["indirect"] = albedo / np.pi * gathered
     if "irradiance" in wants:
         per_pass["irradiance"] = irradiance / np.pi
     if "ao" in wants:
@@ -316,7 +344,9 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
             "visibility_skipped_below_horizon": int(table.rays_below_horizon) if table else 0,
             "backface_hits": int(table.backface_hits) if table else 0,
             "shadow_rays": int(shadow_rays),
+            "emitter_rays": int(emitter_rays),
         },
+        "emitters_sampled": [meshes[e.object_index].name for e in emitters],
         "gathers": gathers,
         "table_bytes": int(table.nbytes) if table else 0,
         "skipped": skipped,

@@ -83,11 +83,13 @@ class RayScene:
         geometry : (n,) int32, -1 for a miss
         triangle : (n,) int32
         barycentric_uv : (n, 2) float32, embree's (u, v): hit = (1-u-v) p0 + u p1 + v p2
+        distance : (n,) float32 along the (unit) direction, inf for a miss
         """
         count = len(origins)
         geometry = np.empty(count, np.int32)
         triangle = np.empty(count, np.int32)
         bary = np.empty((count, 2), np.float32)
+        distance = np.empty(count, np.float32)
 
         def run(span):
             a, b = span
@@ -97,9 +99,10 @@ class RayScene:
             triangle[a:b] = out["primID"]
             bary[a:b, 0] = out["u"]
             bary[a:b, 1] = out["v"]
+            distance[a:b] = np.where(out["geomID"] >= 0, out["tfar"], np.inf)
 
         self._map(run, count)
-        return geometry, triangle, bary
+        return geometry, triangle, bary, distance
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None) -> np.ndarray:
         """Whether anything lies on each ray before ``distances`` (default: infinity).

@@ -114,6 +114,7 @@ class BakeSettings:
     passes : output passes, a subset of PASSES
     margin : gutter width in texels that results are dilated into
     area_light_samples : grid points per side used to integrate an area light
+    emitter_samples : points per emissive object for direct sampling of small emitters
     threads : worker threads for ray tracing (0: all cores)
     chunk_rays : rays traced per batch; bounds the memory of the tracing stage
     """
@@ -127,6 +128,7 @@ class BakeSettings:
     passes: tuple[str, ...] = ("lighting",)
     margin: int = 4
     area_light_samples: int = 8
+    emitter_samples: int = 16
     threads: int = 0
     chunk_rays: int = 1 << 20
 
@@ -147,3 +149,5 @@ class BakeSettings:
             raise ValueError(f"margin must be >= 0, got {self.margin}")
         if self.area_light_samples < 1:
             raise ValueError("area light samples must be >= 1")
+        if self.emitter_samples < 1:
+            raise ValueError("emitter samples must be >= 1")

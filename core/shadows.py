@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import tolerances as tol
 from .directions import ShadowRegions
 from .visibility import BELOW_HORIZON, MISS, VisibilityTable
 
@@ -47,13 +48,29 @@ class ShadowFractions:
         return np.divide(numerator, denominator, out=np.zeros_like(numerator), where=denominator > 0)
 
 
-def shadow_fractions(table: VisibilityTable, regions: ShadowRegions) -> ShadowFractions:
-    """Count, per sample and region, the traced directions and the misses among them."""
+def shadow_fractions(table: VisibilityTable, regions: ShadowRegions,
+                     light_distance: np.ndarray | None = None) -> ShadowFractions:
+    """Count, per sample and region, the traced directions and the unoccluded ones.
+
+    Parameters
+    ----------
+    light_distance : (K,) float or None
+        Distance from each sample to a local light. Hits beyond it do not shadow
+        that light. None (a distant light) counts only misses, as in the paper; a
+        point light inside a closed room would otherwise be fully shadowed, since
+        every direction from inside hits a wall somewhere.
+    """
     samples = table.hit_object.shape[1]
     lit = np.zeros((samples, regions.count), np.uint16)
     traced = np.zeros((samples, regions.count), np.uint16)
+    limit = None
+    if light_distance is not None:
+        limit = (np.asarray(light_distance, np.float64) * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)
     for i, region in enumerate(regions.nearest):
         row = table.hit_object[i]
         traced[:, region] += row != BELOW_HORIZON
-        lit[:, region] += row == MISS
+        if limit is None:
+            lit[:, region] += row == MISS
+        else:
+            lit[:, region] += (row != BELOW_HORIZON) & (table.hit_distance[i] >= limit)
     return ShadowFractions(regions=regions, lit=lit, traced=traced)

@@ -28,3 +28,8 @@ MIN_WEIGHT_SUM = 1e-12
 # texel centre on, or a hair outside, a chart edge otherwise sits on the plane of the
 # adjacent face (a floor meeting a wall) and its rays hit that face at t ~ 0.
 SAMPLE_BARYCENTRIC_INSET = 1e-3
+
+# An emissive object is sampled directly (next-event estimation) from samples that
+# see it under fewer than this many direction cells (4*pi/N each); there the fixed
+# directions would show it as blobs ("ray effects"). Larger emitters are gathered.
+EMITTER_DIRECT_CELLS = 8.0

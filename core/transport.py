@@ -6,6 +6,8 @@ row, so a bilinear lookup always finds its four texels without bounds checks.
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,7 +84,8 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndar
 
 
 def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layout: AtlasLayout,
-           radiance: np.ndarray, world: np.ndarray, progress=None) -> np.ndarray:
+           radiance: np.ndarray, world: np.ndarray, progress=None, exclude: np.ndarray | None = None,
+           threads: int = 0) -> np.ndarray:
     """E(p) = sum_i w_i(p) L(S_i[p]): irradiance from the radiance atlases and the world.
 
     Parameters
@@ -91,27 +94,45 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
     scale : (K,) from :func:`gather_normalisation`
     radiance : (layout.size, 3) float32 packed outgoing radiance of every object
     world : (3,) float radiance of rays that leave the scene
+    progress : callable(fraction) or None, called from the calling thread only
+    exclude : (K, O) bool or None; True where sample k must not gather object o
+        (its light reaches k by another route, e.g. sampled emitters)
+    threads : worker threads (0: all cores); each sums its own share of directions
 
     Returns
     -------
     irradiance : (K, 3) float64
     """
-    irradiance = np.zeros((len(normals), 3))
     world = np.asarray(world, np.float64)[:3]
     has_world = bool(np.any(world != 0))
     count = len(table.directions)
-    for i, direction in enumerate(table.directions):
-        weight = np.clip(normals @ direction, 0.0, None) * scale
-        row = table.hit_object[i]
-        hit = np.nonzero(row >= 0)[0]
-        if len(hit):
-            looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), table.hit_uv[i, hit])
-            irradiance[hit] += weight[hit, None] * looked_up
-        if has_world:
-            irradiance += (weight * (row == MISS))[:, None] * world
-        if progress is not None and (i % 16 == 15 or i == count - 1):
-            progress((i + 1) / count)
-    return irradiance
+    workers = max(1, threads or os.cpu_count() or 1)
+
+    def accumulate(indices):
+        irradiance = np.zeros((len(normals), 3))
+        for i in indices:
+            weight = np.clip(normals @ table.directions[i], 0.0, None) * scale
+            row = table.hit_object[i]
+            hit = np.nonzero(row >= 0)[0]
+            if exclude is not None and len(hit):
+                hit = hit[~exclude[hit, row[hit]]]
+            if len(hit):
+                looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), table.hit_uv[i, hit])
+                irradiance[hit] += weight[hit, None] * looked_up
+            if has_world:
+                irradiance += (weight * (row == MISS))[:, None] * world
+        return irradiance
+
+    total = np.zeros((len(normals), 3))
+    block = 8 * workers
+    with ThreadPoolExecutor(workers) as pool:
+        for start in range(0, count, block):
+            shares = [range(start + w, min(count, start + block), workers) for w in range(workers)]
+            for part in pool.map(accumulate, [s for s in shares if len(s)]):
+                total += part
+            if progress is not None:
+                progress(min(count, start + block) / count)
+    return total
 
 
 def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray) -> np.ndarray:

@@ -25,23 +25,26 @@ class VisibilityTable:
     directions : (N, 3) float64
     hit_object : (N, K) int16, object index, or MISS / BELOW_HORIZON / BACKFACE
     hit_uv : (N, K, 2) float32, atlas coordinate of the hit (0 where no hit)
+    hit_distance : (N, K) float32, distance to the hit (inf where nothing was hit),
+        so shadow fractions can ignore occluders beyond a local light
     """
 
     directions: np.ndarray
     hit_object: np.ndarray
     hit_uv: np.ndarray
+    hit_distance: np.ndarray
     rays_cast: int = 0
     rays_below_horizon: int = 0
     backface_hits: int = 0
 
     @property
     def nbytes(self) -> int:
-        return self.hit_object.nbytes + self.hit_uv.nbytes
+        return self.hit_object.nbytes + self.hit_uv.nbytes + self.hit_distance.nbytes
 
 
 def table_bytes(directions: int, samples: int) -> int:
     """Memory the table of ``samples`` samples needs, for refusing before allocating."""
-    return directions * samples * (2 + 8)
+    return directions * samples * (2 + 8 + 4)
 
 
 def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarray,
@@ -68,6 +71,7 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
     samples = len(positions)
     hit_object = np.full((count, samples), BELOW_HORIZON, np.int16)
     hit_uv = np.zeros((count, samples, 2), np.float32)
+    hit_distance = np.full((count, samples), np.inf, np.float32)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     chunk = max(1, chunk_rays // max(count, 1))
@@ -78,7 +82,7 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
         above = (geometric_normals[start:stop] @ directions.T) > 0.0
         sample_index, direction_index = np.nonzero(above)
         if len(sample_index):
-            geometry, triangle, bary = ray_scene.intersect(origins_all[start:stop][sample_index],
+            geometry, triangle, bary, distance = ray_scene.intersect(origins_all[start:stop][sample_index],
                                                            directions32[direction_index])
             rows = direction_index
             cols = sample_index + start
@@ -96,9 +100,10 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
             code = np.where(back, BACKFACE, geometry[hit]).astype(np.int16)
             hit_object[rows[hit], cols[hit]] = code
             hit_uv[rows[hit], cols[hit]] = np.where(back[:, None], 0.0, landing)
+            hit_distance[rows[hit], cols[hit]] = distance[hit]
             rays_cast += len(sample_index)
         if progress is not None:
             progress(stop / samples)
-    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv,
+    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv, hit_distance=hit_distance,
                            rays_cast=rays_cast, rays_below_horizon=count * samples - rays_cast,
                            backface_hits=backfaces)

@@ -195,8 +195,8 @@ def _link(collection, name, data, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 
 def build_demo_scene(scene: bpy.types.Scene) -> list[bpy.types.Object]:
     """Build the demo room into ``scene`` and return its mesh objects (the ones to bake).
 
-    Adds a collection "VisiBake Demo" holding 10 meshes, a sun ("Sun", 4 W/m^2, angle 0,
-    through the window), a point light ("PointLight", 300 W, radius 0), a camera
+    Adds a collection "VisiBake Demo" holding 10 meshes, a sun ("Sun", 5 W/m^2, angle 0,
+    through the window), a point light ("PointLight", 200 W, radius 0), a camera
     ("Camera", made the scene camera) and sets a black world ("VisiBake Demo World").
     Nothing else in the scene is touched (apart from the render resolution, 640 x 480).
     """

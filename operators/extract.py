@@ -93,6 +93,11 @@ def read_material(material, default_uv_map: str, warnings: list[str]) -> Materia
             result.emission = np.array(node.inputs["Emission Color"].default_value[:3], np.float64) * strength
             if node.inputs["Metallic"].default_value > 0 or node.inputs["Transmission Weight"].default_value > 0:
                 warnings.append(f"material {material.name!r}: metallic and transmission are ignored (Lambert only)")
+            if node.inputs["Specular IOR Level"].default_value > 0:
+                # Cycles' diffuse lobe loses what the dielectric layer reflects (about
+                # 1-4% at normal incidence); VisiBake treats base colour as albedo.
+                warnings.append(f"material {material.name!r}: its specular layer is ignored, so VisiBake is a few "
+                                "percent brighter than Cycles' diffuse bake (set Specular IOR Level to 0 to match)")
     elif node.bl_idname == "ShaderNodeEmission":
         strength = float(node.inputs["Strength"].default_value)
         result.base_color = np.zeros(3)
@@ -148,7 +153,23 @@ def read_light(obj: bpy.types.Object) -> Light:
     safe = np.where(scale > 0, scale, 1.0)
     axis_x, axis_y, axis_z = (axes[:, i] / safe[i] for i in range(3))
     strength = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
-    result = Light(name=obj.name, kind=light.type, color=np.array(light.color[:3], np.float64),
+    color = np.array(light.color[:3], np.float64)
+    if getattr(light, "use_temperature", False):
+        color = color * np.array(light.temperature_color[:3], np.float64)
+    if not getattr(light, "normalize", True):
+        # Unnormalised lamps (Blender 5), as measured against Cycles: a point emits
+        # four times its normalised intensity, an area light radiance P/pi whatever
+        # its size; a sun's strength is only the same at angle 0.
+        if light.type in {"POINT", "SPOT"}:
+            strength *= 4.0
+        elif light.type == "AREA":
+            area = float(light.size) * float(light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size)
+            area *= float(scale[0] * scale[1]) * (np.pi / 4 if light.shape in {"DISK", "ELLIPSE"} else 1.0)
+            strength *= area
+        elif light.type == "SUN":
+            half = float(light.angle) / 2.0
+            strength *= 2.0 * np.pi * (1.0 - np.cos(half)) if half > 0 else 1.0
+    result = Light(name=obj.name, kind=light.type, color=color,
                    strength=strength, position=matrix[:3, 3].copy(), direction=-axis_z)
     if light.type == "SPOT":
         result.spot_size = float(light.spot_size)

@@ -2,9 +2,68 @@
 
 Used by tests and benchmarks only; never shipped in the extension.
 
-Units measured with this module (bpy 5.0.1, Cycles on CPU; numbers filled in below)
-------------------------------------------------------------------------------------
-UNITS_PLACEHOLDER
+Units measured with this module (bpy 5.0.1, Cycles on CPU, 2 cores)
+--------------------------------------------------------------------
+Baked value = DIFFUSE with pass filter {DIRECT, INDIRECT, COLOR} = rho * E / pi
+(outgoing Lambert radiance); without COLOR it is E / pi; COLOR alone is rho.
+"ratio" = baked / formula. Lights at their defaults: normalize=True, exposure=0.
+
+Material. A Principled BSDF is exactly Lambert only with Specular IOR Level = 0 (and
+Diffuse Roughness = 0, the default):
+    Principled, base colour 1, Specular IOR Level 0        ratio 1.00000 (sun 0 and 60 deg)
+    Principled defaults (Spec. IOR Level 0.5, IOR 1.5),
+      Roughness 1                                         ratio 0.98621 (0 and 60 deg)
+    Diffuse Roughness 1 (or Diffuse BSDF roughness 1)     ratio 0.95655 at 60 deg (Oren-Nayar)
+    Diffuse BSDF roughness 0                              ratio 1.00000
+The specular layer takes its albedo off the diffuse weight, so with default
+Principled materials Cycles is ~1.4% (Roughness 1) darker than rho * E / pi.
+
+Sun, strength S:           E = S * cos(theta).      S=3, angle 0: 0 deg 0.954929 vs
+                           0.954930, 60 deg 0.477465 vs 0.477465 (no noise at all: a
+                           zero-angle sun on a plane is deterministic). angle=10 deg: 0.99999.
+Point, power P, radius 0:  E = P * cos / (4 pi d^2). P=1000, 2 m above a 4 x 4 m plane,
+                           8 x 8 texels, 1024 spp: ratio to the texel-centre value mean
+                           0.9995, min 0.9961, max 1.0024 (the extremes are texels on the
+                           quad's diagonal, see "sampling" below). Radius 0.1: 1.0001.
+Spot:                      same as a point light of equal power inside the cone (ratio
+                           0.996-1.003, 90 deg cone, blend 0), 0 outside.
+Area (square/rect/disk):   radiance L = P / (pi * A), A = s^2, s_x*s_y or pi/4*s^2.
+                           Square s=0.5, 5 m above: ratio 0.9995 to the exact integral of
+                           L over the square (12.684 vs far-field P/(pi d^2) = 12.732);
+                           s=1: 0.9995; disk s=0.5: 0.9970 and rect 0.5x0.25: 0.9974 of
+                           P/(pi d^2). Noise 0.03% at 1024 spp.
+Emission (mesh light):     L = Emission Color * Emission Strength (ratio 0.997 for a
+                           0.5 m quad 2 m away, the same texel-extent effect as area lights).
+Blender 5 light properties that change these:
+    exposure             multiplies by 2**exposure (sun 2.000, point 2.004 at exposure 1).
+    use_temperature      multiplies by light.temperature_color (6500 K: 1.043, 0.984, 1.035).
+    normalize=False      sun: E = S * (solid angle of the sun disc), e.g. angle 0.2 rad
+                         gives 0.0313 S (and S for angle 0); point: x4.00 at radius 0,
+                         x3.11 at radius 0.5; area: L = P / pi, independent of A
+                         (ratio 0.2499 for A = 0.25, 0.0399 for A = 0.04).
+    diffuse_factor       no effect in Cycles (EEVEE only).
+    use_soft_falloff     no effect at radius 0.
+
+Bounces: diffuse_bounces = N gives paths with up to N diffuse reflections before the
+baked surface (0 = direct only). Floor rho 0.5 under a sun S = pi, a 400 m ceiling rho 0.8
+1 m above it, invisible to shadow rays: centre values 0.5000, 0.5000, 0.6998, 0.6998,
+0.7771 for N = 0..4 (infinite planes: 0.5, 0.5, 0.7, 0.7, 0.78).
+
+Sampling inside a texel: Cycles jitters the texel-centre position uniformly over a box
+of HALF a texel (Blender's bake differentials are half the true ones), retrying until the
+sample lies in the texel-centre's triangle. A point light 0.3 m above a plane fits a box
+of width 0.50 texel best (RMS 0.25%, against 0.42% for 0.55 and 6% for a full texel).
+Texel-centre lookups (VisiBake) therefore match Cycles to second order, except where
+the half-texel box straddles a triangle edge or a shadow edge.
+
+Coverage: the image is cleared to (0, 0, 0, 0); with margin = 0 texels whose centre no
+triangle covers stay (0, 0, 0, 0), so alpha > 0 is the coverage mask. Margins use
+margin_type EXTEND (copies, alpha 1); the default ADJACENT_FACES fades the margin of an
+island without UV neighbours to half value and half alpha.
+
+Cost: one bake call costs ~0.07 s of scene sync per object even when several objects
+are baked in one call. The demo room (10 objects, 5.1k triangles), 64 x 64 per object,
+16 spp: 1.1-3.2 s with 0 bounces, 4.3 s with 2; 128 x 128, 64 spp, 2 bounces: 39 s.
 """
 from __future__ import annotations
 
@@ -22,9 +81,8 @@ _LIVE_VALUE_TYPES = {"bpy_prop_array", "Vector", "Color", "Euler", "Quaternion"}
 class _Restorer:
     """Sets attributes and puts the old values back in reverse order.
 
-    Restoring in reverse matters: several Cycles settings clamp each other
-    (max_bounces vs diffuse_bounces), so undoing in the order of setting could
-    leave a clamped value behind.
+    Reverse order matters when one attribute is set twice (a mesh shared by two
+    objects, a material used in two slots): the last undo restores the original.
     """
 
     def __init__(self) -> None:
@@ -84,7 +142,7 @@ def reference_settings(
         r.set(cy, "film_exposure", 1.0)
         r.set(cy, "min_light_bounces", 0)
         r.set(cy, "min_transparent_bounces", 0)
-        # max_bounces first: diffuse_bounces is clamped by it in the path tracer.
+        # A path stops at whichever of max_bounces and the per-type limit comes first.
         r.set(cy, "max_bounces", max(int(bounces), 0))
         r.set(cy, "diffuse_bounces", int(bounces))
         r.set(cy, "glossy_bounces", 0)
@@ -100,6 +158,9 @@ def reference_settings(
             r.set(scene.render, "threads", int(threads))
         bake = scene.render.bake
         r.set(bake, "margin", int(margin))
+        # ADJACENT_FACES (the default) fades the outer margin texels of an island that
+        # has no UV neighbours to half value and half alpha; EXTEND copies texels.
+        r.set(bake, "margin_type", "EXTEND")
         r.set(bake, "target", "IMAGE_TEXTURES")
         r.set(bake, "save_mode", "INTERNAL")
         r.set(bake, "use_selected_to_active", False)
@@ -209,11 +270,9 @@ def _point_materials_at(
             r.set(tree.nodes, "active", node)
 
 
-def _selection_override(scene: bpy.types.Scene, group: Sequence[bpy.types.Object]) -> dict:
-    view_layer = scene.view_layers[0] if bpy.context.scene != scene else bpy.context.view_layer
+def _selection_override(group: Sequence[bpy.types.Object]) -> dict:
+    """Context members the bake operator reads, so the user's selection is not touched."""
     return dict(
-        scene=scene,
-        view_layer=view_layer,
         selected_objects=list(group),
         selected_editable_objects=list(group),
         active_object=group[0],
@@ -242,9 +301,9 @@ def bake_diffuse(
     width, height : image size in texels.
     bounces : Cycles diffuse bounces (0 = direct light only).
     samples : exact samples per texel (adaptive sampling is off).
-    pass_filter : subset of {'DIRECT', 'INDIRECT', 'COLOR', 'EMIT'}.
-    margin : bake margin in texels (0 = texels not covered by the UV map keep the
-        cleared value).
+    pass_filter : subset of {'DIRECT', 'INDIRECT', 'COLOR'}; COLOR alone gives the albedo.
+    margin : bake margin in texels, filled by copying (EXTEND). With 0, texels whose
+        centre no triangle covers stay (0, 0, 0, 0): alpha > 0 is the coverage mask.
     seed : Cycles seed.
     threads : CPU threads, 0 = automatic.
 
@@ -272,11 +331,12 @@ def bake_diffuse(
             added: list[tuple[bpy.types.NodeTree, bpy.types.Node]] = []
             try:
                 _point_materials_at(group, targets, r, added)
-                with bpy.context.temp_override(**_selection_override(scene, group)):
+                with bpy.context.temp_override(**_selection_override(group)):
                     result = bpy.ops.object.bake(
                         type="DIFFUSE",
                         pass_filter=passes,
                         margin=int(margin),
+                        margin_type="EXTEND",
                         target="IMAGE_TEXTURES",
                         save_mode="INTERNAL",
                         use_selected_to_active=False,

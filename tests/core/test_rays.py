@@ -38,7 +38,7 @@ def test_no_self_hits_far_from_origin(distance):
     dirs = rng.normal(size=(count, 3))
     dirs[:, 2] = np.abs(dirs[:, 2]) + 1e-3
     dirs /= np.linalg.norm(dirs, axis=1)[:, None]
-    geometry, _, _ = scene.intersect(offset_ray_origins(points, normals), dirs)
+    geometry, _, _, _ = scene.intersect(offset_ray_origins(points, normals), dirs)
     assert np.count_nonzero(geometry >= 0) == 0
 
 
@@ -48,7 +48,9 @@ def test_intersect_and_occluded_agree_with_geometry():
     scene = RayScene([ground, roof])
     origins = np.array([[0.0, 0.0, 0.5], [0.9, 0.9, 0.5], [0.0, 0.0, 0.5]])
     dirs = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
-    geometry, triangle, bary = scene.intersect(origins, dirs)
+    geometry, triangle, bary, distance = scene.intersect(origins, dirs)
+    np.testing.assert_allclose(distance[[0, 2]], [0.5, 0.5], rtol=1e-6)
+    assert np.isinf(distance[1])
     assert list(geometry) == [1, -1, 0]
     assert list(scene.occluded(origins, dirs)) == [True, False, True]
     # A bounded shadow ray stops short of the roof.
@@ -60,5 +62,5 @@ def test_empty_and_degenerate_meshes_are_never_hit():
     degenerate = (np.array([[0, 0, 1.0], [1, 0, 1.0], [2, 0, 1.0]]), np.array([[0, 1, 2]], np.int32))
     nan = (np.array([[np.nan, 0, 1.0], [1, 0, 1.0], [0, 1, 1.0]]), np.array([[0, 1, 2]], np.int32))
     scene = RayScene([empty, degenerate, nan])
-    geometry, _, _ = scene.intersect(np.array([[0.5, 0.0, 0.0], [0.2, 0.2, 0.0]]), np.array([[0, 0, 1.0], [0, 0, 1.0]]))
+    geometry, _, _, _ = scene.intersect(np.array([[0.5, 0.0, 0.0], [0.2, 0.2, 0.0]]), np.array([[0, 0, 1.0], [0, 0, 1.0]]))
     assert list(geometry) == [-1, -1]

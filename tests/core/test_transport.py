@@ -8,8 +8,10 @@ from core.transport import AtlasLayout, ambient_occlusion, gather, gather_normal
 from core.visibility import BELOW_HORIZON, MISS, VisibilityTable
 
 
-def _table(directions, normals, hit_object, hit_uv):
-    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv)
+def _table(directions, normals, hit_object, hit_uv, hit_distance=None):
+    if hit_distance is None:
+        hit_distance = np.where(hit_object >= 0, 1.0, np.inf).astype(np.float32)
+    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv, hit_distance=hit_distance)
 
 
 def _open_table(count, normals, code=MISS):
@@ -78,3 +80,18 @@ def test_shadow_fractions_count_only_traced_directions():
     assert v_grazing[1] > 0.9
     f = fractions.fractions()
     assert np.all((f >= 0) & (f <= 1))
+
+
+def test_fractions_ignore_occluders_beyond_a_local_light():
+    # A sample under a roof at distance 2: a light at distance 1 (below the roof)
+    # is unshadowed, the same direction at distance 3 (above it) is shadowed.
+    normals = np.array([[0.0, 0.0, 1.0]])
+    d = spherical_fibonacci(256)
+    hit = np.where((normals @ d.T).T > 0, 0, BELOW_HORIZON).astype(np.int16)
+    distance = np.where(hit >= 0, 2.0, np.inf).astype(np.float32)
+    table = _table(d, normals, hit, np.zeros((256, 1, 2), np.float32), distance)
+    regions = ShadowRegions(d, 32)
+    up = np.array([[0.0, 0.0, 1.0]])
+    assert shadow_fractions(table, regions, np.array([1.0])).visibility(up)[0] == pytest.approx(1.0)
+    assert shadow_fractions(table, regions, np.array([3.0])).visibility(up)[0] == 0.0
+    assert shadow_fractions(table, regions).visibility(up)[0] == 0.0

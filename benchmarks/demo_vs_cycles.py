@@ -1,0 +1,133 @@
+"""VisiBake on the demo scene against a converged Cycles bake of the same UV layout.
+
+    .venv/bin/python benchmarks/demo_vs_cycles.py --directions 128 256 --samples 1024
+
+For each direction count and shadow mode: VisiBake's stage times and its relative
+RMSE / mean bias / max error of ``lighting`` against Cycles (DIFFUSE, DIRECT+INDIRECT+COLOR,
+same bounces, units as in DESIGN.md), over texels both cover. Also the Cycles bake time
+at the reference sample count and at a lower one. Writes JSON (and prints a table).
+The reference is cached in --cache (an .npz keyed by samples, resolution, bounces).
+"""
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from datetime import datetime, timezone
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+import numpy as np  # noqa: E402
+
+from tools.visibake import load_extension  # noqa: E402
+
+
+
+def covered_error(ours: dict, reference: dict) -> dict:
+    squared, total, count, worst = 0.0, 0.0, 0, 0.0
+    ours_sum = 0.0
+    for name, image in ours.items():
+        ref = reference[name]
+        mask = (image[..., 3] > 0) & (ref[..., 3] > 0)
+        a, b = image[mask][:, :3].astype(np.float64), ref[mask][:, :3].astype(np.float64)
+        squared += float(np.sum((a - b) ** 2))
+        total += float(np.sum(b))
+        ours_sum += float(np.sum(a))
+        count += a.size
+        worst = max(worst, float(np.max(np.abs(a - b))) if a.size else 0.0)
+    mean = total / count
+    return {"relative_rmse": np.sqrt(squared / count) / mean, "bias": ours_sum / total - 1.0,
+            "max_abs_error": worst, "reference_mean": mean, "values": count}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--directions", type=int, nargs="+", default=[128, 256])
+    parser.add_argument("--shadows", nargs="+", default=["fractions", "exact"])
+    parser.add_argument("--bounces", type=int, default=2)
+    parser.add_argument("--resolution", type=int, default=256)
+    parser.add_argument("--samples", type=int, default=1024, help="Cycles samples of the reference")
+    parser.add_argument("--timing-samples", type=int, default=64, help="a cheaper Cycles bake, timed too")
+    parser.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "cache"))
+    parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "demo_vs_cycles.json"))
+    args = parser.parse_args()
+
+    extension = load_extension()
+    import importlib
+
+    import bpy
+    from tools.cycles_bake import bake_diffuse
+
+    demo_scene = importlib.import_module(f"{extension.__name__}.operators.demo_scene")
+    job = importlib.import_module(f"{extension.__name__}.operators.job")
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    objects = demo_scene.build_demo_scene(bpy.context.scene)
+    props = bpy.context.scene.visibake
+    props.bounces, props.resolution, props.passes = args.bounces, args.resolution, {"lighting"}
+
+    runs = []
+    for directions in args.directions:
+        for shadows in args.shadows:
+            props.directions, props.shadows = directions, shadows
+            outcome = job.run_bake(bpy.context, objects)
+            images = {r.name: r.images["lighting"] for r in outcome.result.objects}
+            runs.append({"directions": directions, "shadows": shadows, "images": images,
+                         "stage_seconds": outcome.report["stage_seconds"],
+                         "total_seconds": outcome.report["total_seconds"],
+                         "rays": outcome.report["rays"], "peak_memory_bytes": outcome.report["peak_memory_bytes"]})
+            print(f"VisiBake N={directions} {shadows}: {outcome.report['total_seconds']:.1f} s", flush=True)
+    uv_maps = {o["name"]: o["uv_map"] for o in outcome.report["objects"]}
+
+    def cycles(samples):
+        result, started = {}, time.perf_counter()
+        for uv_map in sorted(set(uv_maps.values())):
+            group = [o for o in objects if uv_maps[o.name] == uv_map]
+            result.update(bake_diffuse(group, uv_map, args.resolution, args.resolution, args.bounces, samples))
+        return result, time.perf_counter() - started
+
+    os.makedirs(args.cache, exist_ok=True)
+    key = f"demo_cycles_s{args.samples}_r{args.resolution}_b{args.bounces}.npz"
+    cached = os.path.join(args.cache, key)
+    if os.path.isfile(cached):
+        data = np.load(cached)
+        reference = {k: data[k] for k in data.files if k != "__seconds__"}
+        reference_seconds = float(data["__seconds__"])
+    else:
+        reference, reference_seconds = cycles(args.samples)
+        np.savez_compressed(cached, __seconds__=reference_seconds, **reference)
+    print(f"Cycles {args.samples} spp: {reference_seconds:.1f} s", flush=True)
+    cheap, cheap_seconds = cycles(args.timing_samples)
+    print(f"Cycles {args.timing_samples} spp: {cheap_seconds:.1f} s", flush=True)
+
+    rows = []
+    for run in runs:
+        error = covered_error(run.pop("images"), reference)
+        rows.append({**run, **error})
+    cheap_error = covered_error(cheap, reference)
+    result = {
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "machine": {"platform": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count()},
+        "blender": bpy.app.version_string,
+        "settings": {"bounces": args.bounces, "resolution": args.resolution, "reference_samples": args.samples},
+        "cycles_reference_seconds": reference_seconds,
+        "cycles_timing": {"samples": args.timing_samples, "seconds": cheap_seconds, **cheap_error},
+        "visibake": rows,
+    }
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as handle:
+        json.dump(result, handle, indent=2, default=float)
+    print(f"\n{'run':<28}{'seconds':>9}{'rel.RMSE':>10}{'bias':>9}")
+    for row in rows:
+        print(f"VisiBake N={row['directions']:<4} {row['shadows']:<10}{row['total_seconds']:>9.1f}"
+              f"{row['relative_rmse']:>10.4f}{row['bias']:>+9.4f}  stages {row['stage_seconds']}")
+    print(f"{'Cycles ' + str(args.timing_samples) + ' spp':<28}{cheap_seconds:>9.1f}"
+          f"{cheap_error['relative_rmse']:>10.4f}{cheap_error['bias']:>+9.4f}")
+    print(f"{'Cycles ' + str(args.samples) + ' spp (reference)':<28}{reference_seconds:>9.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
