@@ -9,17 +9,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import tolerances as tol
+
 from .raster import degenerate_uv_triangles, rasterize
 
-# A UV coordinate this far outside [0, 1] is still "inside": float32 UVs written at
-# exactly 0 or 1 may come back a few ULPs off after a round trip through Blender.
-UV_RANGE_SLACK = 1e-6
 
-# xatlas tests degeneracy with absolute thresholds (face area <= FLT_EPSILON,
-# welding distance FLT_EPSILON), so meshes are rescaled to a median edge length of
-# 1 before unwrapping; a triangle whose doubled area is below this (in those units)
-# would be ignored by xatlas and is dropped up front instead.
-UNWRAP_MIN_DOUBLED_AREA = 8.0 * float(np.finfo(np.float32).eps)
 
 # xatlas (0.0.11 and upstream, jpcy/xatlas#146) grows "planar" regions across any
 # two neighbouring faces whose normals' dot product is within 1e-4 of 1 (0.81
@@ -33,9 +27,6 @@ PLANAR_CHAIN_MAX_ANGLE_DEG = 15.0
 # about a degree, past xatlas's threshold), doubling on each retry.
 PLANAR_CHAIN_NUDGE = 0.02
 PLANAR_CHAIN_TRIES = 4
-# xatlas's test is |dot - 1| <= 1e-4; ours is a little looser so that float32 rounding of
-# the normals cannot hide a chain xatlas would follow.
-PLANAR_CHAIN_DOT_SLACK = 1.05e-4
 
 # xatlas's charting dominates the cost (~85 % at 20k triangles); its defaults are
 # already the fast ones (max_iterations=1, bruteForce=False). Repacking the cut
@@ -53,7 +44,7 @@ class UVLayoutStats:
     ----------
     triangles : int
     non_finite_corners : int, corners with a NaN or infinite coordinate
-    out_of_range_corners : int, finite corners outside [0, 1] (beyond ``UV_RANGE_SLACK``)
+    out_of_range_corners : int, finite corners outside [0, 1] (beyond ``tol.UV_RANGE_SLACK``)
     zero_area_triangles : int, triangles that cover no area (see ``raster.degenerate_uv_triangles``)
     covered_texels : int
     overlap_texels : int, texels covered by more than one triangle
@@ -82,7 +73,9 @@ class UnwrapResult:
         Triangles that got no UV area (non-finite or zero-area in 3D); their three
         corners are all (0, 0), so they cover no texel.
     texels_per_unit : float
-        Texels per unit length of the input positions, the same for every chart.
+        Texels per unit length of the input positions that every chart is scaled
+        to; xatlas then stretches each chart by under one texel per axis so that
+        its extents are whole texels, so small charts come out a little denser.
     chart_count : int
     """
 
@@ -111,7 +104,7 @@ def uv_layout_stats(corner_uv: np.ndarray, width: int, height: int) -> UVLayoutS
         raise ValueError(f"corner_uv must have shape (m, 3, 2), got {corners.shape}")
     finite = np.isfinite(corners).all(axis=2)
     with np.errstate(invalid="ignore"):
-        outside = ((corners < -UV_RANGE_SLACK) | (corners > 1.0 + UV_RANGE_SLACK)).any(axis=2)
+        outside = ((corners < -tol.UV_RANGE_SLACK) | (corners > 1.0 + tol.UV_RANGE_SLACK)).any(axis=2)
     raster = rasterize(corners, width, height)
     return UVLayoutStats(
         triangles=int(corners.shape[0]),
@@ -175,12 +168,14 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     texels_per_unit : float, optional
         Texel density per unit length of ``positions``. By default the largest
         density that fits is used; when given and the charts do not fit in one
-        atlas, ``ValueError`` is raised.
+        atlas, ``ValueError`` is raised (xatlas itself shrinks any single chart
+        larger than the atlas).
 
     Returns
     -------
     UnwrapResult
     """
+    # Imported here so layout checks keep working where the xatlas wheel is missing.
     import xatlas
 
     positions = np.asarray(positions)
@@ -220,7 +215,7 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
             # Measure area on the float32 coordinates xatlas will see.
             xc = (corners * scale).astype(np.float32).astype(np.float64)
             doubled = np.linalg.norm(np.cross(xc[:, 1] - xc[:, 0], xc[:, 2] - xc[:, 0]), axis=1)
-            usable[usable] = np.isfinite(doubled) & (doubled > UNWRAP_MIN_DOUBLED_AREA)
+            usable[usable] = np.isfinite(doubled) & (doubled > tol.UNWRAP_MIN_DOUBLED_AREA)
     if not usable.any():
         raise ValueError(f"unwrap: none of the {m} triangles has a finite, non-zero area")
 
@@ -240,6 +235,8 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
         pack.texels_per_unit = float(texels_per_unit) / scale
     atlas.generate(xatlas.ChartOptions(), pack)
     chart_count = int(atlas.chart_count)
+    if atlas.width == 0 or atlas.height == 0:
+        raise ValueError(f"unwrap: xatlas found no usable face among the {kept.size} triangles")
     _, faces, uv = atlas[0]
     if faces.shape[0] != kept.size:
         raise RuntimeError(f"xatlas returned {faces.shape[0]} faces for {kept.size} input triangles")
@@ -367,7 +364,7 @@ def _curved_planar_regions(xpos: np.ndarray, faces: np.ndarray, welded: np.ndarr
 
     Returns
     -------
-    hazard : (f, 3) bool
+    hazard : (f,) bool
     """
     corners = xpos[faces].astype(np.float64)
     normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -382,7 +379,7 @@ def _curved_planar_regions(xpos: np.ndarray, faces: np.ndarray, welded: np.ndarr
     f0 = order[:-1][same] // 3
     f1 = order[1:][same] // 3
     dot = np.einsum("ij,ij->i", normal[f0], normal[f1])
-    near = np.abs(dot - 1.0) <= PLANAR_CHAIN_DOT_SLACK
+    near = np.abs(dot - 1.0) <= tol.PLANAR_CHAIN_DOT_SLACK
     label = _components(f, f0[near], f1[near])
     mean = np.zeros((f, 3))
     np.add.at(mean, label, normal)
@@ -417,6 +414,67 @@ def _outside_charts(atlas, faces: np.ndarray) -> np.ndarray:
     -------
     dropped : (f,) bool
     """
+    unassigned = np.iinfo(np.uint32).max
     atlas_index, chart_index = atlas.get_mesh_vertex_assignment(0)
-    unplaced = (np.asarray(atlas_index) == np.iinfo(np.uint32).max) | (np.asarray(chart_index) == np.iinfo(np.uint32).max)
+    unplaced = (np.asarray(atlas_index) == unassigned) | (np.asarray(chart_index) == unassigned)
     return unplaced[faces].any(axis=1)
+
+
+def loop_uvs(positions, triangles, loops, corner_uv, loop_count):
+    """One UV per mesh loop from per-triangle-corner UVs.
+
+    A loop is shared by the triangles of one polygon; when an unwrapper put those
+    triangles into different charts, the polygon is remapped into the chart of its
+    largest triangle through that triangle's affine map from 3D to UV, so the
+    polygon stays one piece instead of stretching across the atlas.
+
+    Returns
+    -------
+    per_loop : (loop_count, 2) float32
+    remapped : int, polygons that had to be remapped
+    """
+    corner_uv = np.asarray(corner_uv, np.float64)
+    flat_loops = loops.ravel()
+    flat_uv = corner_uv.reshape(-1, 2)
+    per_loop = np.zeros((loop_count, 2))
+    per_loop[flat_loops] = flat_uv
+    disagree = np.any(np.abs(per_loop[flat_loops] - flat_uv) > 1e-7, axis=1).reshape(-1, 3).any(axis=1)
+    if not np.any(disagree):
+        return per_loop.astype(np.float32), 0
+    # Triangles sharing a loop belong to one polygon: union them.
+    parent = np.arange(len(triangles))
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    first_triangle = np.full(loop_count, -1)
+    for t, corner_loops in enumerate(loops):
+        for loop in corner_loops:
+            if first_triangle[loop] < 0:
+                first_triangle[loop] = t
+            else:
+                ra, rb = find(first_triangle[loop]), find(t)
+                if ra != rb:
+                    parent[rb] = ra
+    roots = np.array([find(t) for t in range(len(triangles))])
+    bad_roots = np.unique(roots[disagree])
+    uv_area = 0.5 * np.abs(np.cross(corner_uv[:, 1] - corner_uv[:, 0], corner_uv[:, 2] - corner_uv[:, 0]))
+    for root in bad_roots:
+        members = np.nonzero(roots == root)[0]
+        reference = members[np.argmax(uv_area[members])]
+        p = positions[triangles[reference]].astype(np.float64)
+        e1, e2 = p[1] - p[0], p[2] - p[0]
+        gram = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+        if abs(np.linalg.det(gram)) < 1e-30:
+            continue
+        inverse = np.linalg.inv(gram)
+        uv0, uv1, uv2 = corner_uv[reference]
+        for t in members:
+            for corner, loop in enumerate(loops[t]):
+                d = positions[triangles[t][corner]] - p[0]
+                s, u = inverse @ np.array([d @ e1, d @ e2])
+                per_loop[loop] = uv0 + s * (uv1 - uv0) + u * (uv2 - uv0)
+    return np.clip(per_loop, 0.0, 1.0).astype(np.float32), len(bad_roots)

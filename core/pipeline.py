@@ -353,8 +353,12 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
         "warnings": warnings,
     }
     if table is not None and table.backface_hits:
-        share = table.backface_hits / max(table.rays_cast, 1)
+        buried = table.buried()
+        for entry, a, b in zip(report["objects"], sample_offset[:-1], sample_offset[1:]):
+            entry["buried_texels"] = int(np.count_nonzero(buried[a:b]))
+        visible = ~buried
+        share = table.backface_per_sample[visible].sum() / max(int(table.traced_per_sample[visible].sum()), 1)
         if share > 0.01:
-            warnings.append(f"{share:.1%} of rays hit the back of a face; backs reflect no light "
-                            "(single-sided geometry or flipped normals)")
+            warnings.append(f"{share:.1%} of the rays from visible texels hit the back of a face; backs reflect "
+                            "no light (single-sided geometry or flipped normals)")
     return BakeResult(objects=results, report=report)

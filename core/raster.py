@@ -47,9 +47,6 @@ from . import tolerances as tol
 # sizes (a single triangle may span the whole image).
 RASTER_CHUNK_PAIRS = 1 << 18
 RASTER_CHUNK_ROWS = 1 << 16
-# Texel spans are widened by this (in texels) before the exact test, so rounding
-# in the span computation can never drop a centre the test would accept.
-SPAN_MARGIN = 1e-6
 
 
 @dataclass(frozen=True)
@@ -159,15 +156,15 @@ def rasterize(corner_uv: np.ndarray, width: int, height: int) -> TexelSamples:
     # is >= -eps, i.e. the triangle scaled by 1 + 3 eps about its centroid.
     centroid = c.mean(axis=1, keepdims=True)
     grown = centroid + (1.0 + 3.0 * tol.RASTER_EDGE_EPSILON) * (c - centroid)
-    y0 = np.clip(np.ceil(grown[..., 1].min(axis=1) - 0.5 - SPAN_MARGIN), 0, height).astype(np.int64)
-    y1 = np.clip(np.floor(grown[..., 1].max(axis=1) - 0.5 + SPAN_MARGIN), -1, height - 1).astype(np.int64)
+    y0 = np.clip(np.ceil(grown[..., 1].min(axis=1) - 0.5 - tol.SPAN_MARGIN), 0, height).astype(np.int64)
+    y1 = np.clip(np.floor(grown[..., 1].max(axis=1) - 0.5 + tol.SPAN_MARGIN), -1, height - 1).astype(np.int64)
     rows = np.maximum(y1 - y0 + 1, 0)
 
     # Work is split by (triangle, texel row) so a triangle spanning the whole
     # image is processed in bounded pieces like any other.
     row_tri = np.repeat(np.arange(live.size), rows)
     row_y = y0[row_tri] + (np.arange(row_tri.size) - np.repeat(np.cumsum(rows) - rows, rows))
-    edge_data = (origin, direction, side, slack, grown)
+    edge_data = (origin, direction, side, slack)
 
     pixels, owners, strict_flags, weights = [], [], [], []
     for lo in range(0, row_tri.size, RASTER_CHUNK_ROWS):
@@ -254,8 +251,8 @@ def _row_spans(grown: np.ndarray, yc: np.ndarray, width: int) -> tuple[np.ndarra
     hit = np.isfinite(lo) & np.isfinite(hi)
     lo = np.where(hit, lo, 0.0)
     hi = np.where(hit, hi, -1.0)
-    x_first = np.clip(np.ceil(lo - 0.5 - SPAN_MARGIN), 0, width).astype(np.int64)
-    x_last = np.clip(np.floor(hi - 0.5 + SPAN_MARGIN), -1, width - 1).astype(np.int64)
+    x_first = np.clip(np.ceil(lo - 0.5 - tol.SPAN_MARGIN), 0, width).astype(np.int64)
+    x_last = np.clip(np.floor(hi - 0.5 + tol.SPAN_MARGIN), -1, width - 1).astype(np.int64)
     count = np.where(hit, np.maximum(x_last - x_first + 1, 0), 0)
     return x_first, count
 
@@ -265,7 +262,7 @@ def _test_spans(tri, y, x_first, count, width, edge_data):
     total = int(count.sum())
     if total == 0:
         return None
-    origin, direction, side, slack, _ = edge_data
+    origin, direction, side, slack = edge_data
     o = origin[tri]
     d = direction[tri]
     # The y part of each edge function is shared by the whole row; computing it

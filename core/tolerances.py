@@ -33,3 +33,21 @@ SAMPLE_BARYCENTRIC_INSET = 1e-3
 # see it under fewer than this many direction cells (4*pi/N each); there the fixed
 # directions would show it as blobs ("ray effects"). Larger emitters are gathered.
 EMITTER_DIRECT_CELLS = 8.0
+
+# A UV coordinate this far outside [0, 1] is still "inside": float32 UVs written at
+# exactly 0 or 1 may come back a few ULPs off after a round trip through Blender.
+UV_RANGE_SLACK = 1e-6
+
+# xatlas tests degeneracy with absolute thresholds (face area <= FLT_EPSILON,
+# welding distance FLT_EPSILON), so meshes are rescaled to a median edge length of
+# 1 before unwrapping; a triangle whose doubled area is below this (in those units)
+# would be ignored by xatlas and is dropped up front instead.
+UNWRAP_MIN_DOUBLED_AREA = 8.0 * 1.1920929e-07  # 8 float32 epsilons
+
+# xatlas's test is |dot - 1| <= 1e-4; ours is a little looser so that float32 rounding of
+# the normals cannot hide a chain xatlas would follow.
+PLANAR_CHAIN_DOT_SLACK = 1.05e-4
+
+# Texel spans are widened by this (in texels) before the exact test, so rounding
+# in the span computation can never drop a centre the test would accept.
+SPAN_MARGIN = 1e-6

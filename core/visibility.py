@@ -36,6 +36,16 @@ class VisibilityTable:
     rays_cast: int = 0
     rays_below_horizon: int = 0
     backface_hits: int = 0
+    backface_per_sample: np.ndarray | None = None  # (K,) int32
+    traced_per_sample: np.ndarray | None = None  # (K,) int32
+
+    def buried(self) -> np.ndarray:
+        """(K,) bool: samples most of whose rays hit the back of a face.
+
+        Such texels lie inside other geometry (a wall overlapping a floor slab);
+        nobody sees them, and their backface hits say nothing about the scene.
+        """
+        return 2 * self.backface_per_sample > self.traced_per_sample
 
     @property
     def nbytes(self) -> int:
@@ -77,6 +87,8 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
     backfaces = 0
+    backface_per_sample = np.zeros(samples, np.int32)
+    traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
         above = (geometric_normals[start:stop] @ directions.T) > 0.0
@@ -93,6 +105,7 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
             facing = np.einsum("kd,kd->k", face_normals[global_triangle], directions[direction_index[hit]])
             back = facing > 0.0
             backfaces += int(np.count_nonzero(back))
+            backface_per_sample += np.bincount(cols[hit][back], minlength=samples).astype(np.int32)
             u = bary[hit, 0:1]
             v = bary[hit, 1:2]
             uv = corner_uv[global_triangle]
@@ -106,4 +119,5 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
             progress(stop / samples)
     return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv, hit_distance=hit_distance,
                            rays_cast=rays_cast, rays_below_horizon=count * samples - rays_cast,
-                           backface_hits=backfaces)
+                           backface_hits=backfaces, backface_per_sample=backface_per_sample,
+                           traced_per_sample=traced_per_sample)

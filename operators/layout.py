@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..core.atlas import unwrap, uv_layout_problems
+from ..core.atlas import loop_uvs, unwrap, uv_layout_problems
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -72,7 +72,8 @@ def _base_triangles(mesh: bpy.types.Mesh):
     return positions.reshape(-1, 3), triangles.reshape(-1, 3), loops.reshape(-1, 3)
 
 
-def write_uv_map(mesh: bpy.types.Mesh, loops: np.ndarray, corner_uv: np.ndarray) -> bool:
+def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndarray, loops: np.ndarray,
+                 corner_uv: np.ndarray) -> bool:
     """Write per-corner UVs into the owned ``VisiBake`` map; True if the map was created now."""
     created = UV_MAP_NAME not in mesh.uv_layers
     if created:
@@ -84,8 +85,7 @@ def write_uv_map(mesh: bpy.types.Mesh, loops: np.ndarray, corner_uv: np.ndarray)
         if active >= 0:
             mesh.uv_layers.active_index = active
     layer = mesh.uv_layers[UV_MAP_NAME]
-    per_loop = np.zeros((len(mesh.loops), 2), np.float32)
-    per_loop[loops.ravel()] = corner_uv.reshape(-1, 2)
+    per_loop, _ = loop_uvs(positions, triangles, loops, corner_uv, len(mesh.loops))
     layer.uv.foreach_set("vector", per_loop.ravel())
     mesh.update()
     return created
@@ -136,7 +136,7 @@ def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, e
             raise LayoutError(f"object {obj.name!r} has no faces")
         resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
         unwrapped = _unwrap(obj, positions, triangles, resolution[0])
-        created = write_uv_map(mesh, loops, unwrapped.corner_uv)
+        created = write_uv_map(mesh, positions, triangles, loops, unwrapped.corner_uv)
         return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", created=created)
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
     # the evaluated mesh in memory and leave the user's mesh alone.

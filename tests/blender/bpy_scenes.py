@@ -112,3 +112,31 @@ def relative_rmse(ours, reference, mask):
 def select_only(objects):
     for obj in bpy.context.scene.objects:
         obj.select_set(obj in objects)
+
+
+def spot(power, location, rotation, size_degrees, blend, name="Spot"):
+    light = bpy.data.lights.new(name, "SPOT")
+    light.energy = power
+    light.shadow_soft_size = 0.0
+    light.spot_size = math.radians(size_degrees)
+    light.spot_blend = blend
+    obj = bpy.data.objects.new(name, light)
+    obj.location = location
+    obj.rotation_euler = [math.radians(a) for a in rotation]
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def area(power, location, rotation, shape, size, size_y=None, scale=(1.0, 1.0, 1.0), name="Area"):
+    light = bpy.data.lights.new(name, "AREA")
+    light.energy = power
+    light.shape = shape
+    light.size = size
+    if size_y is not None:
+        light.size_y = size_y
+    obj = bpy.data.objects.new(name, light)
+    obj.location = location
+    obj.rotation_euler = [math.radians(a) for a in rotation]
+    obj.scale = scale
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
