@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import tolerances as tol
+from .lights import surface_to_point
 from .samples import face_normals
 from .scene import Mesh
 
@@ -108,19 +109,12 @@ def emitter_irradiance(emitter: Emitter, positions: np.ndarray, normals: np.ndar
     irradiance = np.zeros((len(positions), 3))
     rays = 0
     for point, normal, area, radiance in zip(emitter.position, emitter.normal, emitter.area, emitter.radiance):
-        offset = point - positions
-        distance = np.linalg.norm(offset, axis=1)
-        safe = np.maximum(distance, 1e-12)
-        to_point = offset / safe[:, None]
-        cos_receiver = np.clip(np.einsum("kd,kd->k", normals, to_point), 0.0, None)
-        cos_emitter = np.clip(-(to_point @ normal), 0.0, None)
-        contribution = area * cos_receiver * cos_emitter / (safe * safe)
-        lit = (contribution > 0) & (np.einsum("kd,kd->k", geometric, to_point) > 0) & (distance > 1e-12)
+        to_point, distance, transfer = surface_to_point(positions, normals, point, normal)
+        lit = (transfer > 0) & (np.einsum("kd,kd->k", geometric, to_point) > 0)
         index = np.nonzero(lit)[0]
         if len(index):
             limit = (distance[index] * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)
-            blocked = ray_scene.occluded(origins[index], to_point[index], limit)
-            index = index[~blocked]
-            rays += len(lit.nonzero()[0])
-        irradiance[index] += contribution[index, None] * radiance
+            rays += len(index)
+            index = index[~ray_scene.occluded(origins[index], to_point[index], limit)]
+        irradiance[index] += (area * transfer[index])[:, None] * radiance
     return irradiance, rays

@@ -79,6 +79,27 @@ def area_light_points(light: Light, samples_per_side: int) -> tuple[np.ndarray, 
     return np.asarray(light.position, np.float64) + offsets, area / len(unit)
 
 
+def surface_to_point(position: np.ndarray, normal: np.ndarray, point: np.ndarray, point_normal: np.ndarray):
+    """Geometry between receivers and one small emitting patch facing ``point_normal``.
+
+    Returns
+    -------
+    to_point : (K, 3) float64 unit vectors from each receiver to the patch
+    distance : (K,) float64
+    transfer : (K,) float64 cos(receiver) * cos(patch) / distance^2 (0 behind either
+        side, or where receiver and patch coincide); times radiance * patch area it is
+        the irradiance the patch delivers
+    """
+    offset = point - position
+    distance = np.linalg.norm(offset, axis=1)
+    safe = np.maximum(distance, 1e-12)
+    to_point = offset / safe[:, None]
+    cos_receiver = np.clip(np.einsum("kd,kd->k", normal, to_point), 0.0, None)
+    cos_patch = np.clip(-(to_point @ np.asarray(point_normal, np.float64)), 0.0, None)
+    transfer = np.where(distance > 1e-12, cos_receiver * cos_patch / (safe * safe), 0.0)
+    return to_point, distance, transfer
+
+
 def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray,
                         area_light_samples: int = 8) -> list[LightContribution]:
     """Unshadowed irradiance of ``light`` at every sample, split into virtual points.
@@ -115,14 +136,8 @@ def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray,
         facing = np.asarray(light.direction, np.float64)
         contributions = []
         for point in points:
-            offset = point - position
-            distance = np.linalg.norm(offset, axis=1)
-            safe = np.maximum(distance, 1e-12)
-            to_light = offset / safe[:, None]
-            cos_surface = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
-            cos_light = np.clip(-(to_light @ facing), 0.0, None)
-            irradiance = radiance * cell_area * cos_surface * cos_light / (safe * safe)
-            irradiance = np.where(distance > 1e-12, irradiance, 0.0)
+            to_light, distance, transfer = surface_to_point(position, normal, point, facing)
+            irradiance = radiance * cell_area * transfer
             contributions.append(LightContribution(irradiance[:, None] * color, to_light, distance))
         return contributions
 

@@ -81,17 +81,17 @@ def _select_objects(args, scene) -> list:
 
 
 class _Progress:
-    """A progress bar on stderr (tqdm where it is installed), one bar per stage."""
+    """A tqdm bar per stage on a terminal; one line per stage in logs and pipes."""
 
     def __init__(self, enabled: bool):
         self.enabled = enabled
         self.stage = None
         self.bar = None
-        try:
+        self.tqdm = None
+        if enabled and sys.stderr.isatty():
             from tqdm import tqdm
-        except ImportError:
-            tqdm = None
-        self.tqdm = tqdm
+
+            self.tqdm = tqdm
 
     def __call__(self, stage: str, fraction: float) -> None:
         if not self.enabled:

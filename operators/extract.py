@@ -44,6 +44,16 @@ def _image_pixels(image: bpy.types.Image) -> np.ndarray | None:
     return np.ascontiguousarray(rgb, np.float32)
 
 
+def _uses_nodes(datablock) -> bool:
+    """Whether a material or world renders through its node tree.
+
+    Blender 5 always does (``use_nodes`` is deprecated there); 4.x honours the flag.
+    """
+    if datablock.node_tree is None:
+        return False
+    return bpy.app.version >= (5, 0, 0) or datablock.use_nodes
+
+
 def _surface_node(material: bpy.types.Material):
     tree = material.node_tree
     if tree is None:
@@ -74,7 +84,7 @@ def read_material(material, default_uv_map: str, warnings: list[str]) -> Materia
     """Lambert albedo and emission of a Blender material (Principled, Diffuse or Emission)."""
     if material is None:
         return Material(name="none")
-    node = _surface_node(material) if material.use_nodes else None
+    node = _surface_node(material) if _uses_nodes(material) else None
     if node is None:
         return Material(name=material.name, base_color=np.array(material.diffuse_color[:3], np.float64))
     result = Material(name=material.name)
@@ -188,7 +198,7 @@ def read_world(scene: bpy.types.Scene, warnings: list[str]) -> World:
     world = scene.world
     if world is None:
         return World()
-    if world.node_tree is None:
+    if not _uses_nodes(world):
         return World(np.array(world.color[:3], np.float64))
     output = next((n for n in world.node_tree.nodes
                    if n.bl_idname == "ShaderNodeOutputWorld" and n.is_active_output), None)

@@ -13,7 +13,8 @@ from .writeback import image_name
 
 def _emission_material(name: str, image: bpy.types.Image, uv_map: str) -> bpy.types.Material:
     material = bpy.data.materials.new(name)
-    material.use_nodes = True
+    if bpy.app.version < (5, 0, 0):
+        material.use_nodes = True
     nodes = material.node_tree.nodes
     links = material.node_tree.links
     nodes.clear()

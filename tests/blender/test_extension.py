@@ -20,7 +20,7 @@ from blender_support import (
 
 DEV_DIRS = ("tests/", "benchmarks/", "tools/")
 NEVER_SHIPPED = DEV_DIRS + ("docs/", ".ci/", ".venv/", "dist/", "out/", ".git", "Makefile", "requirements")
-BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR")
+BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR", "tqdm")
 
 
 def _wheel_names(manifest):
@@ -52,6 +52,10 @@ def test_manifest_wheels_match_pins_one_per_platform():
     for wheel in _wheel_names(load_manifest()):
         dist, version, *_ = wheel.split("-")
         assert pins.get(dist.lower()) == version, f"{wheel} does not match requirements-wheels.txt"
+        if wheel.endswith("-py3-none-any.whl"):
+            # A pure-Python wheel serves every platform.
+            found.update((dist.lower(), p) for p in platform_tag)
+            continue
         (platform,) = [p for p, tag in platform_tag.items() if tag in wheel]
         found.add((dist.lower(), platform))
     assert found == {(d, p) for d in pins for p in platform_tag}
@@ -104,7 +108,7 @@ def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
         assert site in sys.path, "Blender did not add its extension site-packages to sys.path"
         sys.path.remove(site)
         sys.path.insert(0, site)
-        import xatlas, embreex, OpenEXR
+        import xatlas, embreex, OpenEXR, tqdm
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
         tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
@@ -117,7 +121,7 @@ def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
         with OpenEXR.File(exr) as f:
             shape = list(f.channels()["RGB"].pixels.shape)
         print(json.dumps({
-            "files": {m.__name__: m.__file__ for m in (xatlas, embreex, OpenEXR)},
+            "files": {m.__name__: m.__file__ for m in (xatlas, embreex, OpenEXR, tqdm)},
             "uvs": list(uvs.shape), "hit": int(hit[0]), "exr": shape,
         }))
         """
