@@ -84,29 +84,55 @@ def _human_bytes(count: float) -> str:
     return f"{count:.1f} TiB"
 
 
-def check_budget(scene: Scene, settings: BakeSettings, budget: int | None = None) -> None:
-    """Refuse, before anything is allocated, a bake whose table cannot fit in memory.
+def check_budget(sizes, directions: int, budget: int | None = None) -> None:
+    """Refuse, before anything is allocated, atlases or a table that cannot fit in memory.
 
-    The bound uses every texel of every atlas (the covered ones are fewer), so a
-    bake that passes here cannot run out of memory in the table.
+    Parameters
+    ----------
+    sizes : iterable of (width, height), the atlas of every object
+    directions : size of the direction set
+
+    The bound counts every texel of every atlas (covered ones are fewer), so a bake
+    that passes here cannot run out of memory in the table.
     """
     budget = memory_budget_bytes() if budget is None else budget
-    texels = sum(int(m.resolution[0]) * int(m.resolution[1]) for m in scene.meshes)
-    for mesh in scene.meshes:
-        width, height = mesh.resolution
+    sizes = [(int(w), int(h)) for w, h in sizes]
+    for width, height in sizes:
         if width < 1 or height < 1:
-            raise BakeRefused(f"object {mesh.name!r}: resolution must be at least 1x1, got {width}x{height}")
+            raise BakeRefused(f"atlas resolution must be at least 1x1, got {width}x{height}")
+    texels = sum(w * h for w, h in sizes)
     # Per texel: coverage, per-sample geometry and colours, radiance atlases and outputs.
     per_texel = 200
     need_atlas = texels * per_texel
     if need_atlas > budget:
         raise BakeRefused(f"the atlases ({texels} texels) would need about {_human_bytes(need_atlas)}, "
                           f"more than the {_human_bytes(budget)} available; lower the resolution")
-    need_table = table_bytes(settings.directions, texels)
+    need_table = table_bytes(directions, texels)
     if need_table + need_atlas > budget:
-        raise BakeRefused(f"the visibility table ({settings.directions} directions x up to {texels} texels) "
+        raise BakeRefused(f"the visibility table ({directions} directions x up to {texels} texels) "
                           f"could need {_human_bytes(need_table)}, more than the {_human_bytes(budget - need_atlas)} "
                           f"available; lower the directions or the resolution")
+
+
+def usable_lights(lights, warnings: list[str]):
+    """The lamps that can be baked; refuse the bake for strengths no output could hold."""
+    usable = []
+    for light in lights:
+        strength = float(light.strength)
+        if not np.isfinite(strength) or abs(strength) > tol.MAX_LIGHT_STRENGTH:
+            raise BakeRefused(f"light {light.name!r}: strength {strength:g} is not a usable number "
+                              f"(at most {tol.MAX_LIGHT_STRENGTH:g})")
+        color = np.asarray(light.color, np.float64)
+        if not np.all(np.isfinite(color)):
+            raise BakeRefused(f"light {light.name!r}: its colour is not finite")
+        if strength < 0 or np.any(color < 0):
+            warnings.append(f"light {light.name!r}: negative light is not supported (Cycles subtracts it); "
+                            "it was left out")
+            continue
+        if strength == 0 or not np.any(color > 0):
+            continue
+        usable.append(light)
+    return usable
 
 
 class _Stages:
@@ -150,10 +176,11 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     BakeResult
     """
     settings.validate()
-    check_budget(scene, settings)
+    check_budget([m.resolution for m in scene.meshes], settings.directions)
     stages = _Stages(progress)
     skipped: list[str] = []
     warnings: list[str] = []
+    lights = usable_lights(scene.lights, warnings)
 
     stages.start("samples")
     meshes = []
@@ -202,7 +229,7 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     has_world = bool(np.any(world > 0))
     wants = set(settings.passes)
     needs_gather = settings.bounces > 0 or has_emission or has_world
-    needs_table = needs_gather or "ao" in wants or (settings.shadows == "fractions" and scene.lights)
+    needs_table = needs_gather or "ao" in wants or (settings.shadows == "fractions" and bool(lights))
 
     triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
     triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
@@ -221,14 +248,14 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     stages.start("direct")
     regions = None
     distant_fractions = None
-    if scene.lights and settings.shadows == "fractions":
+    if lights and settings.shadows == "fractions":
         regions = ShadowRegions(directions, settings.shadow_regions)
     # E_d: everything that reaches a sample without a bounce (lamps, sampled emitters,
     # gathered emission and world). Bounces then only ever carry reflected light.
     direct_irradiance = np.zeros((len(position), 3))
     shadow_rays = 0
     origins = offset_ray_origins(position, geometric)
-    for light_index, light in enumerate(scene.lights):
+    for light_index, light in enumerate(lights):
         fractions = None
         if regions is not None:
             if light.kind == "SUN":
@@ -253,7 +280,7 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
                     visibility[rays[blocked]] = 0.0
                     shadow_rays += len(rays)
             direct_irradiance += part.irradiance * visibility[:, None]
-        stages.report((light_index + 1) / (len(scene.lights) + 1))
+        stages.report((light_index + 1) / (len(lights) + 1))
     if settings.shadows == "exact":
         skipped.append("shadow fractions: shadows are exact")
 
@@ -328,6 +355,10 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
         stages.report((done + 1) / len(output_meshes))
     stages.stop()
 
+    empty = sum(s.width * s.height for s in object_samples) - int(counts.sum())
+    skipped.append(f"{empty} atlas texels outside every UV island: not sampled, filled by dilation only")
+    if table is not None:
+        skipped.append(f"{table.rays_below_horizon} directions below a texel's horizon: not traced")
     occluders = [m.name for m in meshes if not m.output]
     if occluders:
         skipped.append(f"outputs of {len(occluders)} objects that only occlude and reflect: {', '.join(occluders)}")

@@ -27,7 +27,7 @@ MIN_WEIGHT_SUM = 1e-12
 # Sample points are kept this far (in barycentric terms) inside their triangle. A
 # texel centre on, or a hair outside, a chart edge otherwise sits on the plane of the
 # adjacent face (a floor meeting a wall) and its rays hit that face at t ~ 0.
-SAMPLE_BARYCENTRIC_INSET = 1e-3
+SAMPLE_BARYCENTRIC_INSET = 1e-4
 
 # An emissive object is sampled directly (next-event estimation) from samples that
 # see it under fewer than this many direction cells (4*pi/N each); there the fixed
@@ -51,3 +51,8 @@ PLANAR_CHAIN_DOT_SLACK = 1.05e-4
 # Texel spans are widened by this (in texels) before the exact test, so rounding
 # in the span computation can never drop a centre the test would accept.
 SPAN_MARGIN = 1e-6
+
+# Lamp strengths above this are refused: their irradiance times an albedo would
+# overflow the float32 outputs (3.4e38) after the inverse-square factor of a texel
+# a millimetre from the lamp.
+MAX_LIGHT_STRENGTH = 1e30

@@ -13,9 +13,11 @@ import time
 from dataclasses import dataclass, field
 
 import bpy
+
 import numpy as np
 
-from ..core.pipeline import BakeResult, bake, peak_memory_bytes
+from ..core.pipeline import BakeResult, bake, check_budget, peak_memory_bytes
+from ..core.samples import face_normals
 from ..core.scene import Scene
 from . import extract, layout, writeback
 
@@ -29,26 +31,6 @@ class JobResult:
     result: BakeResult
     report: dict
     files: list[str] = field(default_factory=list)
-
-
-def _evaluated_geometry(obj, depsgraph):
-    evaluated = obj.evaluated_get(depsgraph)
-    mesh = evaluated.to_mesh()
-    try:
-        mesh.calc_loop_triangles()
-        count = len(mesh.loop_triangles)
-        positions = np.empty(len(mesh.vertices) * 3, np.float64)
-        mesh.vertices.foreach_get("co", positions)
-        triangles = np.empty(count * 3, np.int32)
-        loops = np.empty(count * 3, np.int64)
-        mesh.loop_triangles.foreach_get("vertices", triangles)
-        mesh.loop_triangles.foreach_get("loops", loops)
-        uv = extract.mesh_corner_uv(mesh, loops.reshape(-1, 3))
-    finally:
-        evaluated.to_mesh_clear()
-    matrix = np.array([list(r) for r in obj.matrix_world], np.float64)
-    positions = positions.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]
-    return positions, triangles.reshape(-1, 3), uv
 
 
 def output_objects(context, props) -> list[bpy.types.Object]:
@@ -92,34 +74,44 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     try:
         depsgraph = context.evaluated_depsgraph_get()
         plans = {}
+        meshes = []
+        planned = []
         for index, obj in enumerate(all_meshes):
-            positions, triangles, uv = _evaluated_geometry(obj, depsgraph)
-            if len(triangles) == 0:
-                warnings.append(f"object {obj.name!r} has no faces and was skipped")
+            mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
+            if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
+                warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
                 continue
             try:
-                plan = layout.plan_layout(obj, uv, positions, triangles, props, obj.name in outputs)
+                # Checked before any work at the planned size: validating a UV map
+                # rasterises it at the bake resolution.
+                planned.append(layout.planned_resolution(obj, props, mesh.positions, mesh.triangles))
+                check_budget(planned, settings.directions)
+                plan = layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
+                if plan.created:
+                    created.append((obj.data, plan.uv_map))
+                planned[-1] = plan.resolution
+                check_budget(planned, settings.directions)
             except ValueError as error:
                 raise BakeInputError(str(error)) from None
-            if plan.created:
-                created.append((obj.data, plan.uv_map))
             plans[obj.name] = plan
+            meshes.append(mesh)
             if progress:
                 progress("layout", (index + 1) / len(all_meshes))
         times["layout"] = time.perf_counter() - started
 
         t = time.perf_counter()
-        depsgraph = context.evaluated_depsgraph_get()
-        depsgraph.update()
-        meshes = []
-        for obj in all_meshes:
-            plan = plans.get(obj.name)
-            if plan is None:
-                continue
-            mesh = extract.read_mesh(obj, depsgraph, plan.uv_map, plan.resolution, obj.name in outputs, warnings)
+        rewritten = [obj for obj in all_meshes if obj.name in plans and plans[obj.name].written]
+        if rewritten:
+            # The new UV maps live on the base meshes; evaluate again so modifiers carry them.
+            depsgraph.update()
+            again = {obj.name: extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, [])
+                     for obj in rewritten}
+            meshes = [again.get(mesh.name, mesh) for mesh in meshes]
+        for mesh in meshes:
+            plan = plans[mesh.name]
+            mesh.bake_uv_map, mesh.resolution = plan.uv_map, plan.resolution
             if plan.internal_uv is not None:
                 mesh.uv_maps[plan.uv_map] = plan.internal_uv
-            meshes.append(mesh)
         core_scene = Scene(meshes=meshes, lights=[extract.read_light(o) for o in extract.scene_lights(scene)],
                            world=extract.read_world(scene, warnings))
         times["extract"] = time.perf_counter() - t

@@ -33,7 +33,8 @@ class LayoutPlan:
     resolution: tuple[int, int]
     reason: str
     internal_uv: np.ndarray | None = None  # (m, 3, 2) for objects that get no UV map written
-    created: bool = False
+    created: bool = False  # the UV map did not exist before this bake
+    written: bool = False  # the UV map was (re)written by this bake
 
 
 def owns_uv_map(mesh: bpy.types.Mesh, name: str) -> bool:
@@ -50,6 +51,16 @@ def object_resolution(obj, settings, world_area: float, uv_area: float) -> tuple
         size = int(np.clip(size, 8, 8192))
         return size, size
     return settings.resolution, settings.resolution
+
+
+def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarray) -> tuple[int, int]:
+    """The atlas size ``obj`` will get, known before its UV map is looked at.
+
+    With a texel density the real size depends on how much of the UV square the
+    layout fills; the typical packed share stands in for it here.
+    """
+    world_area = float(np.sum(_triangle_areas(positions[triangles]))) if len(triangles) else 0.0
+    return object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
 
 
 def _triangle_areas(corners: np.ndarray) -> np.ndarray:
@@ -137,7 +148,8 @@ def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, e
         resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
         unwrapped = _unwrap(obj, positions, triangles, resolution[0])
         created = write_uv_map(mesh, positions, triangles, loops, unwrapped.corner_uv)
-        return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", created=created)
+        return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", created=created,
+                          written=True)
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
     # the evaluated mesh in memory and leave the user's mesh alone.
     resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)

@@ -70,7 +70,7 @@ def test_cancel_leaves_the_scene_as_it_was(visibake, clean_scene):
 
 def test_broken_geometry_gives_finite_outputs(clean_scene):
     black_world()
-    ground = mesh_object("Ground", grid(1.0, segments=4), material("White", (0.8, 0.8, 0.8)))
+    mesh_object("Ground", grid(1.0, segments=4), material("White", (0.8, 0.8, 0.8)))
     bad = mesh_object("Bad", cube(0.4), None, location=(0, 0, 0.5), uv_map=None)
     coords = np.empty(len(bad.data.vertices) * 3, np.float32)
     bad.data.vertices.foreach_get("co", coords)
