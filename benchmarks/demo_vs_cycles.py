@@ -44,6 +44,38 @@ def covered_error(ours: dict, reference: dict) -> dict:
             "max_abs_error": worst, "reference_mean": mean, "values": count}
 
 
+def raw_embree_rays_per_second(meshes, count=4_000_000, threads=2):
+    """embreex alone: rays from random surface points in random upper-hemisphere
+    directions, prebuilt arrays, the GIL released in ``run``, ``threads`` threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from embreex.mesh_construction import TriangleMesh
+    from embreex.rtcore_scene import EmbreeScene
+
+    scene = EmbreeScene()
+    for mesh in meshes:
+        TriangleMesh(scene, mesh.positions.astype(np.float32), mesh.triangles.astype(np.int32))
+    rng = np.random.default_rng(0)
+    corners = np.concatenate([m.positions[m.triangles] for m in meshes])
+    pick = rng.integers(0, len(corners), count)
+    a, b = rng.random((2, count, 1))
+    flip = (a + b) > 1
+    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
+    c = corners[pick]
+    normals = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    origins = (c[:, 0] + a * (c[:, 1] - c[:, 0]) + b * (c[:, 2] - c[:, 0]) + 1e-4 * normals).astype(np.float32)
+    directions = rng.normal(size=(count, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    directions = np.where(np.sum(directions * normals, axis=1, keepdims=True) < 0, -directions, directions)
+    directions = directions.astype(np.float32)
+    spans = np.array_split(np.arange(count), threads)
+    started = time.perf_counter()
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda span: scene.run(origins[span], directions[span], output=1), spans))
+    return count / (time.perf_counter() - started)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--directions", type=int, nargs="+", default=[128, 256])
@@ -114,8 +146,16 @@ def main() -> int:
     cheap, cheap_seconds = cycles(args.timing_samples)
     print(f"Cycles {args.timing_samples} spp: {cheap_seconds:.1f} s", flush=True)
 
+    extract = importlib.import_module(f"{extension.__name__}.operators.extract")
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    meshes = [extract.read_mesh(o, depsgraph, "", (0, 0), True, []) for o in objects]
+    raw_rate = raw_embree_rays_per_second(meshes)
+    print(f"embreex alone: {raw_rate / 1e6:.2f} Mrays/s", flush=True)
+
     rows = []
     for run in runs:
+        run["visibility_rays_per_second"] = run["rays"]["visibility_cast"] / max(run["stage_seconds"]["visibility"], 1e-9)
+        run["visibility_fraction_of_embree"] = run["visibility_rays_per_second"] / raw_rate
         error = covered_error(run.pop("images"), reference)
         rows.append({**run, **error})
     cheap_error = covered_error(cheap, reference)
@@ -124,6 +164,7 @@ def main() -> int:
         "machine": {"platform": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count()},
         "blender": bpy.app.version_string,
         "settings": {"bounces": args.bounces, "resolution": args.resolution, "reference_samples": args.samples},
+        "embree_rays_per_second": raw_rate,
         "cycles_reference_seconds": reference_seconds,
         "cycles_reference_relative_noise": reference_noise,
         "cycles_timing": {"samples": args.timing_samples, "seconds": cheap_seconds, **cheap_error},
@@ -135,7 +176,8 @@ def main() -> int:
     print(f"\n{'run':<28}{'seconds':>9}{'rel.RMSE':>10}{'bias':>9}")
     for row in rows:
         print(f"VisiBake N={row['directions']:<4} {row['shadows']:<10}{row['total_seconds']:>9.1f}"
-              f"{row['relative_rmse']:>10.4f}{row['bias']:>+9.4f}  stages {row['stage_seconds']}")
+              f"{row['relative_rmse']:>10.4f}{row['bias']:>+9.4f}  stages {row['stage_seconds']}"
+              f"  visibility at {row['visibility_fraction_of_embree']:.0%} of embreex alone")
     print(f"{'Cycles ' + str(args.timing_samples) + ' spp':<28}{cheap_seconds:>9.1f}"
           f"{cheap_error['relative_rmse']:>10.4f}{cheap_error['bias']:>+9.4f}")
     print(f"{'Cycles ' + str(args.samples) + ' spp (reference)':<28}{reference_seconds:>9.1f}"

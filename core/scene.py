@@ -121,7 +121,7 @@ class BakeSettings:
 
     directions: int = 128
     bounces: int = 2
-    shadows: str = "fractions"
+    shadows: str = "exact"
     shadow_regions: int = 32
     rotate: bool = False
     seed: int = 0

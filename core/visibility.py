@@ -91,8 +91,10 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
     traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
-        above = (geometric_normals[start:stop] @ directions.T) > 0.0
-        sample_index, direction_index = np.nonzero(above)
+        # Direction-major order: consecutive rays share a direction (coherent for
+        # embree) and land in one row of the table (contiguous writes).
+        above = (directions @ geometric_normals[start:stop].T) > 0.0
+        direction_index, sample_index = np.nonzero(above)
         if len(sample_index):
             geometry, triangle, bary, distance = ray_scene.intersect(origins_all[start:stop][sample_index],
                                                            directions32[direction_index])

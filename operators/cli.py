@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--resolution", type=int, metavar="PX", help="atlas size in texels (default 256)")
         sub.add_argument("--texel-density", type=float, metavar="T", help="texels per unit instead of a fixed size")
         sub.add_argument("--mode", choices=("auto", "atlas", "vertex"), help="sample layout (default auto)")
-        sub.add_argument("--shadows", choices=("fractions", "exact"), help="shadow method (default fractions)")
+        sub.add_argument("--shadows", choices=("fractions", "exact"), help="shadow method (default exact)")
         sub.add_argument("--passes", metavar="P,Q", help=f"comma-separated subset of {','.join(PASSES)} (default lighting)")
         sub.add_argument("--rotate", action="store_true", default=None, help="randomly rotate the direction set")
         sub.add_argument("--seed", type=int, help="seed of the rotation")

@@ -14,7 +14,7 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="Bounces", default=2, min=0, soft_max=8,
         description="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)")
     shadows: bpy.props.EnumProperty(
-        name="Shadows", default="fractions",
+        name="Shadows", default="exact",
         items=[("fractions", "Fractions", "Shadows from the precomputed visibility (no ray at lighting time, soft)"),
                ("exact", "Exact", "One shadow ray per texel and light (sharp, traced at every bake)")],
         description="How direct light is shadowed")
