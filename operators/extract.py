@@ -139,7 +139,8 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
 
     matrix = _matrix(obj.matrix_world)
     linear = matrix[:3, :3]
-    positions = positions @ linear.T + matrix[:3, 3]
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN/Inf vertices stay NaN/Inf; core drops them
+        positions = positions @ linear.T + matrix[:3, 3]
     normal_matrix = np.linalg.inv(linear).T if abs(np.linalg.det(linear)) > 1e-30 else linear
     corner_normals = (normals[loops] @ normal_matrix.T).astype(np.float32)
     if np.linalg.det(linear) < 0:

@@ -64,6 +64,8 @@ def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarr
 
 
 def _triangle_areas(corners: np.ndarray) -> np.ndarray:
+    """Areas of (m, 3, 2 or 3) triangles; 0 where a corner is not finite."""
+    corners = np.where(np.isfinite(corners), corners, 0.0)
     if corners.shape[-1] == 2:
         a = corners[:, 1] - corners[:, 0]
         b = corners[:, 2] - corners[:, 0]

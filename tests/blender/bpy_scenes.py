@@ -8,7 +8,8 @@ import numpy as np
 
 def material(name, color, emission=(0.0, 0.0, 0.0), strength=0.0):
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
+    if bpy.app.version < (5, 0, 0):  # always node-based from 5.0 on
+        mat.use_nodes = True
     bsdf = mat.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*color, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
@@ -83,7 +84,8 @@ def point(power, location, name="Point"):
 
 def black_world():
     world = bpy.data.worlds.new("Black")
-    world.use_nodes = True
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
     bpy.context.scene.world = world
 
