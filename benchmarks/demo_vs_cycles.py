@@ -23,6 +23,7 @@ sys.path.insert(0, ROOT)
 
 import numpy as np  # noqa: E402
 
+from benchmarks.limits import embree_rays_per_second  # noqa: E402
 from tools.visibake import load_extension  # noqa: E402
 
 
@@ -42,38 +43,6 @@ def covered_error(ours: dict, reference: dict) -> dict:
     mean = total / count
     return {"relative_rmse": np.sqrt(squared / count) / mean, "bias": ours_sum / total - 1.0,
             "max_abs_error": worst, "reference_mean": mean, "values": count}
-
-
-def raw_embree_rays_per_second(meshes, count=4_000_000, threads=2):
-    """embreex alone: rays from random surface points in random upper-hemisphere
-    directions, prebuilt arrays, the GIL released in ``run``, ``threads`` threads."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from embreex.mesh_construction import TriangleMesh
-    from embreex.rtcore_scene import EmbreeScene
-
-    scene = EmbreeScene()
-    for mesh in meshes:
-        TriangleMesh(scene, mesh.positions.astype(np.float32), mesh.triangles.astype(np.int32))
-    rng = np.random.default_rng(0)
-    corners = np.concatenate([m.positions[m.triangles] for m in meshes])
-    pick = rng.integers(0, len(corners), count)
-    a, b = rng.random((2, count, 1))
-    flip = (a + b) > 1
-    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
-    c = corners[pick]
-    normals = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-    origins = (c[:, 0] + a * (c[:, 1] - c[:, 0]) + b * (c[:, 2] - c[:, 0]) + 1e-4 * normals).astype(np.float32)
-    directions = rng.normal(size=(count, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    directions = np.where(np.sum(directions * normals, axis=1, keepdims=True) < 0, -directions, directions)
-    directions = directions.astype(np.float32)
-    spans = np.array_split(np.arange(count), threads)
-    started = time.perf_counter()
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda span: scene.run(origins[span], directions[span], output=1), spans))
-    return count / (time.perf_counter() - started)
 
 
 def main() -> int:
@@ -149,7 +118,7 @@ def main() -> int:
     extract = importlib.import_module(f"{extension.__name__}.operators.extract")
     depsgraph = bpy.context.evaluated_depsgraph_get()
     meshes = [extract.read_mesh(o, depsgraph, "", (0, 0), True, []) for o in objects]
-    raw_rate = raw_embree_rays_per_second(meshes)
+    raw_rate = embree_rays_per_second(meshes)
     print(f"embreex alone: {raw_rate / 1e6:.2f} Mrays/s", flush=True)
 
     rows = []

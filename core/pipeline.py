@@ -160,27 +160,64 @@ class _Stages:
             self._name = None
 
 
-def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
-    """Bake every output object of ``scene``.
+@dataclass
+class Prepared:
+    """What a bake computes from geometry, materials and settings alone.
+
+    Reused unchanged by every :func:`relight`: lights and world can change without
+    tracing a single visibility ray again (the reason the method exists).
+    """
+
+    settings: BakeSettings
+    meshes: list
+    object_samples: list
+    sample_offset: np.ndarray  # (objects + 1,) int64
+    position: np.ndarray  # (K, 3) float64
+    normal: np.ndarray  # (K, 3) float64 shading normals
+    geometric: np.ndarray  # (K, 3) float64
+    albedo: np.ndarray  # (K, 3) float64
+    emission: np.ndarray  # (K, 3) float64
+    layout: AtlasLayout
+    directions: np.ndarray  # (N, 3) float64
+    ray_scene: RayScene
+    origins: np.ndarray  # (K, 3) float32, offset off the surface
+    table: object  # VisibilityTable or None
+    stage_seconds: dict
+    skipped: list
+    warnings: list
+
+    def to_atlas(self, values: np.ndarray) -> np.ndarray:
+        """Per-sample values (K, 3) as the packed, gutter-dilated radiance atlas."""
+        margin = max(self.settings.margin, 2)
+        images = []
+        for samples, a, b in zip(self.object_samples, self.sample_offset[:-1], self.sample_offset[1:]):
+            image = np.zeros((samples.height * samples.width, 3), np.float32)
+            image[samples.pixel] = values[a:b]
+            image = image.reshape(samples.height, samples.width, 3)
+            image, _ = dilate(image, samples.coverage, margin)
+            images.append(image)
+        return self.layout.pack(images)
+
+
+def _clean_world(world) -> np.ndarray:
+    color = np.nan_to_num(np.asarray(world.color, np.float64)[:3], nan=0.0, posinf=0.0)
+    return np.clip(color, 0.0, None)
+
+
+def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None) -> Prepared:
+    """Samples and the visibility table of ``scene``'s meshes.
 
     Parameters
     ----------
-    scene : Scene
-        Meshes with a valid bake UV map each, lights and world.
-    settings : BakeSettings
-    progress : callable(stage: str, fraction: float) or None
-        Called often; raise :class:`Cancelled` in it to stop.
-
-    Returns
-    -------
-    BakeResult
+    table_needed : bool or None
+        None: trace the table only if ``scene``'s own lights, world and materials
+        need it. True: always (for relighting with lights not known yet).
     """
     settings.validate()
     check_budget([m.resolution for m in scene.meshes], settings.directions)
     stages = _Stages(progress)
     skipped: list[str] = []
     warnings: list[str] = []
-    lights = usable_lights(scene.lights, warnings)
 
     stages.start("samples")
     meshes = []
@@ -203,58 +240,68 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
             warnings.append(f"object {mesh.name!r}: {samples.uv_overlap_texels} texels are covered by "
                             "overlapping UV islands; each was given to one triangle")
     counts = np.array([len(s) for s in object_samples], np.int64)
-    sample_offset = np.concatenate([[0], np.cumsum(counts)])
     position = np.concatenate([s.position for s in object_samples])
-    normal = np.concatenate([s.normal for s in object_samples])
     geometric = np.concatenate([s.geometric_normal for s in object_samples])
-    albedo = np.concatenate([s.albedo for s in object_samples]).astype(np.float64)
     emission = np.concatenate([s.emission for s in object_samples]).astype(np.float64)
-    layout = AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples])
-    lookup_margin = max(settings.margin, 2)
-
-    def to_atlas(values: np.ndarray) -> np.ndarray:
-        images = []
-        for samples, a, b in zip(object_samples, sample_offset[:-1], sample_offset[1:]):
-            image = np.zeros((samples.height * samples.width, 3), np.float32)
-            image[samples.pixel] = values[a:b]
-            image = image.reshape(samples.height, samples.width, 3)
-            image, _ = dilate(image, samples.coverage, lookup_margin)
-            images.append(image)
-        return layout.pack(images)
-
     directions = direction_set(settings.directions, settings.rotate, settings.seed)
-    has_emission = bool(np.any(emission > 0))
-    world = np.nan_to_num(np.asarray(scene.world.color, np.float64)[:3], nan=0.0, posinf=0.0)
-    world = np.clip(world, 0.0, None)
-    has_world = bool(np.any(world > 0))
-    wants = set(settings.passes)
-    needs_gather = settings.bounces > 0 or has_emission or has_world
-    needs_table = needs_gather or "ao" in wants or (settings.shadows == "fractions" and bool(lights))
+    if table_needed is None:
+        table_needed = (settings.bounces > 0 or bool(np.any(emission > 0)) or "ao" in settings.passes
+                        or bool(np.any(_clean_world(scene.world) > 0))
+                        or (settings.shadows == "fractions" and bool(scene.lights)))
 
-    triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
-    triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
     ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
-
     table = None
-    if needs_table:
+    if table_needed:
         stages.start("visibility")
+        triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
+        triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
         corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] for m in meshes]).astype(np.float32)
         all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
         table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
                             all_face_normals, settings.chunk_rays, stages.report)
     else:
         skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
+    stages.stop()
+
+    return Prepared(
+        settings=settings, meshes=meshes, object_samples=object_samples,
+        sample_offset=np.concatenate([[0], np.cumsum(counts)]), position=position,
+        normal=np.concatenate([s.normal for s in object_samples]), geometric=geometric,
+        albedo=np.concatenate([s.albedo for s in object_samples]).astype(np.float64), emission=emission,
+        layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples]), directions=directions,
+        ray_scene=ray_scene, origins=offset_ray_origins(position, geometric), table=table,
+        stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings)
+
+
+def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
+    """Direct light, gathers and pass images for ``lights`` and ``world`` over a prepared scene.
+
+    Traces only shadow rays (exact shadows, sampled emitters); never the table again.
+    """
+    p = prepared
+    settings = p.settings
+    stages = _Stages(progress)
+    skipped = list(p.skipped)
+    warnings = list(p.warnings)
+    lights = usable_lights(lights, warnings)
+    table = p.table
+    world = _clean_world(world)
+    has_emission = bool(np.any(p.emission > 0))
+    has_world = bool(np.any(world > 0))
+    wants = set(settings.passes)
+    needs_gather = settings.bounces > 0 or has_emission or has_world
+    uses_fractions = bool(lights) and settings.shadows == "fractions"
+    if table is None and (needs_gather or "ao" in wants or uses_fractions):
+        raise BakeRefused("this scene was prepared without a visibility table, which these lights, world "
+                          "or passes need; prepare it again with the table")
 
     stages.start("direct")
-    regions = None
+    regions = ShadowRegions(p.directions, settings.shadow_regions) if uses_fractions else None
     distant_fractions = None
-    if lights and settings.shadows == "fractions":
-        regions = ShadowRegions(directions, settings.shadow_regions)
     # E_d: everything that reaches a sample without a bounce (lamps, sampled emitters,
     # gathered emission and world). Bounces then only ever carry reflected light.
-    direct_irradiance = np.zeros((len(position), 3))
+    direct_irradiance = np.zeros((len(p.position), 3))
     shadow_rays = 0
-    origins = offset_ray_origins(position, geometric)
     for light_index, light in enumerate(lights):
         fractions = None
         if regions is not None:
@@ -263,10 +310,10 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
                     distant_fractions = shadow_fractions(table, regions)
                 fractions = distant_fractions
             else:
-                light_distance = np.linalg.norm(position - np.asarray(light.position, np.float64), axis=1)
+                light_distance = np.linalg.norm(p.position - np.asarray(light.position, np.float64), axis=1)
                 fractions = shadow_fractions(table, regions, light_distance)
-        for part in light_contributions(light, position, normal, settings.area_light_samples):
-            above = np.einsum("kd,kd->k", part.to_light, geometric) > 0.0
+        for part in light_contributions(light, p.position, p.normal, settings.area_light_samples):
+            above = np.einsum("kd,kd->k", part.to_light, p.geometric) > 0.0
             lit = above & np.any(part.irradiance > 0, axis=1)
             if fractions is not None:
                 visibility = np.where(lit, fractions.visibility(part.to_light), 0.0)
@@ -276,7 +323,7 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
                 if len(rays):
                     distance = part.distance[rays]
                     limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
-                    blocked = ray_scene.occluded(origins[rays], part.to_light[rays], limit.astype(np.float32))
+                    blocked = p.ray_scene.occluded(p.origins[rays], part.to_light[rays], limit.astype(np.float32))
                     visibility[rays[blocked]] = 0.0
                     shadow_rays += len(rays)
             direct_irradiance += part.irradiance * visibility[:, None]
@@ -285,18 +332,18 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
         skipped.append("shadow fractions: shadows are exact")
 
     exclude = None
-    emitters = find_emitters(meshes, settings.emitter_samples) if needs_gather else []
+    emitters = find_emitters(p.meshes, settings.emitter_samples) if needs_gather else []
     emitter_rays = 0
     for emitter in emitters:
-        direct = sampled_directly(emitter, position, settings.directions)
+        direct = sampled_directly(emitter, p.position, settings.directions)
         if not np.any(direct):
             continue
         if exclude is None:
-            exclude = np.zeros((len(position), len(meshes)), bool)
+            exclude = np.zeros((len(p.position), len(p.meshes)), bool)
         exclude[:, emitter.object_index] = direct
         chosen = np.nonzero(direct)[0]
-        irradiance, rays = emitter_irradiance(emitter, position[chosen], normal[chosen], geometric[chosen],
-                                              origins[chosen], ray_scene)
+        irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen], p.geometric[chosen],
+                                              p.origins[chosen], p.ray_scene)
         direct_irradiance[chosen] += irradiance
         emitter_rays += rays
     stages.report(1.0)
@@ -306,23 +353,23 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     scale = None
     if needs_gather:
         stages.start("transport")
-        scale = gather_normalisation(table, normal)
+        scale = gather_normalisation(table, p.normal)
         total = settings.bounces + 1
 
         def step_progress(step):
             return lambda fraction: stages.report((step + fraction) / total)
 
         if has_emission or has_world:
-            direct_irradiance += gather(table, normal, scale, layout, to_atlas(emission), world,
+            direct_irradiance += gather(table, p.normal, scale, p.layout, p.to_atlas(p.emission), world,
                                         step_progress(0), exclude, settings.threads)
             gathers += 1
         else:
             skipped.append("gather of emitted light: the scene has no emission and no world light")
         no_world = np.zeros(3)
         for bounce in range(1, settings.bounces + 1):
-            reflected = albedo / np.pi * (direct_irradiance + gathered)
-            gathered = gather(table, normal, scale, layout, to_atlas(reflected), no_world, step_progress(bounce),
-                              threads=settings.threads)
+            reflected = p.albedo / np.pi * (direct_irradiance + gathered)
+            gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), no_world,
+                              step_progress(bounce), threads=settings.threads)
             gathers += 1
     else:
         skipped.append("indirect gathers: bounces = 0 and nothing emits")
@@ -331,23 +378,23 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     per_pass: dict[str, np.ndarray] = {}
     irradiance = direct_irradiance + gathered
     if "lighting" in wants:
-        per_pass["lighting"] = albedo / np.pi * irradiance
+        per_pass["lighting"] = p.albedo / np.pi * irradiance
     if "direct" in wants:
-        per_pass["direct"] = albedo / np.pi * direct_irradiance
+        per_pass["direct"] = p.albedo / np.pi * direct_irradiance
     if "indirect" in wants:
-        per_pass["indirect"] = albedo / np.pi * gathered
+        per_pass["indirect"] = p.albedo / np.pi * gathered
     if "irradiance" in wants:
         per_pass["irradiance"] = irradiance / np.pi
     if "ao" in wants:
         if scale is None:
-            scale = gather_normalisation(table, normal)
-        per_pass["ao"] = np.repeat(ambient_occlusion(table, normal, scale)[:, None], 3, axis=1)
+            scale = gather_normalisation(table, p.normal)
+        per_pass["ao"] = np.repeat(ambient_occlusion(table, p.normal, scale)[:, None], 3, axis=1)
 
     results = []
-    output_meshes = [(i, m) for i, m in enumerate(meshes) if m.output]
+    output_meshes = [(i, m) for i, m in enumerate(p.meshes) if m.output]
     for done, (index, mesh) in enumerate(output_meshes):
-        samples = object_samples[index]
-        a, b = sample_offset[index], sample_offset[index + 1]
+        samples = p.object_samples[index]
+        a, b = p.sample_offset[index], p.sample_offset[index + 1]
         result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
         for name in settings.passes:
             result.images[name] = sample_image(per_pass[name][a:b], samples.pixel, samples.coverage, settings.margin)
@@ -355,11 +402,12 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
         stages.report((done + 1) / len(output_meshes))
     stages.stop()
 
-    empty = sum(s.width * s.height for s in object_samples) - int(counts.sum())
+    counts = np.diff(p.sample_offset)
+    empty = sum(s.width * s.height for s in p.object_samples) - int(counts.sum())
     skipped.append(f"{empty} atlas texels outside every UV island: not sampled, filled by dilation only")
     if table is not None:
         skipped.append(f"{table.rays_below_horizon} directions below a texel's horizon: not traced")
-    occluders = [m.name for m in meshes if not m.output]
+    occluders = [m.name for m in p.meshes if not m.output]
     if occluders:
         skipped.append(f"outputs of {len(occluders)} objects that only occlude and reflect: {', '.join(occluders)}")
     report = {
@@ -367,9 +415,9 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
         "objects": [
             {"name": m.name, "output": m.output, "uv_map": m.bake_uv_map, "resolution": list(m.resolution),
              "texels": int(counts[i]), "triangles": int(len(m.triangles))}
-            for i, m in enumerate(meshes)
+            for i, m in enumerate(p.meshes)
         ],
-        "stage_seconds": {k: round(v, 4) for k, v in stages.times.items()},
+        "stage_seconds": {k: round(v, 4) for k, v in {**p.stage_seconds, **stages.times}.items()},
         "rays": {
             "visibility_cast": int(table.rays_cast) if table else 0,
             "visibility_skipped_below_horizon": int(table.rays_below_horizon) if table else 0,
@@ -377,7 +425,7 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
             "shadow_rays": int(shadow_rays),
             "emitter_rays": int(emitter_rays),
         },
-        "emitters_sampled": [meshes[e.object_index].name for e in emitters],
+        "emitters_sampled": [p.meshes[e.object_index].name for e in emitters],
         "gathers": gathers,
         "table_bytes": int(table.nbytes) if table else 0,
         "skipped": skipped,
@@ -385,7 +433,7 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     }
     if table is not None and table.backface_hits:
         buried = table.buried()
-        for entry, a, b in zip(report["objects"], sample_offset[:-1], sample_offset[1:]):
+        for entry, a, b in zip(report["objects"], p.sample_offset[:-1], p.sample_offset[1:]):
             entry["buried_texels"] = int(np.count_nonzero(buried[a:b]))
         visible = ~buried
         share = table.backface_per_sample[visible].sum() / max(int(table.traced_per_sample[visible].sum()), 1)
@@ -393,3 +441,17 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
             warnings.append(f"{share:.1%} of the rays from visible texels hit the back of a face; backs reflect "
                             "no light (single-sided geometry or flipped normals)")
     return BakeResult(objects=results, report=report)
+
+
+def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
+    """Bake every output object of ``scene``: :func:`prepare`, then :func:`relight`.
+
+    Parameters
+    ----------
+    scene : Scene
+        Meshes with a valid bake UV map each, lights and world.
+    settings : BakeSettings
+    progress : callable(stage: str, fraction: float) or None
+        Called often; raise :class:`Cancelled` in it to stop.
+    """
+    return relight(prepare(scene, settings, progress), scene.lights, scene.world, progress)

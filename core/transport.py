@@ -50,20 +50,34 @@ class AtlasLayout:
         return flat
 
     def bilinear(self, flat: np.ndarray, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
-        """Bilinear lookup at atlas coordinates ``uv`` (n, 2) of objects ``obj`` (n,)."""
-        width = self.widths[obj]
-        height = self.heights[obj]
-        x = np.clip(uv[:, 0] * width - 0.5, 0.0, width - 1)
-        y = np.clip(uv[:, 1] * height - 0.5, 0.0, height - 1)
-        x0 = np.floor(x)
-        y0 = np.floor(y)
-        fx = (x - x0).astype(np.float32)[:, None]
-        fy = (y - y0).astype(np.float32)[:, None]
-        stride = width + 1
-        base = self.offsets[obj] + y0.astype(np.int64) * stride + x0.astype(np.int64)
-        bottom = flat[base] * (1 - fx) + flat[base + 1] * fx
-        top = flat[base + stride] * (1 - fx) + flat[base + stride + 1] * fx
-        return bottom * (1 - fy) + top * fy
+        """Bilinear lookup at atlas coordinates ``uv`` (n, 2) of objects ``obj`` (n,).
+
+        Clamped to the texel centres at the atlas border. float32 and int32 through
+        out: this runs once per table entry and gather, the innermost loop of a bake.
+        """
+        width = self.widths.astype(np.float32)[obj]
+        height = self.heights.astype(np.float32)[obj]
+        x = np.minimum(np.maximum(uv[:, 0] * width - np.float32(0.5), np.float32(0.0)), width - 1)
+        y = np.minimum(np.maximum(uv[:, 1] * height - np.float32(0.5), np.float32(0.0)), height - 1)
+        x0 = x.astype(np.int32)  # x >= 0, so truncation is floor
+        y0 = y.astype(np.int32)
+        fx = (x - x0)[:, None]
+        fy = (y - y0)[:, None]
+        stride = self.widths.astype(np.int32)[obj] + 1
+        base = self._offsets32[obj] + y0 * stride + x0
+        c00 = np.take(flat, base, axis=0)
+        c01 = np.take(flat, base + 1, axis=0)
+        bottom = c00 + (c01 - c00) * fx
+        c10 = np.take(flat, base + stride, axis=0)
+        c11 = np.take(flat, base + stride + 1, axis=0)
+        top = c10 + (c11 - c10) * fx
+        return bottom + (top - bottom) * fy
+
+    @property
+    def _offsets32(self) -> np.ndarray:
+        if self.size >= 2 ** 31:
+            raise ValueError("atlases beyond 2^31 texels in total are not supported")
+        return self.offsets.astype(np.int32)
 
 
 def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndarray:

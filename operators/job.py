@@ -41,30 +41,30 @@ def output_objects(context, props) -> list[bpy.types.Object]:
     return [o for o in meshes if o.select_get()]
 
 
-def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
-             progress=None) -> JobResult:
-    """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
+@dataclass
+class Extracted:
+    """The core scene of a bake, and what the Blender side did to produce it."""
 
-    Every other visible mesh of the scene occludes and reflects light but gets no
-    output. Raises :class:`BakeInputError` for bad input, ``core.pipeline.Cancelled``
-    if ``progress`` cancels; in both cases the scene is left unchanged.
+    scene: Scene
+    plans: dict  # object name -> layout.LayoutPlan
+    created: list  # (mesh, UV map name) created for this bake
+    warnings: list
+    seconds: dict
+
+    def undo(self) -> None:
+        """Remove the UV maps this extraction created (a bake that did not finish)."""
+        layout.remove_created_uv_maps(self.created)
+
+
+def extract_scene(context, objects, progress=None) -> Extracted:
+    """Lay out and read every visible mesh (``objects`` get outputs), lamps and world.
+
+    Creates ``VisiBake`` UV maps where needed; on an error they are removed again
+    before this raises.
     """
     scene = context.scene
     props = scene.visibake
-    if props.mode == "vertex":
-        raise BakeInputError("vertex mode is not implemented yet; use mode atlas or auto")
-    if not objects:
-        raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
-    settings = props.to_bake_settings()
-    try:
-        settings.validate()
-    except ValueError as error:
-        raise BakeInputError(str(error)) from None
-    try:
-        writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
-    except ValueError as error:
-        raise BakeInputError(str(error)) from None
-
+    directions = props.directions
     times = {}
     started = time.perf_counter()
     outputs = set(o.name for o in objects)
@@ -85,12 +85,12 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
                 # Checked before any work at the planned size: validating a UV map
                 # rasterises it at the bake resolution.
                 planned.append(layout.planned_resolution(obj, props, mesh.positions, mesh.triangles))
-                check_budget(planned, settings.directions)
+                check_budget(planned, directions)
                 plan = layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
                 if plan.created:
                     created.append((obj.data, plan.uv_map))
                 planned[-1] = plan.resolution
-                check_budget(planned, settings.directions)
+                check_budget(planned, directions)
             except ValueError as error:
                 raise BakeInputError(str(error)) from None
             plans[obj.name] = plan
@@ -117,13 +117,47 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         times["extract"] = time.perf_counter() - t
         if not any(m.output for m in meshes):
             raise BakeInputError("none of the objects to bake has faces")
-        try:
-            result = bake(core_scene, settings, progress)
-        except ValueError as error:
-            raise BakeInputError(str(error)) from None
     except BaseException:
         layout.remove_created_uv_maps(created)
         raise
+    return Extracted(core_scene, plans, created, warnings, times)
+
+
+def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
+             progress=None) -> JobResult:
+    """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
+
+    Every other visible mesh of the scene occludes and reflects light but gets no
+    output. Raises :class:`BakeInputError` for bad input, ``core.pipeline.Cancelled``
+    if ``progress`` cancels; in both cases the scene is left unchanged.
+    """
+    scene = context.scene
+    props = scene.visibake
+    if props.mode == "vertex":
+        raise BakeInputError("vertex mode is not implemented yet; use mode atlas or auto")
+    if not objects:
+        raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
+    settings = props.to_bake_settings()
+    try:
+        settings.validate()
+    except ValueError as error:
+        raise BakeInputError(str(error)) from None
+    try:
+        writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
+    except ValueError as error:
+        raise BakeInputError(str(error)) from None
+
+    started = time.perf_counter()
+    extracted = extract_scene(context, objects, progress)
+    try:
+        try:
+            result = bake(extracted.scene, settings, progress)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+    except BaseException:
+        extracted.undo()
+        raise
+    times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
 
     t = time.perf_counter()
     files = writeback.write_outputs(result.objects, out_dir, previews)
@@ -142,7 +176,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             entry["uv_map_reason"] = plan.reason
             entry["uv_map_created"] = plan.created
     report["blender_version"] = bpy.app.version_string
-    report["lights"] = [light.name for light in core_scene.lights]
+    report["lights"] = [light.name for light in extracted.scene.lights]
     return JobResult(result=result, report=report, files=files)
 
 

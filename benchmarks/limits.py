@@ -1,0 +1,67 @@
+"""What the libraries underneath can do, measured on the same data as a bake.
+
+Each VisiBake stage is reported as a fraction of these: embreex tracing rays from
+prebuilt arrays with no VisiBake code around it, and numpy gathering table entries.
+"""
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+
+def embree_rays_per_second(meshes, count: int = 4_000_000, threads: int = 2) -> float:
+    """embreex alone: rays from random surface points into their upper hemisphere.
+
+    Parameters
+    ----------
+    meshes : objects with ``positions`` (n, 3) and ``triangles`` (m, 3), world space
+    """
+    from embreex.mesh_construction import TriangleMesh
+    from embreex.rtcore_scene import EmbreeScene
+
+    scene = EmbreeScene()
+    for mesh in meshes:
+        TriangleMesh(scene, np.ascontiguousarray(mesh.positions, np.float32),
+                     np.ascontiguousarray(mesh.triangles, np.int32))
+    rng = np.random.default_rng(0)
+    corners = np.concatenate([m.positions[m.triangles] for m in meshes])
+    with np.errstate(invalid="ignore"):
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normals, axis=1)
+    usable = np.nonzero(np.isfinite(length) & (length > 0))[0]
+    pick = usable[rng.integers(0, len(usable), count)]
+    a, b = rng.random((2, count, 1))
+    flip = (a + b) > 1
+    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
+    c = corners[pick]
+    n = normals[pick] / length[pick, None]
+    origins = (c[:, 0] + a * (c[:, 1] - c[:, 0]) + b * (c[:, 2] - c[:, 0]) + 1e-4 * n).astype(np.float32)
+    directions = rng.normal(size=(count, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    directions = np.where(np.sum(directions * n, axis=1, keepdims=True) < 0, -directions, directions)
+    directions = directions.astype(np.float32)
+    spans = np.array_split(np.arange(count), threads)
+    started = time.perf_counter()
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda span: scene.run(origins[span], directions[span], output=1), spans))
+    return count / (time.perf_counter() - started)
+
+
+def numpy_gather_lookups_per_second(texels: int, directions: int, atlas_texels: int, repeats: int = 3) -> float:
+    """numpy alone: one RGB float32 fetch per (direction, texel), random addresses.
+
+    The same number of lookups as one gather over a table of ``directions`` x
+    ``texels`` entries into atlases of ``atlas_texels`` texels, with no weights, no
+    bilinear filter and no bookkeeping: the ceiling for the gather stage. The best
+    of ``repeats`` runs of one direction's worth of lookups is scaled up.
+    """
+    rng = np.random.default_rng(0)
+    flat = rng.random((max(atlas_texels, 1), 3), dtype=np.float32)
+    index = rng.integers(0, len(flat), texels)
+    accumulator = np.zeros((texels, 3), np.float32)
+    best = np.inf
+    for _ in range(repeats):
+        started = time.perf_counter()
+        accumulator += np.take(flat, index, axis=0)
+        best = min(best, time.perf_counter() - started)
+    return texels / best

@@ -1,0 +1,312 @@
+"""Run time against error: VisiBake and Cycles on procedural scenes (``make bench``).
+
+    .venv/bin/python benchmarks/run.py --profile quick            # ~15 min on 2 cores
+    .venv/bin/python benchmarks/run.py --profile full             # hours: the whole sweep
+    .venv/bin/python benchmarks/run.py --profile smoke --out DIR  # seconds: what the tests run
+
+For every scene of ``benchmarks/scenes.py``, at each atlas resolution and bounce count
+of the profile: a converged Cycles reference (cached on disk by a hash of the scene and
+settings, with its own noise estimated from two independent halves), then VisiBake over
+direction counts, shadow modes and direction-set rotation, and Cycles over sample
+counts, on the same UV layout. Every run records wall time per stage, peak memory,
+relative RMSE, bias and max error against the reference. Then the relighting case (K
+lighting setups from one visibility bake against K Cycles bakes at matched error), and
+the limits of the libraries underneath (embreex rays/s, numpy lookups/s) measured in
+the same run, so every stage is also reported as a fraction of what its library can do.
+
+Writes ``<out>/<scene>.csv`` and ``<scene>.png`` (error against time, Pareto front),
+``relight.csv``, ``limits.csv``, ``summary.json`` and ``summary.md``.
+"""
+import argparse
+import csv
+import importlib
+import json
+import os
+import platform
+import sys
+import time
+from datetime import datetime, timezone
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+import numpy as np  # noqa: E402
+
+PROFILES = {
+    "smoke": dict(size="smoke", scenes=["sun_occluders"], resolutions=[16], bounces=[1], directions=[8, 16],
+                  shadows=["exact"], rotate=[False], cycles_samples=[1, 4], reference_samples=16,
+                  relight_setups=[1, 2]),
+    "quick": dict(size="full", scenes=None, resolutions=[64], bounces=[1, 2], directions=[32, 64, 128, 256],
+                  shadows=["exact", "fractions"], rotate=[False, True], cycles_samples=[1, 4, 16, 64, 256],
+                  reference_samples=1024, relight_setups=[1, 4, 16]),
+    "full": dict(size="full", scenes=None, resolutions=[64, 128, 256], bounces=[0, 1, 2, 4],
+                 directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
+                 cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=4096, relight_setups=[1, 4, 16]),
+}
+# The VisiBake setting whose error the relighting case matches Cycles against.
+RELIGHT_DIRECTIONS = 128
+
+FIELDS = ["scene", "method", "resolution", "bounces", "directions", "shadows", "rotate", "samples", "seconds",
+          "stage_seconds", "peak_memory_bytes", "relative_rmse", "bias", "max_abs_error", "max_relative_error",
+          "texels", "reference_noise", "visibility_fraction_of_embree", "gather_fraction_of_numpy"]
+
+
+def machine() -> dict:
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpus": os.cpu_count(), "python": platform.python_version()}
+
+
+def pareto(points):
+    """Indices of the points no other point beats in both time and error."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], np.inf
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def plot(path: str, title: str, rows) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(7, 5))
+    styles = {("visibake", "exact"): ("o", "tab:blue"), ("visibake", "fractions"): ("s", "tab:green"),
+              ("cycles", ""): ("^", "tab:red")}
+    for (method, shadows), (marker, color) in styles.items():
+        chosen = [r for r in rows if r["method"] == method and (r["shadows"] or "") == shadows]
+        if not chosen:
+            continue
+        label = "Cycles (samples)" if method == "cycles" else f"VisiBake, {shadows} shadows (directions)"
+        for rotated in (False, True):
+            part = [r for r in chosen if bool(r["rotate"]) == rotated]
+            if part:
+                axes.scatter([r["seconds"] for r in part], [r["relative_rmse"] for r in part], marker=marker,
+                             color=color, facecolors="none" if rotated else color,
+                             label=label + (", rotated set" if rotated else ""))
+        for r in chosen:
+            axes.annotate(str(r["samples"] if method == "cycles" else r["directions"]),
+                          (r["seconds"], r["relative_rmse"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    front = pareto([(r["seconds"], r["relative_rmse"]) for r in rows])
+    ordered = sorted((rows[i] for i in front), key=lambda r: r["seconds"])
+    axes.step([r["seconds"] for r in ordered], [r["relative_rmse"] for r in ordered], where="post", color="grey",
+              linestyle=":", label="Pareto front")
+    noise = rows[0]["reference_noise"] if rows and rows[0]["reference_noise"] else None
+    if noise:
+        axes.axhline(noise, color="black", linewidth=0.8, linestyle="--", label="reference noise")
+    axes.set_xscale("log")
+    axes.set_yscale("log")
+    axes.set_xlabel("wall time (s)")
+    axes.set_ylabel("relative RMSE against converged Cycles")
+    axes.set_title(title)
+    axes.grid(True, which="both", alpha=0.3)
+    axes.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def interpolate_time_at_error(rows, target: float):
+    """Time Cycles needs for ``target`` error, from its sweep (log-log interpolation)."""
+    points = sorted((r["relative_rmse"], r["seconds"]) for r in rows)
+    if not points:
+        return None
+    if target <= points[0][0]:
+        # Beyond the sweep: error falls as samples^-1/2, time grows linearly with samples.
+        error, seconds = points[0]
+        return seconds * (error / target) ** 2
+    for (e0, t0), (e1, t1) in zip(points, points[1:]):
+        if e0 <= target <= e1:
+            w = (np.log(target) - np.log(e0)) / (np.log(e1) - np.log(e0))
+            return float(np.exp(np.log(t0) + w * (np.log(t1) - np.log(t0))))
+    return points[-1][1]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profile", choices=sorted(PROFILES), default="quick")
+    parser.add_argument("--scenes", nargs="+", help="subset of benchmarks/scenes.py SCENES")
+    parser.add_argument("--out", help="results folder (default benchmarks/results/<profile>-<timestamp>)")
+    parser.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "cache"), help="reference cache")
+    args = parser.parse_args(argv)
+    profile = PROFILES[args.profile]
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    out = args.out or os.path.join(ROOT, "benchmarks", "results", f"{args.profile}-{stamp}")
+    os.makedirs(out, exist_ok=True)
+
+    from tools.visibake import load_extension
+
+    extension = load_extension()
+    import bpy
+
+    from benchmarks import limits, reference, scenes
+    from tools.cycles_bake import bake_diffuse
+
+    job = importlib.import_module(f"{extension.__name__}.operators.job")
+    pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline")
+    names = args.scenes or profile["scenes"] or scenes.SCENE_NAMES
+    unknown = [n for n in names if n not in scenes.SCENES]
+    if unknown:
+        parser.error(f"unknown scenes: {', '.join(unknown)} (choose from {', '.join(scenes.SCENE_NAMES)})")
+
+    summary = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
+               "blender": bpy.app.version_string, "profile": args.profile, "settings": profile, "scenes": {}}
+    relight_rows, limit_rows = [], []
+    for name in names:
+        scenes.reset()
+        objects = scenes.SCENES[name](profile["size"])
+        props = bpy.context.scene.visibake
+        props.passes = {"lighting"}
+        rows = []
+        for resolution in profile["resolutions"]:
+            for bounces in profile["bounces"]:
+                props.resolution, props.bounces = resolution, bounces
+                props.directions, props.shadows, props.rotate = RELIGHT_DIRECTIONS, "exact", False
+                # The first bake lays out the UV maps every later run (and Cycles) uses.
+                first = job.run_bake(bpy.context, objects)
+                uv_maps = {o["name"]: o["uv_map"] for o in first.report["objects"] if o["output"]}
+                ref = reference.cached_reference(objects, uv_maps, resolution, bounces,
+                                                 profile["reference_samples"], args.cache)
+                print(f"{name} r{resolution} b{bounces}: reference {profile['reference_samples']} spp "
+                      f"({'cached' if ref.cached else f'{ref.seconds:.0f} s'}), noise {ref.noise or 0:.4f}", flush=True)
+                for directions in profile["directions"]:
+                    for shadows in profile["shadows"]:
+                        for rotate in profile["rotate"]:
+                            props.directions, props.shadows, props.rotate = directions, shadows, rotate
+                            outcome = job.run_bake(bpy.context, objects)
+                            images = {r.name: r.images["lighting"] for r in outcome.result.objects}
+                            report = outcome.report
+                            errors = reference.relative_errors(images, ref.images)
+                            rows.append({
+                                "scene": name, "method": "visibake", "resolution": resolution, "bounces": bounces,
+                                "directions": directions, "shadows": shadows, "rotate": rotate, "samples": "",
+                                "seconds": report["total_seconds"], "stage_seconds": report["stage_seconds"],
+                                "peak_memory_bytes": report["peak_memory_bytes"], "reference_noise": ref.noise,
+                                "_rays": report["rays"]["visibility_cast"], "_gathers": report["gathers"],
+                                **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error",
+                                                          "max_relative_error", "texels")}})
+                            print(f"  VisiBake N={directions} {shadows}{' rotated' if rotate else ''}: "
+                                  f"{report['total_seconds']:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
+                for samples in profile["cycles_samples"]:
+                    started = time.perf_counter()
+                    images = {}
+                    for uv_map in sorted(set(uv_maps.values())):
+                        group = [o for o in objects if uv_maps.get(o.name) == uv_map]
+                        images.update(bake_diffuse(group, uv_map, resolution, resolution, bounces, samples, seed=3))
+                    seconds = time.perf_counter() - started
+                    errors = reference.relative_errors(images, ref.images)
+                    rows.append({
+                        "scene": name, "method": "cycles", "resolution": resolution, "bounces": bounces,
+                        "directions": "", "shadows": "", "rotate": False, "samples": samples, "seconds": seconds,
+                        "stage_seconds": {"bake": round(seconds, 4)}, "peak_memory_bytes": pipeline.peak_memory_bytes(),
+                        "reference_noise": ref.noise,
+                        **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error", "max_relative_error",
+                                                  "texels")}})
+                    print(f"  Cycles {samples} spp: {seconds:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
+
+        # The libraries underneath, on this scene's geometry and table sizes.
+        extracted = job.extract_scene(bpy.context, objects)
+        embree_rate = limits.embree_rays_per_second(extracted.scene.meshes,
+                                                    count=200_000 if profile["size"] == "smoke" else 4_000_000)
+        texels = max(r["texels"] for r in rows if r["method"] == "visibake")
+        atlas_texels = sum((m.resolution[0] + 1) * (m.resolution[1] + 1) for m in extracted.scene.meshes)
+        numpy_rate = limits.numpy_gather_lookups_per_second(texels, 1, atlas_texels)
+        limit_rows.append({"scene": name, "embree_rays_per_second": embree_rate,
+                           "numpy_lookups_per_second": numpy_rate})
+        for row in rows:
+            if row["method"] != "visibake":
+                continue
+            stages = row["stage_seconds"]
+            row["visibility_fraction_of_embree"] = (row["_rays"] / max(stages.get("visibility", 0), 1e-9)) / embree_rate
+            lookups = row["_rays"] * row["_gathers"]
+            row["gather_fraction_of_numpy"] = ((lookups / stages["transport"]) / numpy_rate
+                                               if stages.get("transport") else "")
+
+        # Relighting: one visibility bake, then K lighting setups, against K Cycles bakes.
+        resolution, bounces = profile["resolutions"][-1], profile["bounces"][-1]
+        ours = [r for r in rows if r["method"] == "visibake" and r["resolution"] == resolution
+                and r["bounces"] == bounces and r["shadows"] == "exact" and not r["rotate"]]
+        matched = min(ours, key=lambda r: abs(r["directions"] - RELIGHT_DIRECTIONS))
+        cycles_rows = [r for r in rows if r["method"] == "cycles" and r["resolution"] == resolution
+                       and r["bounces"] == bounces]
+        cycles_seconds = interpolate_time_at_error(cycles_rows, matched["relative_rmse"])
+        props.resolution, props.bounces, props.directions = resolution, bounces, matched["directions"]
+        props.shadows, props.rotate = "exact", False
+        extracted = job.extract_scene(bpy.context, objects)
+        settings = props.to_bake_settings()
+        started = time.perf_counter()
+        prepared = pipeline.prepare(extracted.scene, settings, table_needed=True)
+        prepare_seconds = time.perf_counter() - started
+        base_lights = extracted.scene.lights
+        for count in profile["relight_setups"]:
+            started = time.perf_counter()
+            for setup in range(count):
+                turn = 2 * np.pi * setup / max(count, 1)
+                rotation = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+                lights = [type(light)(**{**light.__dict__, "direction": rotation @ light.direction,
+                                         "position": rotation @ light.position}) for light in base_lights]
+                pipeline.relight(prepared, lights, extracted.scene.world)
+            relight_seconds = time.perf_counter() - started
+            visibake_seconds = prepare_seconds + relight_seconds
+            relight_rows.append({
+                "scene": name, "setups": count, "directions": matched["directions"],
+                "matched_relative_rmse": matched["relative_rmse"], "visibake_seconds": visibake_seconds,
+                "visibake_prepare_seconds": prepare_seconds, "visibake_relight_seconds_each": relight_seconds / count,
+                "cycles_seconds": cycles_seconds * count if cycles_seconds else "",
+                "cycles_over_visibake": (cycles_seconds * count / visibake_seconds) if cycles_seconds else ""})
+
+        with open(os.path.join(out, f"{name}.csv"), "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=FIELDS, extrasaction="ignore")
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({**row, "stage_seconds": json.dumps(row["stage_seconds"])})
+        plot(os.path.join(out, f"{name}.png"), f"{name} ({profile['size']}), error against time", rows)
+        summary["scenes"][name] = {"rows": len(rows), "triangles": int(sum(len(m.triangles)
+                                                                            for m in extracted.scene.meshes))}
+
+    for filename, table in (("relight.csv", relight_rows), ("limits.csv", limit_rows)):
+        if table:
+            with open(os.path.join(out, filename), "w", newline="") as handle:
+                writer = csv.DictWriter(handle, fieldnames=list(table[0]))
+                writer.writeheader()
+                writer.writerows(table)
+    summary["relight"] = relight_rows
+    summary["limits"] = limit_rows
+    with open(os.path.join(out, "summary.json"), "w") as handle:
+        json.dump(summary, handle, indent=2, default=float)
+    write_markdown(os.path.join(out, "summary.md"), summary, out)
+    print(f"results in {out}")
+    return 0
+
+
+def write_markdown(path: str, summary: dict, out: str) -> None:
+    """A compact table per scene: the best VisiBake and Cycles runs, and the relighting ratios."""
+    lines = [f"Profile `{summary['profile']}`, {summary['date']}, {summary['machine']['processor']} "
+             f"x{summary['machine']['cpus']}, Blender {summary['blender']}.", ""]
+    lines += ["| scene | run | seconds | relative RMSE | bias |", "|---|---|---|---|---|"]
+    for name in summary["scenes"]:
+        with open(os.path.join(out, f"{name}.csv")) as handle:
+            rows = list(csv.DictReader(handle))
+        for row in rows:
+            run = (f"VisiBake N={row['directions']} {row['shadows']}{' rotated' if row['rotate'] == 'True' else ''}"
+                   if row["method"] == "visibake" else f"Cycles {row['samples']} spp")
+            lines.append(f"| {name} r{row['resolution']} b{row['bounces']} | {run} | {float(row['seconds']):.2f} | "
+                         f"{float(row['relative_rmse']):.4f} | {float(row['bias']):+.4f} |")
+    lines += ["", "| scene | setups | VisiBake s | Cycles s (matched error) | Cycles / VisiBake |", "|---|---|---|---|---|"]
+    for row in summary["relight"]:
+        ratio = f"{row['cycles_over_visibake']:.1f}" if row["cycles_over_visibake"] != "" else "n/a"
+        cycles = f"{row['cycles_seconds']:.1f}" if row["cycles_seconds"] != "" else "n/a"
+        lines.append(f"| {row['scene']} | {row['setups']} | {row['visibake_seconds']:.2f} | {cycles} | {ratio} |")
+    lines += ["", "| scene | embreex rays/s | numpy lookups/s |", "|---|---|---|"]
+    for row in summary["limits"]:
+        lines.append(f"| {row['scene']} | {row['embree_rays_per_second'] / 1e6:.2f} M | "
+                     f"{row['numpy_lookups_per_second'] / 1e6:.1f} M |")
+    with open(path, "w") as handle:
+        handle.write("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,49 @@
+import numpy as np
+import pytest
+
+from core.pipeline import BakeRefused, bake, prepare, relight
+from core.scene import BakeSettings, Light, Material, Scene, World
+from core_scenes import box_interior, quad_mesh
+
+
+def _scene(lights):
+    ground = quad_mesh("Ground", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)],
+                       material=Material(base_color=np.full(3, 0.7)), resolution=24)
+    roof = quad_mesh("Roof", [(-0.4, -0.4, 0.6), (-0.4, 0.4, 0.6), (0.4, 0.4, 0.6), (0.4, -0.4, 0.6)],
+                     material=Material(base_color=np.full(3, 0.5)), resolution=12)
+    return Scene([ground, roof], lights)
+
+
+SUN = Light("Sun", "SUN", np.ones(3), 3.0, direction=np.array([0.3, 0.0, -1.0]) / np.hypot(0.3, 1.0))
+LAMP = Light("Lamp", "POINT", np.array([1.0, 0.8, 0.6]), 150.0, position=np.array([0.5, 0.2, 1.2]))
+
+
+@pytest.mark.parametrize("shadows", ["exact", "fractions"])
+def test_relight_equals_a_fresh_bake_exactly(shadows):
+    settings = BakeSettings(directions=48, bounces=2, shadows=shadows, passes=("lighting", "direct", "indirect"))
+    prepared = prepare(_scene([]), settings, table_needed=True)
+    for lights in ([SUN], [LAMP], [SUN, LAMP]):
+        fresh = bake(_scene(lights), settings)
+        again = relight(prepared, lights, World())
+        for a, b in zip(fresh.objects, again.objects):
+            for name in settings.passes:
+                np.testing.assert_array_equal(a.images[name], b.images[name])
+        # Relighting traced no visibility ray of its own: it reports the prepared table.
+        assert again.report["rays"]["visibility_cast"] == fresh.report["rays"]["visibility_cast"]
+        assert "visibility" not in {k for k in again.report["stage_seconds"] if k not in prepared.stage_seconds}
+
+
+def test_relight_without_a_table_says_what_to_do():
+    settings = BakeSettings(directions=16, bounces=0)
+    prepared = prepare(_scene([SUN]), settings)
+    assert prepared.table is None
+    relight(prepared, [SUN], World())  # exact shadows, no bounces: no table needed
+    with pytest.raises(BakeRefused, match="prepare it again"):
+        relight(prepared, [SUN], World(np.full(3, 0.5)))
+
+
+def test_uniform_world_in_a_closed_box_adds_nothing():
+    # Every ray from inside a closed box hits a wall: the world never shows.
+    box = box_interior(material=Material(base_color=np.full(3, 0.5)), resolution=16)
+    lit = bake(Scene([box], [], World(np.full(3, 2.0))), BakeSettings(directions=32, bounces=1))
+    np.testing.assert_array_equal(lit.objects[0].images["lighting"][..., :3], 0.0)
