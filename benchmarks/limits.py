@@ -65,3 +65,29 @@ def numpy_gather_lookups_per_second(texels: int, directions: int, atlas_texels: 
         accumulator += np.take(flat, index, axis=0)
         best = min(best, time.perf_counter() - started)
     return texels / best
+
+
+def reset_peak_memory() -> bool:
+    """Start a new resident-memory high-water mark (Linux: /proc/self/clear_refs).
+
+    Without it, a sweep in one process could only report the peak of every run so far.
+    Returns False where the mark cannot be reset.
+    """
+    try:
+        with open("/proc/self/clear_refs", "w") as handle:
+            handle.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_memory_bytes() -> int:
+    """Resident-memory high-water mark since :func:`reset_peak_memory` (VmHWM), else 0."""
+    try:
+        with open("/proc/self/status") as handle:
+            for line in handle:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0

@@ -95,3 +95,25 @@ def test_fractions_ignore_occluders_beyond_a_local_light():
     assert shadow_fractions(table, regions, np.array([1.0])).visibility(up)[0] == pytest.approx(1.0)
     assert shadow_fractions(table, regions, np.array([3.0])).visibility(up)[0] == 0.0
     assert shadow_fractions(table, regions).visibility(up)[0] == 0.0
+
+
+@given(st.integers(1, 300), st.integers(0, 2**32 - 1), st.floats(0.0, 5.0))
+@settings(max_examples=40, deadline=None)
+def test_gather_of_uniform_radiance_is_pi_times_it_for_any_table(count, seed, level):
+    """Whatever each ray hits (any object, any atlas coordinate, a miss into a world of
+    the same radiance), a uniform scene returns E = pi * L for every open texel."""
+    rng = np.random.default_rng(seed)
+    normals = rng.normal(size=(6, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    d = spherical_fibonacci(count)
+    above = (normals @ d.T).T > 0
+    hit = np.where(above, rng.integers(-1, 3, size=above.shape), BELOW_HORIZON).astype(np.int16)
+    uv = rng.uniform(-0.2, 1.2, size=(count, 6, 2)).astype(np.float32)
+    table = _table(d, normals, hit, uv)
+    layout = AtlasLayout.from_sizes([(5, 3), (1, 1), (7, 9)])
+    flat = layout.pack([np.full((h, w, 3), level, np.float32) for w, h in [(5, 3), (1, 1), (7, 9)]])
+    scale = gather_normalisation(table, normals)
+    irradiance = gather(table, normals, scale, layout, flat, np.full(3, level), threads=2)
+    open_samples = scale > 0
+    np.testing.assert_allclose(irradiance[open_samples], np.pi * level, rtol=2e-6, atol=1e-12)
+    assert np.all(irradiance[~open_samples] == 0)

@@ -1,0 +1,46 @@
+"""The benchmark's smoke profile runs end to end, so the benchmark code cannot rot.
+
+Only shapes and sanity are checked here; timings are never asserted in tests.
+"""
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+
+from blender_support import REPO_ROOT
+
+
+def test_smoke_profile_writes_csv_plot_and_summary(tmp_path):
+    out = tmp_path / "bench"
+    result = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "benchmarks" / "run.py"), "--profile", "smoke", "--out", str(out),
+         "--cache", str(tmp_path / "cache")],
+        capture_output=True, text=True, timeout=900,
+        env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    rows = list(csv.DictReader(open(out / "sun_occluders.csv")))
+    methods = {row["method"] for row in rows}
+    assert methods == {"visibake", "cycles"}
+    assert len([r for r in rows if r["method"] == "visibake"]) == 2  # directions 8 and 16
+    assert len([r for r in rows if r["method"] == "cycles"]) == 2  # 1 and 4 samples
+    for row in rows:
+        error = float(row["relative_rmse"])
+        assert math.isfinite(error) and error >= 0
+        assert float(row["seconds"]) > 0
+        assert json.loads(row["stage_seconds"])
+    assert (out / "sun_occluders.png").stat().st_size > 1000
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["profile"] == "smoke" and summary["machine"]["cpus"] >= 1
+    assert [r["setups"] for r in summary["relight"]] == [1, 2]
+    assert summary["limits"][0]["embree_rays_per_second"] > 0
+    assert "| sun_occluders" in (out / "summary.md").read_text()
+    # A second run finds the reference in the cache instead of baking it again.
+    again = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "benchmarks" / "run.py"), "--profile", "smoke", "--out", str(out / "again"),
+         "--cache", str(tmp_path / "cache")],
+        capture_output=True, text=True, timeout=900,
+        env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
+    assert again.returncode == 0
+    assert "(cached)" in again.stdout
