@@ -5,7 +5,7 @@
 #   make build    dist/<id>-<version>.zip with Blender's own extension tool, then validate it
 #   make test     pytest (tests/core, tests/blender, tests/gpu)
 #   make demo     tools/visibake.py demo --out out/demo
-#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|full)
+#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|standard|bounces|full)
 #   make clean    build/test outputs;  make distclean  also .venv and wheels
 
 SHELL := /bin/bash
@@ -110,7 +110,7 @@ test: venv build
 demo: venv build
 	$(PY) tools/visibake.py demo --out out/demo
 
-# BENCH_PROFILE=smoke|quick|full (see benchmarks/run.py); results in benchmarks/results/.
+# BENCH_PROFILE=smoke|quick|standard|bounces|full (see benchmarks/run.py); results in benchmarks/results/.
 BENCH_PROFILE ?= quick
 bench: venv
 	$(PY) benchmarks/run.py --profile $(BENCH_PROFILE)

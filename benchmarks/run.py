@@ -1,7 +1,9 @@
 """Run time against error: VisiBake and Cycles on procedural scenes (``make bench``).
 
-    .venv/bin/python benchmarks/run.py --profile quick            # ~15 min on 2 cores
-    .venv/bin/python benchmarks/run.py --profile full             # hours: the whole sweep
+    .venv/bin/python benchmarks/run.py --profile quick            # ~5 min on 2 cores
+    .venv/bin/python benchmarks/run.py --profile standard         # ~30 min: resolutions 64 and 128, N to 1024
+    .venv/bin/python benchmarks/run.py --profile bounces          # ~10 min: 0, 1 and 4 bounces
+    .venv/bin/python benchmarks/run.py --profile full             # hours: everything, 4096 spp references
     .venv/bin/python benchmarks/run.py --profile smoke --out DIR  # seconds: what the tests run
 
 For every scene of ``benchmarks/scenes.py``, at each atlas resolution and bounce count
@@ -40,6 +42,12 @@ PROFILES = {
     "quick": dict(size="full", scenes=None, resolutions=[64], bounces=[2], directions=[32, 64, 128, 256],
                   shadows=["exact", "fractions"], rotate=[False, True], cycles_samples=[1, 4, 16, 64, 256],
                   reference_samples=1024, relight_setups=[1, 4, 16]),
+    "standard": dict(size="full", scenes=None, resolutions=[64, 128], bounces=[2],
+                     directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
+                     cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=2048, relight_setups=[1, 4, 16]),
+    "bounces": dict(size="full", scenes=None, resolutions=[64], bounces=[0, 1, 4], directions=[64, 256],
+                    shadows=["exact"], rotate=[False], cycles_samples=[4, 64], reference_samples=1024,
+                    relight_setups=[1]),
     "full": dict(size="full", scenes=None, resolutions=[64, 128, 256], bounces=[0, 1, 2, 4],
                  directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
                  cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=4096, relight_setups=[1, 4, 16]),
@@ -132,7 +140,12 @@ def main(argv=None) -> int:
     parser.add_argument("--scenes", nargs="+", help="subset of benchmarks/scenes.py SCENES")
     parser.add_argument("--out", help="results folder (default benchmarks/results/<profile>-<timestamp>)")
     parser.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "cache"), help="reference cache")
+    parser.add_argument("--summarize", metavar="DIR", help="only rewrite DIR/summary.md from its CSVs and JSON")
     args = parser.parse_args(argv)
+    if args.summarize:
+        with open(os.path.join(args.summarize, "summary.json")) as handle:
+            write_markdown(os.path.join(args.summarize, "summary.md"), json.load(handle), args.summarize)
+        return 0
     profile = PROFILES[args.profile]
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
     out = args.out or os.path.join(ROOT, "benchmarks", "results", f"{args.profile}-{stamp}")
@@ -287,28 +300,75 @@ def main(argv=None) -> int:
     return 0
 
 
+def _number(value):
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
 def write_markdown(path: str, summary: dict, out: str) -> None:
-    """A compact table per scene: the best VisiBake and Cycles runs, and the relighting ratios."""
-    lines = [f"Profile `{summary['profile']}`, {summary['date']}, {summary['machine']['processor']} "
-             f"x{summary['machine']['cpus']}, Blender {summary['blender']}.", ""]
-    lines += ["| scene | run | seconds | relative RMSE | bias |", "|---|---|---|---|---|"]
+    """The figures that matter, per scene: VisiBake against Cycles at equal error,
+    shadow fractions against exact shadows, the share of each library's ceiling,
+    relighting, and the ceilings themselves."""
+    lines = [f"Profile `{summary['profile']}`, {summary['date']}, {summary['machine']['platform']}, "
+             f"{summary['machine']['cpus']} CPUs, Blender {summary['blender']}.", "",
+             "VisiBake (exact shadows, fixed direction set) against the time Cycles needs for the same error "
+             "(log-log interpolation of its sample sweep; beyond the sweep, extrapolated as error ~ samples^-1/2).",
+             "", "| scene | res | bounces | N | VisiBake s | rel. RMSE | Cycles s at that error | Cycles / VisiBake "
+             "| reference noise |", "|---|---|---|---|---|---|---|---|---|"]
+    fraction_lines = ["", "Shadow fractions (the paper's method) against exact shadows, same N:", "",
+                      "| scene | res | N | exact RMSE | fractions RMSE | fractions bias | rotated set (exact) RMSE |",
+                      "|---|---|---|---|---|---|---|"]
+    share_lines = ["", "Each stage as a share of its library's ceiling measured in the same run (median over runs):",
+                   "", "| scene | visibility / embreex alone | gather / numpy lookups alone |", "|---|---|---|"]
     for name in summary["scenes"]:
         with open(os.path.join(out, f"{name}.csv")) as handle:
             rows = list(csv.DictReader(handle))
         for row in rows:
-            run = (f"VisiBake N={row['directions']} {row['shadows']}{' rotated' if row['rotate'] == 'True' else ''}"
-                   if row["method"] == "visibake" else f"Cycles {row['samples']} spp")
-            lines.append(f"| {name} r{row['resolution']} b{row['bounces']} | {run} | {float(row['seconds']):.2f} | "
-                         f"{float(row['relative_rmse']):.4f} | {float(row['bias']):+.4f} |")
-    lines += ["", "| scene | setups | VisiBake s | Cycles s (matched error) | Cycles / VisiBake |", "|---|---|---|---|---|"]
+            for key in ("seconds", "relative_rmse", "bias", "reference_noise", "visibility_fraction_of_embree",
+                        "gather_fraction_of_numpy"):
+                row[key] = _number(row[key])
+        groups = sorted({(int(r["resolution"]), int(r["bounces"])) for r in rows})
+        for resolution, bounces in groups:
+            group = [r for r in rows if int(r["resolution"]) == resolution and int(r["bounces"]) == bounces]
+            cycles = [{"seconds": r["seconds"], "relative_rmse": r["relative_rmse"]}
+                      for r in group if r["method"] == "cycles"]
+            ours = [r for r in group if r["method"] == "visibake"]
+            for r in ours:
+                if r["shadows"] != "exact" or r["rotate"] == "True":
+                    continue
+                at = interpolate_time_at_error(cycles, r["relative_rmse"])
+                lines.append(f"| {name} | {resolution} | {bounces} | {r['directions']} | {r['seconds']:.2f} | "
+                             f"{r['relative_rmse']:.4f} | {at:.2f} | {at / r['seconds']:.1f} | "
+                             f"{r['reference_noise'] or 0:.4f} |")
+                twin = next((f for f in ours if f["directions"] == r["directions"] and f["shadows"] == "fractions"
+                             and f["rotate"] != "True"), None)
+                rotated = next((f for f in ours if f["directions"] == r["directions"] and f["shadows"] == "exact"
+                                and f["rotate"] == "True"), None)
+                if twin or rotated:
+                    fraction_lines.append(
+                        f"| {name} | {resolution} | {r['directions']} | {r['relative_rmse']:.4f} | "
+                        f"{twin['relative_rmse']:.4f} | {twin['bias']:+.4f} | " if twin else
+                        f"| {name} | {resolution} | {r['directions']} | {r['relative_rmse']:.4f} | n/a | n/a | ")
+                    fraction_lines[-1] += f"{rotated['relative_rmse']:.4f} |" if rotated else "n/a |"
+        shares = [r["visibility_fraction_of_embree"] for r in rows if r["visibility_fraction_of_embree"]]
+        gathers = [r["gather_fraction_of_numpy"] for r in rows if r["gather_fraction_of_numpy"]]
+        share_lines.append(f"| {name} | {np.median(shares):.0%} | {np.median(gathers):.1%} |" if shares and gathers
+                           else f"| {name} | n/a | n/a |")
+    lines += fraction_lines + share_lines
+    lines += ["", "Relighting: one visibility bake, then K lighting setups (the sun or lamps turned about the "
+              "vertical), against K Cycles bakes at the error VisiBake reached on the first setup:", "",
+              "| scene | setups | VisiBake s (bake + relights) | Cycles s | Cycles / VisiBake |", "|---|---|---|---|---|"]
     for row in summary["relight"]:
-        ratio = f"{row['cycles_over_visibake']:.1f}" if row["cycles_over_visibake"] != "" else "n/a"
-        cycles = f"{row['cycles_seconds']:.1f}" if row["cycles_seconds"] != "" else "n/a"
-        lines.append(f"| {row['scene']} | {row['setups']} | {row['visibake_seconds']:.2f} | {cycles} | {ratio} |")
-    lines += ["", "| scene | embreex rays/s | numpy lookups/s |", "|---|---|---|"]
+        ratio = _number(row["cycles_over_visibake"])
+        cycles = _number(row["cycles_seconds"])
+        lines.append(f"| {row['scene']} | {row['setups']} | {float(row['visibake_seconds']):.2f} | "
+                     f"{'n/a' if cycles is None else f'{cycles:.1f}'} | {'n/a' if ratio is None else f'{ratio:.1f}'} |")
+    lines += ["", "| scene | embreex rays/s (2 threads) | numpy lookups/s |", "|---|---|---|"]
     for row in summary["limits"]:
-        lines.append(f"| {row['scene']} | {row['embree_rays_per_second'] / 1e6:.2f} M | "
-                     f"{row['numpy_lookups_per_second'] / 1e6:.1f} M |")
+        lines.append(f"| {row['scene']} | {float(row['embree_rays_per_second']) / 1e6:.2f} M | "
+                     f"{float(row['numpy_lookups_per_second']) / 1e6:.0f} M |")
     with open(path, "w") as handle:
         handle.write("\n".join(lines) + "\n")
 

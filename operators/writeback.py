@@ -45,15 +45,18 @@ def store_image(name: str, pixels: np.ndarray) -> bpy.types.Image:
     """Create or update VisiBake's float image ``name`` with (H, W, 4) bottom-up pixels."""
     height, width = pixels.shape[:2]
     image = owned_image(name)
-    if image is not None and tuple(image.size) != (width, height):
-        image.scale(width, height)
     if image is None:
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
         image[OWNED_IMAGE_KEY] = True
         # Nothing uses a fresh result yet; without a fake user it would not be saved.
         image.use_fake_user = True
-    # Non-Color before writing pixels, or saving would sRGB-encode the values.
-    image.colorspace_settings.name = "Non-Color"
+    # Non-Color before writing pixels, or saving would sRGB-encode the values. Only
+    # when it differs, and before any resize: on a packed image a colour-space change
+    # reloads the packed pixels, which would undo the resize.
+    if image.colorspace_settings.name != "Non-Color":
+        image.colorspace_settings.name = "Non-Color"
+    if tuple(image.size) != (width, height):
+        image.scale(width, height)
     image.pixels.foreach_set(np.ascontiguousarray(pixels, np.float32).ravel())
     image.update()
     image.pack()

@@ -74,7 +74,7 @@ def test_smoke_scene_is_well_formed(clean_scene, name):
             bsdf = slot.material.node_tree.nodes["Principled BSDF"]
             assert bsdf.inputs["Specular IOR Level"].default_value == 0.0
             assert bsdf.inputs["Roughness"].default_value == 1.0
-            assert max(bsdf.inputs["Base Color"].default_value[:3]) <= scenes.MAX_ALBEDO
+            assert max(bsdf.inputs["Base Color"].default_value[:3]) <= np.float32(scenes.MAX_ALBEDO)
             assert bsdf.inputs["Emission Strength"].default_value == 0.0
 
     for obj in objects:
@@ -143,31 +143,35 @@ def test_scene_key_is_stable_and_sees_what_changes_the_bake(clean_scene):
     assert _key(objects, uv_maps) == key, "two builds of the same scene must share a key"
 
     sun = bpy.data.objects["Sun"]
+    original = tuple(sun.rotation_euler)  # restored exactly: float32 += / -= may not round-trip
     sun.rotation_euler.x += 0.01
     assert _key(objects, uv_maps) != key
-    sun.rotation_euler.x -= 0.01
+    sun.rotation_euler = original
     assert _key(objects, uv_maps) == key
-    sun.data.energy += 0.5
+    sun.data.energy = 5.0
     assert _key(objects, uv_maps) != key
-    sun.data.energy -= 0.5
+    sun.data.energy = 4.0
 
     box = bpy.data.objects["BoxA"]
+    original = tuple(box.location)
     box.location.x += 0.01
     assert _key(objects, uv_maps) != key
-    box.location.x -= 0.01
+    box.location = original
     assert _key(objects, uv_maps) == key
 
-    uv = box.data.uv_layers["KeyUV"].data[0].uv
-    uv[0] += 0.01
+    uv = box.data.uv_layers["KeyUV"].data[0]
+    original = tuple(uv.uv)
+    uv.uv = (0.5, 0.5)
     assert _key(objects, uv_maps) != key
-    uv[0] -= 0.01
+    uv.uv = original
 
-    material = box.material_slots[0].material
-    material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value[0] -= 0.1
+    colour = box.material_slots[0].material.node_tree.nodes["Principled BSDF"].inputs["Base Color"]
+    original = tuple(colour.default_value)
+    colour.default_value[0] = 0.1
     assert _key(objects, uv_maps) != key
-    material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value[0] += 0.1
+    colour.default_value = original
     # An image node that feeds nothing (where a bake writes) does not change the shading.
-    node = material.node_tree.nodes.new("ShaderNodeTexImage")
+    node = box.material_slots[0].material.node_tree.nodes.new("ShaderNodeTexImage")
     node.image = bpy.data.images.new("Unlinked", 4, 4, float_buffer=True)
     assert _key(objects, uv_maps) == key
 

@@ -87,3 +87,15 @@ def test_broken_geometry_gives_finite_outputs(clean_scene):
     for name in ("Ground", "Bad"):
         for pass_name in props.passes:
             assert np.isfinite(image_pixels(f"VB_{name}_{pass_name}")).all()
+
+
+def test_baking_again_at_another_resolution_resizes_visibakes_image(clean_scene):
+    ground = _scene_with_user_uv(clean_scene)
+    props = bpy.context.scene.visibake
+    for resolution in (16, 32, 8):
+        props.resolution = resolution
+        assert bpy.ops.visibake.bake() == {"FINISHED"}
+        image = bpy.data.images["VB_Ground_lighting"]
+        assert tuple(image.size) == (resolution, resolution)
+        assert image_pixels("VB_Ground_lighting")[..., 3].any()
+    assert "VisiBake" in ground.data.uv_layers
