@@ -47,7 +47,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _apply_settings(args, props) -> None:
-    """Copy command-line settings onto scene.visibake (the one settings model)."""
+    """Check, then copy command-line settings onto scene.visibake (the one settings model).
+
+    Checked first: Blender clamps out-of-range values silently on assignment.
+    """
+    for name in ("directions", "bounces", "resolution", "margin"):
+        value = getattr(args, name)
+        minimum = 1 if name in ("directions", "resolution") else 0
+        if value is not None and value < minimum:
+            raise job.BakeInputError(f"--{name} must be at least {minimum}, got {value}")
+    if args.texel_density is not None and not args.texel_density >= 0:
+        raise job.BakeInputError(f"--texel-density must be zero or more, got {args.texel_density}")
     for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate"):
         value = getattr(args, name)
         if value is not None:
@@ -60,10 +70,6 @@ def _apply_settings(args, props) -> None:
         if unknown or not passes:
             raise job.BakeInputError(f"--passes: unknown pass {', '.join(unknown) or '(none)'}; choose from {', '.join(PASSES)}")
         props.passes = set(passes)
-    for name in ("directions", "bounces", "resolution", "margin"):
-        value = getattr(args, name)
-        if value is not None and value < (1 if name in ("directions", "resolution") else 0):
-            raise job.BakeInputError(f"--{name} must be {'at least 1' if name in ('directions', 'resolution') else 'zero or more'}, got {value}")
 
 
 def _select_objects(args, scene) -> list:

@@ -31,6 +31,7 @@ def small_blend(clean_scene, tmp_path):
     (["bake", "{blend}", "--mode", "vertex"], "not implemented"),
     (["bake", "{blend}", "--resolution", "-3"], "resolution"),
     (["bake", "{blend}", "--shadows", "soft"], "invalid choice"),
+    (["bake", "{blend}", "--texel-density", "-2"], "texel-density"),
 ])
 def test_bad_input_exits_2_with_one_line(visibake, small_blend, capfd, arguments, message):
     arguments = [a.format(blend=small_blend) for a in arguments]
