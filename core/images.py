@@ -51,19 +51,6 @@ def write_exr(path: str, image: np.ndarray) -> None:
         exr.write(path)
 
 
-def read_exr(path: str) -> np.ndarray:
-    """Read an RGBA EXR written by :func:`write_exr` back as a bottom-up (H, W, 4) array."""
-    import OpenEXR
-
-    with OpenEXR.File(path) as exr:
-        channels = exr.channels()
-        if "RGBA" in channels:
-            data = channels["RGBA"].pixels
-        else:
-            data = np.stack([channels[c].pixels for c in "RGBA"], axis=-1)
-    return np.ascontiguousarray(np.asarray(data, np.float32)[::-1])
-
-
 def tonemap(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     """Linear radiance to display sRGB in [0, 1] (Reinhard on luminance, then the sRGB curve).
 
