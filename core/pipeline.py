@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .directions import ShadowRegions, direction_set
+from .environment import world_radiance
 from .emitters import emitter_irradiance, find_emitters, sampled_directly
 from .lights import light_contributions
 from .raster import dilate
@@ -199,9 +200,6 @@ class Prepared:
         return self.layout.pack(images)
 
 
-def _clean_world(world) -> np.ndarray:
-    color = np.nan_to_num(np.asarray(world.color, np.float64)[:3], nan=0.0, posinf=0.0)
-    return np.clip(color, 0.0, None)
 
 
 def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None) -> Prepared:
@@ -246,7 +244,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     directions = direction_set(settings.directions, settings.rotate, settings.seed)
     if table_needed is None:
         table_needed = (settings.bounces > 0 or bool(np.any(emission > 0)) or "ao" in settings.passes
-                        or bool(np.any(_clean_world(scene.world) > 0))
+                        or bool(np.any(world_radiance(scene.world, directions) > 0))
                         or (settings.shadows == "fractions" and bool(scene.lights)))
 
     ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
@@ -285,7 +283,7 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
     warnings = list(p.warnings)
     lights = usable_lights(lights, warnings)
     table = p.table
-    world = _clean_world(world)
+    world = world_radiance(world, p.directions)
     has_emission = bool(np.any(p.emission > 0))
     has_world = bool(np.any(world > 0))
     wants = set(settings.passes)
@@ -365,10 +363,9 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
             gathers += 1
         else:
             skipped.append("gather of emitted light: the scene has no emission and no world light")
-        no_world = np.zeros(3)
         for bounce in range(1, settings.bounces + 1):
             reflected = p.albedo / np.pi * (direct_irradiance + gathered)
-            gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), no_world,
+            gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), np.zeros(3),
                               step_progress(bounce), threads=settings.threads)
             gathers += 1
     else:

@@ -90,9 +90,19 @@ class Light:
 
 @dataclass
 class World:
-    """Uniform environment radiance seen by rays that leave the scene."""
+    """Environment radiance seen by rays that leave the scene, in Cycles' units.
+
+    color : (3,) float uniform radiance (colour * strength of the Background node),
+        used where there is no image
+    image : (h, w, 3) float32 or None, linear RGB radiance of an equirectangular
+        environment (strength already applied), row 0 at the bottom (Blender's order)
+    rotation : (3, 3) float64 world-to-texture rotation applied to a direction before
+        the equirectangular lookup (a Mapping node's rotation), identity if none
+    """
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    image: np.ndarray | None = None
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
 @dataclass

@@ -107,7 +107,8 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
     normals : (K, 3) float64 shading normals
     scale : (K,) from :func:`gather_normalisation`
     radiance : (layout.size, 3) float32 packed outgoing radiance of every object
-    world : (3,) float radiance of rays that leave the scene
+    world : (N, 3) float radiance of rays that leave the scene along each direction
+        (:func:`core.environment.world_radiance`), or (3,) for a uniform world
     progress : callable(fraction) or None, called from the calling thread only
     exclude : (K, O) bool or None; True where sample k must not gather object o
         (its light reaches k by another route, e.g. sampled emitters)
@@ -117,9 +118,9 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
     -------
     irradiance : (K, 3) float64
     """
-    world = np.asarray(world, np.float64)[:3]
-    has_world = bool(np.any(world != 0))
     count = len(table.directions)
+    world = np.broadcast_to(np.asarray(world, np.float64), (count, 3))
+    has_world = bool(np.any(world != 0))
     workers = max(1, threads or os.cpu_count() or 1)
 
     def accumulate(indices):
@@ -133,8 +134,8 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
             if len(hit):
                 looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), table.hit_uv[i, hit])
                 irradiance[hit] += weight[hit, None] * looked_up
-            if has_world:
-                irradiance += (weight * (row == MISS))[:, None] * world
+            if has_world and np.any(world[i] != 0):
+                irradiance += (weight * (row == MISS))[:, None] * world[i]
         return irradiance
 
     total = np.zeros((len(normals), 3))
