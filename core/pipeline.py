@@ -24,7 +24,8 @@ from .scene import BakeSettings, Scene
 from .shadows import shadow_fractions
 from .images import sample_image
 from .transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
-from .visibility import table_bytes, trace_table
+from .visibility import table_bytes, table_from_arrays, trace_table, update_table
+from .cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
 from . import tolerances as tol
 
 
@@ -144,6 +145,7 @@ class _Stages:
         self.times: dict[str, float] = {}
         self._name = None
         self._start = 0.0
+        self._moved = 0.0
 
     def start(self, name: str) -> None:
         self.stop()
@@ -151,14 +153,21 @@ class _Stages:
         self._start = time.perf_counter()
         self.report(0.0)
 
+    def book(self, name: str, seconds: float) -> None:
+        """Count ``seconds`` of the running stage as ``name`` (one progress bar, two timings)."""
+        self.times[name] = self.times.get(name, 0.0) + seconds
+        self._moved += seconds
+
     def report(self, fraction: float) -> None:
         if self.progress is not None and self._name is not None:
             self.progress(self._name, float(fraction))
 
     def stop(self) -> None:
         if self._name is not None:
-            self.times[self._name] = self.times.get(self._name, 0.0) + time.perf_counter() - self._start
+            elapsed = time.perf_counter() - self._start - self._moved
+            self.times[self._name] = self.times.get(self._name, 0.0) + elapsed
             self._name = None
+            self._moved = 0.0
 
 
 @dataclass
@@ -186,6 +195,31 @@ class Prepared:
     stage_seconds: dict
     skipped: list
     warnings: list
+    table_key: str = ""
+    visibility_rays: int = 0  # rays this preparation traced for the table (0 on a cache hit)
+    cache: VisibilityCache | None = None
+    cache_status: CacheStatus | None = None
+    world_group: str = ""
+    _gather_scale: np.ndarray | None = None
+
+    def gather_scale(self) -> np.ndarray:
+        """Per-sample gather normalisation (K,), computed once per preparation."""
+        if self._gather_scale is None:
+            self._gather_scale = gather_normalisation(self.table, self.normal)
+        return self._gather_scale
+
+    def lighting_key(self, group: "LightGroup") -> str:
+        """Hash of everything one group's transport depends on besides the table's key."""
+        s = self.settings
+        emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
+        parts = [self.table_key, s.bounces, s.shadows, s.shadow_regions, s.area_light_samples, s.emitter_samples,
+                 max(s.margin, 2), self.albedo, self.normal, np.where(emitting[:, None], self.emission, 0.0),
+                 group.world, group.emitting]
+        for index in np.nonzero(group.emitting)[0]:
+            parts += [np.asarray(m.emission, np.float64) for m in self.meshes[index].materials if m is not None]
+        for light in group.lights:
+            parts += _light_key_parts(light)
+        return arrays_key(*parts)
 
     def to_atlas(self, values: np.ndarray) -> np.ndarray:
         """Per-sample values (K, 3) as the packed, gutter-dilated radiance atlas."""
@@ -202,7 +236,8 @@ class Prepared:
 
 
 
-def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None) -> Prepared:
+def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None,
+            cache: VisibilityCache | None = None, require_cached_table: bool = False) -> Prepared:
     """Samples and the visibility table of ``scene``'s meshes.
 
     Parameters
@@ -210,6 +245,11 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     table_needed : bool or None
         None: trace the table only if ``scene``'s own lights, world and materials
         need it. True: always (for relighting with lights not known yet).
+    cache : VisibilityCache or None
+        Where a valid table is read from, and a new or updated one written to.
+    require_cached_table : bool
+        Refuse (:class:`BakeRefused`) instead of tracing when the table is needed and
+        the cache holds no valid one: a relight must not silently become a bake.
     """
     settings.validate()
     check_budget([m.resolution for m in scene.meshes], settings.directions)
@@ -248,17 +288,20 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
                         or (settings.shadows == "fractions" and bool(scene.lights)))
 
     ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
+    sample_offset = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    object_keys = [object_key(m) for m in meshes]
+    key = table_key(object_keys, settings)
     table = None
+    status = CacheStatus() if cache is None else None
+    visibility_rays = 0
     if table_needed:
         stages.start("visibility")
-        triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
-        triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
-        corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] for m in meshes]).astype(np.float32)
-        all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
-        table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
-                            all_face_normals, settings.chunk_rays, stages.report)
+        table, status, visibility_rays = _cached_or_traced_table(
+            meshes, object_keys, key, settings, directions, position, geometric, sample_offset, ray_scene, cache,
+            require_cached_table, stages, skipped, warnings)
     else:
         skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
+        status = status or CacheStatus(state="unused", message="no pass needs the visibility table")
     stages.stop()
 
     return Prepared(
@@ -268,38 +311,184 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         albedo=np.concatenate([s.albedo for s in object_samples]).astype(np.float64), emission=emission,
         layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples]), directions=directions,
         ray_scene=ray_scene, origins=offset_ray_origins(position, geometric), table=table,
-        stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings)
+        stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings, table_key=key,
+        visibility_rays=visibility_rays, cache=cache, cache_status=status)
 
 
-def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
-    """Direct light, gathers and pass images for ``lights`` and ``world`` over a prepared scene.
+def _cached_or_traced_table(meshes, object_keys, key, settings, directions, position, geometric, sample_offset,
+                            ray_scene, cache, require_cached_table, stages, skipped, warnings):
+    """The table from the cache if it is valid, updated if only some objects changed, else traced.
 
-    Traces only shadow rays (exact shadows, sampled emitters); never the table again.
+    Returns (table, CacheStatus, rays traced against the scene).
     """
-    p = prepared
-    settings = p.settings
-    stages = _Stages(progress)
-    skipped = list(p.skipped)
-    warnings = list(p.warnings)
-    lights = usable_lights(lights, warnings)
-    table = p.table
-    world = world_radiance(world, p.directions)
-    has_emission = bool(np.any(p.emission > 0))
-    has_world = bool(np.any(world > 0))
-    wants = set(settings.passes)
-    needs_gather = settings.bounces > 0 or has_emission or has_world
-    uses_fractions = bool(lights) and settings.shadows == "fractions"
-    if table is None and (needs_gather or "ao" in wants or uses_fractions):
-        raise BakeRefused("this scene was prepared without a visibility table, which these lights, world "
-                          "or passes need; prepare it again with the table")
+    names = [m.name for m in meshes]
+    status = CacheStatus()
+    meta = None
+    if cache is not None:
+        status.path = cache.table_path(settings)
+        started = time.perf_counter()
+        try:
+            meta = cache.read_table_meta(settings)
+            if meta is None:
+                status.state, status.message = "miss", "no cached visibility for this scene and these settings"
+            elif meta.get("key") == key:
+                cached = cache.load_table(settings, meta)
+                if not np.array_equal(cached.sample_offset, sample_offset) or not np.array_equal(
+                        cached.arrays["directions"], directions):
+                    raise CorruptCache("its layout does not match its key")
+                table = table_from_arrays(cached.arrays, cached.counters)
+                status.state, status.message = "hit", "the cached visibility is valid"
+                status.bytes_on_disk = os.path.getsize(status.path)
+                status.load_seconds = time.perf_counter() - started
+                skipped.append(f"visibility stage: the cached table is valid ({status.path})")
+                return table, status, 0
+            else:
+                status.state = "stale"
+                old_names, old_keys = meta.get("object_names", []), meta.get("object_keys", [])
+                if old_names == names:
+                    status.changed_objects = [n for n, a, b in zip(names, object_keys, old_keys) if a != b]
+                    status.message = f"changed since the cached bake: {', '.join(status.changed_objects)}"
+                else:
+                    added = sorted(set(names) - set(old_names))
+                    removed = sorted(set(old_names) - set(names))
+                    status.changed_objects = added + removed
+                    status.message = ("the scene's objects changed since the cached bake"
+                                      + (f" (added: {', '.join(added)})" if added else "")
+                                      + (f" (removed: {', '.join(removed)})" if removed else ""))
+        except CorruptCache as error:
+            status.state, status.message = "corrupt", f"the cache file is {error}"
+            warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
+            meta = None
+        status.load_seconds = time.perf_counter() - started
+    if require_cached_table:
+        detail = status.message or "the cache is off"
+        raise BakeRefused(f"no valid cached visibility for relighting ({detail}); bake first")
 
-    stages.start("direct")
+    triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
+    triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
+    corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] for m in meshes]).astype(np.float32)
+    all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
+    table = None
+    rays = 0
+    changed = [i for i, n in enumerate(names) if n in status.changed_objects]
+    if status.state == "stale" and meta is not None and meta.get("object_names") == names and len(changed) < len(names):
+        try:
+            old = cache.load_table(settings, meta)
+            old_table = table_from_arrays(old.arrays, old.counters)
+            changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
+            table, counts = update_table(old_table, old.sample_offset, ray_scene, changed_scene, changed, directions,
+                                         position, geometric, sample_offset, corner_uv, triangle_offset,
+                                         all_face_normals, settings.chunk_rays, stages.report)
+            del old, old_table
+            rays = counts.full + counts.changed_only
+            status.state = "updated"
+            skipped.append(f"visibility of unchanged objects: {counts.kept} of {table.rays_cast} table entries kept; "
+                           f"{counts.changed_only} rays traced against the changed objects only, {counts.full} "
+                           f"against the whole scene (changed: {', '.join(status.changed_objects)})")
+        except CorruptCache as error:
+            status.state, status.message = "corrupt", f"the cache file is {error}"
+            warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
+    if table is None:
+        table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
+                            all_face_normals, settings.chunk_rays, stages.report)
+        rays = table.rays_cast
+    if cache is not None:
+        started = time.perf_counter()
+        try:
+            status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)
+        except OSError as error:
+            warnings.append(f"visibility cache {status.path} could not be written ({error}); the next bake "
+                            "traces the table again")
+        status.save_seconds = time.perf_counter() - started
+    return table, status, rays
+
+
+@dataclass
+class LightGroup:
+    """Lights, world and emitting objects whose light is transported together.
+
+    emitting : (objects,) bool, whose emission belongs to this group
+    """
+
+    name: str
+    lights: list
+    world: np.ndarray  # (N, 3) world radiance per direction
+    emitting: np.ndarray
+
+
+def light_groups(prepared: Prepared, lights, world: np.ndarray, split: bool) -> list[LightGroup]:
+    """The groups one relight transports: one with everything, or one per light group.
+
+    A lamp's group is its ``group`` or its own name; the world's is its ``light_group``
+    or "world"; an emitting object's is its ``light_group`` or its own name. Transport
+    is linear in the emitted light, so the groups sum to the one-group result.
+    """
+    objects = len(prepared.meshes)
+    emits = np.array([bool(np.any(prepared.emission[a:b] > 0))
+                      for a, b in zip(prepared.sample_offset[:-1], prepared.sample_offset[1:])], bool)
+    if not split:
+        return [LightGroup("all", list(lights), world, emits)]
+    groups: dict[str, LightGroup] = {}
+
+    def group(name):
+        if name not in groups:
+            groups[name] = LightGroup(name, [], np.zeros_like(world), np.zeros(objects, bool))
+        return groups[name]
+
+    for light in lights:
+        group(light.group or light.name).lights.append(light)
+    if np.any(world > 0):
+        group(prepared.world_group or "world").world = world
+    for index in np.nonzero(emits)[0]:
+        mesh = prepared.meshes[index]
+        group(mesh.light_group or mesh.name).emitting[index] = True
+    return list(groups.values())
+
+
+def _light_key_parts(light) -> list:
+    parts = []
+    for name, value in sorted(vars(light).items()):
+        if name in ("name", "group"):
+            continue
+        parts.append(name)
+        parts.append(np.asarray(value, np.float64) if isinstance(value, np.ndarray) else value)
+    return parts
+
+
+@dataclass
+class _Transported:
+    """Per-sample irradiance of one group: direct (lamps, emitters, world) and gathered bounces."""
+
+    direct: np.ndarray  # (K, 3) float64
+    gathered: np.ndarray  # (K, 3) float64
+    shadow_rays: int = 0
+    emitter_rays: int = 0
+    gathers: int = 0
+    emitters_sampled: tuple = ()
+
+
+def _transport(p: Prepared, group: LightGroup, stages: _Stages, skipped: list, share: tuple[float, float]) -> _Transported:
+    """Direct light and every bounce of one light group; ``share`` is its slice of the progress bar."""
+    settings = p.settings
+    table = p.table
+    lights = group.lights
+    emission = np.where(np.repeat(group.emitting, np.diff(p.sample_offset))[:, None], p.emission, 0.0)
+    has_emission = bool(np.any(emission > 0))
+    has_world = bool(np.any(group.world > 0))
+    needs_gather = settings.bounces > 0 or has_emission or has_world
+    low, high = share
+
+    def report(fraction):
+        stages.report(low + (high - low) * fraction)
+
+    direct_started = time.perf_counter()
+    uses_fractions = bool(lights) and settings.shadows == "fractions"
     regions = ShadowRegions(p.directions, settings.shadow_regions) if uses_fractions else None
     distant_fractions = None
     # E_d: everything that reaches a sample without a bounce (lamps, sampled emitters,
     # gathered emission and world). Bounces then only ever carry reflected light.
     direct_irradiance = np.zeros((len(p.position), 3))
-    shadow_rays = 0
+    out = _Transported(direct_irradiance, np.zeros_like(direct_irradiance))
     for light_index, light in enumerate(lights):
         fractions = None
         if regions is not None:
@@ -323,15 +512,13 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
                     limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
                     blocked = p.ray_scene.occluded(p.origins[rays], part.to_light[rays], limit.astype(np.float32))
                     visibility[rays[blocked]] = 0.0
-                    shadow_rays += len(rays)
+                    out.shadow_rays += len(rays)
             direct_irradiance += part.irradiance * visibility[:, None]
-        stages.report((light_index + 1) / (len(lights) + 1))
-    if settings.shadows == "exact":
-        skipped.append("shadow fractions: shadows are exact")
+        report(0.3 * (light_index + 1) / max(len(lights), 1))
 
     exclude = None
-    emitters = find_emitters(p.meshes, settings.emitter_samples) if needs_gather else []
-    emitter_rays = 0
+    emitters = [e for e in find_emitters(p.meshes, settings.emitter_samples) if group.emitting[e.object_index]] \
+        if has_emission else []
     for emitter in emitters:
         direct = sampled_directly(emitter, p.position, settings.directions)
         if not np.any(direct):
@@ -343,49 +530,124 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
         irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen], p.geometric[chosen],
                                               p.origins[chosen], p.ray_scene)
         direct_irradiance[chosen] += irradiance
-        emitter_rays += rays
-    stages.report(1.0)
+        out.emitter_rays += rays
+    out.emitters_sampled = tuple(p.meshes[e.object_index].name for e in emitters)
+    stages.book("direct", time.perf_counter() - direct_started)
 
-    gathered = np.zeros_like(direct_irradiance)
-    gathers = 0
-    scale = None
-    if needs_gather:
-        stages.start("transport")
-        scale = gather_normalisation(table, p.normal)
-        total = settings.bounces + 1
+    if not needs_gather:
+        return out
+    scale = p.gather_scale()
+    total = settings.bounces + 1
 
-        def step_progress(step):
-            return lambda fraction: stages.report((step + fraction) / total)
+    def step_progress(step):
+        return lambda fraction: report(0.3 + 0.7 * (step + fraction) / total)
 
-        if has_emission or has_world:
-            direct_irradiance += gather(table, p.normal, scale, p.layout, p.to_atlas(p.emission), world,
-                                        step_progress(0), exclude, settings.threads)
-            gathers += 1
-        else:
-            skipped.append("gather of emitted light: the scene has no emission and no world light")
-        for bounce in range(1, settings.bounces + 1):
-            reflected = p.albedo / np.pi * (direct_irradiance + gathered)
-            gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), np.zeros(3),
-                              step_progress(bounce), threads=settings.threads)
-            gathers += 1
-    else:
-        skipped.append("indirect gathers: bounces = 0 and nothing emits")
+    if has_emission or has_world:
+        direct_irradiance += gather(table, p.normal, scale, p.layout, p.to_atlas(emission), group.world,
+                                    step_progress(0), exclude, settings.threads)
+        out.gathers += 1
+    gathered = out.gathered
+    for bounce in range(1, settings.bounces + 1):
+        if not np.any(direct_irradiance + gathered > 0):
+            skipped.append(f"bounce {bounce}+ of light group {group.name!r}: no light left to reflect")
+            break
+        reflected = p.albedo / np.pi * (direct_irradiance + gathered)
+        gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), np.zeros(3),
+                          step_progress(bounce), threads=settings.threads)
+        out.gathers += 1
+    out.gathered = gathered
+    return out
 
-    stages.start("outputs")
-    per_pass: dict[str, np.ndarray] = {}
-    irradiance = direct_irradiance + gathered
+
+LIGHTING_PASSES = ("lighting", "direct", "indirect", "irradiance")
+
+
+def _lighting_passes(p: Prepared, wants, direct: np.ndarray, gathered: np.ndarray) -> dict:
+    per_pass = {}
     if "lighting" in wants:
-        per_pass["lighting"] = p.albedo / np.pi * irradiance
+        per_pass["lighting"] = p.albedo / np.pi * (direct + gathered)
     if "direct" in wants:
-        per_pass["direct"] = p.albedo / np.pi * direct_irradiance
+        per_pass["direct"] = p.albedo / np.pi * direct
     if "indirect" in wants:
         per_pass["indirect"] = p.albedo / np.pi * gathered
     if "irradiance" in wants:
-        per_pass["irradiance"] = irradiance / np.pi
+        per_pass["irradiance"] = (direct + gathered) / np.pi
+    return per_pass
+
+
+def group_pass_name(pass_name: str, group: str) -> str:
+    """Name of a pass of one light group, e.g. ``lighting_Sun``."""
+    return f"{pass_name}_{group}"
+
+
+def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
+    """Direct light, gathers and pass images for ``lights`` and ``world`` over a prepared scene.
+
+    Traces only shadow rays (exact shadows, sampled emitters); never the table again.
+    With a cache, a light group whose lighting, materials and settings are unchanged
+    since an earlier relight is read back instead of transported again.
+    """
+    p = prepared
+    settings = p.settings
+    stages = _Stages(progress)
+    skipped = list(p.skipped)
+    warnings = list(p.warnings)
+    lights = usable_lights(lights, warnings)
+    world_light_group = getattr(world, "light_group", "")
+    world = world_radiance(world, p.directions)
+    wants = set(settings.passes)
+    table = p.table
+    has_emission = bool(np.any(p.emission > 0))
+    needs_table = (settings.bounces > 0 or has_emission or bool(np.any(world > 0)) or "ao" in wants
+                   or (bool(lights) and settings.shadows == "fractions"))
+    if table is None and needs_table:
+        raise BakeRefused("this scene was prepared without a visibility table, which these lights, world "
+                          "or passes need; prepare it again with the table")
+    if settings.shadows == "exact":
+        skipped.append("shadow fractions: shadows are exact")
+    if settings.bounces == 0:
+        skipped.append("bounce gathers: bounces = 0")
+    if not has_emission and not np.any(world > 0):
+        skipped.append("gather of emitted light: the scene has no emission and no world light")
+
+    stages.start("transport")
+    p.world_group = world_light_group
+    groups = light_groups(p, lights, world, settings.light_groups)
+    lighting_wanted = bool(wants & set(LIGHTING_PASSES))
+    if not lighting_wanted:
+        skipped.append("direct light and gathers: no lighting pass was asked for")
+        groups = []
+    transported: dict[str, _Transported] = {}
+    reused = []
+    for index, group in enumerate(groups):
+        key = p.lighting_key(group) if p.cache is not None else None
+        cached = p.cache.load_lighting(settings, key) if key else None
+        if cached is not None:
+            transported[group.name] = _Transported(cached["direct"], cached["gathered"])
+            reused.append(group.name)
+            continue
+        result = _transport(p, group, stages, skipped, (index / len(groups), (index + 1) / len(groups)))
+        transported[group.name] = result
+        if key:
+            p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
+    if reused:
+        names = "all lights" if reused == ["all"] else ", ".join(repr(n) for n in reused)
+        skipped.append(f"transport of {names}: lighting, materials and settings unchanged since a cached bake")
+    if p.cache_status is not None:
+        p.cache_status.lighting_reused = reused
+
+    stages.start("outputs")
+    per_pass: dict[str, np.ndarray] = {}
+    if groups:
+        direct = sum(t.direct for t in transported.values())
+        gathered = sum(t.gathered for t in transported.values())
+        per_pass.update(_lighting_passes(p, wants, direct, gathered))
+        if settings.light_groups:
+            for name, t in transported.items():
+                for pass_name, values in _lighting_passes(p, wants, t.direct, t.gathered).items():
+                    per_pass[group_pass_name(pass_name, name)] = values
     if "ao" in wants:
-        if scale is None:
-            scale = gather_normalisation(table, p.normal)
-        per_pass["ao"] = np.repeat(ambient_occlusion(table, p.normal, scale)[:, None], 3, axis=1)
+        per_pass["ao"] = np.repeat(ambient_occlusion(table, p.normal, p.gather_scale())[:, None], 3, axis=1)
 
     results = []
     output_meshes = [(i, m) for i, m in enumerate(p.meshes) if m.output]
@@ -393,8 +655,8 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
         samples = p.object_samples[index]
         a, b = p.sample_offset[index], p.sample_offset[index + 1]
         result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
-        for name in settings.passes:
-            result.images[name] = sample_image(per_pass[name][a:b], samples.pixel, samples.coverage, settings.margin)
+        for name, values in per_pass.items():
+            result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin)
         results.append(result)
         stages.report((done + 1) / len(output_meshes))
     stages.stop()
@@ -416,15 +678,18 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
         ],
         "stage_seconds": {k: round(v, 4) for k, v in {**p.stage_seconds, **stages.times}.items()},
         "rays": {
-            "visibility_cast": int(table.rays_cast) if table else 0,
+            "visibility_cast": int(p.visibility_rays),
+            "visibility_in_table": int(table.rays_cast) if table else 0,
             "visibility_skipped_below_horizon": int(table.rays_below_horizon) if table else 0,
             "backface_hits": int(table.backface_hits) if table else 0,
-            "shadow_rays": int(shadow_rays),
-            "emitter_rays": int(emitter_rays),
+            "shadow_rays": int(sum(t.shadow_rays for t in transported.values())),
+            "emitter_rays": int(sum(t.emitter_rays for t in transported.values())),
         },
-        "emitters_sampled": [p.meshes[e.object_index].name for e in emitters],
-        "gathers": gathers,
+        "light_groups": [g.name for g in groups] if settings.light_groups else [],
+        "emitters_sampled": sorted({n for t in transported.values() for n in t.emitters_sampled}),
+        "gathers": int(sum(t.gathers for t in transported.values())),
         "table_bytes": int(table.nbytes) if table else 0,
+        "cache": asdict(p.cache_status) if p.cache_status is not None else {"state": "off"},
         "skipped": skipped,
         "warnings": warnings,
     }

@@ -45,6 +45,7 @@ class Mesh:
     resolution : (width, height) of the atlas in texels
     output : whether this object gets output images (False: it only occludes
         and reflects light, through an atlas that is never written)
+    light_group : the light group its emission belongs to ('' : the object's name)
     """
 
     name: str
@@ -57,6 +58,7 @@ class Mesh:
     bake_uv_map: str
     resolution: tuple[int, int]
     output: bool = True
+    light_group: str = ""
 
 
 @dataclass
@@ -71,6 +73,7 @@ class Light:
     spot_size : full cone angle in radians; spot_blend in [0, 1]
     area_shape, size_x, size_y : area light shape and extent
     axis_x, axis_y : (3,) float the area light's local X and Y axes (world space, unit)
+    group : the light group it belongs to ('' : its own, named after the lamp)
     """
 
     name: str
@@ -86,6 +89,7 @@ class Light:
     size_y: float = 1.0
     axis_x: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
     axis_y: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    group: str = ""
 
 
 @dataclass
@@ -98,11 +102,13 @@ class World:
         environment (strength already applied), row 0 at the bottom (Blender's order)
     rotation : (3, 3) float64 world-to-texture rotation applied to a direction before
         the equirectangular lookup (a Mapping node's rotation), identity if none
+    light_group : the light group of world light ('' : "world")
     """
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     image: np.ndarray | None = None
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    light_group: str = ""
 
 
 @dataclass
@@ -126,6 +132,8 @@ class BakeSettings:
     area_light_samples : grid points per side used to integrate an area light
     emitter_samples : points per emissive object for direct sampling of small emitters
     threads : worker threads for ray tracing (0: all cores)
+    light_groups : also write every lighting pass per light group, so lights can be
+        re-mixed without another bake (the groups sum to the combined pass)
     chunk_rays : rays traced per batch; bounds the memory of the tracing stage
     """
 
@@ -141,6 +149,7 @@ class BakeSettings:
     emitter_samples: int = 16
     threads: int = 0
     chunk_rays: int = 1 << 20
+    light_groups: bool = False
 
     def validate(self) -> None:
         """Raise ValueError with a one-line reason for settings that cannot work."""

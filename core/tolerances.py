@@ -56,3 +56,8 @@ SPAN_MARGIN = 1e-6
 # overflow the float32 outputs (3.4e38) after the inverse-square factor of a texel
 # a millimetre from the lamp.
 MAX_LIGHT_STRENGTH = 1e30
+
+# Environment cells: a pixel's nearest direction found within the polar band is only
+# trusted if its dot product beats the band's edge by this much, so float64 rounding
+# of the dot products cannot hide a nearer direction just outside the band.
+ENV_NEAREST_DOT_SLACK = 1e-9

@@ -57,6 +57,69 @@ def table_bytes(directions: int, samples: int) -> int:
     return directions * samples * (2 + 8 + 4)
 
 
+@dataclass
+class _Geometry:
+    """What the table writer needs to turn a hit into a table entry (all objects)."""
+
+    corner_uv: np.ndarray  # (T, 3, 2) float32
+    triangle_offset: np.ndarray  # (objects,) int64
+    face_normals: np.ndarray  # (T, 3) float64
+
+
+def _record(table: dict, geometry: _Geometry, directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+            hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
+            where: np.ndarray | None = None) -> None:
+    """Write traced rays into the table arrays: hits, backfaces, and (unless ``where``) misses.
+
+    ``hit_geometry`` holds object indices (-1: miss). With ``where`` given, only
+    those rays are written (an update that keeps the old entry elsewhere).
+    """
+    if where is None:
+        missed = hit_geometry < 0
+        table["hit_object"][rows[missed], cols[missed]] = MISS
+        table["hit_uv"][rows[missed], cols[missed]] = 0.0
+        table["hit_distance"][rows[missed], cols[missed]] = np.inf
+        hit = ~missed
+    else:
+        hit = where & (hit_geometry >= 0)
+    global_triangle = geometry.triangle_offset[hit_geometry[hit]] + triangle[hit]
+    facing = np.einsum("kd,kd->k", geometry.face_normals[global_triangle], directions[rows[hit]])
+    back = facing > 0.0
+    u = bary[hit, 0:1]
+    v = bary[hit, 1:2]
+    uv = geometry.corner_uv[global_triangle]
+    landing = (1.0 - u - v) * uv[:, 0] + u * uv[:, 1] + v * uv[:, 2]
+    table["hit_object"][rows[hit], cols[hit]] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
+    table["hit_uv"][rows[hit], cols[hit]] = np.where(back[:, None], 0.0, landing)
+    table["hit_distance"][rows[hit], cols[hit]] = distance[hit]
+
+
+def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int) -> VisibilityTable:
+    backface_per_sample = np.count_nonzero(arrays["hit_object"] == BACKFACE, axis=0).astype(np.int32)
+    count, samples = arrays["hit_object"].shape
+    return VisibilityTable(directions=directions, **arrays, rays_cast=rays_cast,
+                           rays_below_horizon=count * samples - int(traced_per_sample.sum()),
+                           backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
+                           traced_per_sample=traced_per_sample)
+
+
+def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
+    """A table from its stored arrays (see core.cache); the per-sample counts are rederived."""
+    hit_object = arrays["hit_object"]
+    backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
+    return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv=arrays["hit_uv"],
+                           hit_distance=arrays["hit_distance"], rays_cast=int(counters["rays_cast"]),
+                           rays_below_horizon=int(counters["rays_below_horizon"]),
+                           backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
+                           traced_per_sample=arrays["traced_per_sample"])
+
+
+def _empty_arrays(count: int, samples: int) -> dict:
+    return {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
+            "hit_uv": np.zeros((count, samples, 2), np.float32),
+            "hit_distance": np.full((count, samples), np.inf, np.float32)}
+
+
 def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarray,
                 geometric_normals: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
                 face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None) -> VisibilityTable:
@@ -79,15 +142,12 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
     """
     count = len(directions)
     samples = len(positions)
-    hit_object = np.full((count, samples), BELOW_HORIZON, np.int16)
-    hit_uv = np.zeros((count, samples, 2), np.float32)
-    hit_distance = np.full((count, samples), np.inf, np.float32)
+    arrays = _empty_arrays(count, samples)
+    geometry = _Geometry(corner_uv, triangle_offset, face_normals)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
-    backfaces = 0
-    backface_per_sample = np.zeros(samples, np.int32)
     traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
@@ -96,30 +156,101 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
         above = (directions @ geometric_normals[start:stop].T) > 0.0
         direction_index, sample_index = np.nonzero(above)
         if len(sample_index):
-            geometry, triangle, bary, distance = ray_scene.intersect(origins_all[start:stop][sample_index],
-                                                           directions32[direction_index])
-            rows = direction_index
-            cols = sample_index + start
-            missed = geometry < 0
-            hit_object[rows[missed], cols[missed]] = MISS
-            hit = ~missed
-            global_triangle = triangle_offset[geometry[hit]] + triangle[hit]
-            facing = np.einsum("kd,kd->k", face_normals[global_triangle], directions[direction_index[hit]])
-            back = facing > 0.0
-            backfaces += int(np.count_nonzero(back))
-            backface_per_sample += np.bincount(cols[hit][back], minlength=samples).astype(np.int32)
-            u = bary[hit, 0:1]
-            v = bary[hit, 1:2]
-            uv = corner_uv[global_triangle]
-            landing = (1.0 - u - v) * uv[:, 0] + u * uv[:, 1] + v * uv[:, 2]
-            code = np.where(back, BACKFACE, geometry[hit]).astype(np.int16)
-            hit_object[rows[hit], cols[hit]] = code
-            hit_uv[rows[hit], cols[hit]] = np.where(back[:, None], 0.0, landing)
-            hit_distance[rows[hit], cols[hit]] = distance[hit]
+            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins_all[start:stop][sample_index],
+                                                                         directions32[direction_index])
+            _record(arrays, geometry, directions, direction_index, sample_index + start, hit_geometry, triangle,
+                    bary, distance)
             rays_cast += len(sample_index)
         if progress is not None:
             progress(stop / samples)
-    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv, hit_distance=hit_distance,
-                           rays_cast=rays_cast, rays_below_horizon=count * samples - rays_cast,
-                           backface_hits=backfaces, backface_per_sample=backface_per_sample,
-                           traced_per_sample=traced_per_sample)
+    return _finish(directions, arrays, traced_per_sample, rays_cast)
+
+
+@dataclass
+class UpdateCounts:
+    """Rays an incremental update traced, for the bake report."""
+
+    full: int = 0  # against the whole scene (changed objects' samples, entries that hit a changed object)
+    changed_only: int = 0  # against the changed objects alone (could they now be in the way?)
+    kept: int = 0  # entries of unchanged samples that no ray had to revisit
+
+
+def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RayScene, changed_scene: RayScene,
+                 changed: list[int], directions: np.ndarray, positions: np.ndarray, geometric_normals: np.ndarray,
+                 sample_offset: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
+                 face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None):
+    """The table after some objects changed, reusing every entry that cannot have changed.
+
+    Unchanged objects' samples keep their positions and horizons, so an entry of theirs
+    changes only if its ray used to hit a changed object (retraced against the whole
+    scene), or if a changed object now lies nearer than the old hit (found by tracing
+    against the changed objects alone, a far smaller BVH). Backface entries do not
+    record their object and are always retraced. Samples of changed objects are traced
+    from scratch. The result equals a fresh :func:`trace_table` of the new scene.
+
+    Parameters
+    ----------
+    old : the table of the previous bake, same objects in the same order, same directions
+    old_offset, sample_offset : (objects + 1,) int64 first sample of each object, old and new
+    changed_scene : RayScene with the new geometry of the ``changed`` objects only, in that order
+    changed : indices of the objects whose geometry, UVs or resolution changed
+    other parameters : as :func:`trace_table`, for the new scene
+
+    Returns
+    -------
+    table : VisibilityTable
+    counts : UpdateCounts
+    """
+    count = len(directions)
+    samples = len(positions)
+    objects = len(sample_offset) - 1
+    arrays = _empty_arrays(count, samples)
+    geometry = _Geometry(corner_uv, triangle_offset, face_normals)
+    origins_all = offset_ray_origins(positions, geometric_normals)
+    directions32 = directions.astype(np.float32)
+    traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
+    is_changed = np.zeros(objects, bool)
+    is_changed[list(changed)] = True
+    changed_map = np.asarray(changed, np.int32)
+    counts = UpdateCounts()
+    chunk = max(1, chunk_rays // max(count, 1))
+    spans = []
+    for index in range(objects):
+        a, b = int(sample_offset[index]), int(sample_offset[index + 1])
+        spans.extend((index, start, min(b, start + chunk)) for start in range(a, b, chunk))
+    for done, (index, start, stop) in enumerate(spans):
+        cols = slice(start, stop)
+        if is_changed[index]:
+            redo = (directions @ geometric_normals[cols].T) > 0.0
+        else:
+            old_start = int(old_offset[index]) + start - int(sample_offset[index])
+            old_cols = slice(old_start, old_start + stop - start)
+            for name in arrays:
+                arrays[name][:, cols] = getattr(old, name)[:, old_cols]
+            code = arrays["hit_object"][:, cols]
+            hit_changed = np.zeros(code.shape, bool)
+            hits = code >= 0
+            hit_changed[hits] = is_changed[code[hits]]
+            redo = hit_changed | (code == BACKFACE)
+            probe = (code == MISS) | (hits & ~hit_changed)
+            direction_index, sample_index = np.nonzero(probe)
+            if len(sample_index):
+                found, triangle, bary, distance = changed_scene.intersect(
+                    origins_all[cols][sample_index], directions32[direction_index])
+                rows, where = direction_index, sample_index + start
+                nearer = (found >= 0) & (distance < arrays["hit_distance"][rows, where])
+                mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
+                _record(arrays, geometry, directions, rows, where, mapped, triangle, bary, distance, where=nearer)
+                counts.changed_only += len(sample_index)
+                counts.kept += len(sample_index) - int(np.count_nonzero(nearer))
+        direction_index, sample_index = np.nonzero(redo)
+        if len(sample_index):
+            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins_all[cols][sample_index],
+                                                                         directions32[direction_index])
+            _record(arrays, geometry, directions, direction_index, sample_index + start, hit_geometry, triangle,
+                    bary, distance)
+            counts.full += len(sample_index)
+        if progress is not None:
+            progress((done + 1) / len(spans))
+    table = _finish(directions, arrays, traced_per_sample, int(traced_per_sample.sum()))
+    return table, counts
