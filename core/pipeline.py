@@ -295,7 +295,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     status = CacheStatus() if cache is None else None
     visibility_rays = 0
     if table_needed:
-        stages.start("visibility")
+        stages.start("cache" if cache is not None else "visibility")
         table, status, visibility_rays = _cached_or_traced_table(
             meshes, object_keys, key, settings, directions, position, geometric, sample_offset, ray_scene, cache,
             require_cached_table, stages, skipped, warnings)
@@ -370,6 +370,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
     all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
     table = None
     rays = 0
+    stages.start("visibility")
     changed = [i for i, n in enumerate(names) if n in status.changed_objects]
     if status.state == "stale" and meta is not None and meta.get("object_names") == names and len(changed) < len(names):
         try:
@@ -393,6 +394,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
                             all_face_normals, settings.chunk_rays, stages.report)
         rays = table.rays_cast
     if cache is not None:
+        stages.start("cache")
         started = time.perf_counter()
         try:
             status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)

@@ -1,4 +1,9 @@
-"""The headless command: ``blender -c visibake bake ...`` and ``tools/visibake.py bake ...``.
+"""The headless command: ``blender -c visibake bake|relight|demo ...`` and ``tools/visibake.py ...``.
+
+``bake`` traces (or reuses the cached) visibility and lights the scene; ``relight``
+only re-lights from the cached visibility and refuses if the geometry changed.
+Both take lighting setups (``--setups FILE.json`` or ``--sun-sweep``) and then write
+one set of outputs per setup from one visibility bake.
 
 Exit status: 0 success, 2 bad input (one line on stderr saying why), 1 failure.
 """
@@ -12,6 +17,7 @@ import traceback
 
 import bpy
 
+from ..core import setups as lighting_setups
 from ..core.pipeline import Cancelled
 from ..core.scene import PASSES
 from . import job
@@ -25,8 +31,19 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     bake = commands.add_parser("bake", help="bake a .blend (default: the built-in demo scene)")
     bake.add_argument("input", nargs="?", help="the .blend to bake; omitted: the built-in demo scene")
+    relight = commands.add_parser(
+        "relight", help="re-light a .blend from its cached visibility (fails if the geometry changed)")
+    relight.add_argument("input", nargs="?", help="the .blend to relight; omitted: the built-in demo scene")
     demo = commands.add_parser("demo", help="bake the built-in demo scene with previews and a summary")
-    for sub in (bake, demo):
+    for sub in (bake, relight):
+        sub.add_argument("--setups", metavar="SETUPS.json",
+                         help="lighting setups (lights and world) to write one set of outputs each, into OUT/<setup>/")
+        sub.add_argument("--sun-sweep", metavar="START:END:STEPS",
+                         help="one setup per time of day, e.g. 6:18:7; the scene's sun (or a new one) follows the sky")
+        sub.add_argument("--latitude", type=float, default=45.0, help="latitude of the sun sweep in degrees (default 45)")
+        sub.add_argument("--day", type=int, default=172, help="day of the year of the sun sweep (default 172, June 21)")
+        sub.add_argument("--sun", metavar="NAME", help="the sun lamp the sweep moves (default: the scene's first sun)")
+    for sub in (bake, relight, demo):
         sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
         sub.add_argument("--objects", metavar="A,B", help="comma-separated objects to bake (default: all visible meshes)")
         sub.add_argument("--directions", type=int, metavar="N", help="size of the direction set (default 128)")
@@ -42,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
         sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
         sub.add_argument("--previews", action="store_true", default=None, help="also write tone-mapped PNGs")
+        sub.add_argument("--light-groups", action="store_true", default=None,
+                         help="also write every lighting pass per light group")
+        sub.add_argument("--cache-dir", metavar="DIR", help="visibility cache folder (default: beside the .blend)")
+        sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -58,10 +79,15 @@ def _apply_settings(args, props) -> None:
             raise job.BakeInputError(f"--{name} must be at least {minimum}, got {value}")
     if args.texel_density is not None and not args.texel_density >= 0:
         raise job.BakeInputError(f"--texel-density must be zero or more, got {args.texel_density}")
-    for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate"):
+    for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate",
+                 "light_groups"):
         value = getattr(args, name)
         if value is not None:
             setattr(props, name, value)
+    if args.cache_dir is not None:
+        props.cache_dir = os.path.abspath(args.cache_dir)
+    if args.no_cache:
+        props.use_cache = False
     if args.texel_density is not None:
         props.texel_density = args.texel_density
     if args.passes is not None:
@@ -136,6 +162,32 @@ def _load_input(args) -> None:
         demo_scene.build_demo_scene(bpy.context.scene)
 
 
+def _setups(args):
+    """A callable making the lighting setups from the scene's lights and world, or None."""
+    setups_file, sweep = getattr(args, "setups", None), getattr(args, "sun_sweep", None)
+    if setups_file and sweep:
+        raise job.BakeInputError("give either --setups or --sun-sweep, not both")
+    if not setups_file and not sweep:
+        return None
+    if not args.out:
+        raise job.BakeInputError("--setups and --sun-sweep write one folder per setup: give --out DIR")
+    if sweep:
+        start, end, steps = _checked(lighting_setups.parse_sweep, sweep)
+        return lambda lights, world: _checked(lighting_setups.sun_sweep, start, end, steps, args.latitude, args.day,
+                                              lights, world, args.sun)
+    path = os.path.abspath(setups_file)
+    if not os.path.isfile(path):
+        raise job.BakeInputError(f"--setups: file not found: {setups_file}")
+    return lambda lights, world: _checked(lighting_setups.load_setups, path, lights, world)
+
+
+def _checked(function, *arguments):
+    try:
+        return function(*arguments)
+    except lighting_setups.SetupError as error:
+        raise job.BakeInputError(str(error)) from None
+
+
 def run(args) -> int:
     _load_input(args)
     scene = bpy.context.scene
@@ -147,8 +199,10 @@ def run(args) -> int:
     if args.command == "demo" and out_dir is None:
         out_dir = os.path.abspath("visibake_demo")
     progress = _Progress(not args.no_progress)
+    setups = _setups(args)
     try:
-        outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress)
+        outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
+                               relight_only=args.command == "relight", setups=setups)
     finally:
         progress.close()
     report = outcome.report
@@ -172,7 +226,7 @@ def run(args) -> int:
 
 
 def format_summary(report: dict) -> str:
-    lines = ["VisiBake bake finished"]
+    lines = ["VisiBake relight finished" if report.get("relight_only") else "VisiBake bake finished"]
     settings = report["settings"]
     lines.append(f"  settings: {settings['directions']} directions, {settings['bounces']} bounces, "
                  f"shadows {settings['shadows']}, passes {','.join(settings['passes'])}")
@@ -183,6 +237,14 @@ def format_summary(report: dict) -> str:
     rays = report["rays"]
     lines.append(f"  rays: {rays['visibility_cast']} traced, {rays['visibility_skipped_below_horizon']} skipped "
                  f"below the horizon, {rays['shadow_rays']} shadow rays")
+    cache = report.get("cache", {})
+    if cache.get("state", "off") != "off":
+        lines.append(f"  visibility cache: {cache['state']}"
+                     + (f" ({cache['message']})" if cache.get("message") else "")
+                     + (f", {cache['bytes_on_disk'] / 2**20:.1f} MiB at {cache['path']}" if cache.get("path") else ""))
+    for setup in report.get("setups", []):
+        lines.append(f"  setup {setup['name']}: {len(setup['lights'])} lights, {setup['gathers']} gathers"
+                     + (f", reused {', '.join(setup['lighting_reused'])}" if setup["lighting_reused"] else ""))
     lines.append("  seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in report["stage_seconds"].items())
                  + f"; total {report['total_seconds']:.2f}")
     lines.append(f"  peak memory: {report['peak_memory_bytes'] / 2**20:.0f} MiB")

@@ -16,10 +16,13 @@ import bpy
 
 import numpy as np
 
-from ..core.pipeline import BakeResult, bake, check_budget, peak_memory_bytes
+from ..core.cache import VisibilityCache
+from ..core.pipeline import BakeResult, check_budget, peak_memory_bytes, prepare, relight
 from ..core.samples import face_normals
 from ..core.scene import Scene
 from . import extract, layout, writeback
+
+CACHE_FOLDER_NAME = "visibake_cache"
 
 
 class BakeInputError(ValueError):
@@ -31,6 +34,29 @@ class JobResult:
     result: BakeResult
     report: dict
     files: list[str] = field(default_factory=list)
+
+
+def cache_folder(scene) -> str:
+    """The cache folder: the scene's setting, else beside the saved .blend, else the user folder."""
+    props = scene.visibake
+    if props.cache_dir:
+        return bpy.path.abspath(props.cache_dir)
+    if bpy.data.filepath:
+        return os.path.join(os.path.dirname(bpy.data.filepath), CACHE_FOLDER_NAME)
+    package = __package__.rpartition(".")[0]
+    try:
+        return bpy.utils.extension_path_user(package, path="cache", create=True)
+    except ValueError:
+        # Not installed as an extension (run from a source checkout by tools/visibake.py).
+        return os.path.join(bpy.utils.user_resource("CONFIG"), "visibake", "cache")
+
+
+def visibility_cache(scene) -> VisibilityCache | None:
+    """The cache of this scene (named after the .blend), or None when caching is off."""
+    if not scene.visibake.use_cache:
+        return None
+    label = os.path.splitext(os.path.basename(bpy.data.filepath))[0] if bpy.data.filepath else "untitled"
+    return VisibilityCache(cache_folder(scene), f"{label}-{scene.name}")
 
 
 def output_objects(context, props) -> list[bpy.types.Object]:
@@ -112,8 +138,10 @@ def extract_scene(context, objects, progress=None) -> Extracted:
             mesh.bake_uv_map, mesh.resolution = plan.uv_map, plan.resolution
             if plan.internal_uv is not None:
                 mesh.uv_maps[plan.uv_map] = plan.internal_uv
+        world = extract.read_world(scene, warnings)
+        world.light_group = getattr(scene.world, "lightgroup", "") if scene.world else ""
         core_scene = Scene(meshes=meshes, lights=[extract.read_light(o) for o in extract.scene_lights(scene)],
-                           world=extract.read_world(scene, warnings))
+                           world=world)
         times["extract"] = time.perf_counter() - t
         if not any(m.output for m in meshes):
             raise BakeInputError("none of the objects to bake has faces")
@@ -124,12 +152,20 @@ def extract_scene(context, objects, progress=None) -> Extracted:
 
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
-             progress=None) -> JobResult:
+             progress=None, relight_only: bool = False, setups=None) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
     output. Raises :class:`BakeInputError` for bad input, ``core.pipeline.Cancelled``
     if ``progress`` cancels; in both cases the scene is left unchanged.
+
+    Parameters
+    ----------
+    relight_only : refuse unless the visibility cache holds a valid table for the
+        scene's current geometry (the table is never traced again)
+    setups : callable(lights, world) -> list of core.setups.Setup, or None. Each setup
+        is relit from the one prepared table and written to ``out_dir/<setup>/``
+        (files only; the scene's images keep the scene's own lighting).
     """
     scene = context.scene
     props = scene.visibake
@@ -137,21 +173,34 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         raise BakeInputError("vertex mode is not implemented yet; use mode atlas or auto")
     if not objects:
         raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
+    if setups is not None and not out_dir:
+        raise BakeInputError("lighting setups are written as files: give an output folder")
     settings = props.to_bake_settings()
     try:
         settings.validate()
     except ValueError as error:
         raise BakeInputError(str(error)) from None
-    try:
-        writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
-    except ValueError as error:
-        raise BakeInputError(str(error)) from None
+    if setups is None:
+        try:
+            writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
 
     started = time.perf_counter()
     extracted = extract_scene(context, objects, progress)
+    cache = visibility_cache(scene)
     try:
         try:
-            result = bake(extracted.scene, settings, progress)
+            lightings = [(None, extracted.scene.lights, extracted.scene.world)]
+            if setups is not None:
+                lightings = [(s.name, s.lights, s.world) for s in setups(extracted.scene.lights, extracted.scene.world)]
+            # Relighting with a setup may need the table although the scene's own lights do not.
+            prepared = prepare(extracted.scene, settings, progress, table_needed=True if setups else None,
+                               cache=cache, require_cached_table=relight_only)
+            results = [(name, relight(prepared, lights, world, progress)) for name, lights, world in lightings]
+            if setups is None:
+                writeback.check_image_names(writeback.image_name(o.name, p)
+                                            for o in results[0][1].objects for p in o.images)
         except ValueError as error:
             raise BakeInputError(str(error)) from None
     except BaseException:
@@ -160,9 +209,16 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
 
     t = time.perf_counter()
-    files = writeback.write_outputs(result.objects, out_dir, previews)
+    files = []
+    for name, result in results:
+        if name is None:
+            files += writeback.write_outputs(result.objects, out_dir, previews)
+        else:
+            files += writeback.write_outputs(result.objects, os.path.join(out_dir, writeback.safe_file_name(name)),
+                                             previews, store_images=False)
     times["write"] = time.perf_counter() - t
 
+    result = results[-1][1]
     report = result.report
     report["stage_seconds"] = {**{k: round(v, 4) for k, v in times.items() if k != "write"},
                                **report["stage_seconds"], "write": round(times["write"], 4)}
@@ -176,7 +232,14 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             entry["uv_map_reason"] = plan.reason
             entry["uv_map_created"] = plan.created
     report["blender_version"] = bpy.app.version_string
-    report["lights"] = [light.name for light in extracted.scene.lights]
+    report["lights"] = [light.name for light in lightings[-1][1]]
+    report["relight_only"] = relight_only
+    if setups is not None:
+        report["setups"] = [{"name": name, "lights": [light.name for light in lights],
+                             "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],
+                             "shadow_rays": r.report["rays"]["shadow_rays"],
+                             "lighting_reused": r.report["cache"].get("lighting_reused", [])}
+                            for (name, lights, _), (_, r) in zip(lightings, results)]
     return JobResult(result=result, report=report, files=files)
 
 

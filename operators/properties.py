@@ -43,6 +43,18 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     margin: bpy.props.IntProperty(
         name="Margin", default=4, min=0, soft_max=32,
         description="Texels the results are extended into the gutter so filtering never pulls in black")
+    use_cache: bpy.props.BoolProperty(
+        name="Cache Visibility", default=True,
+        description="Keep the visibility tables on disk, so bakes after changes to lights, materials or the world "
+                    "(and Relight) skip the visibility stage")
+    cache_dir: bpy.props.StringProperty(
+        name="Cache Folder", subtype="DIR_PATH", default="",
+        description="Where the visibility cache lives; empty: a visibake_cache folder beside the saved .blend, "
+                    "else VisiBake's folder in your user profile")
+    light_groups: bpy.props.BoolProperty(
+        name="Light Groups", default=False,
+        description="Also write every lighting pass per light group (a lamp's Light Group, else each lamp; the world; "
+                    "each emitting object), so lights can be re-mixed without another bake")
     output_dir: bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")
@@ -50,7 +62,7 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     def to_bake_settings(self) -> BakeSettings:
         return BakeSettings(directions=self.directions, bounces=self.bounces, shadows=self.shadows,
                             rotate=self.rotate, seed=self.seed, margin=self.margin,
-                            passes=tuple(p for p in PASSES if p in self.passes))
+                            passes=tuple(p for p in PASSES if p in self.passes), light_groups=self.light_groups)
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

@@ -77,15 +77,16 @@ def save_png(path: str, pixels: np.ndarray) -> None:
         bpy.data.images.remove(image)
 
 
-def write_outputs(results, out_dir: str | None, previews: bool) -> list[str]:
-    """Store every pass as an image datablock and, with ``out_dir``, as files.
+def write_outputs(results, out_dir: str | None, previews: bool, store_images: bool = True) -> list[str]:
+    """Store every pass as an image datablock (unless not ``store_images``) and, with ``out_dir``, as files.
 
     Returns the paths of the files written.
     """
     files = []
     for result in results:
         for pass_name, pixels in result.images.items():
-            store_image(image_name(result.name, pass_name), pixels)
+            if store_images:
+                store_image(image_name(result.name, pass_name), pixels)
             if not out_dir:
                 continue
             folder = os.path.join(out_dir, safe_file_name(result.name))

@@ -23,12 +23,18 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         column.prop(props, "mode")
         column.prop(props, "bake_all")
         column.prop(props, "output_dir")
+        column.prop(props, "light_groups")
+        column.prop(props, "use_cache")
+        if props.use_cache:
+            column.prop(props, "cache_dir")
         layout.label(text="Passes")
         layout.row().prop(props, "passes", expand=True)
         obj = context.object
         if obj is not None and obj.type == "MESH":
             layout.prop(obj.visibake, "resolution", text=f"{obj.name} Resolution")
-        layout.operator("visibake.bake", icon="RENDER_STILL")
+        row = layout.row(align=True)
+        row.operator("visibake.bake", icon="RENDER_STILL")
+        row.operator("visibake.relight", icon="LIGHT")
         last = context.scene.get("visibake_last_report")
         if last:
             layout.label(text=last)
