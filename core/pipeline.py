@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .directions import ShadowRegions, direction_set
-from .environment import world_radiance
+from .environment import has_light, world_radiance
 from .emitters import emitter_irradiance, find_emitters, sampled_directly
 from .lights import light_contributions
 from .raster import dilate
@@ -284,7 +284,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     directions = direction_set(settings.directions, settings.rotate, settings.seed)
     if table_needed is None:
         table_needed = (settings.bounces > 0 or bool(np.any(emission > 0)) or "ao" in settings.passes
-                        or bool(np.any(world_radiance(scene.world, directions) > 0))
+                        or has_light(scene.world)
                         or (settings.shadows == "fractions" and bool(scene.lights)))
 
     ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
@@ -374,8 +374,10 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
     changed = [i for i, n in enumerate(names) if n in status.changed_objects]
     if status.state == "stale" and meta is not None and meta.get("object_names") == names and len(changed) < len(names):
         try:
+            stages.start("cache")
             old = cache.load_table(settings, meta)
             old_table = table_from_arrays(old.arrays, old.counters)
+            stages.start("visibility")
             changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
             table, counts = update_table(old_table, old.sample_offset, ray_scene, changed_scene, changed, directions,
                                          position, geometric, sample_offset, corner_uv, triangle_offset,

@@ -59,6 +59,7 @@ class RayScene:
 
         self._scene = EmbreeScene()
         self._meshes = []
+        self._positions = []
         for positions, triangles in meshes:
             vertices = np.ascontiguousarray(positions, dtype=np.float32)
             indices = np.ascontiguousarray(triangles, dtype=np.int32)
@@ -68,7 +69,12 @@ class RayScene:
                 vertices = np.zeros((3, 3), np.float32)
                 indices = np.array([[0, 1, 2]], np.int32)
             self._meshes.append(TriangleMesh(self._scene, vertices, indices))
+            self._positions.append(vertices)
         self.threads = threads or default_threads()
+
+    def positions(self, index: int) -> np.ndarray:
+        """(n, 3) float32 vertices of geometry ``index`` as embree holds them."""
+        return self._positions[index]
 
     def _split(self, count: int):
         parts = min(self.threads, max(1, count // 4096))

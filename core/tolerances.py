@@ -61,3 +61,9 @@ MAX_LIGHT_STRENGTH = 1e30
 # trusted if its dot product beats the band's edge by this much, so float64 rounding
 # of the dot products cannot hide a nearer direction just outside the band.
 ENV_NEAREST_DOT_SLACK = 1e-9
+
+# The bounding sphere of a changed object is enlarged by this (relative to its radius
+# and to its distance from the origin, where float32 rays lose precision) before rays
+# that miss it are ruled out of an incremental table update: a ray it wrongly rules
+# out would keep a stale entry, one it wrongly keeps only costs a trace.
+CULL_SPHERE_MARGIN = 1e-3

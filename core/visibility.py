@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import tolerances as tol
 from .rays import RayScene, offset_ray_origins
 
 MISS = -1
@@ -175,11 +176,39 @@ class UpdateCounts:
     kept: int = 0  # entries of unchanged samples that no ray had to revisit
 
 
+def _bounding_sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (3,) and radius of a sphere around the finite ``positions`` (n, 3), slightly enlarged."""
+    finite = positions[np.all(np.isfinite(positions), axis=1)]
+    if len(finite) == 0:
+        return np.zeros(3), 0.0
+    low, high = finite.min(axis=0), finite.max(axis=0)
+    centre = (low + high) / 2
+    radius = float(np.linalg.norm(high - low) / 2)
+    return centre, radius * (1.0 + tol.CULL_SPHERE_MARGIN) + tol.CULL_SPHERE_MARGIN * float(np.abs(centre).max())
+
+
+def _may_hit_spheres(origins: np.ndarray, directions: np.ndarray, spheres) -> np.ndarray:
+    """(N, k) bool: whether the ray from origin k along direction i passes through any sphere.
+
+    One matrix product per sphere: the squared distance from the centre to the ray's
+    line is |v|^2 - (d . v)^2 with v = centre - origin; the sphere must not lie behind.
+    """
+    near = np.zeros((len(directions), len(origins)), bool)
+    for centre, radius in spheres:
+        v = centre - origins
+        along = directions @ v.T
+        squared = np.einsum("kd,kd->k", v, v)
+        near |= ((squared[None, :] - along * along) < radius * radius) & (along > -radius)
+    return near
+
+
 def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RayScene, changed_scene: RayScene,
                  changed: list[int], directions: np.ndarray, positions: np.ndarray, geometric_normals: np.ndarray,
                  sample_offset: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
                  face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None):
     """The table after some objects changed, reusing every entry that cannot have changed.
+
+    ``old``'s arrays are updated in place when the sample layout is unchanged.
 
     Unchanged objects' samples keep their positions and horizons, so an entry of theirs
     changes only if its ray used to hit a changed object (retraced against the whole
@@ -204,7 +233,12 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
     count = len(directions)
     samples = len(positions)
     objects = len(sample_offset) - 1
-    arrays = _empty_arrays(count, samples)
+    in_place = np.array_equal(old_offset, sample_offset)
+    if in_place:
+        # Same layout (a moved object keeps its samples): update the old arrays where they are.
+        arrays = {"hit_object": old.hit_object, "hit_uv": old.hit_uv, "hit_distance": old.hit_distance}
+    else:
+        arrays = _empty_arrays(count, samples)
     geometry = _Geometry(corner_uv, triangle_offset, face_normals)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
@@ -212,6 +246,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
     is_changed = np.zeros(objects, bool)
     is_changed[list(changed)] = True
     changed_map = np.asarray(changed, np.int32)
+    spheres = [_bounding_sphere(changed_scene.positions(i)) for i in range(len(changed))]
     counts = UpdateCounts()
     chunk = max(1, chunk_rays // max(count, 1))
     spans = []
@@ -222,17 +257,24 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
         cols = slice(start, stop)
         if is_changed[index]:
             redo = (directions @ geometric_normals[cols].T) > 0.0
+            if in_place:
+                arrays["hit_object"][:, cols] = BELOW_HORIZON
+                arrays["hit_uv"][:, cols] = 0.0
+                arrays["hit_distance"][:, cols] = np.inf
         else:
-            old_start = int(old_offset[index]) + start - int(sample_offset[index])
-            old_cols = slice(old_start, old_start + stop - start)
-            for name in arrays:
-                arrays[name][:, cols] = getattr(old, name)[:, old_cols]
+            if not in_place:
+                old_start = int(old_offset[index]) + start - int(sample_offset[index])
+                old_cols = slice(old_start, old_start + stop - start)
+                for name in arrays:
+                    arrays[name][:, cols] = getattr(old, name)[:, old_cols]
             code = arrays["hit_object"][:, cols]
             hit_changed = np.zeros(code.shape, bool)
             hits = code >= 0
             hit_changed[hits] = is_changed[code[hits]]
             redo = hit_changed | (code == BACKFACE)
             probe = (code == MISS) | (hits & ~hit_changed)
+            probe &= _may_hit_spheres(origins_all[cols], directions, spheres)
+            counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
             direction_index, sample_index = np.nonzero(probe)
             if len(sample_index):
                 found, triangle, bary, distance = changed_scene.intersect(
