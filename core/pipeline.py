@@ -208,13 +208,26 @@ class Prepared:
             self._gather_scale = gather_normalisation(self.table, self.normal)
         return self._gather_scale
 
+    def bounces_needed(self) -> int:
+        """The bounces to gather: none when no requested pass contains indirect light."""
+        wants = set(self.settings.passes)
+        return self.settings.bounces if wants & {"lighting", "indirect", "irradiance"} else 0
+
+    def output_samples(self) -> np.ndarray | None:
+        """(k,) int64 samples of the objects with outputs, or None if every object has outputs."""
+        if all(m.output for m in self.meshes):
+            return None
+        return np.concatenate([np.arange(a, b) for m, a, b in zip(self.meshes, self.sample_offset[:-1],
+                                                                  self.sample_offset[1:]) if m.output])
+
     def lighting_key(self, group: "LightGroup") -> str:
         """Hash of everything one group's transport depends on besides the table's key."""
         s = self.settings
         emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
-        parts = [self.table_key, s.bounces, s.shadows, s.shadow_regions, s.area_light_samples, s.emitter_samples,
-                 max(s.margin, 2), self.albedo, self.normal, np.where(emitting[:, None], self.emission, 0.0),
-                 group.world, group.emitting]
+        parts = [self.table_key, self.bounces_needed(), s.shadows, s.shadow_regions, s.area_light_samples,
+                 s.emitter_samples, max(s.margin, 2), self.albedo, self.normal,
+                 np.where(emitting[:, None], self.emission, 0.0), group.world, group.emitting,
+                 np.array([m.output for m in self.meshes])]
         for index in np.nonzero(group.emitting)[0]:
             parts += [np.asarray(m.emission, np.float64) for m in self.meshes[index].materials if m is not None]
         for light in group.lights:
@@ -538,26 +551,32 @@ def _transport(p: Prepared, group: LightGroup, stages: _Stages, skipped: list, s
     out.emitters_sampled = tuple(p.meshes[e.object_index].name for e in emitters)
     stages.book("direct", time.perf_counter() - direct_started)
 
-    if not needs_gather:
+    bounces = p.bounces_needed()
+    if not (bounces > 0 or has_emission or has_world):
         return out
     scale = p.gather_scale()
-    total = settings.bounces + 1
+    total = bounces + 1
+    # Only objects with outputs need the last gather's result; the others' radiance
+    # would only feed a bounce that is never gathered.
+    outputs = p.output_samples()
 
     def step_progress(step):
         return lambda fraction: report(0.3 + 0.7 * (step + fraction) / total)
 
     if has_emission or has_world:
         direct_irradiance += gather(table, p.normal, scale, p.layout, p.to_atlas(emission), group.world,
-                                    step_progress(0), exclude, settings.threads)
+                                    step_progress(0), exclude, settings.threads,
+                                    samples=outputs if bounces == 0 else None)
         out.gathers += 1
     gathered = out.gathered
-    for bounce in range(1, settings.bounces + 1):
+    for bounce in range(1, bounces + 1):
         if not np.any(direct_irradiance + gathered > 0):
             skipped.append(f"bounce {bounce}+ of light group {group.name!r}: no light left to reflect")
             break
         reflected = p.albedo / np.pi * (direct_irradiance + gathered)
         gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), np.zeros(3),
-                          step_progress(bounce), threads=settings.threads)
+                          step_progress(bounce), threads=settings.threads,
+                          samples=outputs if bounce == bounces else None)
         out.gathers += 1
     out.gathered = gathered
     return out
@@ -611,6 +630,12 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
         skipped.append("shadow fractions: shadows are exact")
     if settings.bounces == 0:
         skipped.append("bounce gathers: bounces = 0")
+    elif p.bounces_needed() == 0:
+        skipped.append(f"{settings.bounces} bounce gathers: no requested pass contains indirect light")
+    if p.output_samples() is not None and (p.bounces_needed() > 0 or has_emission or np.any(world > 0)):
+        occluder_samples = len(p.position) - len(p.output_samples())
+        skipped.append(f"last gather of {occluder_samples} texels of objects that only occlude and reflect: "
+                       "nothing reads it")
     if not has_emission and not np.any(world > 0):
         skipped.append("gather of emitted light: the scene has no emission and no world light")
 

@@ -99,7 +99,7 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndar
 
 def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layout: AtlasLayout,
            radiance: np.ndarray, world: np.ndarray, progress=None, exclude: np.ndarray | None = None,
-           threads: int = 0) -> np.ndarray:
+           threads: int = 0, samples: np.ndarray | None = None) -> np.ndarray:
     """E(p) = sum_i w_i(p) L(S_i[p]): irradiance from the radiance atlases and the world.
 
     Parameters
@@ -113,6 +113,8 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
     exclude : (K, O) bool or None; True where sample k must not gather object o
         (its light reaches k by another route, e.g. sampled emitters)
     threads : worker threads (0: all cores); each sums its own share of directions
+    samples : (k,) int64 or None; gather only these samples (the others get 0), e.g.
+        the last bounce, which only objects with outputs need
 
     Returns
     -------
@@ -122,23 +124,27 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
     world = np.broadcast_to(np.asarray(world, np.float64), (count, 3))
     has_world = bool(np.any(world != 0))
     workers = max(1, threads or os.cpu_count() or 1)
+    chosen = slice(None) if samples is None else samples
+    chosen_normals, chosen_scale = normals[chosen], scale[chosen]
+    chosen_exclude = None if exclude is None else exclude[chosen]
 
     def accumulate(indices):
-        irradiance = np.zeros((len(normals), 3))
+        irradiance = np.zeros((len(chosen_normals), 3))
         for i in indices:
-            weight = np.clip(normals @ table.directions[i], 0.0, None) * scale
-            row = table.hit_object[i]
+            weight = np.clip(chosen_normals @ table.directions[i], 0.0, None) * chosen_scale
+            row = table.hit_object[i][chosen]
             hit = np.nonzero(row >= 0)[0]
-            if exclude is not None and len(hit):
-                hit = hit[~exclude[hit, row[hit]]]
+            if chosen_exclude is not None and len(hit):
+                hit = hit[~chosen_exclude[hit, row[hit]]]
             if len(hit):
-                looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), table.hit_uv[i, hit])
+                uv = table.hit_uv[i][chosen][hit] if samples is not None else table.hit_uv[i, hit]
+                looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), uv)
                 irradiance[hit] += weight[hit, None] * looked_up
             if has_world and np.any(world[i] != 0):
                 irradiance += (weight * (row == MISS))[:, None] * world[i]
         return irradiance
 
-    total = np.zeros((len(normals), 3))
+    total = np.zeros((len(chosen_normals), 3))
     block = 8 * workers
     with ThreadPoolExecutor(workers) as pool:
         for start in range(0, count, block):
@@ -147,7 +153,11 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
                 total += part
             if progress is not None:
                 progress(min(count, start + block) / count)
-    return total
+    if samples is None:
+        return total
+    full = np.zeros((len(normals), 3))
+    full[samples] = total
+    return full
 
 
 def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray) -> np.ndarray:

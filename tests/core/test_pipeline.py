@@ -47,3 +47,26 @@ def test_uniform_world_in_a_closed_box_adds_nothing():
     box = box_interior(material=Material(base_color=np.full(3, 0.5)), resolution=16)
     lit = bake(Scene([box], [], World(np.full(3, 2.0))), BakeSettings(directions=32, bounces=1))
     np.testing.assert_array_equal(lit.objects[0].images["lighting"][..., :3], 0.0)
+
+
+def test_skipped_work_changes_no_requested_output():
+    settings = BakeSettings(directions=48, bounces=2, passes=("lighting", "direct", "indirect"))
+    lights = [SUN, LAMP]
+    world = World(np.full(3, 0.2))
+    full = bake(Scene(_scene([]).meshes, lights, world), settings)
+    # The roof only occludes and reflects: its last gather is skipped, the ground's
+    # images are the same to the last bit.
+    meshes = _scene([]).meshes
+    meshes[1].output = False
+    partial = bake(Scene(meshes, lights, world), settings)
+    assert [o.name for o in partial.objects] == ["Ground"]
+    for name in settings.passes:
+        np.testing.assert_array_equal(partial.objects[0].images[name], full.objects[0].images[name])
+    assert any("last gather of" in line for line in partial.report["skipped"])
+    # Only the direct pass: no bounce is gathered, and it equals the full bake's.
+    direct_only = bake(Scene(_scene([]).meshes, lights, world), BakeSettings(directions=48, bounces=2,
+                                                                             passes=("direct",)))
+    assert direct_only.report["gathers"] == 1  # the world's, which is direct light
+    assert any("no requested pass contains indirect light" in line for line in direct_only.report["skipped"])
+    for a, b in zip(direct_only.objects, full.objects):
+        np.testing.assert_array_equal(a.images["direct"], b.images["direct"])
