@@ -13,15 +13,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .directions import ShadowRegions, direction_set
+from .directions import direction_set
 from .environment import has_light, world_radiance
-from .emitters import emitter_irradiance, find_emitters, sampled_directly
-from .lights import light_contributions
+from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Transported, group_pass_name,
+                       light_groups, light_key_parts, lighting_passes, transport_groups)
 from .raster import dilate
 from .rays import RayScene, offset_ray_origins
 from .samples import ObjectSamples, build_samples, face_normals
 from .scene import BakeSettings, Scene
-from .shadows import shadow_fractions
 from .images import sample_image
 from .transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
 from .visibility import table_bytes, table_from_arrays, trace_table, update_table
@@ -199,7 +198,6 @@ class Prepared:
     visibility_rays: int = 0  # rays this preparation traced for the table (0 on a cache hit)
     cache: VisibilityCache | None = None
     cache_status: CacheStatus | None = None
-    world_group: str = ""
     _gather_scale: np.ndarray | None = None
 
     def gather_scale(self) -> np.ndarray:
@@ -220,7 +218,7 @@ class Prepared:
         return np.concatenate([np.arange(a, b) for m, a, b in zip(self.meshes, self.sample_offset[:-1],
                                                                   self.sample_offset[1:]) if m.output])
 
-    def lighting_key(self, group: "LightGroup") -> str:
+    def lighting_key(self, group: LightGroup) -> str:
         """Hash of everything one group's transport depends on besides the table's key."""
         s = self.settings
         emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
@@ -231,17 +229,17 @@ class Prepared:
         for index in np.nonzero(group.emitting)[0]:
             parts += [np.asarray(m.emission, np.float64) for m in self.meshes[index].materials if m is not None]
         for light in group.lights:
-            parts += _light_key_parts(light)
+            parts += light_key_parts(light)
         return arrays_key(*parts)
 
     def to_atlas(self, values: np.ndarray) -> np.ndarray:
-        """Per-sample values (K, 3) as the packed, gutter-dilated radiance atlas."""
+        """Per-sample values (K, C) as the packed, gutter-dilated radiance atlas (size, C)."""
         margin = max(self.settings.margin, 2)
         images = []
         for samples, a, b in zip(self.object_samples, self.sample_offset[:-1], self.sample_offset[1:]):
-            image = np.zeros((samples.height * samples.width, 3), np.float32)
+            image = np.zeros((samples.height * samples.width, values.shape[1]), np.float32)
             image[samples.pixel] = values[a:b]
-            image = image.reshape(samples.height, samples.width, 3)
+            image = image.reshape(samples.height, samples.width, values.shape[1])
             image, _ = dilate(image, samples.coverage, margin)
             images.append(image)
         return self.layout.pack(images)
@@ -420,276 +418,130 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
     return table, status, rays
 
 
-@dataclass
-class LightGroup:
-    """Lights, world and emitting objects whose light is transported together.
-
-    emitting : (objects,) bool, whose emission belongs to this group
-    """
-
-    name: str
-    lights: list
-    world: np.ndarray  # (N, 3) world radiance per direction
-    emitting: np.ndarray
-
-
-def light_groups(prepared: Prepared, lights, world: np.ndarray, split: bool) -> list[LightGroup]:
-    """The groups one relight transports: one with everything, or one per light group.
-
-    A lamp's group is its ``group`` or its own name; the world's is its ``light_group``
-    or "world"; an emitting object's is its ``light_group`` or its own name. Transport
-    is linear in the emitted light, so the groups sum to the one-group result.
-    """
-    objects = len(prepared.meshes)
-    emits = np.array([bool(np.any(prepared.emission[a:b] > 0))
-                      for a, b in zip(prepared.sample_offset[:-1], prepared.sample_offset[1:])], bool)
-    if not split:
-        return [LightGroup("all", list(lights), world, emits)]
-    groups: dict[str, LightGroup] = {}
-
-    def group(name):
-        if name not in groups:
-            groups[name] = LightGroup(name, [], np.zeros_like(world), np.zeros(objects, bool))
-        return groups[name]
-
-    for light in lights:
-        group(light.group or light.name).lights.append(light)
-    if np.any(world > 0):
-        group(prepared.world_group or "world").world = world
-    for index in np.nonzero(emits)[0]:
-        mesh = prepared.meshes[index]
-        group(mesh.light_group or mesh.name).emitting[index] = True
-    return list(groups.values())
-
-
-def _light_key_parts(light) -> list:
-    parts = []
-    for name, value in sorted(vars(light).items()):
-        if name in ("name", "group"):
-            continue
-        parts.append(name)
-        parts.append(np.asarray(value, np.float64) if isinstance(value, np.ndarray) else value)
-    return parts
-
-
-@dataclass
-class _Transported:
-    """Per-sample irradiance of one group: direct (lamps, emitters, world) and gathered bounces."""
-
-    direct: np.ndarray  # (K, 3) float64
-    gathered: np.ndarray  # (K, 3) float64
-    shadow_rays: int = 0
-    emitter_rays: int = 0
-    gathers: int = 0
-    emitters_sampled: tuple = ()
-
-
-def _transport(p: Prepared, group: LightGroup, stages: _Stages, skipped: list, share: tuple[float, float]) -> _Transported:
-    """Direct light and every bounce of one light group; ``share`` is its slice of the progress bar."""
-    settings = p.settings
-    table = p.table
-    lights = group.lights
-    emission = np.where(np.repeat(group.emitting, np.diff(p.sample_offset))[:, None], p.emission, 0.0)
-    has_emission = bool(np.any(emission > 0))
-    has_world = bool(np.any(group.world > 0))
-    needs_gather = settings.bounces > 0 or has_emission or has_world
-    low, high = share
-
-    def report(fraction):
-        stages.report(low + (high - low) * fraction)
-
-    direct_started = time.perf_counter()
-    uses_fractions = bool(lights) and settings.shadows == "fractions"
-    regions = ShadowRegions(p.directions, settings.shadow_regions) if uses_fractions else None
-    distant_fractions = None
-    # E_d: everything that reaches a sample without a bounce (lamps, sampled emitters,
-    # gathered emission and world). Bounces then only ever carry reflected light.
-    direct_irradiance = np.zeros((len(p.position), 3))
-    out = _Transported(direct_irradiance, np.zeros_like(direct_irradiance))
-    for light_index, light in enumerate(lights):
-        fractions = None
-        if regions is not None:
-            if light.kind == "SUN":
-                if distant_fractions is None:
-                    distant_fractions = shadow_fractions(table, regions)
-                fractions = distant_fractions
-            else:
-                light_distance = np.linalg.norm(p.position - np.asarray(light.position, np.float64), axis=1)
-                fractions = shadow_fractions(table, regions, light_distance)
-        for part in light_contributions(light, p.position, p.normal, settings.area_light_samples):
-            above = np.einsum("kd,kd->k", part.to_light, p.geometric) > 0.0
-            lit = above & np.any(part.irradiance > 0, axis=1)
-            if fractions is not None:
-                visibility = np.where(lit, fractions.visibility(part.to_light), 0.0)
-            else:
-                visibility = lit.astype(np.float64)
-                rays = np.nonzero(lit)[0]
-                if len(rays):
-                    distance = part.distance[rays]
-                    limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
-                    blocked = p.ray_scene.occluded(p.origins[rays], part.to_light[rays], limit.astype(np.float32))
-                    visibility[rays[blocked]] = 0.0
-                    out.shadow_rays += len(rays)
-            direct_irradiance += part.irradiance * visibility[:, None]
-        report(0.3 * (light_index + 1) / max(len(lights), 1))
-
-    exclude = None
-    emitters = [e for e in find_emitters(p.meshes, settings.emitter_samples) if group.emitting[e.object_index]] \
-        if has_emission else []
-    for emitter in emitters:
-        direct = sampled_directly(emitter, p.position, settings.directions)
-        if not np.any(direct):
-            continue
-        if exclude is None:
-            exclude = np.zeros((len(p.position), len(p.meshes)), bool)
-        exclude[:, emitter.object_index] = direct
-        chosen = np.nonzero(direct)[0]
-        irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen], p.geometric[chosen],
-                                              p.origins[chosen], p.ray_scene)
-        direct_irradiance[chosen] += irradiance
-        out.emitter_rays += rays
-    out.emitters_sampled = tuple(p.meshes[e.object_index].name for e in emitters)
-    stages.book("direct", time.perf_counter() - direct_started)
-
-    bounces = p.bounces_needed()
-    if not (bounces > 0 or has_emission or has_world):
-        return out
-    scale = p.gather_scale()
-    total = bounces + 1
-    # Only objects with outputs need the last gather's result; the others' radiance
-    # would only feed a bounce that is never gathered.
-    outputs = p.output_samples()
-
-    def step_progress(step):
-        return lambda fraction: report(0.3 + 0.7 * (step + fraction) / total)
-
-    if has_emission or has_world:
-        direct_irradiance += gather(table, p.normal, scale, p.layout, p.to_atlas(emission), group.world,
-                                    step_progress(0), exclude, settings.threads,
-                                    samples=outputs if bounces == 0 else None)
-        out.gathers += 1
-    gathered = out.gathered
-    for bounce in range(1, bounces + 1):
-        if not np.any(direct_irradiance + gathered > 0):
-            skipped.append(f"bounce {bounce}+ of light group {group.name!r}: no light left to reflect")
-            break
-        reflected = p.albedo / np.pi * (direct_irradiance + gathered)
-        gathered = gather(table, p.normal, scale, p.layout, p.to_atlas(reflected), np.zeros(3),
-                          step_progress(bounce), threads=settings.threads,
-                          samples=outputs if bounce == bounces else None)
-        out.gathers += 1
-    out.gathered = gathered
-    return out
-
-
-LIGHTING_PASSES = ("lighting", "direct", "indirect", "irradiance")
-
-
-def _lighting_passes(p: Prepared, wants, direct: np.ndarray, gathered: np.ndarray) -> dict:
-    per_pass = {}
-    if "lighting" in wants:
-        per_pass["lighting"] = p.albedo / np.pi * (direct + gathered)
-    if "direct" in wants:
-        per_pass["direct"] = p.albedo / np.pi * direct
-    if "indirect" in wants:
-        per_pass["indirect"] = p.albedo / np.pi * gathered
-    if "irradiance" in wants:
-        per_pass["irradiance"] = (direct + gathered) / np.pi
-    return per_pass
-
-
-def group_pass_name(pass_name: str, group: str) -> str:
-    """Name of a pass of one light group, e.g. ``lighting_Sun``."""
-    return f"{pass_name}_{group}"
-
-
 def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
     """Direct light, gathers and pass images for ``lights`` and ``world`` over a prepared scene.
 
     Traces only shadow rays (exact shadows, sampled emitters); never the table again.
+    """
+    return relight_many(prepared, [(lights, world)], progress)[0]
+
+
+def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResult]:
+    """:func:`relight` for several lightings at once: their light groups share the gathers.
+
+    Parameters
+    ----------
+    lightings : list of (lights, World)
+
     With a cache, a light group whose lighting, materials and settings are unchanged
     since an earlier relight is read back instead of transported again.
     """
     p = prepared
     settings = p.settings
     stages = _Stages(progress)
-    skipped = list(p.skipped)
-    warnings = list(p.warnings)
-    lights = usable_lights(lights, warnings)
-    world_light_group = getattr(world, "light_group", "")
-    world = world_radiance(world, p.directions)
     wants = set(settings.passes)
-    table = p.table
     has_emission = bool(np.any(p.emission > 0))
-    needs_table = (settings.bounces > 0 or has_emission or bool(np.any(world > 0)) or "ao" in wants
-                   or (bool(lights) and settings.shadows == "fractions"))
-    if table is None and needs_table:
-        raise BakeRefused("this scene was prepared without a visibility table, which these lights, world "
-                          "or passes need; prepare it again with the table")
-    if settings.shadows == "exact":
-        skipped.append("shadow fractions: shadows are exact")
-    if settings.bounces == 0:
-        skipped.append("bounce gathers: bounces = 0")
-    elif p.bounces_needed() == 0:
-        skipped.append(f"{settings.bounces} bounce gathers: no requested pass contains indirect light")
-    if p.output_samples() is not None and (p.bounces_needed() > 0 or has_emission or np.any(world > 0)):
-        occluder_samples = len(p.position) - len(p.output_samples())
-        skipped.append(f"last gather of {occluder_samples} texels of objects that only occlude and reflect: "
-                       "nothing reads it")
-    if not has_emission and not np.any(world > 0):
-        skipped.append("gather of emitted light: the scene has no emission and no world light")
+    lighting_wanted = bool(wants & set(LIGHTING_PASSES))
+    plans = []  # per lighting: warnings, skipped, groups
+    for lights, world in lightings:
+        warnings = list(p.warnings)
+        skipped = list(p.skipped)
+        lights = usable_lights(lights, warnings)
+        world_group = getattr(world, "light_group", "")
+        radiance = world_radiance(world, p.directions)
+        needs_table = (settings.bounces > 0 or has_emission or bool(np.any(radiance > 0)) or "ao" in wants
+                       or (bool(lights) and settings.shadows == "fractions"))
+        if p.table is None and needs_table:
+            raise BakeRefused("this scene was prepared without a visibility table, which these lights, world "
+                              "or passes need; prepare it again with the table")
+        if settings.shadows == "exact":
+            skipped.append("shadow fractions: shadows are exact")
+        if settings.bounces == 0:
+            skipped.append("bounce gathers: bounces = 0")
+        elif p.bounces_needed() == 0:
+            skipped.append(f"{settings.bounces} bounce gathers: no requested pass contains indirect light")
+        if not has_emission and not np.any(radiance > 0):
+            skipped.append("gather of emitted light: the scene has no emission and no world light")
+        if p.output_samples() is not None and (p.bounces_needed() > 0 or has_emission or np.any(radiance > 0)):
+            occluder_samples = len(p.position) - len(p.output_samples())
+            skipped.append(f"last gather of {occluder_samples} texels of objects that only occlude and reflect: "
+                           "nothing reads it")
+        groups = light_groups(p, lights, radiance, world_group, settings.light_groups) if lighting_wanted else []
+        if not lighting_wanted:
+            skipped.append("direct light and gathers: no lighting pass was asked for")
+        plans.append({"lights": lights, "warnings": warnings, "skipped": skipped, "groups": groups})
 
     stages.start("transport")
-    p.world_group = world_light_group
-    groups = light_groups(p, lights, world, settings.light_groups)
-    lighting_wanted = bool(wants & set(LIGHTING_PASSES))
-    if not lighting_wanted:
-        skipped.append("direct light and gathers: no lighting pass was asked for")
-        groups = []
-    transported: dict[str, _Transported] = {}
-    reused = []
-    for index, group in enumerate(groups):
-        key = p.lighting_key(group) if p.cache is not None else None
-        cached = p.cache.load_lighting(settings, key) if key else None
-        if cached is not None:
-            transported[group.name] = _Transported(cached["direct"], cached["gathered"])
-            reused.append(group.name)
-            continue
-        result = _transport(p, group, stages, skipped, (index / len(groups), (index + 1) / len(groups)))
-        transported[group.name] = result
-        if key:
-            p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
-    if reused:
-        names = "all lights" if reused == ["all"] else ", ".join(repr(n) for n in reused)
-        skipped.append(f"transport of {names}: lighting, materials and settings unchanged since a cached bake")
-    if p.cache_status is not None:
-        p.cache_status.lighting_reused = reused
+    # Every group of every lighting: read back if cached, else transported in batches.
+    transported: dict[tuple[int, str], Transported] = {}
+    pending = []
+    for index, plan in enumerate(plans):
+        plan["reused"] = []
+        for group in plan["groups"]:
+            key = p.lighting_key(group) if p.cache is not None else None
+            cached = p.cache.load_lighting(settings, key) if key else None
+            if cached is not None:
+                transported[index, group.name] = Transported(cached["direct"], cached["gathered"])
+                plan["reused"].append(group.name)
+            else:
+                pending.append((index, group, key))
+    gathers = 0
+    batches = [pending[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(pending), MAX_GROUPS_PER_GATHER)]
+    shared_skips: list[str] = []
+    for number, batch in enumerate(batches):
+        results, count = transport_groups(p, [group for _, group, _ in batch], stages, shared_skips,
+                                          (number / len(batches), (number + 1) / len(batches)))
+        gathers += count
+        for (index, group, key), result in zip(batch, results):
+            transported[index, group.name] = result
+            if key:
+                p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
 
     stages.start("outputs")
-    per_pass: dict[str, np.ndarray] = {}
-    if groups:
-        direct = sum(t.direct for t in transported.values())
-        gathered = sum(t.gathered for t in transported.values())
-        per_pass.update(_lighting_passes(p, wants, direct, gathered))
-        if settings.light_groups:
-            for name, t in transported.items():
-                for pass_name, values in _lighting_passes(p, wants, t.direct, t.gathered).items():
-                    per_pass[group_pass_name(pass_name, name)] = values
-    if "ao" in wants:
-        per_pass["ao"] = np.repeat(ambient_occlusion(table, p.normal, p.gather_scale())[:, None], 3, axis=1)
+    per_lighting = []
+    for index, plan in enumerate(plans):
+        parts = {name: transported[i, name] for i, name in transported if i == index}
+        per_pass: dict[str, np.ndarray] = {}
+        if parts:
+            direct = sum(t.direct for t in parts.values())
+            gathered = sum(t.gathered for t in parts.values())
+            per_pass.update(lighting_passes(p, wants, direct, gathered))
+            if settings.light_groups:
+                for name, t in parts.items():
+                    for pass_name, values in lighting_passes(p, wants, t.direct, t.gathered).items():
+                        per_pass[group_pass_name(pass_name, name)] = values
+        if "ao" in wants:
+            per_pass["ao"] = np.repeat(ambient_occlusion(p.table, p.normal, p.gather_scale())[:, None], 3, axis=1)
+        per_lighting.append((per_pass, parts))
 
-    results = []
+    images = []
     output_meshes = [(i, m) for i, m in enumerate(p.meshes) if m.output]
-    for done, (index, mesh) in enumerate(output_meshes):
-        samples = p.object_samples[index]
-        a, b = p.sample_offset[index], p.sample_offset[index + 1]
-        result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
-        for name, values in per_pass.items():
-            result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin)
-        results.append(result)
-        stages.report((done + 1) / len(output_meshes))
+    for per_pass, _ in per_lighting:
+        objects = []
+        for index, mesh in output_meshes:
+            samples = p.object_samples[index]
+            a, b = p.sample_offset[index], p.sample_offset[index + 1]
+            result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
+            for name, values in per_pass.items():
+                result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin)
+            objects.append(result)
+        images.append(objects)
+        stages.report(len(images) / len(per_lighting))
     stages.stop()
 
+    return [BakeResult(objects=objects, report=_report(p, plan, parts, stages.times, gathers, shared_skips,
+                                                       len(lightings)))
+            for objects, plan, (_, parts) in zip(images, plans, per_lighting)]
+
+
+def _report(p: Prepared, plan: dict, parts: dict, times: dict, gathers: int, shared_skips: list,
+            lightings: int) -> dict:
+    """The bake report of one lighting (times and gathers are those of the whole call)."""
+    table = p.table
+    skipped, warnings = plan["skipped"] + shared_skips, plan["warnings"]
+    if plan["reused"]:
+        names = "all lights" if plan["reused"] == ["all"] else ", ".join(repr(n) for n in plan["reused"])
+        skipped.append(f"transport of {names}: lighting, materials and settings unchanged since a cached bake")
     counts = np.diff(p.sample_offset)
     empty = sum(s.width * s.height for s in p.object_samples) - int(counts.sum())
     skipped.append(f"{empty} atlas texels outside every UV island: not sampled, filled by dilation only")
@@ -698,27 +550,30 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
     occluders = [m.name for m in p.meshes if not m.output]
     if occluders:
         skipped.append(f"outputs of {len(occluders)} objects that only occlude and reflect: {', '.join(occluders)}")
+    cache = asdict(p.cache_status) if p.cache_status is not None else {"state": "off"}
+    cache["lighting_reused"] = list(plan["reused"])
     report = {
-        "settings": asdict(settings),
+        "settings": asdict(p.settings),
         "objects": [
             {"name": m.name, "output": m.output, "uv_map": m.bake_uv_map, "resolution": list(m.resolution),
              "texels": int(counts[i]), "triangles": int(len(m.triangles))}
             for i, m in enumerate(p.meshes)
         ],
-        "stage_seconds": {k: round(v, 4) for k, v in {**p.stage_seconds, **stages.times}.items()},
+        "stage_seconds": {k: round(v, 4) for k, v in {**p.stage_seconds, **times}.items()},
+        "lightings_transported_together": lightings,
         "rays": {
             "visibility_cast": int(p.visibility_rays),
             "visibility_in_table": int(table.rays_cast) if table else 0,
             "visibility_skipped_below_horizon": int(table.rays_below_horizon) if table else 0,
             "backface_hits": int(table.backface_hits) if table else 0,
-            "shadow_rays": int(sum(t.shadow_rays for t in transported.values())),
-            "emitter_rays": int(sum(t.emitter_rays for t in transported.values())),
+            "shadow_rays": int(sum(t.shadow_rays for t in parts.values())),
+            "emitter_rays": int(sum(t.emitter_rays for t in parts.values())),
         },
-        "light_groups": [g.name for g in groups] if settings.light_groups else [],
-        "emitters_sampled": sorted({n for t in transported.values() for n in t.emitters_sampled}),
-        "gathers": int(sum(t.gathers for t in transported.values())),
+        "light_groups": [g.name for g in plan["groups"]] if p.settings.light_groups else [],
+        "emitters_sampled": sorted({n for t in parts.values() for n in t.emitters_sampled}),
+        "gathers": int(gathers),
         "table_bytes": int(table.nbytes) if table else 0,
-        "cache": asdict(p.cache_status) if p.cache_status is not None else {"state": "off"},
+        "cache": cache,
         "skipped": skipped,
         "warnings": warnings,
     }
@@ -731,7 +586,7 @@ def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
         if share > 0.01:
             warnings.append(f"{share:.1%} of the rays from visible texels hit the back of a face; backs reflect "
                             "no light (single-sided geometry or flipped normals)")
-    return BakeResult(objects=results, report=report)
+    return report
 
 
 def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:

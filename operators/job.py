@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from ..core.cache import VisibilityCache
-from ..core.pipeline import BakeResult, check_budget, peak_memory_bytes, prepare, relight
+from ..core.pipeline import BakeResult, check_budget, peak_memory_bytes, prepare, relight_many
 from ..core.samples import face_normals
 from ..core.scene import Scene
 from . import extract, layout, writeback
@@ -197,7 +197,9 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             # Relighting with a setup may need the table although the scene's own lights do not.
             prepared = prepare(extracted.scene, settings, progress, table_needed=True if setups else None,
                                cache=cache, require_cached_table=relight_only)
-            results = [(name, relight(prepared, lights, world, progress)) for name, lights, world in lightings]
+            # All setups' light groups share the gathers: one table walk serves them all.
+            relit = relight_many(prepared, [(lights, world) for _, lights, world in lightings], progress)
+            results = [(name, result) for (name, _, _), result in zip(lightings, relit)]
             if setups is None:
                 writeback.check_image_names(writeback.image_name(o.name, p)
                                             for o in results[0][1].objects for p in o.images)

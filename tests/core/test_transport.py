@@ -30,7 +30,8 @@ def test_white_furnace_is_exact_for_any_direction_count(count):
     radiance = np.zeros((layout.size, 3), np.float32)
     irradiance = gather(table, normals, scale, layout, radiance, np.ones(3))
     open_samples = scale > 0
-    np.testing.assert_allclose(irradiance[open_samples], np.pi, rtol=1e-12)
+    # Exact up to the gather's float32 sums (a few ULPs of pi).
+    np.testing.assert_allclose(irradiance[open_samples], np.pi, rtol=1e-6)
     np.testing.assert_allclose(ambient_occlusion(table, normals, scale)[open_samples], 1.0)
 
 
