@@ -36,8 +36,9 @@ from .scene import BakeSettings, Mesh
 FORMAT_VERSION = 1
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
-# Transport results kept per slot: enough for a session of re-mixing light groups.
-LIGHTING_ENTRIES_KEPT = 64
+# Transport results kept per slot (each is 48 bytes per texel): enough for a session
+# of re-mixing a handful of light groups, small next to the table.
+LIGHTING_ENTRIES_KEPT = 16
 _TABLE_ARRAYS = ("directions", "hit_object", "hit_uv", "hit_distance", "traced_per_sample")
 
 

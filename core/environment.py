@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .images import bilinear_wrap
 from .scene import World
 from .tolerances import ENV_NEAREST_DOT_SLACK
 
@@ -107,7 +108,7 @@ def cell_mean_radiance(image: np.ndarray, directions: np.ndarray) -> np.ndarray:
         # Only when pixels are coarser than cells (a cap on the work size hit with a
         # huge N): the cell's own direction is then the best estimate there is.
         u, v = direction_to_equirectangular(directions[~filled])
-        radiance[~filled] = bilinear_lookup(image, u, v)
+        radiance[~filled] = bilinear_wrap(image, u, v)
     return np.clip(np.nan_to_num(radiance, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
 
 
@@ -150,35 +151,6 @@ def equirectangular_to_direction(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([sin_theta * np.cos(phi), sin_theta * np.sin(phi), np.cos(theta)], axis=-1)
 
 
-def bilinear_lookup(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Cycles' linear image lookup with periodic wrapping in both axes.
-
-    Parameters
-    ----------
-    image : (h, w, C) float, row 0 at v = 0
-    u, v : (n,) float texture coordinates
-
-    Returns
-    -------
-    values : (n, C) float64
-    """
-    height, width = image.shape[:2]
-    x = np.asarray(u, np.float64) * width - 0.5
-    y = np.asarray(v, np.float64) * height - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    tx = (x - x0)[:, None]
-    ty = (y - y0)[:, None]
-    x0 = x0.astype(np.int64) % width
-    y0 = y0.astype(np.int64) % height
-    x1 = (x0 + 1) % width
-    y1 = (y0 + 1) % height
-    image = np.asarray(image, np.float64)
-    bottom = image[y0, x0] * (1.0 - tx) + image[y0, x1] * tx
-    top = image[y1, x0] * (1.0 - tx) + image[y1, x1] * tx
-    return bottom * (1.0 - ty) + top * ty
-
-
 def constant_lookup(image: np.ndarray, vector) -> np.ndarray:
     """What an Environment Texture shows when its Vector input is one constant vector.
 
@@ -198,7 +170,7 @@ def constant_lookup(image: np.ndarray, vector) -> np.ndarray:
     if image is None:
         return np.zeros(3)
     u, v = direction_to_equirectangular(np.asarray(vector, np.float64).reshape(1, 3))
-    return np.clip(np.nan_to_num(bilinear_lookup(image, u, v)[0]), 0.0, None)
+    return np.clip(np.nan_to_num(bilinear_wrap(image, u, v)[0]), 0.0, None)
 
 
 def mirror_ball_mean(image: np.ndarray) -> np.ndarray:
@@ -281,7 +253,7 @@ def _work_image(image: np.ndarray, count: int) -> np.ndarray:
         u = (np.arange(new_w) + 0.5) / new_w
         v = (np.arange(new_h) + 0.5) / new_h
         uu, vv = np.meshgrid(u, v)
-        image = bilinear_lookup(image, uu.ravel(), vv.ravel()).reshape(new_h, new_w, 3)
+        image = bilinear_wrap(image, uu.ravel(), vv.ravel()).reshape(new_h, new_w, 3)
     return np.asarray(image, np.float64)
 
 

@@ -12,6 +12,35 @@ import numpy as np
 from .raster import dilate
 
 
+def bilinear_wrap(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cycles' linear image lookup with periodic wrapping in both axes (EXTENSION_REPEAT).
+
+    Parameters
+    ----------
+    image : (h, w, C) float, row 0 at v = 0
+    u, v : (n,) float texture coordinates
+
+    Returns
+    -------
+    values : (n, C) float64
+    """
+    height, width = image.shape[:2]
+    x = np.asarray(u, np.float64) * width - 0.5
+    y = np.asarray(v, np.float64) * height - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    tx = (x - x0)[:, None]
+    ty = (y - y0)[:, None]
+    x0 = x0.astype(np.int64) % width
+    y0 = y0.astype(np.int64) % height
+    x1 = (x0 + 1) % width
+    y1 = (y0 + 1) % height
+    image = np.asarray(image, np.float64)
+    bottom = image[y0, x0] * (1.0 - tx) + image[y0, x1] * tx
+    top = image[y1, x0] * (1.0 - tx) + image[y1, x1] * tx
+    return bottom * (1.0 - ty) + top * ty
+
+
 def sample_image(values: np.ndarray, pixel: np.ndarray, coverage: np.ndarray, margin: int) -> np.ndarray:
     """Scatter per-sample RGB values into an RGBA image and dilate into the gutter.
 

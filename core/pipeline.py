@@ -434,7 +434,7 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
     lightings : list of (lights, World)
 
     With a cache, a light group whose lighting, materials and settings are unchanged
-    since an earlier relight is read back instead of transported again.
+    since an earlier single relight is read back instead of transported again.
     """
     p = prepared
     settings = p.settings
@@ -494,7 +494,9 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
         gathers += count
         for (index, group, key), result in zip(batch, results):
             transported[index, group.name] = result
-            if key:
+            # Interactive relighting revisits its lightings; a batch of setups rarely
+            # does, and would fill the cache with results nobody reads again.
+            if key and len(lightings) == 1:
                 p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
 
     stages.start("outputs")

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import tolerances as tol
+from .images import bilinear_wrap
 from .raster import rasterize
 from .scene import Mesh
 
@@ -71,23 +72,6 @@ def _normalise(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup with repeat wrapping, as Cycles' default Image Texture node."""
-    height, width = texture.shape[:2]
-    x = np.mod(uv[:, 0], 1.0) * width - 0.5
-    y = np.mod(uv[:, 1], 1.0) * height - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0 = x0.astype(np.int64) % width
-    y0 = y0.astype(np.int64) % height
-    x1 = (x0 + 1) % width
-    y1 = (y0 + 1) % height
-    return ((texture[y0, x0] * (1 - fx) + texture[y0, x1] * fx) * (1 - fy)
-            + (texture[y1, x0] * (1 - fx) + texture[y1, x1] * fx) * fy)
-
-
 def build_samples(mesh: Mesh) -> ObjectSamples:
     """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel."""
     width, height = mesh.resolution
@@ -125,7 +109,7 @@ def build_samples(mesh: Mesh) -> ObjectSamples:
         uv_name = material.texture_uv_map
         if texture is not None and uv_name in mesh.uv_maps:
             tex_uv = np.einsum("kc,kcd->kd", bary[chosen], mesh.uv_maps[uv_name][tri[chosen]].astype(np.float64))
-            albedo[chosen] = _sample_texture(texture[..., :3], tex_uv)
+            albedo[chosen] = bilinear_wrap(texture[..., :3], tex_uv[:, 0], tex_uv[:, 1])
         else:
             albedo[chosen] = material.base_color[:3]
         emission[chosen] = material.emission[:3]

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from core.directions import direction_set, random_rotation, spherical_fibonacci
-from core.environment import (_box_downsample, _row_z_edges, bilinear_lookup, constant_lookup,
+from core.images import bilinear_wrap as bilinear_lookup
+from core.environment import (_box_downsample, _row_z_edges, constant_lookup,
                               direction_to_equirectangular, equirectangular_to_direction, euler_xyz_matrix,
                               mirror_ball_mean, world_radiance)
 from core.pipeline import bake
