@@ -497,7 +497,11 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
             # Interactive relighting revisits its lightings; a batch of setups rarely
             # does, and would fill the cache with results nobody reads again.
             if key and len(lightings) == 1:
-                p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
+                try:
+                    p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
+                except OSError as error:
+                    plans[index]["warnings"].append(f"lighting cache in {p.cache.folder} could not be written "
+                                                    f"({error.strerror or error}); nothing else is affected")
 
     stages.start("outputs")
     per_lighting = []

@@ -26,7 +26,7 @@ class _BakeOperator:
         objects = job.output_objects(context, props)
         window_manager = context.window_manager
         window_manager.progress_begin(0, 100)
-        stages = ("layout", "samples", "visibility", "transport", "outputs")
+        stages = ("layout", "samples", "cache", "visibility", "transport", "outputs")
 
         def progress(stage, fraction):
             index = stages.index(stage) if stage in stages else 0

@@ -198,6 +198,10 @@ def run(args) -> int:
     out_dir = os.path.abspath(args.out) if args.out else None
     if args.command == "demo" and out_dir is None:
         out_dir = os.path.abspath("visibake_demo")
+    if args.command == "demo" and args.cache_dir is None:
+        # The demo scene is never saved: keep its cache with its outputs, not in the
+        # user's profile, so a second run shows a cache hit and one folder holds all.
+        props.cache_dir = os.path.join(out_dir, "visibake_cache")
     progress = _Progress(not args.no_progress)
     setups = _setups(args)
     try:

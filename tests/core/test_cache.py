@@ -181,3 +181,12 @@ def test_unchanged_lighting_skips_the_transport(tmp_path):
     changed = relight(prepare(Scene(meshes, [SUN]), settings, cache=cache), [SUN], World())
     assert changed.report["cache"]["lighting_reused"] == []
     assert changed.report["gathers"] == 2
+
+
+def test_an_unwritable_cache_folder_warns_and_the_bake_goes_on(tmp_path):
+    blocker = tmp_path / "not a folder"
+    blocker.write_text("a file where the cache folder should be")
+    cache = VisibilityCache(str(blocker))
+    prepared = prepare(Scene(_meshes(), [SUN]), _settings(), cache=cache)
+    assert any("could not be written" in w for w in prepared.warnings)
+    _assert_same_images(relight(prepared, [SUN], World()), bake(Scene(_meshes(), [SUN]), _settings()))
