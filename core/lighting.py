@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import tolerances as tol
-from .directions import ShadowRegions
 from .emitters import emitter_irradiance, find_emitters, sampled_directly
 from .lights import light_contributions
 from .shadows import shadow_fractions
@@ -94,18 +93,14 @@ def light_key_parts(light) -> list:
 def _lamp_irradiance(p, lights, report) -> tuple[np.ndarray, int]:
     """(K, 3) irradiance of ``lights`` with shadows as the settings say, and shadow rays traced."""
     settings = p.settings
-    regions = ShadowRegions(p.directions, settings.shadow_regions) \
-        if lights and settings.shadows == "fractions" else None
-    distant_fractions = None
+    regions = p.shadow_regions() if lights and settings.shadows == "fractions" else None
     irradiance = np.zeros((len(p.position), 3))
     shadow_rays = 0
     for light_index, light in enumerate(lights):
         fractions = None
         if regions is not None:
             if light.kind == "SUN":
-                if distant_fractions is None:
-                    distant_fractions = shadow_fractions(p.table, regions)
-                fractions = distant_fractions
+                fractions = p.distant_fractions()
             else:
                 light_distance = np.linalg.norm(p.position - np.asarray(light.position, np.float64), axis=1)
                 fractions = shadow_fractions(p.table, regions, light_distance)

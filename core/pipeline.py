@@ -13,7 +13,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .directions import direction_set
+from .directions import ShadowRegions, direction_set
+from .shadows import ShadowFractions, shadow_fractions
 from .environment import has_light, world_radiance
 from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Transported, group_pass_name,
                        light_groups, light_key_parts, lighting_passes, transport_groups)
@@ -199,6 +200,19 @@ class Prepared:
     cache: VisibilityCache | None = None
     cache_status: CacheStatus | None = None
     _gather_scale: np.ndarray | None = None
+    _shadow_regions: ShadowRegions | None = None
+    _distant_fractions: ShadowFractions | None = None
+
+    def shadow_regions(self) -> ShadowRegions:
+        if self._shadow_regions is None:
+            self._shadow_regions = ShadowRegions(self.directions, self.settings.shadow_regions)
+        return self._shadow_regions
+
+    def distant_fractions(self) -> ShadowFractions:
+        """The paper's shadow fractions for distant lights: computed once, shared by every sun."""
+        if self._distant_fractions is None:
+            self._distant_fractions = shadow_fractions(self.table, self.shadow_regions())
+        return self._distant_fractions
 
     def gather_scale(self) -> np.ndarray:
         """Per-sample gather normalisation (K,), computed once per preparation."""
