@@ -381,7 +381,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
                                       + (f" (added: {', '.join(added)})" if added else "")
                                       + (f" (removed: {', '.join(removed)})" if removed else ""))
         except CorruptCache as error:
-            status.state, status.message = "corrupt", f"the cache file is {error}"
+            status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
             warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
             meta = None
         status.load_seconds = time.perf_counter() - started
@@ -414,7 +414,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
                            f"{counts.changed_only} rays traced against the changed objects only, {counts.full} "
                            f"against the whole scene (changed: {', '.join(status.changed_objects)})")
         except CorruptCache as error:
-            status.state, status.message = "corrupt", f"the cache file is {error}"
+            status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
             warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
     if table is None:
         table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,

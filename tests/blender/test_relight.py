@@ -177,3 +177,23 @@ def test_cli_sun_sweep(visibake, room, tmp_path):
     # the lamp lights the ground in every setup.
     assert means["sun_1200"] > means["sun_0800"] > means["sun_0400"]
     assert means["sun_0800"] == pytest.approx(means["sun_1600"], rel=0.05)
+
+
+def test_a_damaged_cache_file_is_reported_and_rebuilt(visibake, room):
+    assert _bake() == {"FINISHED"}
+    path = _last_report(visibake)["cache"]["path"]
+    reference = image_pixels("VB_Ground_lighting")
+    with open(path, "r+b") as handle:  # a bit flipped in the middle of the table
+        handle.seek(os.path.getsize(path) // 2)
+        byte = handle.read(1)
+        handle.seek(-1, os.SEEK_CUR)
+        handle.write(bytes([byte[0] ^ 0x01]))
+    with pytest.raises(RuntimeError, match="bake first"):
+        _bake("relight")  # never trusted, not even by Relight
+    assert _bake() == {"FINISHED"}
+    report = _last_report(visibake)
+    assert report["cache"]["state"] == "corrupt"
+    assert any("it was rebuilt" in w for w in report["warnings"])
+    np.testing.assert_array_equal(reference, image_pixels("VB_Ground_lighting"))
+    assert _bake() == {"FINISHED"}
+    assert _last_report(visibake)["cache"]["state"] == "hit"
