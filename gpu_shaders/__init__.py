@@ -1,5 +1,7 @@
-"""GLSL compute passes on Blender's gpu module (see issue: transport passes on the gpu module).
+"""GLSL compute passes on Blender's gpu module, each the twin of a numpy pass in core/.
 
-Nothing here yet: every transport pass currently runs in numpy (core.transport),
-which DESIGN.md measured as the faster path on machines without a real GPU.
+``runtime`` makes a context (also in background mode), chooses the device and
+compiles the ``.glsl`` sources beside it lazily; ``gather`` is the bounce gather.
+Nothing here runs at import or register time.
 """
+from . import gather, runtime  # noqa: F401

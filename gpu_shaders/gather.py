@@ -1,0 +1,192 @@
+"""The gather on the GPU: the twin of :func:`core.transport.gather`, same contract.
+
+The table is streamed in batches of directions as 2D texture arrays (one layer per
+direction), sized so the batch plus the fixed textures stay within the GPU memory
+budget; every texture is freed when the call returns, also on an error.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import runtime
+
+# Channel layers (4 channels each) one dispatch accumulates: 12 x 4 = 48 channels,
+# 16 light groups (core.lighting.MAX_GROUPS_PER_GATHER); the shader's sums[] size.
+MAX_CHANNEL_LAYERS = 12
+GROUP_SIZE = 16  # local work group: 16 x 16 samples
+RADIANCE_WIDTH = 4096
+# GPU memory the gather may use: the fixed textures plus one batch of the table.
+# 1 GiB fits every discrete card of the last decade and leaves room for Blender.
+DEFAULT_BUDGET_BYTES = 1 << 30
+TABLE_BYTES_PER_ENTRY = 4 + 8  # hit object (R32F) and hit uv (RG32F)
+
+
+def _build_gather(info) -> None:
+    info.image(0, "RGBA32F", "FLOAT_2D_ARRAY", "accumulated", qualifiers={"READ", "WRITE"})
+    info.sampler(0, "FLOAT_2D_ARRAY", "hit_object")
+    info.sampler(1, "FLOAT_2D_ARRAY", "hit_uv")
+    info.sampler(2, "FLOAT_2D", "normals")
+    info.sampler(3, "FLOAT_2D_ARRAY", "radiance")
+    info.sampler(4, "FLOAT_2D", "objects")
+    info.sampler(5, "FLOAT_2D", "directions")
+    info.sampler(6, "FLOAT_2D_ARRAY", "excluded")
+    for name in ("sample_width", "sample_count", "batch_start", "batch_count", "channel_layers",
+                 "radiance_width", "use_exclude", "has_world"):
+        info.push_constant("INT", name)
+    info.local_group_size(GROUP_SIZE, GROUP_SIZE)
+
+
+def _build_copy(info) -> None:
+    info.image(0, "RGBA32F", "FLOAT_2D", "target", qualifiers={"WRITE"})
+    info.sampler(0, "FLOAT_2D_ARRAY", "source")
+    info.push_constant("INT", "layer")
+    info.local_group_size(GROUP_SIZE, GROUP_SIZE)
+
+
+def _exclusion_masks(exclude: np.ndarray) -> np.ndarray:
+    """(K, O) bool as (K, layers, 4) float32: 16 objects per channel, exact integer bit masks."""
+    samples, objects = exclude.shape
+    layers = -(-objects // 64)
+    padded = np.zeros((samples, layers * 64), bool)
+    padded[:, :objects] = exclude
+    bits = padded.reshape(samples, layers * 4, 16).astype(np.uint32) << np.arange(16, dtype=np.uint32)
+    return bits.sum(axis=2).astype(np.float32).reshape(samples, layers, 4)
+
+
+def batch_directions(samples: int, budget_bytes: int, fixed_bytes: int) -> int:
+    """Directions per batch so the batch and the fixed textures fit ``budget_bytes``."""
+    per_direction = samples * TABLE_BYTES_PER_ENTRY
+    available = budget_bytes - fixed_bytes
+    if available < per_direction:
+        raise MemoryError(f"the GPU budget of {budget_bytes / 2**20:.0f} MiB cannot hold the fixed textures "
+                          f"({fixed_bytes / 2**20:.0f} MiB) and one direction of the table "
+                          f"({per_direction / 2**20:.0f} MiB)")
+    return int(min(runtime.MAX_LAYERS, available // per_direction))
+
+
+def gather(table, normals: np.ndarray, scale: np.ndarray, layout, radiance: np.ndarray, world: np.ndarray,
+           progress=None, exclude: np.ndarray | None = None, threads: int = 0,
+           samples: np.ndarray | None = None, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> np.ndarray:
+    """E(p) = sum_i w_i(p) L(S_i[p]) on the GPU. Parameters as :func:`core.transport.gather`.
+
+    ``threads`` is unused; ``samples`` only zeroes the others (the GPU computes all).
+    Returns (K, C) float64.
+    """
+    radiance = np.asarray(radiance, np.float32)
+    count = len(table.directions)
+    total_samples = len(normals)
+    channels = radiance.shape[1]
+    result = np.zeros((total_samples, channels))
+    if total_samples == 0 or count == 0:
+        return result
+    for first in range(0, channels, 4 * MAX_CHANNEL_LAYERS):
+        part = slice(first, min(channels, first + 4 * MAX_CHANNEL_LAYERS))
+        world_part = np.broadcast_to(np.asarray(world, np.float64), (count, channels))[:, part]
+        result[:, part] = _gather_channels(table, normals, scale, layout, radiance[:, part], world_part, progress,
+                                           exclude, budget_bytes)
+    if samples is not None:
+        keep = np.zeros(total_samples, bool)
+        keep[samples] = True
+        result[~keep] = 0.0
+    return result
+
+
+def _gather_channels(table, normals, scale, layout, radiance, world, progress, exclude, budget_bytes):
+    runtime.ensure_context()
+    import gpu
+
+    count = len(table.directions)
+    total_samples = len(normals)
+    channels = radiance.shape[1]
+    layers = -(-channels // 4)
+    width, height = runtime.sample_grid(total_samples)
+    keep_alive = []
+    textures = []
+
+    def texture(array, as_layers=False):
+        made, data = runtime.float_texture(array, as_layers)
+        keep_alive.append(data)
+        textures.append(made)
+        return made
+
+    try:
+        normals_grid = runtime.to_grid(np.concatenate([np.asarray(normals, np.float32),
+                                                       np.asarray(scale, np.float32)[:, None]], axis=1),
+                                       width, height)
+        normals_texture = texture(normals_grid)
+        padded = np.zeros((len(radiance), 4 * layers), np.float32)
+        padded[:, :channels] = radiance
+        radiance_width = min(RADIANCE_WIDTH, len(padded))
+        radiance_height = -(-len(padded) // radiance_width)
+        flat = np.zeros((radiance_height * radiance_width, 4 * layers), np.float32)
+        flat[:len(padded)] = padded
+        radiance_texture = texture(flat.reshape(radiance_height, radiance_width, layers, 4).transpose(2, 0, 1, 3),
+                                   as_layers=True)
+        offsets = np.asarray(layout.offsets, np.int64)
+        objects = np.stack([layout.widths, layout.heights, offsets // 4096, offsets % 4096], axis=1)
+        objects_texture = texture(objects.astype(np.float32)[None])
+        rows = np.zeros((1 + layers, count, 4), np.float32)
+        rows[0, :, :3] = table.directions
+        world_padded = np.zeros((count, 4 * layers), np.float32)
+        world_padded[:, :channels] = world
+        rows[1:] = world_padded.reshape(count, layers, 4).transpose(1, 0, 2)
+        directions_texture = texture(rows)
+        if exclude is not None and np.any(exclude):
+            masks = _exclusion_masks(np.asarray(exclude, bool))
+            grid = np.zeros((height * width, masks.shape[1], 4), np.float32)
+            grid[:total_samples] = masks
+            excluded_texture = texture(grid.reshape(height, width, masks.shape[1], 4).transpose(2, 0, 1, 3),
+                                       as_layers=True)
+            use_exclude = 1
+        else:
+            excluded_texture = texture(np.zeros((1, 1, 1, 4), np.float32), as_layers=True)
+            use_exclude = 0
+        accumulated = texture(np.zeros((layers, height, width, 4), np.float32), as_layers=True)
+        fixed_bytes = sum(array.nbytes for array in keep_alive)
+        batch = batch_directions(width * height, budget_bytes, fixed_bytes)
+
+        program = runtime.shader("gather", _build_gather)
+        groups = (-(-width // GROUP_SIZE), -(-height // GROUP_SIZE), 1)
+        for start in range(0, count, batch):
+            stop = min(count, start + batch)
+            codes = np.full((stop - start, height * width), -2.0, np.float32)
+            codes[:, :total_samples] = table.hit_object[start:stop]
+            uvs = np.zeros((stop - start, height * width, 2), np.float32)
+            uvs[:, :total_samples] = table.hit_uv[start:stop]
+            codes_texture, codes_data = runtime.float_texture(codes.reshape(-1, height, width, 1), True)
+            uvs_texture, uvs_data = runtime.float_texture(uvs.reshape(-1, height, width, 2), True)
+            program.bind()
+            program.image("accumulated", accumulated)
+            program.uniform_sampler("hit_object", codes_texture)
+            program.uniform_sampler("hit_uv", uvs_texture)
+            program.uniform_sampler("normals", normals_texture)
+            program.uniform_sampler("radiance", radiance_texture)
+            program.uniform_sampler("objects", objects_texture)
+            program.uniform_sampler("directions", directions_texture)
+            program.uniform_sampler("excluded", excluded_texture)
+            for name, value in (("sample_width", width), ("sample_count", total_samples), ("batch_start", start),
+                                ("batch_count", stop - start), ("channel_layers", layers),
+                                ("radiance_width", radiance_width), ("use_exclude", use_exclude),
+                                ("has_world", int(np.any(world != 0)))):
+                program.uniform_int(name, value)
+            gpu.compute.dispatch(program, *groups)
+            del codes_texture, uvs_texture, codes_data, uvs_data
+            if progress is not None:
+                progress(stop / count)
+        out = np.zeros((total_samples, 4 * layers))
+        out[:, 0:4] = runtime.read_texture(accumulated).reshape(-1, 4)[:total_samples]
+        if layers > 1:
+            copy = runtime.shader("copy_layer", _build_copy)
+            target = runtime.empty_texture(width, height)
+            textures.append(target)
+            for layer in range(1, layers):
+                copy.bind()
+                copy.image("target", target)
+                copy.uniform_sampler("source", accumulated)
+                copy.uniform_int("layer", layer)
+                gpu.compute.dispatch(copy, *groups)
+                out[:, 4 * layer:4 * layer + 4] = runtime.read_texture(target).reshape(-1, 4)[:total_samples]
+        return out[:, :channels]
+    finally:
+        textures.clear()
+        keep_alive.clear()

@@ -1,0 +1,229 @@
+"""The GPU side's plumbing: a context in background mode, device facts, shaders, textures.
+
+Facts this relies on (DESIGN.md, re-checked with bpy 5.0.1 on Mesa llvmpipe):
+
+- In background mode the gpu module has no context until a render engine with
+  ``bl_use_gpu_context`` renders once; a do-nothing engine on a 4 x 4 temporary scene
+  makes one in ~0.1-0.3 s, and it then lasts for the session.
+- Uploads take FLOAT buffers only; ``gpu.types.Buffer('FLOAT', n, array)`` wraps a
+  contiguous float32 numpy array without copying (keep the array alive). Integers are
+  sent as exact floats (< 2^24).
+- ``GPUTexture.read()`` returns layer 0 of an array texture only; other layers are
+  copied to a 2D texture by a compute pass first. A read buffer's numpy view has
+  permuted strides: ``ravel(order="K")`` gives the memory order, (height, width, channels).
+- Compile errors raise a bare Exception and print the GLSL log to stdout.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+SHADER_FOLDER = os.path.dirname(os.path.abspath(__file__))
+# Renderers that draw on the CPU: there the numpy twin of every pass is faster
+# (DESIGN.md: a 1024^2 x 64 gather took ~1.9 s on llvmpipe against ~1.1 s in numpy).
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software rasterizer", "microsoft basic render")
+MAX_TEXTURE_SIZE = 16384
+MAX_LAYERS = 2048
+_ENGINE_ID = "VISIBAKE_GPU_CONTEXT"
+
+
+class GPUUnavailable(RuntimeError):
+    """No GPU context could be made (no display, no driver); the message says why."""
+
+
+@dataclass
+class DeviceInfo:
+    backend: str
+    renderer: str
+    vendor: str
+    version: str
+    software: bool
+
+    def as_dict(self) -> dict:
+        return {"backend": self.backend, "renderer": self.renderer, "vendor": self.vendor,
+                "version": self.version, "software": self.software}
+
+
+def _context_engine():
+    import bpy
+
+    class VisiBakeGPUContext(bpy.types.RenderEngine):
+        """Renders nothing: rendering once with it gives background Blender a GPU context."""
+
+        bl_idname = _ENGINE_ID
+        bl_label = "VisiBake GPU context"
+        bl_use_gpu_context = True
+
+        def render(self, depsgraph):
+            pass
+
+    return VisiBakeGPUContext
+
+
+_context_ready = False
+
+
+def ensure_context() -> None:
+    """Make sure the gpu module can run compute shaders (creating a context if needed).
+
+    Raises GPUUnavailable when there is no way to get one. Leaves no datablock behind.
+    """
+    global _context_ready
+    if _context_ready:
+        return
+    import bpy
+
+    if not bpy.app.background:
+        _context_ready = True  # the UI has its own context
+        return
+    engine = _context_engine()
+    registered = False
+    scene = camera = camera_data = None
+    try:
+        bpy.utils.register_class(engine)
+        registered = True
+        scene = bpy.data.scenes.new("VisiBake GPU context")
+        scene.render.engine = _ENGINE_ID
+        scene.render.resolution_x = scene.render.resolution_y = 4
+        camera_data = bpy.data.cameras.new("VisiBake GPU context")
+        camera = bpy.data.objects.new("VisiBake GPU context", camera_data)
+        scene.collection.objects.link(camera)
+        scene.camera = camera
+        bpy.ops.render.render(scene=scene.name)
+        import gpu
+
+        gpu.platform.backend_type_get()
+    except Exception as error:  # noqa: BLE001  (any failure means: no GPU here)
+        raise GPUUnavailable(f"no GPU context in background mode ({type(error).__name__}: {error})") from None
+    finally:
+        for block, collection in ((camera, bpy.data.objects), (camera_data, bpy.data.cameras),
+                                  (scene, bpy.data.scenes)):
+            if block is not None:
+                collection.remove(block)
+        if registered:
+            bpy.utils.unregister_class(engine)
+    _context_ready = True
+
+
+def device_info() -> DeviceInfo:
+    ensure_context()
+    import gpu
+
+    renderer = gpu.platform.renderer_get()
+    return DeviceInfo(backend=str(gpu.platform.backend_type_get()), renderer=renderer,
+                      vendor=gpu.platform.vendor_get(), version=gpu.platform.version_get(),
+                      software=any(name in renderer.lower() for name in SOFTWARE_RENDERERS))
+
+
+def choose_device(requested: str) -> tuple[str, str, DeviceInfo | None]:
+    """('gpu' or 'cpu', the reason, device facts or None) for 'auto', 'gpu' or 'cpu'.
+
+    'gpu' raises GPUUnavailable if there is no context; 'auto' falls back to the CPU
+    then, and on software renderers, where numpy is faster.
+    """
+    if requested == "cpu":
+        return "cpu", "asked for", None
+    try:
+        info = device_info()
+    except GPUUnavailable as error:
+        if requested == "gpu":
+            raise
+        return "cpu", f"auto: {error}", None
+    if requested == "gpu":
+        return "gpu", "asked for", info
+    if info.software:
+        return "cpu", f"auto: {info.renderer} renders on the CPU, where numpy is faster", info
+    return "gpu", f"auto: {info.renderer}", info
+
+
+_shaders: dict = {}
+
+
+def shader(name: str, build):
+    """The compiled compute shader ``name``, built on first use by ``build(info)``.
+
+    ``build`` receives a fresh GPUShaderCreateInfo to declare resources on; the
+    source is ``<name>.glsl`` beside this file.
+    """
+    if name in _shaders:
+        return _shaders[name]
+    ensure_context()
+    import gpu
+
+    with open(os.path.join(SHADER_FOLDER, f"{name}.glsl"), encoding="utf-8") as handle:
+        source = handle.read()
+    info = gpu.types.GPUShaderCreateInfo()
+    build(info)
+    info.compute_source(source)
+    started = time.perf_counter()
+    try:
+        compiled = gpu.shader.create_from_info(info)
+    except Exception as error:  # noqa: BLE001  (the gpu module raises a bare Exception)
+        raise RuntimeError(f"GLSL shader {name}.glsl did not compile (the log is on stdout): {error}") from None
+    _shaders[name] = compiled
+    compile_seconds[name] = time.perf_counter() - started
+    return compiled
+
+
+compile_seconds: dict[str, float] = {}
+
+
+def float_texture(array: np.ndarray, layers: bool = False):
+    """A GPUTexture holding ``array``.
+
+    array : (H, W, C) or, with ``layers``, (L, H, W, C) float-convertible, C in 1, 2, 4
+    Returns (texture, the float32 array it was made from; keep it alive while used).
+    """
+    import gpu
+
+    data = np.ascontiguousarray(array, np.float32)
+    channels = data.shape[-1]
+    fmt = {1: "R32F", 2: "RG32F", 4: "RGBA32F"}[channels]
+    height, width = data.shape[-3], data.shape[-2]
+    if width > MAX_TEXTURE_SIZE or height > MAX_TEXTURE_SIZE:
+        raise ValueError(f"texture {width}x{height} exceeds the GPU limit of {MAX_TEXTURE_SIZE}")
+    buffer = gpu.types.Buffer("FLOAT", data.size, data.ravel())
+    if layers:
+        if data.shape[0] > MAX_LAYERS:
+            raise ValueError(f"{data.shape[0]} layers exceed the GPU limit of {MAX_LAYERS}")
+        texture = gpu.types.GPUTexture((width, height), layers=data.shape[0], format=fmt, data=buffer)
+    else:
+        texture = gpu.types.GPUTexture((width, height), format=fmt, data=buffer)
+    return texture, data
+
+
+def empty_texture(width: int, height: int, layers: int = 0, fmt: str = "RGBA32F"):
+    import gpu
+
+    if layers:
+        return gpu.types.GPUTexture((width, height), layers=layers, format=fmt)
+    return gpu.types.GPUTexture((width, height), format=fmt)
+
+
+def read_texture(texture) -> np.ndarray:
+    """(H, W, C) float32 copy of a 2D texture (layer 0 of an array texture)."""
+    buffer = texture.read()
+    # The buffer's numpy view has permuted strides; memory order is (H, W, C).
+    return np.array(np.asarray(buffer).ravel(order="K"), np.float32).reshape(buffer.dimensions)
+
+
+def sample_grid(count: int, width: int = 2048) -> tuple[int, int]:
+    """A 2D layout (width, height) for ``count`` samples in row-major order."""
+    width = max(1, min(width, count))
+    height = max(1, -(-count // width))
+    if height > MAX_TEXTURE_SIZE:
+        raise ValueError(f"{count} samples do not fit a {MAX_TEXTURE_SIZE}^2 texture")
+    return width, height
+
+
+def to_grid(values: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Per-sample rows (K, C) as a (height, width, C) image, zero-padded."""
+    values = np.asarray(values, np.float32)
+    if values.ndim == 1:
+        values = values[:, None]
+    grid = np.zeros((height * width, values.shape[1]), np.float32)
+    grid[:len(values)] = values
+    return grid.reshape(height, width, values.shape[1])
