@@ -18,7 +18,6 @@ from . import tolerances as tol
 from .emitters import emitter_irradiance, find_emitters, sampled_directly
 from .lights import light_contributions
 from .shadows import shadow_fractions
-from .transport import gather
 
 LIGHTING_PASSES = ("lighting", "direct", "indirect", "irradiance")
 # Groups gathered together at most: the per-sample accumulators hold 3 channels per
@@ -170,6 +169,7 @@ def transport_groups(p, groups: list[LightGroup], stages, skipped: list,
             results[owner].emitter_rays += rays
             results[owner].emitters_sampled += (p.meshes[emitter.object_index].name,)
     stages.book("direct", time.perf_counter() - direct_started)
+    stages.record_pass(f"direct light ({count} groups)", "cpu", time.perf_counter() - direct_started)
 
     per_sample_emitting = np.stack([np.repeat(g.emitting, np.diff(p.sample_offset)) for g in groups])
     emissions = [np.where(per_sample_emitting[i][:, None], p.emission, 0.0) for i in range(count)]
@@ -194,9 +194,16 @@ def transport_groups(p, groups: list[LightGroup], stages, skipped: list,
         return [array[:, 3 * i:3 * i + 3] for i in range(count)]
 
     gathers = 0
+    def timed_gather(name, *arguments, **keywords):
+        started = time.perf_counter()
+        result = p.gather(*arguments, **keywords)
+        stages.record_pass(f"{name} ({3 * count} channels)", p.gather_device, time.perf_counter() - started)
+        return result
+
     if gathers_emission:
-        emitted = gather(p.table, p.normal, scale, p.layout, p.to_atlas(wide(emissions)), wide(worlds),
-                         step_progress(0), exclude, p.settings.threads, samples=outputs if bounces == 0 else None)
+        emitted = timed_gather("gather of emitted and world light", p.table, p.normal, scale, p.layout,
+                               p.to_atlas(wide(emissions)), wide(worlds), step_progress(0), exclude,
+                               p.settings.threads, samples=outputs if bounces == 0 else None)
         gathers += 1
         for result, part in zip(results, narrow(emitted)):
             result.direct += part
@@ -208,9 +215,9 @@ def transport_groups(p, groups: list[LightGroup], stages, skipped: list,
             skipped.append(f"bounce {bounce} and later: no light left to reflect")
             break
         reflected = albedo / np.pi * (direct + gathered)
-        gathered = gather(p.table, p.normal, scale, p.layout, p.to_atlas(reflected), np.zeros(3 * count),
-                          step_progress(bounce), threads=p.settings.threads,
-                          samples=outputs if bounce == bounces else None)
+        gathered = timed_gather(f"gather of bounce {bounce}", p.table, p.normal, scale, p.layout,
+                                p.to_atlas(reflected), np.zeros(3 * count), step_progress(bounce),
+                                threads=p.settings.threads, samples=outputs if bounce == bounces else None)
         gathers += 1
     for result, part in zip(results, narrow(gathered)):
         result.gathered = part

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -146,12 +147,17 @@ class _Stages:
         self._name = None
         self._start = 0.0
         self._moved = 0.0
+        self.passes: list[dict] = []
 
     def start(self, name: str) -> None:
         self.stop()
         self._name = name
         self._start = time.perf_counter()
         self.report(0.0)
+
+    def record_pass(self, name: str, device: str, seconds: float) -> None:
+        """One transport pass (a direct-light pass, a gather) for the report."""
+        self.passes.append({"pass": name, "device": device, "seconds": round(seconds, 4)})
 
     def book(self, name: str, seconds: float) -> None:
         """Count ``seconds`` of the running stage as ``name`` (one progress bar, two timings)."""
@@ -199,6 +205,10 @@ class Prepared:
     visibility_rays: int = 0  # rays this preparation traced for the table (0 on a cache hit)
     cache: VisibilityCache | None = None
     cache_status: CacheStatus | None = None
+    # The gather implementation: core.transport.gather, or a twin with the same
+    # contract (gpu_shaders.gather.gather) chosen by the Blender side.
+    gather: Callable = gather
+    gather_device: str = "cpu"
     _gather_scale: np.ndarray | None = None
     _shadow_regions: ShadowRegions | None = None
     _distant_fractions: ShadowFractions | None = None
@@ -549,9 +559,12 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
         stages.report(len(images) / len(per_lighting))
     stages.stop()
 
-    return [BakeResult(objects=objects, report=_report(p, plan, parts, stages.times, gathers, shared_skips,
-                                                       len(lightings)))
-            for objects, plan, (_, parts) in zip(images, plans, per_lighting)]
+    results = [BakeResult(objects=objects, report=_report(p, plan, parts, stages.times, gathers, shared_skips,
+                                                          len(lightings)))
+               for objects, plan, (_, parts) in zip(images, plans, per_lighting)]
+    for result in results:
+        result.report["passes"] = list(stages.passes)
+    return results
 
 
 def _report(p: Prepared, plan: dict, parts: dict, times: dict, gathers: int, shared_skips: list,

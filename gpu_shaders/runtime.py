@@ -15,6 +15,7 @@ Facts this relies on (DESIGN.md, re-checked with bpy 5.0.1 on Mesa llvmpipe):
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass
@@ -64,16 +65,44 @@ def _context_engine():
 
 
 _context_ready = False
+_context_error: str | None = None
+
+
+@contextlib.contextmanager
+def _quiet_native_stderr():
+    """Silence what the GL/EGL libraries print while probing for a context.
+
+    Mesa reports the EGL configurations it rejects on the way (EGL_BAD_MATCH) even when
+    a context is then made; a user reading the command's output would take them for
+    errors. Failures still surface, as the exception from the probe.
+    """
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
 
 
 def ensure_context() -> None:
     """Make sure the gpu module can run compute shaders (creating a context if needed).
 
-    Raises GPUUnavailable when there is no way to get one. Leaves no datablock behind.
+    Raises GPUUnavailable when there is no way to get one (and keeps saying so for the
+    rest of the session without probing again). Leaves no datablock behind.
     """
-    global _context_ready
+    global _context_ready, _context_error
     if _context_ready:
         return
+    if _context_error is not None:
+        raise GPUUnavailable(_context_error)
     import bpy
 
     if not bpy.app.background:
@@ -82,6 +111,7 @@ def ensure_context() -> None:
     engine = _context_engine()
     registered = False
     scene = camera = camera_data = None
+    images_before = set(bpy.data.images)
     try:
         bpy.utils.register_class(engine)
         registered = True
@@ -92,17 +122,21 @@ def ensure_context() -> None:
         camera = bpy.data.objects.new("VisiBake GPU context", camera_data)
         scene.collection.objects.link(camera)
         scene.camera = camera
-        bpy.ops.render.render(scene=scene.name)
+        with _quiet_native_stderr():
+            bpy.ops.render.render(scene=scene.name)
         import gpu
 
         gpu.platform.backend_type_get()
     except Exception as error:  # noqa: BLE001  (any failure means: no GPU here)
-        raise GPUUnavailable(f"no GPU context in background mode ({type(error).__name__}: {error})") from None
+        _context_error = f"no GPU context in background mode ({type(error).__name__}: {error})"
+        raise GPUUnavailable(_context_error) from None
     finally:
         for block, collection in ((camera, bpy.data.objects), (camera_data, bpy.data.cameras),
                                   (scene, bpy.data.scenes)):
             if block is not None:
                 collection.remove(block)
+        for image in set(bpy.data.images) - images_before:  # the render result of the probe
+            bpy.data.images.remove(image)
         if registered:
             bpy.utils.unregister_class(engine)
     _context_ready = True

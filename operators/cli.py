@@ -63,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help="also write every lighting pass per light group")
         sub.add_argument("--cache-dir", metavar="DIR", help="visibility cache folder (default: beside the .blend)")
         sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
+        sub.add_argument("--device", choices=("auto", "gpu", "cpu"),
+                         help="where the transport passes run (default: the preference, else auto)")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -206,7 +208,7 @@ def run(args) -> int:
     setups = _setups(args)
     try:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
-                               relight_only=args.command == "relight", setups=setups)
+                               relight_only=args.command == "relight", setups=setups, device_name=args.device)
     finally:
         progress.close()
     report = outcome.report
@@ -241,6 +243,12 @@ def format_summary(report: dict) -> str:
     rays = report["rays"]
     lines.append(f"  rays: {rays['visibility_cast']} traced, {rays['visibility_skipped_below_horizon']} skipped "
                  f"below the horizon, {rays['shadow_rays']} shadow rays")
+    used = report.get("device", {})
+    if used:
+        lines.append(f"  device: {used['used']} ({used['reason']})"
+                     + (f"; {used['backend']}, {used['renderer']}" if used.get("renderer") else ""))
+    for entry in report.get("passes", []):
+        lines.append(f"  pass: {entry['pass']} on {entry['device']}: {entry['seconds']:.3f} s")
     cache = report.get("cache", {})
     if cache.get("state", "off") != "off":
         lines.append(f"  visibility cache: {cache['state']}"

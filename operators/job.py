@@ -20,7 +20,7 @@ from ..core.cache import VisibilityCache
 from ..core.pipeline import BakeResult, check_budget, peak_memory_bytes, prepare, relight_many
 from ..core.samples import face_normals
 from ..core.scene import Scene
-from . import extract, layout, writeback
+from . import device, extract, layout, writeback
 
 CACHE_FOLDER_NAME = "visibake_cache"
 
@@ -152,7 +152,7 @@ def extract_scene(context, objects, progress=None) -> Extracted:
 
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
-             progress=None, relight_only: bool = False, setups=None) -> JobResult:
+             progress=None, relight_only: bool = False, setups=None, device_name: str | None = None) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -166,6 +166,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     setups : callable(lights, world) -> list of core.setups.Setup, or None. Each setup
         is relit from the one prepared table and written to ``out_dir/<setup>/``
         (files only; the scene's images keep the scene's own lighting).
+    device_name : 'auto', 'gpu' or 'cpu' for the transport passes; None: the preference
     """
     scene = context.scene
     props = scene.visibake
@@ -186,6 +187,10 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         except ValueError as error:
             raise BakeInputError(str(error)) from None
 
+    try:
+        gather_function, gather_device, device_report = device.choose(context, device_name)
+    except device.DeviceError as error:
+        raise BakeInputError(str(error)) from None
     started = time.perf_counter()
     extracted = extract_scene(context, objects, progress)
     cache = visibility_cache(scene)
@@ -197,6 +202,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             # Relighting with a setup may need the table although the scene's own lights do not.
             prepared = prepare(extracted.scene, settings, progress, table_needed=True if setups else None,
                                cache=cache, require_cached_table=relight_only)
+            prepared.gather, prepared.gather_device = gather_function, gather_device
             # All setups' light groups share the gathers: one table walk serves them all.
             relit = relight_many(prepared, [(lights, world) for _, lights, world in lightings], progress)
             results = [(name, result) for (name, _, _), result in zip(lightings, relit)]
@@ -236,6 +242,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     report["blender_version"] = bpy.app.version_string
     report["lights"] = [light.name for light in lightings[-1][1]]
     report["relight_only"] = relight_only
+    report["device"] = device_report
     if setups is not None:
         report["setups"] = [{"name": name, "lights": [light.name for light in lights],
                              "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],

@@ -1,4 +1,4 @@
-"""User interface: the N-panel."""
-from . import main
+"""User interface: the N-panel and the add-on preferences."""
+from . import main, preferences
 
-classes = main.classes
+classes = main.classes + preferences.classes

@@ -1,0 +1,49 @@
+"""Where the transport passes run: the preference (or --device) turned into a gather.
+
+``auto`` runs the GPU passes on a real GPU and numpy on a software renderer (Mesa
+llvmpipe) or where no GPU context can be made; ``gpu`` and ``cpu`` force one.
+"""
+from __future__ import annotations
+
+import functools
+
+import bpy
+
+from ..core.transport import gather as numpy_gather
+from ..gpu_shaders import gather as gpu_gather
+from ..gpu_shaders import runtime
+
+DEVICES = ("auto", "gpu", "cpu")
+ADDON_PACKAGE = __package__.rpartition(".")[0]
+DEFAULT_GPU_MEMORY_MIB = 1024
+
+
+def preferences(context=None):
+    """VisiBake's add-on preferences, or None where it is not an enabled add-on."""
+    context = context or bpy.context
+    addon = context.preferences.addons.get(ADDON_PACKAGE)
+    return addon.preferences if addon is not None else None
+
+
+class DeviceError(ValueError):
+    """The requested device cannot be used; the message says why and what to do."""
+
+
+def choose(context=None, requested: str | None = None):
+    """(gather function, device name, report dict) for ``requested`` or the preference."""
+    prefs = preferences(context)
+    requested = requested or (prefs.device if prefs is not None else "auto")
+    if requested not in DEVICES:
+        raise DeviceError(f"device must be one of {', '.join(DEVICES)}, got {requested!r}")
+    try:
+        used, reason, info = runtime.choose_device(requested)
+    except runtime.GPUUnavailable as error:
+        raise DeviceError(f"--device gpu: {error}; use --device cpu or auto") from None
+    report = {"requested": requested, "used": used, "reason": reason}
+    if info is not None:
+        report.update(info.as_dict())
+    if used == "cpu":
+        return numpy_gather, "cpu", report
+    budget_mib = prefs.gpu_memory_mib if prefs is not None else DEFAULT_GPU_MEMORY_MIB
+    report["gpu_memory_budget_mib"] = budget_mib
+    return functools.partial(gpu_gather.gather, budget_bytes=int(budget_mib) << 20), "gpu", report

@@ -1,0 +1,62 @@
+"""Device choice end to end: the same bake on the GPU and in numpy, and what auto picks."""
+import json
+
+import bpy
+import numpy as np
+import OpenEXR
+import pytest
+
+from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun
+
+
+@pytest.fixture
+def scene_file(clean_scene, tmp_path):
+    world = black_world()
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    mesh_object("Block", cube(0.5), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.5), uv_map=None)
+    mesh_object("Glow", cube(0.1), material("Glow", (0.5, 0.5, 0.5), emission=(1.0, 0.8, 0.5), strength=20.0),
+                location=(0.6, -0.6, 0.2), uv_map=None)
+    sun(3.0, tilt_degrees=30.0)
+    point(60.0, (-0.5, 0.4, 1.0), name="Lamp")
+    path = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    return path
+
+
+def _bake(visibake, path, out, device, *extra):
+    report = out / "report.json"
+    status = visibake.cli.main(["bake", str(path), "--out", str(out), "--report", str(report), "--device", device,
+                                "--directions", "64", "--bounces", "2", "--resolution", "32", "--no-cache",
+                                "--light-groups", "--passes", "lighting,indirect", "--no-progress", *extra])
+    assert status == 0
+    return json.loads(report.read_text())
+
+
+def _exr(path):
+    with OpenEXR.File(str(path)) as exr:
+        return exr.channels()["RGBA"].pixels
+
+
+def test_gpu_and_cpu_bakes_agree(visibake, gpu_shaders, scene_file, tmp_path):
+    gpu_report = _bake(visibake, scene_file, tmp_path / "gpu", "gpu")
+    cpu_report = _bake(visibake, scene_file, tmp_path / "cpu", "cpu")
+    assert gpu_report["device"]["used"] == "gpu" and gpu_report["device"]["renderer"]
+    assert cpu_report["device"]["used"] == "cpu"
+    gathers = [p for p in gpu_report["passes"] if p["pass"].startswith("gather")]
+    assert len(gathers) == 3 and all(p["device"] == "gpu" for p in gathers)  # emission + 2 bounces
+    assert all(p["device"] == "cpu" for p in cpu_report["passes"])
+    files = sorted(f.relative_to(tmp_path / "gpu") for f in (tmp_path / "gpu").rglob("*.exr"))
+    assert len(files) >= 8  # two passes, combined and per group (Sun, Lamp, Glow), for every object
+    for name in files:
+        ours, twin = _exr(tmp_path / "gpu" / name), _exr(tmp_path / "cpu" / name)
+        assert np.all(np.isfinite(ours))
+        # float32 sums in another order: see tests/gpu/test_gather_twin.py
+        np.testing.assert_allclose(ours, twin, rtol=1e-4, atol=1e-6, err_msg=str(name))
+
+
+def test_auto_picks_numpy_on_a_software_renderer(visibake, gpu_shaders, scene_file, tmp_path):
+    info = gpu_shaders.runtime.device_info()
+    report = _bake(visibake, scene_file, tmp_path / "auto", "auto")
+    expected = "cpu" if info.software else "gpu"
+    assert report["device"]["used"] == expected
+    assert info.renderer in report["device"]["reason"]
