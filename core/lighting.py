@@ -89,8 +89,13 @@ def light_key_parts(light) -> list:
     return parts
 
 
-def _lamp_irradiance(p, lights, report) -> tuple[np.ndarray, int]:
-    """(K, 3) irradiance of ``lights`` with shadows as the settings say, and shadow rays traced."""
+def lamp_irradiance(p, lights, report) -> tuple[np.ndarray, int]:
+    """(K, 3) irradiance of ``lights`` with shadows as the settings say, and shadow rays traced.
+
+    ``p`` is a prepared scene (positions, normals, geometric normals, ray origins, the
+    table and settings); ``report(fraction)`` is called after each lamp. The direct-light
+    pass; ``p.lamp_irradiance`` may be a twin with the same contract on another device.
+    """
     settings = p.settings
     regions = p.shadow_regions() if lights and settings.shadows == "fractions" else None
     irradiance = np.zeros((len(p.position), 3))
@@ -140,7 +145,7 @@ def transport_groups(p, groups: list[LightGroup], stages, skipped: list,
     results = []
     emitting_any = np.zeros(len(p.meshes), bool)
     for index, group in enumerate(groups):
-        irradiance, rays = _lamp_irradiance(
+        irradiance, rays = p.lamp_irradiance(
             p, group.lights, lambda f, i=index: report(0.3 * (i + f) / count))
         results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
         emitting_any |= group.emitting
@@ -169,7 +174,7 @@ def transport_groups(p, groups: list[LightGroup], stages, skipped: list,
             results[owner].emitter_rays += rays
             results[owner].emitters_sampled += (p.meshes[emitter.object_index].name,)
     stages.book("direct", time.perf_counter() - direct_started)
-    stages.record_pass(f"direct light ({count} groups)", "cpu", time.perf_counter() - direct_started)
+    stages.record_pass(f"direct light ({count} groups)", p.direct_device, time.perf_counter() - direct_started)
 
     per_sample_emitting = np.stack([np.repeat(g.emitting, np.diff(p.sample_offset)) for g in groups])
     emissions = [np.where(per_sample_emitting[i][:, None], p.emission, 0.0) for i in range(count)]

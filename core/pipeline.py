@@ -18,7 +18,7 @@ from .directions import ShadowRegions, direction_set
 from .shadows import ShadowFractions, shadow_fractions
 from .environment import has_light, world_radiance
 from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Transported, group_pass_name,
-                       light_groups, light_key_parts, lighting_passes, transport_groups)
+                       lamp_irradiance, light_groups, light_key_parts, lighting_passes, transport_groups)
 from .raster import dilate
 from .rays import RayScene, offset_ray_origins
 from .samples import ObjectSamples, build_samples, face_normals
@@ -209,6 +209,8 @@ class Prepared:
     # contract (gpu_shaders.gather.gather) chosen by the Blender side.
     gather: Callable = gather
     gather_device: str = "cpu"
+    lamp_irradiance: Callable = lamp_irradiance  # core.lighting.lamp_irradiance or a twin
+    direct_device: str = "cpu"
     _gather_scale: np.ndarray | None = None
     _shadow_regions: ShadowRegions | None = None
     _distant_fractions: ShadowFractions | None = None
