@@ -17,8 +17,8 @@ import numpy as np
 from .directions import ShadowRegions, direction_set
 from .shadows import ShadowFractions, shadow_fractions
 from .environment import has_light, world_radiance
-from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Transported, group_pass_name,
-                       lamp_irradiance, light_groups, light_key_parts, lighting_passes, transport_groups)
+from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Transported, accumulate_passes,
+                       lamp_irradiance, light_groups, light_key_parts, transport_groups)
 from .raster import dilate
 from .rays import RayScene, offset_ray_origins
 from .samples import ObjectSamples, build_samples, face_normals
@@ -211,6 +211,8 @@ class Prepared:
     gather_device: str = "cpu"
     lamp_irradiance: Callable = lamp_irradiance  # core.lighting.lamp_irradiance or a twin
     direct_device: str = "cpu"
+    accumulate_passes: Callable = accumulate_passes  # core.lighting.accumulate_passes or a twin
+    accumulate_device: str = "cpu"
     _gather_scale: np.ndarray | None = None
     _shadow_regions: ShadowRegions | None = None
     _distant_fractions: ShadowFractions | None = None
@@ -533,15 +535,11 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
     per_lighting = []
     for index, plan in enumerate(plans):
         parts = {name: transported[i, name] for i, name in transported if i == index}
-        per_pass: dict[str, np.ndarray] = {}
+        started = time.perf_counter()
+        per_pass = p.accumulate_passes(p.albedo, wants, parts, settings.light_groups)
         if parts:
-            direct = sum(t.direct for t in parts.values())
-            gathered = sum(t.gathered for t in parts.values())
-            per_pass.update(lighting_passes(p, wants, direct, gathered))
-            if settings.light_groups:
-                for name, t in parts.items():
-                    for pass_name, values in lighting_passes(p, wants, t.direct, t.gathered).items():
-                        per_pass[group_pass_name(pass_name, name)] = values
+            stages.record_pass(f"accumulation of passes ({len(parts)} groups)", p.accumulate_device,
+                               time.perf_counter() - started)
         if "ao" in wants:
             per_pass["ao"] = np.repeat(ambient_occlusion(p.table, p.normal, p.gather_scale())[:, None], 3, axis=1)
         per_lighting.append((per_pass, parts))

@@ -6,11 +6,14 @@ llvmpipe) or where no GPU context can be made; ``gpu`` and ``cpu`` force one.
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import bpy
 
+from ..core.lighting import accumulate_passes as numpy_accumulate_passes
 from ..core.transport import gather as numpy_gather
 from ..gpu_shaders import gather as gpu_gather
+from ..gpu_shaders import passes as gpu_passes
 from ..gpu_shaders import runtime
 
 DEVICES = ("auto", "gpu", "cpu")
@@ -29,8 +32,25 @@ class DeviceError(ValueError):
     """The requested device cannot be used; the message says why and what to do."""
 
 
-def choose(context=None, requested: str | None = None):
-    """(gather function, device name, report dict) for ``requested`` or the preference."""
+@dataclass
+class DeviceChoice:
+    """The passes one bake runs, and what the report says about the device."""
+
+    name: str  # 'gpu' or 'cpu'
+    report: dict
+    gather: object = numpy_gather
+    accumulate_passes: object = numpy_accumulate_passes
+
+    def apply(self, prepared) -> None:
+        """Make ``prepared`` (core.pipeline.Prepared) run its passes on this device."""
+        prepared.gather = self.gather
+        prepared.gather_device = self.name
+        prepared.accumulate_passes = self.accumulate_passes
+        prepared.accumulate_device = self.name
+
+
+def choose(context=None, requested: str | None = None) -> DeviceChoice:
+    """The device for ``requested`` ('auto', 'gpu', 'cpu'; None: the preference)."""
     prefs = preferences(context)
     requested = requested or (prefs.device if prefs is not None else "auto")
     if requested not in DEVICES:
@@ -38,12 +58,13 @@ def choose(context=None, requested: str | None = None):
     try:
         used, reason, info = runtime.choose_device(requested)
     except runtime.GPUUnavailable as error:
-        raise DeviceError(f"--device gpu: {error}; use --device cpu or auto") from None
+        raise DeviceError(f"device gpu: {error}; use device cpu or auto") from None
     report = {"requested": requested, "used": used, "reason": reason}
     if info is not None:
         report.update(info.as_dict())
     if used == "cpu":
-        return numpy_gather, "cpu", report
+        return DeviceChoice("cpu", report)
     budget_mib = prefs.gpu_memory_mib if prefs is not None else DEFAULT_GPU_MEMORY_MIB
     report["gpu_memory_budget_mib"] = budget_mib
-    return functools.partial(gpu_gather.gather, budget_bytes=int(budget_mib) << 20), "gpu", report
+    return DeviceChoice("gpu", report, gather=functools.partial(gpu_gather.gather, budget_bytes=int(budget_mib) << 20),
+                        accumulate_passes=gpu_passes.accumulate_passes)

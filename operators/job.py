@@ -188,7 +188,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             raise BakeInputError(str(error)) from None
 
     try:
-        gather_function, gather_device, device_report = device.choose(context, device_name)
+        chosen_device = device.choose(context, device_name)
     except device.DeviceError as error:
         raise BakeInputError(str(error)) from None
     started = time.perf_counter()
@@ -202,7 +202,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             # Relighting with a setup may need the table although the scene's own lights do not.
             prepared = prepare(extracted.scene, settings, progress, table_needed=True if setups else None,
                                cache=cache, require_cached_table=relight_only)
-            prepared.gather, prepared.gather_device = gather_function, gather_device
+            chosen_device.apply(prepared)
             # All setups' light groups share the gathers: one table walk serves them all.
             relit = relight_many(prepared, [(lights, world) for _, lights, world in lightings], progress)
             results = [(name, result) for (name, _, _), result in zip(lightings, relit)]
@@ -242,7 +242,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     report["blender_version"] = bpy.app.version_string
     report["lights"] = [light.name for light in lightings[-1][1]]
     report["relight_only"] = relight_only
-    report["device"] = device_report
+    report["device"] = chosen_device.report
     if setups is not None:
         report["setups"] = [{"name": name, "lights": [light.name for light in lights],
                              "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],
