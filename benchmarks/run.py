@@ -163,6 +163,8 @@ def main(argv=None) -> int:
     job = importlib.import_module(f"{extension.__name__}.operators.job")
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.cache").VisibilityCache
+    gpu_runtime = importlib.import_module(f"{extension.__name__}.gpu_shaders.runtime")
+    gpu_gather = importlib.import_module(f"{extension.__name__}.gpu_shaders.gather")
     names = args.scenes or profile["scenes"] or scenes.SCENE_NAMES
     unknown = [n for n in names if n not in scenes.SCENES]
     if unknown:
@@ -277,6 +279,7 @@ def main(argv=None) -> int:
                            "visibake_warm_prepare_seconds": warm_prepare_seconds}
             del warm
         prepared.cache = None  # relights below measure transport, not the lighting cache
+        limit_rows[-1].update(compare_gather_paths(prepared, gpu_runtime, gpu_gather))
         base_lights = extracted.scene.lights
         for count in profile["relight_setups"]:
             setups = []
@@ -317,7 +320,8 @@ def main(argv=None) -> int:
     for filename, table in (("relight.csv", relight_rows), ("limits.csv", limit_rows)):
         if table:
             with open(os.path.join(out, filename), "w", newline="") as handle:
-                writer = csv.DictWriter(handle, fieldnames=list(table[0]))
+                fields = list(dict.fromkeys(key for row in table for key in row))
+                writer = csv.DictWriter(handle, fieldnames=fields)
                 writer.writeheader()
                 writer.writerows(table)
     summary["relight"] = relight_rows
@@ -327,6 +331,43 @@ def main(argv=None) -> int:
     write_markdown(os.path.join(out, "summary.md"), summary, out)
     print(f"results in {out}")
     return 0
+
+
+def compare_gather_paths(prepared, gpu_runtime, gpu_gather) -> dict:
+    """One bounce gather on the same table in numpy and on the GPU: time, lookups/s, agreement.
+
+    The radiance is the scene's albedo lit uniformly (any atlas will do: the cost of
+    a gather does not depend on the values). Lookups are the table entries above the
+    horizon, what either path walks.
+    """
+    table = prepared.table
+    radiance = prepared.to_atlas(prepared.albedo)
+    scale = prepared.gather_scale()
+    lookups = int(table.rays_cast)
+    started = time.perf_counter()
+    numpy_result = prepared.gather(table, prepared.normal, scale, prepared.layout, radiance, np.zeros(3))
+    numpy_seconds = time.perf_counter() - started
+    row = {"gather_lookups": lookups, "numpy_gather_seconds": numpy_seconds,
+           "numpy_gather_lookups_per_second": lookups / numpy_seconds}
+    try:
+        info = gpu_runtime.device_info()
+    except gpu_runtime.GPUUnavailable as error:
+        row["gpu_device"] = f"none ({error})"
+        return row
+    # The first call compiles the shader and creates the textures' pools: timed apart.
+    started = time.perf_counter()
+    gpu_result = gpu_gather.gather(table, prepared.normal, scale, prepared.layout, radiance, np.zeros(3))
+    first_seconds = time.perf_counter() - started
+    started = time.perf_counter()
+    gpu_result = gpu_gather.gather(table, prepared.normal, scale, prepared.layout, radiance, np.zeros(3))
+    gpu_seconds = time.perf_counter() - started
+    reference = max(float(np.abs(numpy_result).max()), 1e-30)
+    row.update({"gpu_device": f"{info.backend} {info.renderer}", "gpu_gather_seconds": gpu_seconds,
+                "gpu_gather_first_call_seconds": first_seconds,
+                "gpu_gather_lookups_per_second": lookups / gpu_seconds,
+                "gpu_over_numpy_speed": numpy_seconds / gpu_seconds,
+                "gpu_numpy_max_difference_relative": float(np.abs(gpu_result - numpy_result).max()) / reference})
+    return row
 
 
 def _number(value):
@@ -400,10 +441,18 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
                      f"{float(row['visibake_relight_seconds_each']):.3f} | "
                      f"{float(row['visibake_batched_seconds_each']):.3f} | {float(row['cache_bytes']) / 2**20:.1f} | "
                      f"{float(row['cache_save_seconds']):.2f} | {float(row['cache_load_seconds']):.2f} |")
-    lines += ["", "| scene | embreex rays/s (2 threads) | numpy lookups/s |", "|---|---|---|"]
+    lines += ["", "Ceilings, and one bounce gather on the same table in numpy and on the GPU "
+              "(lookups/s = table entries above the horizon per second):", "",
+              "| scene | embreex rays/s (2 threads) | numpy lookups/s (bare np.take) | numpy gather lookups/s "
+              "| GPU gather lookups/s | GPU / numpy | max rel. difference | GPU |", "|---|---|---|---|---|---|---|---|"]
     for row in summary["limits"]:
+        gpu_rate = _number(row.get("gpu_gather_lookups_per_second"))
         lines.append(f"| {row['scene']} | {float(row['embree_rays_per_second']) / 1e6:.2f} M | "
-                     f"{float(row['numpy_lookups_per_second']) / 1e6:.0f} M |")
+                     f"{float(row['numpy_lookups_per_second']) / 1e6:.0f} M | "
+                     f"{float(row.get('numpy_gather_lookups_per_second', 0)) / 1e6:.1f} M | "
+                     + (f"{gpu_rate / 1e6:.1f} M | {float(row['gpu_over_numpy_speed']):.2f} | "
+                        f"{float(row['gpu_numpy_max_difference_relative']):.1e} | {row['gpu_device']} |"
+                        if gpu_rate else f"n/a | n/a | n/a | {row.get('gpu_device', 'n/a')} |"))
     with open(path, "w") as handle:
         handle.write("\n".join(lines) + "\n")
 
