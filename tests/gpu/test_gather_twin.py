@@ -62,3 +62,21 @@ def test_a_budget_too_small_for_one_direction_is_refused(visibake, gpu_shaders):
     table, normals, scale, layout, radiance, world = _random_case(core, samples=500, directions=8)
     with pytest.raises(MemoryError, match="GPU budget"):
         gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world, budget_bytes=1000)
+
+
+def test_a_1024_atlas_with_256_directions_fits_the_default_budget(visibake):
+    # The planner alone (no GPU needed): a 1024 x 1024 atlas fully covered, 256
+    # directions, RGB. Fixed textures: normals, accumulator, radiance (16 bytes per
+    # sample or texel each), the rest is small; each batch adds 12 bytes per sample
+    # and direction. Everything must stay within the default 1 GiB.
+    import importlib
+
+    gather = importlib.import_module(f"{visibake.__name__}.gpu_shaders.gather")
+    samples = 1024 * 1024
+    fixed = 3 * 16 * samples + 1_000_000
+    batch = gather.batch_directions(samples, gather.DEFAULT_BUDGET_BYTES, fixed)
+    assert batch >= 32
+    assert fixed + batch * samples * gather.TABLE_BYTES_PER_ENTRY <= gather.DEFAULT_BUDGET_BYTES
+    batches = -(-256 // batch)
+    print(f"\n1024^2 atlas, 256 directions, 1 GiB: {batch} directions per batch, {batches} batches")
+    assert batches <= 8
