@@ -11,7 +11,9 @@ from dataclasses import dataclass
 import bpy
 
 from ..core.lighting import accumulate_passes as numpy_accumulate_passes
+from ..core.lighting import lamp_irradiance as numpy_lamp_irradiance
 from ..core.transport import gather as numpy_gather
+from ..gpu_shaders import direct as gpu_direct
 from ..gpu_shaders import gather as gpu_gather
 from ..gpu_shaders import passes as gpu_passes
 from ..gpu_shaders import runtime
@@ -40,6 +42,7 @@ class DeviceChoice:
     report: dict
     gather: object = numpy_gather
     accumulate_passes: object = numpy_accumulate_passes
+    lamp_irradiance: object = numpy_lamp_irradiance
 
     def apply(self, prepared) -> None:
         """Make ``prepared`` (core.pipeline.Prepared) run its passes on this device."""
@@ -47,6 +50,8 @@ class DeviceChoice:
         prepared.gather_device = self.name
         prepared.accumulate_passes = self.accumulate_passes
         prepared.accumulate_device = self.name
+        prepared.lamp_irradiance = self.lamp_irradiance
+        prepared.direct_device = self.name
 
 
 def choose(context=None, requested: str | None = None) -> DeviceChoice:
@@ -66,5 +71,7 @@ def choose(context=None, requested: str | None = None) -> DeviceChoice:
         return DeviceChoice("cpu", report)
     budget_mib = prefs.gpu_memory_mib if prefs is not None else DEFAULT_GPU_MEMORY_MIB
     report["gpu_memory_budget_mib"] = budget_mib
-    return DeviceChoice("gpu", report, gather=functools.partial(gpu_gather.gather, budget_bytes=int(budget_mib) << 20),
-                        accumulate_passes=gpu_passes.accumulate_passes)
+    budget = int(budget_mib) << 20
+    return DeviceChoice("gpu", report, gather=functools.partial(gpu_gather.gather, budget_bytes=budget),
+                        accumulate_passes=gpu_passes.accumulate_passes,
+                        lamp_irradiance=functools.partial(gpu_direct.lamp_irradiance, budget_bytes=budget))
