@@ -41,7 +41,8 @@ def bilinear_wrap(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray
     return bottom * (1.0 - ty) + top * ty
 
 
-def sample_image(values: np.ndarray, pixel: np.ndarray, coverage: np.ndarray, margin: int) -> np.ndarray:
+def sample_image(values: np.ndarray, pixel: np.ndarray, coverage: np.ndarray, margin: int,
+                 dilate_function=dilate) -> np.ndarray:
     """Scatter per-sample RGB values into an RGBA image and dilate into the gutter.
 
     Parameters
@@ -50,6 +51,7 @@ def sample_image(values: np.ndarray, pixel: np.ndarray, coverage: np.ndarray, ma
     pixel : (k,) int64 flat pixel index
     coverage : (H, W) bool
     margin : gutter width in texels
+    dilate_function : :func:`core.raster.dilate` or a twin with its contract
 
     Returns
     -------
@@ -60,7 +62,7 @@ def sample_image(values: np.ndarray, pixel: np.ndarray, coverage: np.ndarray, ma
     rgb[pixel] = np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
     rgb = rgb.reshape(height, width, 3)
     if margin > 0:
-        rgb, _ = dilate(rgb, coverage, margin)
+        rgb, _ = dilate_function(rgb, coverage, margin)
     image = np.empty((height, width, 4), np.float32)
     image[..., :3] = rgb
     image[..., 3] = coverage

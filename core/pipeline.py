@@ -213,6 +213,10 @@ class Prepared:
     direct_device: str = "cpu"
     accumulate_passes: Callable = accumulate_passes  # core.lighting.accumulate_passes or a twin
     accumulate_device: str = "cpu"
+    dilate: Callable = dilate  # core.raster.dilate or a twin
+    dilate_device: str = "cpu"
+    dilation_seconds: float = 0.0
+    dilation_calls: int = 0
     _gather_scale: np.ndarray | None = None
     _shadow_regions: ShadowRegions | None = None
     _distant_fractions: ShadowFractions | None = None
@@ -268,10 +272,17 @@ class Prepared:
             image = np.zeros((samples.height * samples.width, values.shape[1]), np.float32)
             image[samples.pixel] = values[a:b]
             image = image.reshape(samples.height, samples.width, values.shape[1])
-            image, _ = dilate(image, samples.coverage, margin)
+            image, _ = self.timed_dilate(image, samples.coverage, margin)
             images.append(image)
         return self.layout.pack(images)
 
+    def timed_dilate(self, image, coverage, margin):
+        """``self.dilate`` with its calls and time counted for the report's passes."""
+        started = time.perf_counter()
+        result = self.dilate(image, coverage, margin)
+        self.dilation_seconds += time.perf_counter() - started
+        self.dilation_calls += 1
+        return result
 
 
 
@@ -553,12 +564,16 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
             a, b = p.sample_offset[index], p.sample_offset[index + 1]
             result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
             for name, values in per_pass.items():
-                result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin)
+                result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin,
+                                                   p.timed_dilate)
             objects.append(result)
         images.append(objects)
         stages.report(len(images) / len(per_lighting))
     stages.stop()
 
+    if p.dilation_calls:
+        stages.record_pass(f"gutter dilation ({p.dilation_calls} images)", p.dilate_device, p.dilation_seconds)
+        p.dilation_seconds, p.dilation_calls = 0.0, 0
     results = [BakeResult(objects=objects, report=_report(p, plan, parts, stages.times, gathers, shared_skips,
                                                           len(lightings)))
                for objects, plan, (_, parts) in zip(images, plans, per_lighting)]

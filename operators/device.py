@@ -9,10 +9,13 @@ import functools
 from dataclasses import dataclass
 
 import bpy
+import numpy as np
 
 from ..core.lighting import accumulate_passes as numpy_accumulate_passes
 from ..core.lighting import lamp_irradiance as numpy_lamp_irradiance
+from ..core.raster import dilate as numpy_dilate
 from ..core.transport import gather as numpy_gather
+from ..gpu_shaders import dilate as gpu_dilate
 from ..gpu_shaders import direct as gpu_direct
 from ..gpu_shaders import gather as gpu_gather
 from ..gpu_shaders import passes as gpu_passes
@@ -43,6 +46,7 @@ class DeviceChoice:
     gather: object = numpy_gather
     accumulate_passes: object = numpy_accumulate_passes
     lamp_irradiance: object = numpy_lamp_irradiance
+    dilate: object = numpy_dilate
 
     def apply(self, prepared) -> None:
         """Make ``prepared`` (core.pipeline.Prepared) run its passes on this device."""
@@ -52,6 +56,8 @@ class DeviceChoice:
         prepared.accumulate_device = self.name
         prepared.lamp_irradiance = self.lamp_irradiance
         prepared.direct_device = self.name
+        prepared.dilate = self.dilate
+        prepared.dilate_device = self.name
 
 
 def choose(context=None, requested: str | None = None) -> DeviceChoice:
@@ -74,4 +80,15 @@ def choose(context=None, requested: str | None = None) -> DeviceChoice:
     budget = int(budget_mib) << 20
     return DeviceChoice("gpu", report, gather=functools.partial(gpu_gather.gather, budget_bytes=budget),
                         accumulate_passes=gpu_passes.accumulate_passes,
-                        lamp_irradiance=functools.partial(gpu_direct.lamp_irradiance, budget_bytes=budget))
+                        lamp_irradiance=functools.partial(gpu_direct.lamp_irradiance, budget_bytes=budget),
+                        dilate=functools.partial(_dilate_on_gpu, budget_bytes=budget))
+
+
+def _dilate_on_gpu(image, coverage, margin, budget_bytes):
+    """The GPU dilation; numpy for images beyond the GPU's texture size or memory budget."""
+    if max(np.shape(coverage)) > runtime.MAX_TEXTURE_SIZE:
+        return numpy_dilate(image, coverage, margin)
+    try:
+        return gpu_dilate.dilate(image, coverage, margin, budget_bytes=budget_bytes)
+    except MemoryError:
+        return numpy_dilate(image, coverage, margin)

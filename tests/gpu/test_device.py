@@ -45,7 +45,7 @@ def test_gpu_and_cpu_bakes_agree(visibake, gpu_shaders, scene_file, tmp_path):
     gathers = [p for p in gpu_report["passes"] if p["pass"].startswith("gather")]
     assert len(gathers) == 3 and all(p["device"] == "gpu" for p in gathers)  # emission + 2 bounces
     assert all(p["device"] == "cpu" for p in cpu_report["passes"])
-    for kind in ("accumulation", "direct light"):
+    for kind in ("accumulation", "direct light", "gutter dilation"):
         passes = [p for p in gpu_report["passes"] if p["pass"].startswith(kind)]
         assert passes and all(p["device"] == "gpu" for p in passes), kind
     files = sorted(f.relative_to(tmp_path / "gpu") for f in (tmp_path / "gpu").rglob("*.exr"))
