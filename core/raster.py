@@ -287,6 +287,17 @@ def _test_spans(tri, y, x_first, count, width, edge_data):
     return pixel, rep(tri)[keep].astype(np.int32), owned[keep], w.astype(np.float32)
 
 
+def check_dilate_arguments(image, coverage, margin) -> tuple[np.ndarray, np.ndarray, int]:
+    """The arguments of :func:`dilate` (and of its GPU twin) checked: (image, coverage bool, margin int)."""
+    if int(margin) != margin or margin < 0:
+        raise ValueError(f"dilate: margin must be a non-negative integer, got {margin!r}")
+    image = np.asarray(image)
+    coverage = np.asarray(coverage, bool)
+    if image.ndim not in (2, 3) or coverage.shape != image.shape[:2]:
+        raise ValueError(f"dilate: image {image.shape} and coverage {coverage.shape} do not match")
+    return image, coverage, int(margin)
+
+
 def dilate(image: np.ndarray, coverage: np.ndarray, margin: int) -> tuple[np.ndarray, np.ndarray]:
     """Fill the gutter: uncovered texels within ``margin`` texels of covered ones.
 
@@ -306,14 +317,8 @@ def dilate(image: np.ndarray, coverage: np.ndarray, margin: int) -> tuple[np.nda
     image : same shape as the input, float32; covered texels are unchanged
     filled : (H, W) bool, texels filled by dilation (disjoint from ``coverage``)
     """
-    if int(margin) != margin or margin < 0:
-        raise ValueError(f"dilate: margin must be a non-negative integer, got {margin!r}")
-    margin = int(margin)
-    image = np.asarray(image)
+    image, coverage, margin = check_dilate_arguments(image, coverage, margin)
     flat_channels = image.ndim == 2
-    coverage = np.asarray(coverage, bool)
-    if image.ndim not in (2, 3) or coverage.shape != image.shape[:2]:
-        raise ValueError(f"dilate: image {image.shape} and coverage {coverage.shape} do not match")
     height, width = coverage.shape
     values = np.zeros((height * width, 1 if flat_channels else image.shape[2]), np.float32)
     known = coverage.ravel().copy()

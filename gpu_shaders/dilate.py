@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.raster import check_dilate_arguments
 from . import runtime
 from .gather import _build_copy
 
@@ -69,14 +70,8 @@ def dilate(image: np.ndarray, coverage: np.ndarray, margin: int,
     Raises ValueError for images wider or taller than the GPU texture limit (16384).
     """
     # The same checks and messages as the numpy twin, so callers can swap them.
-    if int(margin) != margin or margin < 0:
-        raise ValueError(f"dilate: margin must be a non-negative integer, got {margin!r}")
-    margin = int(margin)
-    image = np.asarray(image)
+    image, coverage, margin = check_dilate_arguments(image, coverage, margin)
     flat_channels = image.ndim == 2
-    coverage = np.asarray(coverage, bool)
-    if image.ndim not in (2, 3) or coverage.shape != image.shape[:2]:
-        raise ValueError(f"dilate: image {image.shape} and coverage {coverage.shape} do not match")
     height, width = coverage.shape
     if width > runtime.MAX_TEXTURE_SIZE or height > runtime.MAX_TEXTURE_SIZE:
         raise ValueError(f"dilate: a {width}x{height} image exceeds the GPU texture limit of "
@@ -116,19 +111,9 @@ def _dilate_layers(stacked: np.ndarray, coverage: np.ndarray, passes: int,
     import gpu
 
     layers, height, width, _ = stacked.shape
-    keep_alive = []
-    textures = []
-
-    def texture(array, as_layers=False):
-        made, data = runtime.float_texture(array, as_layers)
-        keep_alive.append(data)
-        textures.append(made)
-        return made
-
-    try:
-        values = [texture(stacked, as_layers=True), runtime.empty_texture(width, height, layers)]
-        masks = [texture(coverage.astype(np.float32)[..., None]), runtime.empty_texture(width, height, fmt="R32F")]
-        textures += [values[1], masks[1]]
+    with runtime.TextureSet() as resident:
+        values = [resident.upload(stacked, layers=True), resident.empty(width, height, layers)]
+        masks = [resident.upload(coverage.astype(np.float32)[..., None]), resident.empty(width, height, fmt="R32F")]
         program = runtime.shader("dilate", _build_dilate)
         groups = (-(-width // GROUP_SIZE), -(-height // GROUP_SIZE), layers)
         for step in range(passes):
@@ -145,8 +130,7 @@ def _dilate_layers(stacked: np.ndarray, coverage: np.ndarray, passes: int,
         out[0] = runtime.read_texture(values[final])
         if layers > 1:
             copy = runtime.shader("copy_layer", _build_copy)
-            target = runtime.empty_texture(width, height)
-            textures.append(target)
+            target = resident.empty(width, height)
             for layer in range(1, layers):
                 copy.bind()
                 copy.image("target", target)
@@ -157,6 +141,3 @@ def _dilate_layers(stacked: np.ndarray, coverage: np.ndarray, passes: int,
         # A one-channel texture reads back as (H, W), without a channel axis.
         known = runtime.read_texture(masks[final]).reshape(height, width) > 0.5
         return out, known
-    finally:
-        textures.clear()
-        keep_alive.clear()

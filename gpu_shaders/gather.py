@@ -100,49 +100,40 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
     channels = radiance.shape[1]
     layers = -(-channels // 4)
     width, height = runtime.sample_grid(total_samples)
-    keep_alive = []
-    textures = []
-
-    def texture(array, as_layers=False):
-        made, data = runtime.float_texture(array, as_layers)
-        keep_alive.append(data)
-        textures.append(made)
-        return made
-
-    try:
+    with runtime.TextureSet() as resident:
         normals_grid = runtime.to_grid(np.concatenate([np.asarray(normals, np.float32),
                                                        np.asarray(scale, np.float32)[:, None]], axis=1),
                                        width, height)
-        normals_texture = texture(normals_grid)
+        normals_texture = resident.upload(normals_grid)
         padded = np.zeros((len(radiance), 4 * layers), np.float32)
         padded[:, :channels] = radiance
         radiance_width = min(RADIANCE_WIDTH, len(padded))
         radiance_height = -(-len(padded) // radiance_width)
         flat = np.zeros((radiance_height * radiance_width, 4 * layers), np.float32)
         flat[:len(padded)] = padded
-        radiance_texture = texture(flat.reshape(radiance_height, radiance_width, layers, 4).transpose(2, 0, 1, 3),
-                                   as_layers=True)
+        radiance_texture = resident.upload(flat.reshape(radiance_height, radiance_width, layers, 4).transpose(2, 0, 1, 3),
+                                   layers=True)
         offsets = np.asarray(layout.offsets, np.int64)
         objects = np.stack([layout.widths, layout.heights, offsets // 4096, offsets % 4096], axis=1)
-        objects_texture = texture(objects.astype(np.float32)[None])
+        objects_texture = resident.upload(objects.astype(np.float32)[None])
         rows = np.zeros((1 + layers, count, 4), np.float32)
         rows[0, :, :3] = table.directions
         world_padded = np.zeros((count, 4 * layers), np.float32)
         world_padded[:, :channels] = world
         rows[1:] = world_padded.reshape(count, layers, 4).transpose(1, 0, 2)
-        directions_texture = texture(rows)
+        directions_texture = resident.upload(rows)
         if exclude is not None and np.any(exclude):
             masks = _exclusion_masks(np.asarray(exclude, bool))
             grid = np.zeros((height * width, masks.shape[1], 4), np.float32)
             grid[:total_samples] = masks
-            excluded_texture = texture(grid.reshape(height, width, masks.shape[1], 4).transpose(2, 0, 1, 3),
-                                       as_layers=True)
+            excluded_texture = resident.upload(grid.reshape(height, width, masks.shape[1], 4).transpose(2, 0, 1, 3),
+                                       layers=True)
             use_exclude = 1
         else:
-            excluded_texture = texture(np.zeros((1, 1, 1, 4), np.float32), as_layers=True)
+            excluded_texture = resident.upload(np.zeros((1, 1, 1, 4), np.float32), layers=True)
             use_exclude = 0
-        accumulated = texture(np.zeros((layers, height, width, 4), np.float32), as_layers=True)
-        fixed_bytes = sum(array.nbytes for array in keep_alive)
+        accumulated = resident.upload(np.zeros((layers, height, width, 4), np.float32), layers=True)
+        fixed_bytes = resident.uploaded_bytes
         batch = batch_directions(width * height, budget_bytes, fixed_bytes)
 
         program = runtime.shader("gather", _build_gather)
@@ -177,8 +168,7 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
         out[:, 0:4] = runtime.read_texture(accumulated).reshape(-1, 4)[:total_samples]
         if layers > 1:
             copy = runtime.shader("copy_layer", _build_copy)
-            target = runtime.empty_texture(width, height)
-            textures.append(target)
+            target = resident.empty(width, height)
             for layer in range(1, layers):
                 copy.bind()
                 copy.image("target", target)
@@ -187,6 +177,3 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
                 gpu.compute.dispatch(copy, *groups)
                 out[:, 4 * layer:4 * layer + 4] = runtime.read_texture(target).reshape(-1, 4)[:total_samples]
         return out[:, :channels]
-    finally:
-        textures.clear()
-        keep_alive.clear()

@@ -34,15 +34,12 @@ def accumulate_passes(albedo: np.ndarray, wants, groups: dict, per_group: bool) 
     for index, name in enumerate(names):
         layers[2 * index, :count, :3] = groups[name].direct
         layers[2 * index + 1, :count, :3] = groups[name].gathered
-    keep = []
-    try:
-        inputs, data = runtime.float_texture(layers.reshape(-1, height, width, 4), True)
-        keep.append(data)
-        rho, data = runtime.float_texture(runtime.to_grid(np.pad(np.asarray(albedo, np.float32), ((0, 0), (0, 1))),
-                                                          width, height))
-        keep.append(data)
+    with runtime.TextureSet() as resident:
+        inputs = resident.upload(layers.reshape(-1, height, width, 4), layers=True)
+        rho = resident.upload(runtime.to_grid(np.pad(np.asarray(albedo, np.float32), ((0, 0), (0, 1))),
+                                              width, height))
         slots = 1 + (len(names) if per_group else 0)
-        outputs = runtime.empty_texture(width, height, layers=4 * (1 + len(names)))
+        outputs = resident.empty(width, height, layers=4 * (1 + len(names)))
         program = runtime.shader("passes", _build)
         program.bind()
         program.image("passes_out", outputs)
@@ -55,7 +52,7 @@ def accumulate_passes(albedo: np.ndarray, wants, groups: dict, per_group: bool) 
         gpu.compute.dispatch(program, *groups_xy)
 
         copy = runtime.shader("copy_layer", _build_copy)
-        target = runtime.empty_texture(width, height)
+        target = resident.empty(width, height)
         per_pass = {}
         for slot in range(slots):
             for number, pass_name in enumerate(PASS_ORDER):
@@ -69,5 +66,3 @@ def accumulate_passes(albedo: np.ndarray, wants, groups: dict, per_group: bool) 
                 values = runtime.read_texture(target).reshape(-1, 4)[:count, :3].astype(np.float64)
                 per_pass[pass_name if slot == 0 else group_pass_name(pass_name, names[slot - 1])] = values
         return per_pass
-    finally:
-        keep.clear()

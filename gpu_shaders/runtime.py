@@ -229,6 +229,40 @@ def float_texture(array: np.ndarray, layers: bool = False):
     return texture, data
 
 
+class TextureSet:
+    """The textures of one pass: uploaded arrays stay alive with them, all freed together.
+
+    Use as a context manager; dropping the last reference frees a GPUTexture, so on
+    leaving the block (normally or by an exception) nothing of the pass stays on the GPU.
+    """
+
+    def __init__(self):
+        self._textures = []
+        self._arrays = []
+
+    def upload(self, array: np.ndarray, layers: bool = False):
+        made, data = float_texture(array, layers)
+        self._textures.append(made)
+        self._arrays.append(data)
+        return made
+
+    def empty(self, width: int, height: int, layers: int = 0, fmt: str = "RGBA32F"):
+        made = empty_texture(width, height, layers, fmt)
+        self._textures.append(made)
+        return made
+
+    @property
+    def uploaded_bytes(self) -> int:
+        return sum(array.nbytes for array in self._arrays)
+
+    def __enter__(self) -> "TextureSet":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._textures.clear()
+        self._arrays.clear()
+
+
 def empty_texture(width: int, height: int, layers: int = 0, fmt: str = "RGBA32F"):
     import gpu
 
