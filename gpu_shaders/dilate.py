@@ -19,7 +19,6 @@ import numpy as np
 
 from ..core.raster import check_dilate_arguments
 from . import runtime
-from .gather import _build_copy
 
 GROUP_SIZE = 16  # local work group: 16 x 16 texels of one channel layer
 # GPU memory one call may use; the same default as the gather's.
@@ -127,17 +126,8 @@ def _dilate_layers(stacked: np.ndarray, coverage: np.ndarray, passes: int,
             gpu.compute.dispatch(program, *groups)
         final = passes % 2
         out = np.empty((layers, height, width, 4), np.float32)
-        out[0] = runtime.read_texture(values[final])
-        if layers > 1:
-            copy = runtime.shader("copy_layer", _build_copy)
-            target = resident.empty(width, height)
-            for layer in range(1, layers):
-                copy.bind()
-                copy.image("target", target)
-                copy.uniform_sampler("source", values[final])
-                copy.uniform_int("layer", layer)
-                gpu.compute.dispatch(copy, *groups[:2], 1)
-                out[layer] = runtime.read_texture(target)
+        for layer in range(layers):
+            out[layer] = runtime.read_layer(resident, values[final], layer, width, height)
         # A one-channel texture reads back as (H, W), without a channel axis.
         known = runtime.read_texture(masks[final]).reshape(height, width) > 0.5
         return out, known

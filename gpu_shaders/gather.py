@@ -36,13 +36,6 @@ def _build_gather(info) -> None:
     info.local_group_size(GROUP_SIZE, GROUP_SIZE)
 
 
-def _build_copy(info) -> None:
-    info.image(0, "RGBA32F", "FLOAT_2D", "target", qualifiers={"WRITE"})
-    info.sampler(0, "FLOAT_2D_ARRAY", "source")
-    info.push_constant("INT", "layer")
-    info.local_group_size(GROUP_SIZE, GROUP_SIZE)
-
-
 def _exclusion_masks(exclude: np.ndarray) -> np.ndarray:
     """(K, O) bool as (K, layers, 4) float32: 16 objects per channel, exact integer bit masks."""
     samples, objects = exclude.shape
@@ -165,15 +158,7 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             if progress is not None:
                 progress(stop / count)
         out = np.zeros((total_samples, 4 * layers))
-        out[:, 0:4] = runtime.read_texture(accumulated).reshape(-1, 4)[:total_samples]
-        if layers > 1:
-            copy = runtime.shader("copy_layer", _build_copy)
-            target = resident.empty(width, height)
-            for layer in range(1, layers):
-                copy.bind()
-                copy.image("target", target)
-                copy.uniform_sampler("source", accumulated)
-                copy.uniform_int("layer", layer)
-                gpu.compute.dispatch(copy, *groups)
-                out[:, 4 * layer:4 * layer + 4] = runtime.read_texture(target).reshape(-1, 4)[:total_samples]
+        for layer in range(layers):
+            values = runtime.read_layer(resident, accumulated, layer, width, height)
+            out[:, 4 * layer:4 * layer + 4] = values.reshape(-1, 4)[:total_samples]
         return out[:, :channels]

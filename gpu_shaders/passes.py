@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import runtime
-from .gather import GROUP_SIZE, _build_copy
+from .gather import GROUP_SIZE
 
 PASS_ORDER = ("lighting", "direct", "indirect", "irradiance")
 
@@ -51,18 +51,12 @@ def accumulate_passes(albedo: np.ndarray, wants, groups: dict, per_group: bool) 
         groups_xy = (-(-width // GROUP_SIZE), -(-height // GROUP_SIZE), 1)
         gpu.compute.dispatch(program, *groups_xy)
 
-        copy = runtime.shader("copy_layer", _build_copy)
-        target = resident.empty(width, height)
         per_pass = {}
         for slot in range(slots):
             for number, pass_name in enumerate(PASS_ORDER):
                 if pass_name not in wants:
                     continue
-                copy.bind()
-                copy.image("target", target)
-                copy.uniform_sampler("source", outputs)
-                copy.uniform_int("layer", 4 * slot + number)
-                gpu.compute.dispatch(copy, *groups_xy)
-                values = runtime.read_texture(target).reshape(-1, 4)[:count, :3].astype(np.float64)
+                values = runtime.read_layer(resident, outputs, 4 * slot + number, width, height)
+                values = values.reshape(-1, 4)[:count, :3].astype(np.float64)
                 per_pass[pass_name if slot == 0 else group_pass_name(pass_name, names[slot - 1])] = values
         return per_pass

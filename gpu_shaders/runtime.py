@@ -239,6 +239,7 @@ class TextureSet:
     def __init__(self):
         self._textures = []
         self._arrays = []
+        self._copy_target = None
 
     def upload(self, array: np.ndarray, layers: bool = False):
         made, data = float_texture(array, layers)
@@ -261,6 +262,7 @@ class TextureSet:
     def __exit__(self, *exc) -> None:
         self._textures.clear()
         self._arrays.clear()
+        self._copy_target = None
 
 
 def empty_texture(width: int, height: int, layers: int = 0, fmt: str = "RGBA32F"):
@@ -276,6 +278,38 @@ def read_texture(texture) -> np.ndarray:
     buffer = texture.read()
     # The buffer's numpy view has permuted strides; memory order is (H, W, C).
     return np.array(np.asarray(buffer).ravel(order="K"), np.float32).reshape(buffer.dimensions)
+
+
+COPY_GROUP_SIZE = 16
+
+
+def _build_copy(info) -> None:
+    info.image(0, "RGBA32F", "FLOAT_2D", "target", qualifiers={"WRITE"})
+    info.sampler(0, "FLOAT_2D_ARRAY", "source")
+    info.push_constant("INT", "layer")
+    info.local_group_size(COPY_GROUP_SIZE, COPY_GROUP_SIZE)
+
+
+def read_layer(resident: TextureSet, texture, layer: int, width: int, height: int) -> np.ndarray:
+    """(height, width, 4) float32 copy of one layer of an RGBA32F array texture.
+
+    Layer 0 is read directly; the others go through copy_layer.glsl into a 2D texture
+    (made once per TextureSet), since ``read()`` returns layer 0 only.
+    """
+    if layer == 0:
+        return read_texture(texture)
+    import gpu
+
+    if getattr(resident, "_copy_target", None) is None or resident._copy_target[1] != (width, height):
+        resident._copy_target = (resident.empty(width, height), (width, height))
+    target = resident._copy_target[0]
+    copy = shader("copy_layer", _build_copy)
+    copy.bind()
+    copy.image("target", target)
+    copy.uniform_sampler("source", texture)
+    copy.uniform_int("layer", layer)
+    gpu.compute.dispatch(copy, -(-width // COPY_GROUP_SIZE), -(-height // COPY_GROUP_SIZE), 1)
+    return read_texture(target)
 
 
 def sample_grid(count: int, width: int = 2048) -> tuple[int, int]:
