@@ -34,13 +34,14 @@ from . import tolerances as tol
 from .scene import BakeSettings, Mesh
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
 # of re-mixing a handful of light groups, small next to the table.
 LIGHTING_ENTRIES_KEPT = 16
 _TABLE_ARRAYS = ("directions", "hit_object", "hit_uv", "hit_distance", "traced_per_sample")
+_OPTIONAL_TABLE_ARRAYS = ("hit_triangle",)
 
 
 def _hasher():
@@ -58,8 +59,13 @@ def object_key(mesh: Mesh) -> str:
     hasher = _hasher()
     _feed(hasher, np.asarray(mesh.positions, np.float64))
     _feed(hasher, np.asarray(mesh.triangles, np.int32))
-    _feed(hasher, np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float32))
-    hasher.update(f"{tuple(int(r) for r in mesh.resolution)}".encode())
+    hasher.update(mesh.mode.encode())
+    if mesh.mode == "vertex":
+        # Vertex samples sit where the vertices are, with their shading normals.
+        _feed(hasher, np.asarray(mesh.corner_normals, np.float32))
+    else:
+        _feed(hasher, np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float32))
+        hasher.update(f"{tuple(int(r) for r in mesh.resolution)}".encode())
     return hasher.hexdigest()
 
 
@@ -200,7 +206,8 @@ class VisibilityCache:
         return _read_meta(path)
 
     def load_table(self, settings: BakeSettings, meta: dict) -> CachedTable:
-        arrays = _read_arrays(self.table_path(settings), meta, _TABLE_ARRAYS)
+        names = _TABLE_ARRAYS + tuple(n for n in _OPTIONAL_TABLE_ARRAYS if n in meta.get("arrays", ()))
+        arrays = _read_arrays(self.table_path(settings), meta, names)
         return CachedTable(arrays=arrays, object_names=list(meta["object_names"]),
                            object_keys=list(meta["object_keys"]),
                            sample_offset=np.asarray(meta["sample_offset"], np.int64), counters=meta["counters"])
@@ -213,6 +220,9 @@ class VisibilityCache:
                              "backface_hits": int(table.backface_hits)},
                 "written": time.strftime("%Y-%m-%dT%H:%M:%S")}
         arrays = {name: getattr(table, name) for name in _TABLE_ARRAYS}
+        arrays.update({name: getattr(table, name) for name in _OPTIONAL_TABLE_ARRAYS
+                       if getattr(table, name) is not None})
+        meta["arrays"] = sorted(arrays)
         size = _write(self.table_path(settings), meta, arrays)
         self.clear_lighting(settings)  # results of the old table are of no use any more
         return size

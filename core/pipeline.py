@@ -21,7 +21,7 @@ from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Trans
                        lamp_irradiance, light_groups, light_key_parts, transport_groups)
 from .raster import dilate
 from .rays import RayScene, offset_ray_origins
-from .samples import ObjectSamples, build_samples, face_normals
+from .samples import ObjectSamples, build_samples, build_vertex_samples, face_normals
 from .scene import BakeSettings, Scene
 from .images import sample_image
 from .transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
@@ -40,13 +40,28 @@ class BakeRefused(ValueError):
 
 @dataclass
 class ObjectResult:
-    """Pass images of one output object: pass name -> (H, W, 4) float32, bottom-up."""
+    """Results of one output object, per pass name.
+
+    Atlas mode: (H, W, 4) float32 images, bottom-up. Vertex mode (``domain`` set):
+    (n, 4) float32 colours of the base mesh's points or face corners, alpha 0 where
+    no valid triangle uses the element.
+    """
 
     name: str
     width: int
     height: int
     samples: int
     images: dict[str, np.ndarray] = field(default_factory=dict)
+    domain: str | None = None
+
+
+def element_colors(values: np.ndarray, element_sample: np.ndarray) -> np.ndarray:
+    """Per-sample RGB (k, 3) as RGBA colours of mesh elements (n, 4) float32, finite."""
+    colors = np.zeros((len(element_sample), 4), np.float32)
+    has = element_sample >= 0
+    colors[has, :3] = np.nan_to_num(values[element_sample[has]], nan=0.0, posinf=0.0, neginf=0.0)
+    colors[has, 3] = 1.0
+    return colors
 
 
 @dataclass
@@ -302,7 +317,9 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         the cache holds no valid one: a relight must not silently become a bake.
     """
     settings.validate()
-    check_budget([m.resolution for m in scene.meshes], settings.directions)
+    # A vertex-mode object has at most one sample per triangle corner.
+    check_budget([m.resolution if m.mode == "atlas" else (3 * len(m.triangles), 1) for m in scene.meshes],
+                 settings.directions)
     stages = _Stages(progress)
     skipped: list[str] = []
     warnings: list[str] = []
@@ -318,7 +335,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         raise BakeRefused("there is no mesh with faces to bake")
     object_samples: list[ObjectSamples] = []
     for index, mesh in enumerate(meshes):
-        object_samples.append(build_samples(mesh))
+        object_samples.append(build_vertex_samples(mesh) if mesh.mode == "vertex" else build_samples(mesh))
         stages.report((index + 1) / len(meshes))
     for mesh, samples in zip(meshes, object_samples):
         if len(samples) == 0:
@@ -359,7 +376,9 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         sample_offset=np.concatenate([[0], np.cumsum(counts)]), position=position,
         normal=np.concatenate([s.normal for s in object_samples]), geometric=geometric,
         albedo=np.concatenate([s.albedo for s in object_samples]).astype(np.float64), emission=emission,
-        layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples]), directions=directions,
+        layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples],
+                                      [getattr(s, "corner_sample", None) for s in object_samples],
+                                      settings.vertex_lookup == "nearest"), directions=directions,
         ray_scene=ray_scene, origins=offset_ray_origins(position, geometric), table=table,
         stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings, table_key=key,
         visibility_rays=visibility_rays, cache=cache, cache_status=status)
@@ -416,7 +435,10 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
 
     triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
     triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
-    corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] for m in meshes]).astype(np.float32)
+    # Vertex-mode objects have no bake UV map: their hits keep barycentrics instead.
+    corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] if m.mode == "atlas" else np.zeros((len(m.triangles), 3, 2))
+                                for m in meshes]).astype(np.float32)
+    vertex_object = np.array([m.mode == "vertex" for m in meshes], bool)
     all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
     table = None
     rays = 0
@@ -431,7 +453,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
             table, counts = update_table(old_table, old.sample_offset, ray_scene, changed_scene, changed, directions,
                                          position, geometric, sample_offset, corner_uv, triangle_offset,
-                                         all_face_normals, settings.chunk_rays, stages.report)
+                                         all_face_normals, settings.chunk_rays, stages.report, vertex_object)
             del old, old_table
             rays = counts.full + counts.changed_only
             status.state = "updated"
@@ -443,7 +465,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
     if table is None:
         table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
-                            all_face_normals, settings.chunk_rays, stages.report)
+                            all_face_normals, settings.chunk_rays, stages.report, vertex_object)
         rays = table.rays_cast
     if cache is not None:
         stages.start("cache")
@@ -563,9 +585,14 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
             samples = p.object_samples[index]
             a, b = p.sample_offset[index], p.sample_offset[index + 1]
             result = ObjectResult(mesh.name, samples.width, samples.height, len(samples))
-            for name, values in per_pass.items():
-                result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin,
-                                                   p.timed_dilate)
+            if mesh.mode == "vertex":
+                result.domain = samples.domain
+                for name, values in per_pass.items():
+                    result.images[name] = element_colors(values[a:b], samples.element_sample)
+            else:
+                for name, values in per_pass.items():
+                    result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage,
+                                                       settings.margin, p.timed_dilate)
             objects.append(result)
         images.append(objects)
         stages.report(len(images) / len(per_lighting))

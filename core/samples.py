@@ -124,3 +124,106 @@ def build_samples(mesh: Mesh) -> ObjectSamples:
         geometric_normal=geometric, albedo=albedo, emission=emission,
         coverage=raster.coverage, uv_overlap_texels=int(raster.overlap_count),
     )
+
+
+@dataclass
+class VertexSamples(ObjectSamples):
+    """Samples at the vertices of one object (the paper's section 5), as a 1 x k "atlas".
+
+    A vertex is one sample where all its corners share a shading normal, and one
+    sample per distinct normal where the mesh has split normals (sharp edges), so a
+    cube's corner is lit three ways, as its faces are. Laid out as a one-row image of
+    k texels (``pixel`` = 0..k-1, full coverage), the transport treats the object like
+    any other; only a ray landing on it reads its light differently (the triangle's
+    three samples, not a bilinear texel lookup).
+
+    corner_sample : (m, 3) int32 the sample of each triangle corner
+    domain : 'POINT' (one value per vertex) or 'CORNER' (per face corner, where
+        split normals made several samples at one vertex)
+    element_sample : (vertex_count or loop_count,) int64 the sample of each output
+        element, -1 for elements no valid triangle uses
+    """
+
+    corner_sample: np.ndarray | None = None
+    domain: str = "POINT"
+    element_sample: np.ndarray | None = None
+
+
+def _corner_albedo_emission(mesh: Mesh, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo and emission at every corner of ``triangles``: (t, 3, 3) float64 each."""
+    count = len(triangles)
+    albedo = np.full((count, 3, 3), 0.8)
+    emission = np.zeros((count, 3, 3))
+    materials = mesh.materials or []
+    material_of = mesh.material_index[triangles] if len(mesh.material_index) else np.zeros(count, np.int32)
+    material_of = np.clip(material_of, 0, max(len(materials) - 1, 0))
+    for index, material in enumerate(materials):
+        chosen = np.nonzero(material_of == index)[0]
+        if material is None or len(chosen) == 0:
+            continue
+        texture = material.base_color_texture
+        uv_name = material.texture_uv_map
+        if texture is not None and uv_name in mesh.uv_maps:
+            uv = mesh.uv_maps[uv_name][triangles[chosen]].astype(np.float64)  # (c, 3, 2)
+            flat = uv.reshape(-1, 2)
+            albedo[chosen] = bilinear_wrap(texture[..., :3], flat[:, 0], flat[:, 1]).reshape(-1, 3, 3)
+        else:
+            albedo[chosen] = np.asarray(material.base_color, np.float64)[:3]
+        emission[chosen] = np.asarray(material.emission, np.float64)[:3]
+    albedo = np.clip(np.nan_to_num(albedo, nan=0.0), 0.0, 1.0)
+    emission = np.clip(np.nan_to_num(emission, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
+    return albedo, emission
+
+
+def build_vertex_samples(mesh: Mesh) -> VertexSamples:
+    """One sample per vertex (per distinct shading normal where normals are split).
+
+    Corners of degenerate or non-finite triangles make no sample. Albedo and emission
+    of a sample are the mean over its corners (a vertex between two materials gets
+    their mix, as an interpolated vertex colour would show it).
+    """
+    normals, valid = face_normals(mesh.positions, mesh.triangles)
+    used = np.nonzero(valid)[0]
+    corner_vertex = mesh.triangles[used].astype(np.int64)  # (t, 3)
+    corner_normal = np.asarray(mesh.corner_normals[used], np.float64).reshape(-1, 3)
+    corner_normal = _normalise(corner_normal, np.repeat(normals[used], 3, axis=0))
+    vertex_of_corner = corner_vertex.ravel()
+    # Corners of one vertex whose normals agree to float32 rounding share a sample.
+    rounded = np.round(corner_normal / tol.SPLIT_NORMAL_TOLERANCE).astype(np.int64)
+    keys = np.concatenate([vertex_of_corner[:, None], rounded], axis=1)
+    unique_keys, sample_of_corner = np.unique(keys, axis=0, return_inverse=True)
+    sample_of_corner = sample_of_corner.ravel()
+    count = len(unique_keys)
+    split = count > len(np.unique(vertex_of_corner))
+
+    normal = np.zeros((count, 3))
+    np.add.at(normal, sample_of_corner, corner_normal)
+    face_sum = np.zeros((count, 3))
+    np.add.at(face_sum, sample_of_corner, np.repeat(normals[used], 3, axis=0))
+    normal = _normalise(normal, _normalise(face_sum, np.tile([0.0, 0.0, 1.0], (count, 1))))
+    position = mesh.positions[unique_keys[:, 0]].astype(np.float64)
+    corners_per_sample = np.bincount(sample_of_corner, minlength=count).astype(np.float64)[:, None]
+    corner_albedo, corner_emission = _corner_albedo_emission(mesh, used)
+    albedo = np.zeros((count, 3))
+    emission = np.zeros((count, 3))
+    np.add.at(albedo, sample_of_corner, corner_albedo.reshape(-1, 3))
+    np.add.at(emission, sample_of_corner, corner_emission.reshape(-1, 3))
+    albedo /= corners_per_sample
+    emission /= corners_per_sample
+
+    corner_sample = np.full((len(mesh.triangles), 3), -1, np.int32)
+    corner_sample[used] = sample_of_corner.reshape(-1, 3)
+    if split and mesh.corner_loops is not None:
+        domain = "CORNER"
+        element_sample = np.full(max(mesh.loop_count, 0), -1, np.int64)
+        element_sample[np.asarray(mesh.corner_loops)[used].ravel()] = sample_of_corner
+    else:
+        domain = "POINT"
+        element_sample = np.full(max(mesh.vertex_count, len(mesh.positions)), -1, np.int64)
+        element_sample[unique_keys[:, 0]] = np.arange(count)
+    return VertexSamples(
+        width=count, height=1, pixel=np.arange(count, dtype=np.int64), triangle=np.zeros(count, np.int32),
+        barycentric=np.zeros((count, 3), np.float32), position=position, normal=normal,
+        geometric_normal=normal.copy(), albedo=albedo.astype(np.float32), emission=emission.astype(np.float32),
+        coverage=np.ones((1, count), bool), corner_sample=corner_sample, domain=domain,
+        element_sample=element_sample)

@@ -13,6 +13,8 @@ PASSES = ("lighting", "direct", "indirect", "irradiance", "ao")
 SHADOW_MODES = ("fractions", "exact")
 LIGHT_KINDS = ("SUN", "POINT", "SPOT", "AREA")
 AREA_SHAPES = ("SQUARE", "RECTANGLE", "DISK", "ELLIPSE")
+SAMPLE_MODES = ("atlas", "vertex")
+VERTEX_LOOKUPS = ("interpolate", "nearest")
 
 
 @dataclass
@@ -46,6 +48,11 @@ class Mesh:
     output : whether this object gets output images (False: it only occludes
         and reflects light, through an atlas that is never written)
     light_group : the light group its emission belongs to ('' : the object's name)
+    mode : 'atlas' (samples are texels of the bake UV map) or 'vertex' (samples are
+        vertices, or corners where split normals differ; the paper's section 5)
+    corner_loops : (m, 3) int64 the base mesh's loop (face corner) of each triangle
+        corner, for results on the corner domain; None where unknown
+    vertex_count, loop_count : sizes of the base mesh's point and corner domains
     """
 
     name: str
@@ -59,6 +66,10 @@ class Mesh:
     resolution: tuple[int, int]
     output: bool = True
     light_group: str = ""
+    mode: str = "atlas"
+    corner_loops: np.ndarray | None = None
+    vertex_count: int = 0
+    loop_count: int = 0
 
 
 @dataclass
@@ -134,6 +145,9 @@ class BakeSettings:
     threads : worker threads for ray tracing (0: all cores)
     light_groups : also write every lighting pass per light group, so lights can be
         re-mixed without another bake (the groups sum to the combined pass)
+    vertex_lookup : how a ray landing on a vertex-mode object reads its light:
+        'interpolate' (barycentric mix of the triangle's three samples) or 'nearest'
+        (the paper's nearest vertex)
     chunk_rays : rays traced per batch; bounds the memory of the tracing stage
     """
 
@@ -150,6 +164,7 @@ class BakeSettings:
     threads: int = 0
     chunk_rays: int = 1 << 20
     light_groups: bool = False
+    vertex_lookup: str = "interpolate"
 
     def validate(self) -> None:
         """Raise ValueError with a one-line reason for settings that cannot work."""
@@ -170,3 +185,5 @@ class BakeSettings:
             raise ValueError("area light samples must be >= 1")
         if self.emitter_samples < 1:
             raise ValueError("emitter samples must be >= 1")
+        if self.vertex_lookup not in VERTEX_LOOKUPS:
+            raise ValueError(f"vertex lookup must be one of {', '.join(VERTEX_LOOKUPS)}, got {self.vertex_lookup!r}")

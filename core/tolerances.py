@@ -67,3 +67,8 @@ ENV_NEAREST_DOT_SLACK = 1e-9
 # that miss it are ruled out of an incremental table update: a ray it wrongly rules
 # out would keep a stale entry, one it wrongly keeps only costs a trace.
 CULL_SPHERE_MARGIN = 1e-3
+
+# Corner normals of one vertex closer than this (per component, unit vectors) are one
+# normal: smooth shading stores the same normal at every corner up to float32 rounding
+# (~1e-7), while a sharp edge splits them by far more.
+SPLIT_NORMAL_TOLERANCE = 1e-4

@@ -27,14 +27,48 @@ class AtlasLayout:
     widths: np.ndarray
     heights: np.ndarray
     offsets: np.ndarray
+    # Vertex-mode objects are one-row atlases of their samples; a ray landing on one
+    # mixes the three samples of the hit triangle instead of filtering texels.
+    is_vertex: np.ndarray | None = None  # (O,) bool
+    corner_flat: np.ndarray | None = None  # (T_vertex, 3) int32 flat index of each corner's sample
+    corner_base: np.ndarray | None = None  # (O,) int64 first row of each vertex object in corner_flat
+    nearest_vertex: bool = False  # the paper's variant: the corner with the largest weight only
 
     @classmethod
-    def from_sizes(cls, sizes) -> "AtlasLayout":
+    def from_sizes(cls, sizes, corner_samples=None, nearest_vertex: bool = False) -> "AtlasLayout":
+        """Layout of atlases ``sizes`` [(width, height)]; ``corner_samples`` per object:
+        None for an atlas, the (m, 3) corner-to-sample table of a vertex-mode object."""
         widths = np.array([w for w, _ in sizes], np.int64)
         heights = np.array([h for _, h in sizes], np.int64)
         padded = (widths + 1) * (heights + 1)
         offsets = np.concatenate([[0], np.cumsum(padded)[:-1]]).astype(np.int64)
-        return cls(widths, heights, offsets)
+        layout = cls(widths, heights, offsets, nearest_vertex=nearest_vertex)
+        if corner_samples is not None and any(c is not None for c in corner_samples):
+            layout.is_vertex = np.array([c is not None for c in corner_samples], bool)
+            blocks, bases, total = [], [], 0
+            for index, corners in enumerate(corner_samples):
+                bases.append(total if corners is not None else -1)
+                if corners is not None:
+                    # Corners of degenerate triangles (-1) are never hit; point them anywhere valid.
+                    blocks.append(offsets[index] + np.maximum(np.asarray(corners, np.int64), 0))
+                    total += len(corners)
+            layout.corner_flat = np.concatenate(blocks).astype(np.int32)
+            layout.corner_base = np.array(bases, np.int64)
+        return layout
+
+    def vertex_lookup(self, flat: np.ndarray, obj: np.ndarray, triangle: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Radiance where rays landed on vertex-mode objects: the hit triangle's samples mixed
+        by the barycentrics ``uv`` (n, 2) (embree's: w0 = 1 - u - v), or the nearest one."""
+        corners = self.corner_flat[self.corner_base[obj] + triangle]  # (n, 3)
+        u = uv[:, 0:1]
+        v = uv[:, 1:2]
+        weights = np.concatenate([np.float32(1.0) - u - v, u, v], axis=1)
+        if self.nearest_vertex:
+            chosen = np.argmax(weights, axis=1)
+            return np.take(flat, corners[np.arange(len(corners)), chosen], axis=0)
+        return (np.take(flat, corners[:, 0], axis=0) * weights[:, 0:1]
+                + np.take(flat, corners[:, 1], axis=0) * weights[:, 1:2]
+                + np.take(flat, corners[:, 2], axis=0) * weights[:, 2:3])
 
     @property
     def size(self) -> int:
@@ -148,7 +182,17 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
                 hit = hit[~chosen_exclude[hit, row[hit]]]
             if len(hit):
                 uv = table.hit_uv[i][chosen][hit] if samples is not None else table.hit_uv[i, hit]
-                looked_up = layout.bilinear(radiance, row[hit].astype(np.int64), uv)
+                objects = row[hit].astype(np.int64)
+                if layout.is_vertex is None:
+                    looked_up = layout.bilinear(radiance, objects, uv)
+                else:
+                    on_vertices = layout.is_vertex[objects]
+                    looked_up = np.empty((len(hit), channels), np.float32)
+                    atlas = ~on_vertices
+                    looked_up[atlas] = layout.bilinear(radiance, objects[atlas], uv[atlas])
+                    triangles = table.hit_triangle[i][chosen][hit[on_vertices]]
+                    looked_up[on_vertices] = layout.vertex_lookup(radiance, objects[on_vertices], triangles,
+                                                                  uv[on_vertices])
                 looked_up *= weight[hit, None]
                 irradiance[hit] += looked_up
             if has_world and np.any(world[i] != 0):

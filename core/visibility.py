@@ -25,15 +25,19 @@ class VisibilityTable:
 
     directions : (N, 3) float64
     hit_object : (N, K) int16, object index, or MISS / BELOW_HORIZON / BACKFACE
-    hit_uv : (N, K, 2) float32, atlas coordinate of the hit (0 where no hit)
+    hit_uv : (N, K, 2) float32, atlas coordinate of the hit (0 where no hit); on a
+        vertex-mode object, embree's barycentric (u, v) in the hit triangle instead
     hit_distance : (N, K) float32, distance to the hit (inf where nothing was hit),
         so shadow fractions can ignore occluders beyond a local light
+    hit_triangle : (N, K) int32, the hit triangle (of its object) where the hit object
+        is in vertex mode; None when the scene has no vertex-mode object
     """
 
     directions: np.ndarray
     hit_object: np.ndarray
     hit_uv: np.ndarray
     hit_distance: np.ndarray
+    hit_triangle: np.ndarray | None = None
     rays_cast: int = 0
     rays_below_horizon: int = 0
     backface_hits: int = 0
@@ -50,12 +54,13 @@ class VisibilityTable:
 
     @property
     def nbytes(self) -> int:
-        return self.hit_object.nbytes + self.hit_uv.nbytes + self.hit_distance.nbytes
+        extra = self.hit_triangle.nbytes if self.hit_triangle is not None else 0
+        return self.hit_object.nbytes + self.hit_uv.nbytes + self.hit_distance.nbytes + extra
 
 
-def table_bytes(directions: int, samples: int) -> int:
+def table_bytes(directions: int, samples: int, vertex_objects: bool = False) -> int:
     """Memory the table of ``samples`` samples needs, for refusing before allocating."""
-    return directions * samples * (2 + 8 + 4)
+    return directions * samples * (2 + 8 + 4 + (4 if vertex_objects else 0))
 
 
 @dataclass
@@ -65,6 +70,7 @@ class _Geometry:
     corner_uv: np.ndarray  # (T, 3, 2) float32
     triangle_offset: np.ndarray  # (objects,) int64
     face_normals: np.ndarray  # (T, 3) float64
+    vertex_object: np.ndarray | None = None  # (objects,) bool, objects in vertex mode
 
 
 def _record(table: dict, geometry: _Geometry, directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -90,6 +96,12 @@ def _record(table: dict, geometry: _Geometry, directions: np.ndarray, rows: np.n
     v = bary[hit, 1:2]
     uv = geometry.corner_uv[global_triangle]
     landing = (1.0 - u - v) * uv[:, 0] + u * uv[:, 1] + v * uv[:, 2]
+    if geometry.vertex_object is not None:
+        # A vertex-mode object keeps where in the triangle the ray landed, not an atlas
+        # coordinate: its light is the mix of the triangle's three samples.
+        on_vertices = geometry.vertex_object[hit_geometry[hit]]
+        landing = np.where(on_vertices[:, None], bary[hit], landing)
+        table["hit_triangle"][rows[hit], cols[hit]] = np.where(on_vertices & ~back, triangle[hit], 0)
     table["hit_object"][rows[hit], cols[hit]] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
     table["hit_uv"][rows[hit], cols[hit]] = np.where(back[:, None], 0.0, landing)
     table["hit_distance"][rows[hit], cols[hit]] = distance[hit]
@@ -109,21 +121,32 @@ def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
     hit_object = arrays["hit_object"]
     backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
     return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv=arrays["hit_uv"],
-                           hit_distance=arrays["hit_distance"], rays_cast=int(counters["rays_cast"]),
+                           hit_distance=arrays["hit_distance"], hit_triangle=arrays.get("hit_triangle"),
+                           rays_cast=int(counters["rays_cast"]),
                            rays_below_horizon=int(counters["rays_below_horizon"]),
                            backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
                            traced_per_sample=arrays["traced_per_sample"])
 
 
-def _empty_arrays(count: int, samples: int) -> dict:
-    return {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
-            "hit_uv": np.zeros((count, samples, 2), np.float32),
-            "hit_distance": np.full((count, samples), np.inf, np.float32)}
+def _vertex_mask(vertex_object) -> np.ndarray | None:
+    if vertex_object is None or not np.any(vertex_object):
+        return None
+    return np.asarray(vertex_object, bool)
+
+
+def _empty_arrays(count: int, samples: int, vertex_objects: bool = False) -> dict:
+    arrays = {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
+              "hit_uv": np.zeros((count, samples, 2), np.float32),
+              "hit_distance": np.full((count, samples), np.inf, np.float32)}
+    if vertex_objects:
+        arrays["hit_triangle"] = np.zeros((count, samples), np.int32)
+    return arrays
 
 
 def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarray,
                 geometric_normals: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
-                face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None) -> VisibilityTable:
+                face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None,
+                vertex_object: np.ndarray | None = None) -> VisibilityTable:
     """Trace every (sample, direction) pair above the sample's horizon.
 
     Parameters
@@ -136,6 +159,8 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
     face_normals : (T, 3) float64 unit face normals, concatenated like corner_uv
     chunk_rays : rays per batch (bounds memory)
     progress : callable(fraction) or None; may raise to cancel
+    vertex_object : (objects,) bool or None, objects whose hits keep triangle and
+        barycentrics (``hit_triangle``) instead of an atlas coordinate
 
     Returns
     -------
@@ -143,8 +168,9 @@ def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarr
     """
     count = len(directions)
     samples = len(positions)
-    arrays = _empty_arrays(count, samples)
-    geometry = _Geometry(corner_uv, triangle_offset, face_normals)
+    vertex_object = _vertex_mask(vertex_object)
+    arrays = _empty_arrays(count, samples, vertex_object is not None)
+    geometry = _Geometry(corner_uv, triangle_offset, face_normals, vertex_object)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     chunk = max(1, chunk_rays // max(count, 1))
@@ -205,7 +231,8 @@ def _may_hit_spheres(origins: np.ndarray, directions: np.ndarray, spheres) -> np
 def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RayScene, changed_scene: RayScene,
                  changed: list[int], directions: np.ndarray, positions: np.ndarray, geometric_normals: np.ndarray,
                  sample_offset: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
-                 face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None):
+                 face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None,
+                 vertex_object: np.ndarray | None = None):
     """The table after some objects changed, reusing every entry that cannot have changed.
 
     ``old``'s arrays are updated in place when the sample layout is unchanged.
@@ -233,13 +260,16 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
     count = len(directions)
     samples = len(positions)
     objects = len(sample_offset) - 1
+    vertex_object = _vertex_mask(vertex_object)
     in_place = np.array_equal(old_offset, sample_offset)
     if in_place:
         # Same layout (a moved object keeps its samples): update the old arrays where they are.
         arrays = {"hit_object": old.hit_object, "hit_uv": old.hit_uv, "hit_distance": old.hit_distance}
+        if vertex_object is not None:
+            arrays["hit_triangle"] = old.hit_triangle
     else:
-        arrays = _empty_arrays(count, samples)
-    geometry = _Geometry(corner_uv, triangle_offset, face_normals)
+        arrays = _empty_arrays(count, samples, vertex_object is not None)
+    geometry = _Geometry(corner_uv, triangle_offset, face_normals, vertex_object)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
@@ -261,12 +291,16 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
                 arrays["hit_object"][:, cols] = BELOW_HORIZON
                 arrays["hit_uv"][:, cols] = 0.0
                 arrays["hit_distance"][:, cols] = np.inf
+                if "hit_triangle" in arrays:
+                    arrays["hit_triangle"][:, cols] = 0
         else:
             if not in_place:
                 old_start = int(old_offset[index]) + start - int(sample_offset[index])
                 old_cols = slice(old_start, old_start + stop - start)
                 for name in arrays:
-                    arrays[name][:, cols] = getattr(old, name)[:, old_cols]
+                    previous = getattr(old, name)
+                    if previous is not None:  # no hit_triangle before: nothing hit a vertex object
+                        arrays[name][:, cols] = previous[:, old_cols]
             code = arrays["hit_object"][:, cols]
             hit_changed = np.zeros(code.shape, bool)
             hits = code >= 0
