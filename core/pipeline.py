@@ -287,7 +287,8 @@ class Prepared:
             image = np.zeros((samples.height * samples.width, values.shape[1]), np.float32)
             image[samples.pixel] = values[a:b]
             image = image.reshape(samples.height, samples.width, values.shape[1])
-            image, _ = self.timed_dilate(image, samples.coverage, margin)
+            if not samples.coverage.all():  # a vertex-mode object covers its whole one-row "atlas"
+                image, _ = self.timed_dilate(image, samples.coverage, margin)
             images.append(image)
         return self.layout.pack(images)
 

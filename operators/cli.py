@@ -220,7 +220,8 @@ def run(args) -> int:
 
         started = time.perf_counter()
         render_path = os.path.join(out_dir, "preview_render.png")
-        uv_maps = {entry["name"]: entry["uv_map"] for entry in report["objects"] if entry["output"]}
+        uv_maps = {entry["name"]: entry["uv_map"] for entry in report["objects"]
+                   if entry["output"] and entry.get("mode", "atlas") == "atlas"}
         if preview.render_baked_preview(scene, list(uv_maps), render_path, uv_maps):
             report["files"].append(render_path)
         report["stage_seconds"]["preview_render"] = round(time.perf_counter() - started, 4)
@@ -238,8 +239,11 @@ def format_summary(report: dict) -> str:
                  f"shadows {settings['shadows']}, passes {','.join(settings['passes'])}")
     for entry in report["objects"]:
         role = "baked" if entry["output"] else "occluder"
-        lines.append(f"  {entry['name']:<16} {role:<8} {entry['resolution'][0]}x{entry['resolution'][1]} "
-                     f"{entry['texels']:>8} texels  UV map {entry['uv_map']}")
+        if entry.get("mode") == "vertex":
+            lines.append(f"  {entry['name']:<16} {role:<8} vertex   {entry['texels']:>8} samples ({entry['layout_reason']})")
+        else:
+            lines.append(f"  {entry['name']:<16} {role:<8} {entry['resolution'][0]}x{entry['resolution'][1]} "
+                         f"{entry['texels']:>8} texels  UV map {entry['uv_map']}")
     rays = report["rays"]
     lines.append(f"  rays: {rays['visibility_cast']} traced, {rays['visibility_skipped_below_horizon']} skipped "
                  f"below the horizon, {rays['shadow_rays']} shadow rays")

@@ -145,6 +145,7 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
         material_index = _read(mesh.loop_triangles, "material_index", count, 1, np.int32)
         normals = _read(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float64)
         uv_maps = mesh_corner_uv(mesh, loops)
+        vertex_count, loop_count = len(mesh.vertices), len(mesh.loops)
         default_uv = next((layer.name for layer in mesh.uv_layers if layer.active_render), "")
         materials = [read_material(slot.material, default_uv, warnings) for slot in evaluated.material_slots]
     finally:
@@ -166,7 +167,8 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
     return Mesh(name=obj.name, positions=positions, triangles=triangles, corner_normals=corner_normals,
                 material_index=material_index, materials=materials, uv_maps=uv_maps,
                 bake_uv_map=bake_uv_map, resolution=resolution, output=output,
-                light_group=getattr(obj, "lightgroup", ""))
+                light_group=getattr(obj, "lightgroup", ""), corner_loops=loops, vertex_count=vertex_count,
+                loop_count=loop_count)
 
 
 def read_light(obj: bpy.types.Object) -> Light:

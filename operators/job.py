@@ -108,15 +108,7 @@ def extract_scene(context, objects, progress=None) -> Extracted:
                 warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
                 continue
             try:
-                # Checked before any work at the planned size: validating a UV map
-                # rasterises it at the bake resolution.
-                planned.append(layout.planned_resolution(obj, props, mesh.positions, mesh.triangles))
-                check_budget(planned, directions)
-                plan = layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
-                if plan.created:
-                    created.append((obj.data, plan.uv_map))
-                planned[-1] = plan.resolution
-                check_budget(planned, directions)
+                plan = _plan(obj, mesh, props, planned, directions, created)
             except ValueError as error:
                 raise BakeInputError(str(error)) from None
             plans[obj.name] = plan
@@ -135,7 +127,7 @@ def extract_scene(context, objects, progress=None) -> Extracted:
             meshes = [again.get(mesh.name, mesh) for mesh in meshes]
         for mesh in meshes:
             plan = plans[mesh.name]
-            mesh.bake_uv_map, mesh.resolution = plan.uv_map, plan.resolution
+            mesh.bake_uv_map, mesh.resolution, mesh.mode = plan.uv_map, plan.resolution, plan.mode
             if plan.internal_uv is not None:
                 mesh.uv_maps[plan.uv_map] = plan.internal_uv
         world = extract.read_world(scene, warnings)
@@ -149,6 +141,54 @@ def extract_scene(context, objects, progress=None) -> Extracted:
         layout.remove_created_uv_maps(created)
         raise
     return Extracted(core_scene, plans, created, warnings, times)
+
+
+def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> layout.LayoutPlan:
+    """The layout of one object: an atlas (its UV map, or one unwrapped now) or vertex tables.
+
+    Mode vertex always takes vertex tables; mode auto takes them where the mesh is too
+    dense or too big to unwrap, or where unwrapping fails; mode atlas never does.
+    """
+    if props.mode == "vertex":
+        _check_vertex_topology(obj, mesh)
+        planned.append((3 * len(mesh.triangles), 1))
+        check_budget(planned, directions)
+        return layout.vertex_plan("vertex mode was asked for")
+    if props.mode == "auto":
+        reason = layout.auto_vertex_reason(obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
+        if reason is not None:
+            planned.append((3 * len(mesh.triangles), 1))
+            check_budget(planned, directions)
+            return layout.vertex_plan(f"vertex tables: {reason}")
+    # Checked before any work at the planned size: validating a UV map rasterises it
+    # at the bake resolution.
+    planned.append(layout.planned_resolution(obj, props, mesh.positions, mesh.triangles))
+    check_budget(planned, directions)
+    try:
+        plan = layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
+    except layout.UnwrapFailed as error:
+        if props.mode != "auto" or not _vertex_topology_kept(obj, mesh):
+            raise
+        planned[-1] = (3 * len(mesh.triangles), 1)
+        check_budget(planned, directions)
+        return layout.vertex_plan(f"vertex tables: {error}")
+    if plan.created:
+        created.append((obj.data, plan.uv_map))
+    planned[-1] = plan.resolution
+    check_budget(planned, directions)
+    return plan
+
+
+def _vertex_topology_kept(obj, mesh) -> bool:
+    return mesh.vertex_count == len(obj.data.vertices) and mesh.loop_count == len(obj.data.loops)
+
+
+def _check_vertex_topology(obj, mesh) -> None:
+    if mesh.output and not _vertex_topology_kept(obj, mesh):
+        raise BakeInputError(
+            f"object {obj.name!r}: vertex mode writes colour attributes on the mesh, but its modifiers change "
+            f"its vertices ({len(obj.data.vertices)} -> {mesh.vertex_count}) or corners; apply the modifiers "
+            "or use mode atlas")
 
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
@@ -170,8 +210,6 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     """
     scene = context.scene
     props = scene.visibake
-    if props.mode == "vertex":
-        raise BakeInputError("vertex mode is not implemented yet; use mode atlas or auto")
     if not objects:
         raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
     if setups is not None and not out_dir:
@@ -196,6 +234,10 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     cache = visibility_cache(scene)
     try:
         try:
+            if setups is None:
+                writeback.check_attribute_names(
+                    [o for o in objects if o.name in extracted.plans and extracted.plans[o.name].mode == "vertex"],
+                    settings.passes)
             lightings = [(None, extracted.scene.lights, extracted.scene.world)]
             if setups is not None:
                 lightings = [(s.name, s.lights, s.world) for s in setups(extracted.scene.lights, extracted.scene.world)]
@@ -207,8 +249,11 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
             relit = relight_many(prepared, [(lights, world) for _, lights, world in lightings], progress)
             results = [(name, result) for (name, _, _), result in zip(lightings, relit)]
             if setups is None:
+                first = results[0][1].objects
                 writeback.check_image_names(writeback.image_name(o.name, p)
-                                            for o in results[0][1].objects for p in o.images)
+                                            for o in first if o.domain is None for p in o.images)
+                writeback.check_attribute_names([bpy.data.objects[o.name] for o in first if o.domain is not None],
+                                                {p for o in first if o.domain is not None for p in o.images})
         except ValueError as error:
             raise BakeInputError(str(error)) from None
     except BaseException:
@@ -237,7 +282,8 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     for entry in report["objects"]:
         plan = plans.get(entry["name"])
         if plan is not None:
-            entry["uv_map_reason"] = plan.reason
+            entry["mode"] = plan.mode
+            entry["layout_reason"] = plan.reason
             entry["uv_map_created"] = plan.created
     report["blender_version"] = bpy.app.version_string
     report["lights"] = [light.name for light in lightings[-1][1]]

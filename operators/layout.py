@@ -25,6 +25,20 @@ class LayoutError(ValueError):
     """An object cannot get a bake layout; the message says why."""
 
 
+class UnwrapFailed(LayoutError):
+    """xatlas could not unwrap the object (mode auto then falls back to vertex tables)."""
+
+
+# Mode auto leaves the unwrap to vertex tables above this many triangles: xatlas took
+# ~2 s at 20k and ~140 s at 180k triangles (growing faster than linearly) on a 2-core
+# machine, so 100k triangles keeps an unwrap under about a minute.
+UNWRAP_TRIANGLE_BUDGET = 100_000
+# "Dense" needs many vertices as well as close ones: a low-poly object at a draft
+# resolution (a quad at 1 x 1 texels) has vertices farther apart than a texel's size
+# too, but an artist still expects an image for it.
+DENSE_MIN_VERTICES = 1024
+
+
 @dataclass
 class LayoutPlan:
     """How one object is laid out: the UV map to bake on and why it was chosen."""
@@ -35,6 +49,40 @@ class LayoutPlan:
     internal_uv: np.ndarray | None = None  # (m, 3, 2) for objects that get no UV map written
     created: bool = False  # the UV map did not exist before this bake
     written: bool = False  # the UV map was (re)written by this bake
+    mode: str = "atlas"  # or "vertex": samples at vertices, results as colour attributes
+
+
+def vertex_plan(reason: str) -> LayoutPlan:
+    return LayoutPlan(uv_map="", resolution=(0, 0), reason=reason, mode="vertex")
+
+
+def auto_vertex_reason(obj, evaluated_positions, evaluated_triangles, evaluated_loop_count: int,
+                       settings) -> str | None:
+    """Why mode auto should bake ``obj`` with vertex tables before trying an atlas, or None.
+
+    Only where the results can be written to the mesh: vertex colours live on the base
+    mesh, so its modifiers must keep the vertices and corners as they are.
+    """
+    mesh = obj.data
+    if len(evaluated_positions) != len(mesh.vertices) or evaluated_loop_count != len(mesh.loops):
+        return None
+    triangles = len(evaluated_triangles)
+    if triangles > UNWRAP_TRIANGLE_BUDGET:
+        return (f"{triangles} triangles: unwrapping would take over a minute (the budget is "
+                f"{UNWRAP_TRIANGLE_BUDGET} triangles)")
+    corners = evaluated_positions[evaluated_triangles]
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    edges = edges[np.isfinite(edges) & (edges > 0)]
+    area = float(np.sum(_triangle_areas(corners)))
+    resolution = object_resolution(obj, settings, area, TYPICAL_PACKED_UV_AREA)
+    if len(edges) == 0 or area <= 0:
+        return None
+    texel = np.sqrt(area / (TYPICAL_PACKED_UV_AREA * resolution[0] * resolution[1]))
+    spacing = float(np.median(edges))
+    if spacing < texel and len(evaluated_positions) >= DENSE_MIN_VERTICES:
+        return (f"its vertices are {spacing:.3g} apart, finer than a texel ({texel:.3g}) at "
+                f"{resolution[0]}x{resolution[1]}")
+    return None
 
 
 def owns_uv_map(mesh: bpy.types.Mesh, name: str) -> bool:
@@ -108,7 +156,7 @@ def _unwrap(obj, positions, triangles, resolution):
     try:
         return unwrap(positions, triangles, resolution)
     except (RuntimeError, ValueError) as error:
-        raise LayoutError(f"object {obj.name!r}: unwrapping failed at {resolution}x{resolution} ({error}); "
+        raise UnwrapFailed(f"object {obj.name!r}: unwrapping failed at {resolution}x{resolution} ({error}); "
                           "raise its resolution") from None
 
 

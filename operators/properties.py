@@ -29,9 +29,10 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         description="If above zero, size each atlas from the object's surface area instead of Resolution")
     mode: bpy.props.EnumProperty(
         name="Mode", default="auto",
-        items=[("auto", "Auto", "Texture atlas; vertex tables where unwrapping fails"),
+        items=[("auto", "Auto", "Texture atlas; vertex tables for meshes too dense or too big to unwrap, "
+                "or where unwrapping fails"),
                ("atlas", "Atlas", "Texture atlas (UV map), results as images"),
-               ("vertex", "Vertex", "Per-vertex tables, results as colour attributes (not implemented yet)")],
+               ("vertex", "Vertex", "Per-vertex tables, results as colour attributes VB_<pass>")],
         description="Where samples live")
     bake_all: bpy.props.BoolProperty(
         name="All Objects", default=False,
@@ -55,6 +56,11 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="Light Groups", default=False,
         description="Also write every lighting pass per light group (a lamp's Light Group, else each lamp; the world; "
                     "each emitting object), so lights can be re-mixed without another bake")
+    vertex_lookup: bpy.props.EnumProperty(
+        name="Vertex Lookup", default="interpolate",
+        items=[("interpolate", "Interpolate", "Mix the three vertices of the triangle a ray lands on"),
+               ("nearest", "Nearest", "The paper's variant: the nearest vertex of that triangle")],
+        description="How light is read where a ray lands on a vertex-mode object")
     output_dir: bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")
@@ -62,7 +68,8 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     def to_bake_settings(self) -> BakeSettings:
         return BakeSettings(directions=self.directions, bounces=self.bounces, shadows=self.shadows,
                             rotate=self.rotate, seed=self.seed, margin=self.margin,
-                            passes=tuple(p for p in PASSES if p in self.passes), light_groups=self.light_groups)
+                            passes=tuple(p for p in PASSES if p in self.passes), light_groups=self.light_groups,
+                            vertex_lookup=self.vertex_lookup)
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

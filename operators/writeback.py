@@ -77,6 +77,49 @@ def save_png(path: str, pixels: np.ndarray) -> None:
         bpy.data.images.remove(image)
 
 
+OWNED_ATTRIBUTES_KEY = "visibake_color_attributes"
+
+
+def attribute_name(pass_name: str) -> str:
+    return f"VB_{pass_name}"
+
+
+def owned_attribute(mesh: bpy.types.Mesh, name: str):
+    """VisiBake's colour attribute ``name`` on ``mesh``, None if there is none.
+
+    Raises ValueError if an attribute of that name exists that VisiBake did not create.
+    """
+    attribute = mesh.attributes.get(name)
+    if attribute is None:
+        return None
+    if name not in list(mesh.get(OWNED_ATTRIBUTES_KEY, [])):
+        raise ValueError(f"mesh {mesh.name!r} has an attribute {name!r} that VisiBake did not create; rename it "
+                         "to let VisiBake write its pass")
+    return attribute
+
+
+def check_attribute_names(objects, passes) -> None:
+    """Fail before a bake, not after it, if a vertex-mode result could not be written."""
+    for obj in objects:
+        for pass_name in passes:
+            owned_attribute(obj.data, attribute_name(pass_name))
+
+
+def store_colors(obj: bpy.types.Object, pass_name: str, colors: np.ndarray, domain: str) -> None:
+    """Create or update VisiBake's FLOAT_COLOR attribute ``VB_<pass>`` on the object's mesh."""
+    mesh = obj.data
+    name = attribute_name(pass_name)
+    attribute = owned_attribute(mesh, name)
+    if attribute is not None and (attribute.domain != domain or attribute.data_type != "FLOAT_COLOR"):
+        mesh.attributes.remove(attribute)
+        attribute = None
+    if attribute is None:
+        attribute = mesh.color_attributes.new(name, "FLOAT_COLOR", domain)
+        mesh[OWNED_ATTRIBUTES_KEY] = sorted(set(mesh.get(OWNED_ATTRIBUTES_KEY, [])) | {name})
+    attribute.data.foreach_set("color", np.ascontiguousarray(colors, np.float32).ravel())
+    mesh.update()
+
+
 def write_outputs(results, out_dir: str | None, previews: bool, store_images: bool = True) -> list[str]:
     """Store every pass as an image datablock (unless not ``store_images``) and, with ``out_dir``, as files.
 
@@ -84,6 +127,12 @@ def write_outputs(results, out_dir: str | None, previews: bool, store_images: bo
     """
     files = []
     for result in results:
+        if result.domain is not None:
+            # Vertex mode: colour attributes on the mesh; no image files.
+            if store_images:
+                for pass_name, colors in result.images.items():
+                    store_colors(bpy.data.objects[result.name], pass_name, colors, result.domain)
+            continue
         for pass_name, pixels in result.images.items():
             if store_images:
                 store_image(image_name(result.name, pass_name), pixels)

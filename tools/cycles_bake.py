@@ -17,6 +17,9 @@ Diffuse Roughness = 0, the default):
     Diffuse BSDF roughness 0                              ratio 1.00000
 The specular layer takes its albedo off the diffuse weight, so with default
 Principled materials Cycles is ~1.4% (Roughness 1) darker than rho * E / pi.
+Objects without a material: Cycles' own default surface (a default Principled, Roughness
+0.5) bakes 0.96262 * 0.8 * E / pi (sun 0 deg, vertex bake); both bakes here give such
+objects and empty slots a temporary Specular-IOR-Level-0 Principled instead: exactly 0.8.
 
 Sun, strength S:           E = S * cos(theta).      S=3, angle 0: 0 deg 0.954929 vs
                            0.954930, 60 deg 0.477465 vs 0.477465 (no noise at all: a
@@ -61,32 +64,32 @@ triangle covers stay (0, 0, 0, 0), so alpha > 0 is the coverage mask. Margins us
 margin_type EXTEND (copies, alpha 1); the default ADJACENT_FACES fades the margin of an
 island without UV neighbours to half value and half alpha.
 
-Vertex colours (bake_diffuse_vertex_colors, target VERTEX_COLORS). Blender bakes one
-"pixel" per face corner at the corner's vertex (barycentric (1, 0), (0, 1) or (0, 0) of the
-first triangle using that corner) with zero differentials, so there is NO jitter: 1 and 16
-spp give identical values (to 1e-7) under a point light. Cycles then nudges the point
-towards the triangle's centroid by min(|to centroid|, 1e-4 * max(1, max |P|_world)) to
-avoid self-intersection. Near the origin that is 1e-4 m: a point light P=100 0.3 m above a
-4 x 4 grid vertex gives ratio 1.0000000 at the vertex below it and 0.99995-1.00035 over
-the grid. The nudge grows with distance from the world origin: the same scene at x = 100 m
-is off by up to 4% (ratio 0.9983 under the light = a 1 cm nudge), at x = 1000 m by up to
-43% (0.8537 = 10 cm), so keep vertex-mode test scenes near the origin. Values are
-rho * E / pi as for images: an 8 x 8 grid under a sun S=2, rho 0.6 gives 0.38197187
-(0 deg) and 0.19098592 (60 deg) at every vertex and corner, alpha 1 (0 ulp-level error).
-CORNER = one value per loop, shaded with that face's normal when flat shaded (a flat cube
-under a 30 deg sun: corners = rho*S*max(cos_face, 0)/pi to 3e-8), with the interpolated
-vertex normal when smooth. POINT = the plain mean of the vertex's corners (Blender
-averages them after the bake), so a flat-shaded cube corner gets the mean of its three
-faces, not the value for the vertex normal; use smooth shading (or CORNER) to compare
-with a per-vertex-normal evaluation. Corners of one vertex share one random sequence
-(seed = vertex index): their values differ by 3e-4 relative where the noise is 0.6%, so
-POINT averaging does not reduce noise. With modifiers the evaluated mesh is baked and each
-original corner takes the first evaluated corner at the same original vertex and face
-(subdivision: the limit-surface position and normal); corners with no match stay 0 and
-are averaged into POINT as 0. One bake call bakes every selected object, each into its
-own mesh's active colour attribute (Blender's mesh.active_color_attribute; it must be a
-colour attribute on POINT or CORNER); objects sharing a mesh must be baked in separate
-calls. Cost: ~0.015 s per object for small meshes (10 grids, 16 spp: 0.15 s).
+Vertex colours (bake_diffuse_vertex_colors, bake target VERTEX_COLORS). Blender bakes
+one "pixel" per face corner, at the corner's vertex (barycentric (1, 0), (0, 1) or (0, 0)
+of the first triangle using that corner) with zero differentials: NO jitter, 1 and 16 spp
+give identical values (to 1e-7) under a point light. Cycles nudges that point towards the
+triangle's centroid by min(|to centroid|, 1e-4 * max(1, max |P|_world)) against
+self-intersection: 1e-4 m near the origin. Point light P=100 0.3 m above a vertex of a
+2 x 2 m, 4 x 4 segment grid: ratio to rho*E/pi at the vertex 1.0000000 below the light,
+0.99995-1.00035 over the grid. The nudge grows with the distance from the world origin:
+the same scene at x = 100 m is off by up to 4% (0.9983 below the light = a 1 cm nudge), at
+x = 1000 m by up to 43% (0.8537 = 10 cm); keep vertex-mode test scenes near the origin.
+Units as for images: an 8 x 8 segment grid, rho 0.6, sun S=2 gives 0.38197187 (0 deg) and
+0.19098592 (60 deg) at every vertex and corner (float32 rounding only), alpha 1.
+CORNER: one value per loop, shaded with the face normal when flat shaded (a flat cube
+under a 30 deg sun: rho*S*max(cos_face, 0)/pi to 3e-8), with the interpolated vertex
+normal when smooth. POINT: the plain mean of the vertex's corners (Blender averages after
+the bake), so a flat-shaded cube corner gets the mean of its three faces, not the value
+for its vertex normal; compare per-vertex-normal evaluations with smooth-shaded meshes or
+with CORNER. Corners of one vertex share one random sequence (seed = vertex index): they
+differ by 3e-4 relative where the noise is 0.6% (area light, 16 spp), so POINT averaging
+does not reduce noise. Modifiers: the evaluated mesh is baked and each original corner
+takes the first evaluated corner at the same original vertex and face (subdivision: limit
+surface position and normal); from the source, unmatched corners get (0, 0, 0, 1) and
+count as such in POINT means, vertices without faces get 0. One bake call bakes every
+selected object in turn into its own mesh's active colour attribute (Blender's
+mesh.active_color_attribute, a colour attribute on POINT or CORNER), so objects sharing a
+mesh need separate calls. Cost: ~0.015 s per small object (10 grids, 16 spp: 0.15 s).
 
 Cost: one bake call costs ~0.07 s of scene sync per object even when several objects
 are baked in one call. The demo room (10 objects, 5.1k triangles), 64 x 64 per object,
@@ -228,6 +231,48 @@ def _material_groups(objects: Sequence[bpy.types.Object]) -> list[list[bpy.types
 
 
 @contextlib.contextmanager
+def _fallback_materials(objects: Sequence[bpy.types.Object]) -> Iterator[None]:
+    """Give material-less objects and empty slots a temporary 0.8 grey Lambert material.
+
+    Cycles' own default surface is a default Principled BSDF (specular layer on), 3.7%
+    darker than 0.8 / pi under a sun; VisiBake treats a missing material as a 0.8 Lambert,
+    and image bakes need a node tree to find their target. On exit every slot is emptied
+    again and the materials are removed.
+    """
+    fallback: list[bpy.types.Material] = []
+    emptied_slots: list[bpy.types.MaterialSlot] = []
+    appended_meshes: list[bpy.types.Mesh] = []
+    try:
+        for ob in objects:
+            mesh = ob.data
+            if not ob.material_slots:
+                mat = bpy.data.materials.new(".visibake_ref_default")
+                fallback.append(mat)
+                mesh.materials.append(mat)
+                appended_meshes.append(mesh)
+            for slot in ob.material_slots:
+                if slot.material is None:
+                    mat = bpy.data.materials.new(".visibake_ref_default")
+                    fallback.append(mat)
+                    slot.material = mat
+                    emptied_slots.append(slot)
+        for mat in fallback:
+            bsdf = mat.node_tree.nodes.get("Principled BSDF")
+            if bsdf is not None:
+                bsdf.inputs["Specular IOR Level"].default_value = 0.0
+        yield
+    finally:
+        for slot in emptied_slots:
+            slot.material = None
+        for mesh in appended_meshes:
+            # pop() leaves the object's slot count behind; the mesh had no
+            # materials before, and clear() resyncs the objects using it.
+            mesh.materials.clear()
+        for mat in fallback:
+            bpy.data.materials.remove(mat)
+
+
+@contextlib.contextmanager
 def _bake_targets(
     objects: Sequence[bpy.types.Object], uv_map: str, width: int, height: int
 ) -> Iterator[dict[str, bpy.types.Image]]:
@@ -238,9 +283,6 @@ def _bake_targets(
     """
     r = _Restorer()
     images: list[bpy.types.Image] = []
-    fallback: list[bpy.types.Material] = []
-    emptied_slots: list[bpy.types.MaterialSlot] = []
-    appended_meshes: list[bpy.types.Mesh] = []
     targets: dict[str, bpy.types.Image] = {}
     try:
         for ob in objects:
@@ -260,35 +302,10 @@ def _bake_targets(
             img.colorspace_settings.name = "Non-Color"
             images.append(img)
             targets[ob.name] = img
-
-            if not ob.material_slots:
-                # Cycles shades material-less objects with a plain 0.8 grey diffuse;
-                # bake needs a node tree to find its target, so mimic that shader.
-                mat = bpy.data.materials.new(".visibake_ref_default")
-                fallback.append(mat)
-                mesh.materials.append(mat)
-                appended_meshes.append(mesh)
-            for slot in ob.material_slots:
-                if slot.material is None:
-                    mat = bpy.data.materials.new(".visibake_ref_default")
-                    fallback.append(mat)
-                    slot.material = mat
-                    emptied_slots.append(slot)
-        for mat in fallback:
-            bsdf = mat.node_tree.nodes.get("Principled BSDF")
-            if bsdf is not None:
-                bsdf.inputs["Specular IOR Level"].default_value = 0.0
-        yield targets
+        with _fallback_materials(objects):
+            yield targets
     finally:
-        for slot in emptied_slots:
-            slot.material = None
-        for mesh in appended_meshes:
-            # pop() leaves the object's slot count behind; the mesh had no
-            # materials before, and clear() resyncs the objects using it.
-            mesh.materials.clear()
         r.restore()
-        for mat in fallback:
-            bpy.data.materials.remove(mat)
         for img in images:
             bpy.data.images.remove(img)
 
@@ -468,7 +485,7 @@ def bake_diffuse_vertex_colors(
     Returns
     -------
     {object name: (n, 4) float32}, n = len(mesh.vertices) for 'POINT' and
-    len(mesh.loops) for 'CORNER'; alpha is 1 wherever Cycles baked a value.
+    len(mesh.loops) for 'CORNER'; alpha is 1 (0 only at vertices without faces).
 
     The scene is left as it was: the temporary attributes are removed, the active and
     render colour attributes are restored and the user's own attributes are never
@@ -486,7 +503,7 @@ def bake_diffuse_vertex_colors(
     passes = set(pass_filter)
     out: dict[str, np.ndarray] = {}
     with reference_settings(scene, bounces, samples, 0, seed, threads, target="VERTEX_COLORS"), \
-            _color_targets(objects, domain) as names:
+            _color_targets(objects, domain) as names, _fallback_materials(objects):
         # One bake call bakes every selected object in turn, each into its mesh's active
         # colour; objects sharing a mesh would overwrite each other, so they go apart.
         for group in _disjoint_groups(objects, lambda ob: {ob.data.name}):

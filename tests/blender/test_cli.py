@@ -28,7 +28,6 @@ def small_blend(clean_scene, tmp_path):
     (["bake", "{blend}", "--directions", "0"], "directions"),
     (["bake", "{blend}", "--passes", "lighting,shine"], "shine"),
     (["bake", "{blend}", "--objects", "Nope"], "Nope"),
-    (["bake", "{blend}", "--mode", "vertex"], "not implemented"),
     (["bake", "{blend}", "--resolution", "-3"], "resolution"),
     (["bake", "{blend}", "--shadows", "soft"], "invalid choice"),
     (["bake", "{blend}", "--texel-density", "-2"], "texel-density"),

@@ -1,0 +1,113 @@
+"""Vertex-table mode in real bpy: colour attributes, domains, mode auto, and what it refuses."""
+import json
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only
+
+
+def _settings(mode="vertex", passes=("lighting",), bounces=0):
+    props = bpy.context.scene.visibake
+    props.mode, props.directions, props.bounces, props.resolution = mode, 32, bounces, 32
+    props.passes = set(passes)
+    props.bake_all = False
+    props.use_cache = False
+    return props
+
+
+def _colors(obj, name="VB_lighting"):
+    attribute = obj.data.color_attributes[name]
+    values = np.empty(len(attribute.data) * 4, np.float32)
+    attribute.data.foreach_get("color", values)
+    return attribute.domain, values.reshape(-1, 4)
+
+
+def _report():
+    return json.loads(bpy.context.scene["visibake_report"])
+
+
+def test_plane_vertices_get_the_analytic_direct_light(clean_scene):
+    black_world()
+    plane = mesh_object("Plane", grid(1.0, segments=6), material("White", (0.6, 0.6, 0.6)))
+    point(300.0, (0.3, -0.2, 1.5), name="Lamp")
+    user = plane.data.color_attributes.new("Paint", "BYTE_COLOR", "POINT")
+    user.data[0].color = (0.25, 0.5, 0.75, 1.0)
+    _settings()
+    select_only([plane])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    domain, colors = _colors(plane)
+    assert domain == "POINT" and len(colors) == len(plane.data.vertices)
+    positions = np.array([v.co for v in plane.data.vertices])
+    offset = np.array([0.3, -0.2, 1.5]) - positions
+    distance = np.linalg.norm(offset, axis=1)
+    expected = 0.6 / np.pi * 300.0 / (4 * np.pi) * offset[:, 2] / distance ** 3
+    np.testing.assert_allclose(colors[:, 0], expected, rtol=1e-5)
+    np.testing.assert_array_equal(colors[:, 3], 1.0)
+    # The user's attribute is untouched; no image or UV map was made.
+    assert tuple(plane.data.color_attributes["Paint"].data[0].color) == pytest.approx((0.25, 0.5, 0.75, 1.0),
+                                                                                    abs=1 / 255)
+    assert "VisiBake" not in plane.data.uv_layers and "VB_Plane_lighting" not in bpy.data.images
+    entry = next(o for o in _report()["objects"] if o["name"] == "Plane")
+    assert entry["mode"] == "vertex" and "asked for" in entry["layout_reason"]
+
+
+def test_flat_shaded_cube_is_baked_per_corner(clean_scene):
+    black_world()
+    box = mesh_object("Box", cube(1.0), material("Grey", (0.5, 0.5, 0.5)), uv_map=None)
+    point(200.0, (1.5, -1.0, 2.0), name="Lamp")
+    _settings(bounces=1)
+    select_only([box])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    domain, colors = _colors(box)
+    assert domain == "CORNER" and len(colors) == len(box.data.loops)
+    # Each face's corners carry that face's light: the top face's four corners share a
+    # normal, and face corners at one vertex differ between faces.
+    assert np.all(np.isfinite(colors)) and colors[:, :3].max() > 0
+    by_vertex = {}
+    for loop in box.data.loops:
+        by_vertex.setdefault(loop.vertex_index, []).append(colors[loop.index, 0])
+    assert any(np.ptp(values) > 1e-3 for values in by_vertex.values())
+
+
+def test_a_user_attribute_named_like_a_result_is_never_overwritten(clean_scene):
+    black_world()
+    plane = mesh_object("Plane", grid(1.0, segments=2), material("White", (0.6, 0.6, 0.6)))
+    point(100.0, (0.0, 0.0, 1.0), name="Lamp")
+    mine = plane.data.color_attributes.new("VB_lighting", "FLOAT_COLOR", "POINT")
+    mine.data[0].color = (0.1, 0.2, 0.3, 1.0)
+    _settings()
+    select_only([plane])
+    with pytest.raises(RuntimeError, match="did not create"):
+        bpy.ops.visibake.bake()
+    assert tuple(plane.data.color_attributes["VB_lighting"].data[0].color) == pytest.approx((0.1, 0.2, 0.3, 1.0))
+
+
+def test_modifiers_that_change_the_vertices_are_refused_in_vertex_mode(clean_scene):
+    black_world()
+    plane = mesh_object("Plane", grid(1.0, segments=2), material("White", (0.6, 0.6, 0.6)))
+    plane.modifiers.new("Subdivision", "SUBSURF")
+    point(100.0, (0.0, 0.0, 1.0), name="Lamp")
+    _settings()
+    select_only([plane])
+    with pytest.raises(RuntimeError, match="apply the modifiers or use mode atlas"):
+        bpy.ops.visibake.bake()
+    assert "VB_lighting" not in plane.data.color_attributes
+
+
+def test_auto_takes_vertex_tables_for_a_mesh_finer_than_a_texel(clean_scene):
+    black_world()
+    dense = mesh_object("Dense", grid(1.0, segments=120), material("White", (0.6, 0.6, 0.6)), uv_map=None)
+    coarse = mesh_object("Coarse", grid(1.0, segments=2), material("White", (0.6, 0.6, 0.6)),
+                         location=(3.0, 0.0, 0.0))
+    point(100.0, (0.0, 0.0, 1.0), name="Lamp")
+    _settings(mode="auto")
+    select_only([dense, coarse])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    entries = {o["name"]: o for o in _report()["objects"]}
+    assert entries["Dense"]["mode"] == "vertex" and "finer than a texel" in entries["Dense"]["layout_reason"]
+    assert entries["Coarse"]["mode"] == "atlas"
+    assert "VB_lighting" in dense.data.color_attributes and "VB_Coarse_lighting" in bpy.data.images
+    # No UV map was unwrapped for the dense mesh.
+    assert "VisiBake" not in dense.data.uv_layers
