@@ -202,6 +202,17 @@ def build_vertex_samples(mesh: Mesh) -> VertexSamples:
     np.add.at(face_sum, sample_of_corner, np.repeat(normals[used], 3, axis=0))
     normal = _normalise(normal, _normalise(face_sum, np.tile([0.0, 0.0, 1.0], (count, 1))))
     position = mesh.positions[unique_keys[:, 0]].astype(np.float64)
+    # A vertex where two objects meet (a floor's edge under a wall) lies on the other
+    # object's surface, and its rays would hit it at t = 0. Like Cycles' vertex bake,
+    # move the sample a hair towards the middle of its own triangles.
+    centres = mesh.positions[mesh.triangles[used]].mean(axis=1)
+    towards = np.zeros((count, 3))
+    np.add.at(towards, sample_of_corner, np.repeat(centres, 3, axis=0))
+    towards = towards / np.bincount(sample_of_corner, minlength=count)[:, None] - position
+    length = np.linalg.norm(towards, axis=1)
+    scale = tol.VERTEX_SAMPLE_INSET * np.maximum(1.0, np.abs(position).max(axis=1))
+    step = np.divide(np.minimum(length, scale), length, out=np.zeros_like(length), where=length > 0)
+    position = position + towards * step[:, None]
     corners_per_sample = np.bincount(sample_of_corner, minlength=count).astype(np.float64)[:, None]
     corner_albedo, corner_emission = _corner_albedo_emission(mesh, used)
     albedo = np.zeros((count, 3))

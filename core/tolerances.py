@@ -72,3 +72,8 @@ CULL_SPHERE_MARGIN = 1e-3
 # normal: smooth shading stores the same normal at every corner up to float32 rounding
 # (~1e-7), while a sharp edge splits them by far more.
 SPLIT_NORMAL_TOLERANCE = 1e-4
+
+# Vertex samples move this far (times max(1, |position|), as in Cycles' vertex-colour
+# bake) towards the middle of their triangles, off the surfaces of objects that touch
+# them; small enough to change nothing a texel-free point sample could show.
+VERTEX_SAMPLE_INSET = 1e-4

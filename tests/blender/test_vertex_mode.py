@@ -43,7 +43,9 @@ def test_plane_vertices_get_the_analytic_direct_light(clean_scene):
     offset = np.array([0.3, -0.2, 1.5]) - positions
     distance = np.linalg.norm(offset, axis=1)
     expected = 0.6 / np.pi * 300.0 / (4 * np.pi) * offset[:, 2] / distance ** 3
-    np.testing.assert_allclose(colors[:, 0], expected, rtol=1e-5)
+    # Samples sit 1e-4 towards their triangles' middle (as Cycles' vertex bake does):
+    # up to ~2e-4 relative on the inverse-square value.
+    np.testing.assert_allclose(colors[:, 0], expected, rtol=5e-4)
     np.testing.assert_array_equal(colors[:, 3], 1.0)
     # The user's attribute is untouched; no image or UV map was made.
     assert tuple(plane.data.color_attributes["Paint"].data[0].color) == pytest.approx((0.25, 0.5, 0.75, 1.0),
@@ -111,3 +113,45 @@ def test_auto_takes_vertex_tables_for_a_mesh_finer_than_a_texel(clean_scene):
     assert "VB_lighting" in dense.data.color_attributes and "VB_Coarse_lighting" in bpy.data.images
     # No UV map was unwrapped for the dense mesh.
     assert "VisiBake" not in dense.data.uv_layers
+
+
+def _room_corner(segments=16):
+    """A floor and a wall meeting at x = 1, finely tessellated, a lamp between them."""
+    black_world()
+    white = material("White", (0.8, 0.8, 0.8))
+    red = material("Red", (0.8, 0.2, 0.1))
+    floor = mesh_object("Floor", grid(1.0, segments=segments), white)
+    wall = mesh_object("Wall", grid(1.0, segments=segments), red, location=(1.0, 0.0, 1.0))
+    wall.rotation_euler = (0.0, -np.pi / 2, 0.0)  # faces -x, towards the floor's middle
+    bpy.context.view_layer.update()
+    point(150.0, (0.2, 0.3, 0.8), name="Lamp")
+    return floor, wall
+
+
+@pytest.mark.parametrize("lookup", ["interpolate", "nearest"])
+def test_vertex_colours_match_cycles(clean_scene, lookup):
+    from tools.cycles_bake import bake_diffuse_vertex_colors
+
+    floor, wall = _room_corner()
+    props = _settings(bounces=1)
+    props.directions = 256
+    props.vertex_lookup = lookup
+    select_only([floor, wall])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    reference = bake_diffuse_vertex_colors([floor, wall], bounces=1, samples=256)
+    errors = []
+    for obj in (floor, wall):
+        domain, ours = _colors(obj)
+        assert domain == "POINT"
+        theirs = reference[obj.name]
+        error = float(np.sqrt(np.mean((ours[:, :3] - theirs[:, :3]) ** 2)) / np.sqrt(np.mean(theirs[:, :3] ** 2)))
+        bias = float(ours[:, :3].mean() / theirs[:, :3].mean() - 1)
+        print(f"\nvertex mode ({lookup}), {obj.name}, N=256, Cycles 256 spp: relative RMSE {error:.4f}, "
+              f"bias {bias:+.4f}")
+        errors.append(error)
+        # Direct light is a point evaluation at the vertex on both sides (Cycles bakes
+        # vertex colours at the vertex, nudged 1e-4 as VisiBake does), so only the
+        # indirect part differs: N=256 direction error and Cycles' noise at 256 spp, a
+        # fraction of the ~10% the bounce adds. Measured 0.3-0.4%; 2% leaves room for
+        # another Cycles build, not for a misplaced sample (16% before the nudge).
+        assert error < 0.02 and abs(bias) < 0.01

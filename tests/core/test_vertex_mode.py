@@ -82,7 +82,9 @@ def test_direct_light_at_vertices_is_the_analytic_value():
     offset = lamp.position - plane.positions
     distance = np.linalg.norm(offset, axis=1)
     expected = 0.6 / np.pi * 300.0 / (4 * np.pi) * (offset[:, 2] / distance) / distance ** 2
-    np.testing.assert_allclose(colors[:, 0], expected, rtol=1e-6)
+    # Samples sit 1e-4 towards their triangles' middle (tolerances.VERTEX_SAMPLE_INSET),
+    # which moves the inverse-square value by up to ~2e-4 relative here.
+    np.testing.assert_allclose(colors[:, 0], expected, rtol=5e-4)
 
 
 def test_sharp_edges_sample_each_face_at_a_shared_vertex():
