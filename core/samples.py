@@ -203,12 +203,16 @@ def build_vertex_samples(mesh: Mesh) -> VertexSamples:
     normal = _normalise(normal, _normalise(face_sum, np.tile([0.0, 0.0, 1.0], (count, 1))))
     position = mesh.positions[unique_keys[:, 0]].astype(np.float64)
     # A vertex where two objects meet (a floor's edge under a wall) lies on the other
-    # object's surface, and its rays would hit it at t = 0. Like Cycles' vertex bake,
-    # move the sample a hair towards the middle of its own triangles.
-    centres = mesh.positions[mesh.triangles[used]].mean(axis=1)
-    towards = np.zeros((count, 3))
-    np.add.at(towards, sample_of_corner, np.repeat(centres, 3, axis=0))
-    towards = towards / np.bincount(sample_of_corner, minlength=count)[:, None] - position
+    # object's surface, and its rays would hit it at t = 0. Like Cycles' vertex bake
+    # (which moves each corner towards its triangle's middle), move the sample a hair
+    # into one of its triangles, the one facing most like its normal: it then lies on
+    # that face, in front of which its rays start. (The mean of several triangles'
+    # middles would lie behind the faces of a convex or concave vertex.)
+    facing = np.einsum("kd,kd->k", np.repeat(normals[used], 3, axis=0), normal[sample_of_corner])
+    order = np.lexsort((-facing, sample_of_corner))
+    first = order[np.r_[True, np.diff(sample_of_corner[order]) != 0]]
+    chosen_triangle = used[first // 3]
+    towards = mesh.positions[mesh.triangles[chosen_triangle]].mean(axis=1) - position
     length = np.linalg.norm(towards, axis=1)
     scale = tol.VERTEX_SAMPLE_INSET * np.maximum(1.0, np.abs(position).max(axis=1))
     step = np.divide(np.minimum(length, scale), length, out=np.zeros_like(length), where=length > 0)

@@ -5,11 +5,20 @@
  * out row-major in a 2D grid (sample_width wide).
  *
  * hit_object  (batch layers) R32F: object index, or -1 miss, -2 below horizon, -3 backface
- * hit_uv      (batch layers) RG32F: atlas coordinate of the hit
+ * hit_uv      (batch layers) RG32F: atlas coordinate of the hit; on a vertex-mode object
+ *             embree's barycentrics (u, v) in the hit triangle
+ * hit_triangle (batch layers) R32F: the hit triangle within its object (exact integer);
+ *             read on vertex-mode objects only (a 1 x 1 dummy without them)
  * normals     RGBA32F: shading normal xyz, gather normalisation in w
  * radiance    (channel layers) RGBA32F: every object's padded atlas, flattened row-major
  *             into a radiance_width wide image (flat index f at (f % width, f / width))
- * objects     RGBA32F, one texel per object: width, height, offset / 4096, offset % 4096
+ * objects     RGBA32F, one column per object: row 0 width, height, offset / 4096,
+ *             offset % 4096; row 1 vertex mode (1 or 0), corner_base / 4096,
+ *             corner_base % 4096, unused
+ * corners     RGBA32F: row r of the layout's corner table (the flat indices of a vertex
+ *             triangle's three samples) in texels 2r and 2r + 1 of a corner_width wide
+ *             image (texel t at (t % width, t / width)): f0 / 4096, f0 % 4096, f1 / 4096,
+ *             f1 % 4096 and f2 / 4096, f2 % 4096, unused, unused
  * directions  RGBA32F, one column per direction: row 0 the direction, rows 1.. the
  *             world radiance per channel layer
  * excluded    (ceil(objects / 64) layers) RGBA32F: per sample, 16 objects per channel
@@ -20,6 +29,11 @@
 vec4 fetch_radiance(int flat_index, int layer)
 {
   return texelFetch(radiance, ivec3(flat_index % radiance_width, flat_index / radiance_width, layer), 0);
+}
+
+int split_index(float high, float low)
+{
+  return int(high) * 4096 + int(low);
 }
 
 bool is_excluded(ivec2 cell, int object_index)
@@ -64,11 +78,45 @@ void main()
     if (use_exclude != 0 && is_excluded(cell, object_index)) {
       continue;
     }
+    vec2 uv = texelFetch(hit_uv, ivec3(cell, j), 0).xy;
+    if (has_vertex != 0) {
+      vec4 vertex_meta = texelFetch(objects, ivec2(object_index, 1), 0);
+      if (vertex_meta.x > 0.5) {
+        /* AtlasLayout.vertex_lookup: the hit triangle's three samples mixed by the
+         * barycentrics, w0 = (1 - u) - v, or the corner of the largest weight only. */
+        int triangle = int(texelFetch(hit_triangle, ivec3(cell, j), 0).r);
+        int row = split_index(vertex_meta.y, vertex_meta.z) + triangle;
+        int texel = 2 * row;
+        vec4 first = texelFetch(corners, ivec2(texel % corner_width, texel / corner_width), 0);
+        texel += 1;
+        vec4 second = texelFetch(corners, ivec2(texel % corner_width, texel / corner_width), 0);
+        int f0 = split_index(first.x, first.y);
+        int f1 = split_index(first.z, first.w);
+        int f2 = split_index(second.x, second.y);
+        float w0 = 1.0 - uv.x - uv.y;
+        float w1 = uv.x;
+        float w2 = uv.y;
+        if (nearest_vertex != 0) {
+          /* np.argmax: the first of equal largest weights */
+          int chosen = (w0 >= w1 && w0 >= w2) ? f0 : ((w1 >= w2) ? f1 : f2);
+          for (int layer = 0; layer < channel_layers; layer++) {
+            sums[layer] += weight * fetch_radiance(chosen, layer);
+          }
+        }
+        else {
+          for (int layer = 0; layer < channel_layers; layer++) {
+            vec4 mixed = fetch_radiance(f0, layer) * w0 + fetch_radiance(f1, layer) * w1;
+            mixed = mixed + fetch_radiance(f2, layer) * w2;
+            sums[layer] += weight * mixed;
+          }
+        }
+        continue;
+      }
+    }
     vec4 meta = texelFetch(objects, ivec2(object_index, 0), 0);
     float width = meta.x;
     float height = meta.y;
-    int offset = int(meta.z) * 4096 + int(meta.w);
-    vec2 uv = texelFetch(hit_uv, ivec3(cell, j), 0).xy;
+    int offset = split_index(meta.z, meta.w);
     float x = min(max(uv.x * width - 0.5, 0.0), width - 1.0);
     float y = min(max(uv.y * height - 0.5, 0.0), height - 1.0);
     int x0 = int(x);

@@ -3,6 +3,10 @@
 The table is streamed in batches of directions as 2D texture arrays (one layer per
 direction), sized so the batch plus the fixed textures stay within the GPU memory
 budget; every texture is freed when the call returns, also on an error.
+
+Vertex-mode objects (``layout.is_vertex``) are looked up as
+:meth:`core.transport.AtlasLayout.vertex_lookup` does: the batch also carries the hit
+triangles, and the layout's corner table and per-object corner bases are uploaded once.
 """
 from __future__ import annotations
 
@@ -19,6 +23,12 @@ RADIANCE_WIDTH = 4096
 # 1 GiB fits every discrete card of the last decade and leaves room for Blender.
 DEFAULT_BUDGET_BYTES = 1 << 30
 TABLE_BYTES_PER_ENTRY = 4 + 8  # hit object (R32F) and hit uv (RG32F)
+VERTEX_BYTES_PER_ENTRY = 4  # hit triangle (R32F), when the layout has vertex-mode objects
+# Integers travel as exact floats: below 2^24 whole, larger ones (offsets, flat
+# indices, corner rows) split into index // SPLIT and index % SPLIT.
+EXACT_INTEGERS = 1 << 24
+SPLIT = 4096  # the shader's split_index
+CORNER_WIDTH = 4096  # texels per row of the corner texture (two texels per triangle)
 
 
 def _build_gather(info) -> None:
@@ -30,8 +40,10 @@ def _build_gather(info) -> None:
     info.sampler(4, "FLOAT_2D", "objects")
     info.sampler(5, "FLOAT_2D", "directions")
     info.sampler(6, "FLOAT_2D_ARRAY", "excluded")
+    info.sampler(7, "FLOAT_2D_ARRAY", "hit_triangle")
+    info.sampler(8, "FLOAT_2D", "corners")
     for name in ("sample_width", "sample_count", "batch_start", "batch_count", "channel_layers",
-                 "radiance_width", "use_exclude", "has_world"):
+                 "radiance_width", "use_exclude", "has_world", "has_vertex", "nearest_vertex", "corner_width"):
         info.push_constant("INT", name)
     info.local_group_size(GROUP_SIZE, GROUP_SIZE)
 
@@ -46,9 +58,54 @@ def _exclusion_masks(exclude: np.ndarray) -> np.ndarray:
     return bits.sum(axis=2).astype(np.float32).reshape(samples, layers, 4)
 
 
-def batch_directions(samples: int, budget_bytes: int, fixed_bytes: int) -> int:
-    """Directions per batch so the batch and the fixed textures fit ``budget_bytes``."""
-    per_direction = samples * TABLE_BYTES_PER_ENTRY
+def _split(values) -> tuple[np.ndarray, np.ndarray]:
+    values = np.asarray(values, np.int64)
+    return values // SPLIT, values % SPLIT
+
+
+def _has_vertex(layout) -> bool:
+    return layout.is_vertex is not None and bool(np.any(layout.is_vertex))
+
+
+def _corner_texture(layout) -> tuple[np.ndarray, int]:
+    """The corner table as an RGBA image, two texels per row; and the image's width."""
+    corners = np.asarray(layout.corner_flat, np.int64).reshape(-1, 3)
+    texels = np.zeros((len(corners), 2, 4), np.float32)
+    high, low = _split(corners)
+    texels[:, 0, 0], texels[:, 0, 1] = high[:, 0], low[:, 0]
+    texels[:, 0, 2], texels[:, 0, 3] = high[:, 1], low[:, 1]
+    texels[:, 1, 0], texels[:, 1, 1] = high[:, 2], low[:, 2]
+    texels = texels.reshape(-1, 4)
+    width = max(1, min(CORNER_WIDTH, len(texels)))
+    height = max(1, -(-len(texels) // width))
+    if height > runtime.MAX_TEXTURE_SIZE:
+        raise ValueError(f"{len(corners)} vertex-mode triangles exceed the GPU gather's corner table "
+                         f"({CORNER_WIDTH * runtime.MAX_TEXTURE_SIZE // 2} triangles)")
+    image = np.zeros((height * width, 4), np.float32)
+    image[:len(texels)] = texels
+    return image.reshape(height, width, 4), width
+
+
+def _object_texture(layout) -> np.ndarray:
+    """(2, O, 4): row 0 width, height, split offset; row 1 vertex flag, split corner base."""
+    objects = np.zeros((2, len(layout.widths), 4), np.float32)
+    high, low = _split(layout.offsets)
+    objects[0] = np.stack([layout.widths, layout.heights, high, low], axis=1)
+    if _has_vertex(layout):
+        vertex = np.asarray(layout.is_vertex, bool)
+        high, low = _split(np.where(vertex, layout.corner_base, 0))
+        objects[1, :, 0] = vertex
+        objects[1, :, 1] = high
+        objects[1, :, 2] = low
+    return objects
+
+
+def batch_directions(samples: int, budget_bytes: int, fixed_bytes: int, vertex: bool = False) -> int:
+    """Directions per batch so the batch and the fixed textures fit ``budget_bytes``.
+
+    ``vertex``: the layout has vertex-mode objects, so each entry also carries its hit triangle.
+    """
+    per_direction = samples * (TABLE_BYTES_PER_ENTRY + (VERTEX_BYTES_PER_ENTRY if vertex else 0))
     available = budget_bytes - fixed_bytes
     if available < per_direction:
         raise MemoryError(f"the GPU budget of {budget_bytes / 2**20:.0f} MiB cannot hold the fixed textures "
@@ -67,6 +124,12 @@ def gather(table, normals: np.ndarray, scale: np.ndarray, layout, radiance: np.n
     """
     radiance = np.asarray(radiance, np.float32)
     count = len(table.directions)
+    if _has_vertex(layout):
+        if table.hit_triangle is None:
+            raise ValueError("the layout has vertex-mode objects but the table has no hit triangles")
+        if table.hit_triangle.size and int(np.max(table.hit_triangle)) >= EXACT_INTEGERS:
+            raise ValueError(f"hit triangle indices reach {int(np.max(table.hit_triangle))}; the GPU gather "
+                             f"takes them below 2^24 (use the CPU device)")
     total_samples = len(normals)
     channels = radiance.shape[1]
     result = np.zeros((total_samples, channels))
@@ -106,9 +169,14 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
         flat[:len(padded)] = padded
         radiance_texture = resident.upload(flat.reshape(radiance_height, radiance_width, layers, 4).transpose(2, 0, 1, 3),
                                    layers=True)
-        offsets = np.asarray(layout.offsets, np.int64)
-        objects = np.stack([layout.widths, layout.heights, offsets // 4096, offsets % 4096], axis=1)
-        objects_texture = resident.upload(objects.astype(np.float32)[None])
+        objects_texture = resident.upload(_object_texture(layout))
+        has_vertex = _has_vertex(layout)
+        if has_vertex:
+            corner_image, corner_width = _corner_texture(layout)
+        else:
+            corner_image, corner_width = np.zeros((1, 1, 4), np.float32), 1
+        corners_texture = resident.upload(corner_image)
+        no_triangles = resident.upload(np.zeros((1, 1, 1, 1), np.float32), layers=True)
         rows = np.zeros((1 + layers, count, 4), np.float32)
         rows[0, :, :3] = table.directions
         world_padded = np.zeros((count, 4 * layers), np.float32)
@@ -127,7 +195,7 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             use_exclude = 0
         accumulated = resident.upload(np.zeros((layers, height, width, 4), np.float32), layers=True)
         fixed_bytes = resident.uploaded_bytes
-        batch = batch_directions(width * height, budget_bytes, fixed_bytes)
+        batch = batch_directions(width * height, budget_bytes, fixed_bytes, vertex=has_vertex)
 
         program = runtime.shader("gather", _build_gather)
         groups = (-(-width // GROUP_SIZE), -(-height // GROUP_SIZE), 1)
@@ -139,6 +207,13 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             uvs[:, :total_samples] = table.hit_uv[start:stop]
             codes_texture, codes_data = runtime.float_texture(codes.reshape(-1, height, width, 1), True)
             uvs_texture, uvs_data = runtime.float_texture(uvs.reshape(-1, height, width, 2), True)
+            if has_vertex:
+                triangles = np.zeros((stop - start, height * width), np.float32)
+                triangles[:, :total_samples] = table.hit_triangle[start:stop]
+                triangles_texture, triangles_data = runtime.float_texture(triangles.reshape(-1, height, width, 1),
+                                                                          True)
+            else:
+                triangles_texture, triangles_data = no_triangles, None
             program.bind()
             program.image("accumulated", accumulated)
             program.uniform_sampler("hit_object", codes_texture)
@@ -148,13 +223,17 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             program.uniform_sampler("objects", objects_texture)
             program.uniform_sampler("directions", directions_texture)
             program.uniform_sampler("excluded", excluded_texture)
+            program.uniform_sampler("hit_triangle", triangles_texture)
+            program.uniform_sampler("corners", corners_texture)
             for name, value in (("sample_width", width), ("sample_count", total_samples), ("batch_start", start),
                                 ("batch_count", stop - start), ("channel_layers", layers),
                                 ("radiance_width", radiance_width), ("use_exclude", use_exclude),
-                                ("has_world", int(np.any(world != 0)))):
+                                ("has_world", int(np.any(world != 0))), ("has_vertex", int(has_vertex)),
+                                ("nearest_vertex", int(bool(layout.nearest_vertex))),
+                                ("corner_width", corner_width)):
                 program.uniform_int(name, value)
             gpu.compute.dispatch(program, *groups)
-            del codes_texture, uvs_texture, codes_data, uvs_data
+            del codes_texture, uvs_texture, codes_data, uvs_data, triangles_texture, triangles_data
             if progress is not None:
                 progress(stop / count)
         out = np.zeros((total_samples, 4 * layers))

@@ -220,8 +220,9 @@ def run(args) -> int:
 
         started = time.perf_counter()
         render_path = os.path.join(out_dir, "preview_render.png")
-        uv_maps = {entry["name"]: entry["uv_map"] for entry in report["objects"]
-                   if entry["output"] and entry.get("mode", "atlas") == "atlas"}
+        # None for vertex-mode objects: the preview shows their colour attribute.
+        uv_maps = {entry["name"]: entry["uv_map"] if entry.get("mode", "atlas") == "atlas" else None
+                   for entry in report["objects"] if entry["output"]}
         if preview.render_baked_preview(scene, list(uv_maps), render_path, uv_maps):
             report["files"].append(render_path)
         report["stage_seconds"]["preview_render"] = round(time.perf_counter() - started, 4)

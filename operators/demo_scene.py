@@ -11,6 +11,8 @@ background mode and needs no context. What it is meant to exercise:
 - textured albedo: the pedestal's base colour is a packed 64x64 sRGB checker image,
   looked up through its UV map "UVMap" (non-overlapping, inside [0, 1]);
 - emission: a small glowing ball (Principled emission strength 3);
+- vertex tables: a finely tessellated dome is baked in vertex mode (its object setting),
+  so its results are a colour attribute, the rest are images;
 - a black world, so only the lamps and the emitter light the room.
 
 Every material is pure Lambert (Roughness 1, Specular IOR Level 0): with the default
@@ -195,7 +197,7 @@ def _link(collection, name, data, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 
 def build_demo_scene(scene: bpy.types.Scene) -> list[bpy.types.Object]:
     """Build the demo room into ``scene`` and return its mesh objects (the ones to bake).
 
-    Adds a collection "VisiBake Demo" holding 10 meshes, a sun ("Sun", 5 W/m^2, angle 0,
+    Adds a collection "VisiBake Demo" holding 11 meshes (the dome in vertex mode), a sun ("Sun", 5 W/m^2, angle 0,
     through the window), a point light ("PointLight", 200 W, radius 0), a camera
     ("Camera", made the scene camera) and sets a black world ("VisiBake Demo World").
     Nothing else in the scene is touched (apart from the render resolution, 640 x 480).
@@ -241,6 +243,12 @@ def build_demo_scene(scene: bpy.types.Scene) -> list[bpy.types.Object]:
     minor = 0.2
     add("Torus", _torus("Torus", 0.55, minor), _material("Blue", (0.15, 0.25, 0.8)),
         location=(1.3, -0.4, minor))
+
+    # A finely tessellated smooth dome baked with vertex tables (the paper's section 5):
+    # its results are the colour attribute VB_lighting, not an image.
+    dome = add("Dome", _bmesh_mesh("Dome", lambda bm: bmesh.ops.create_icosphere(bm, subdivisions=4, radius=0.35),
+                                   smooth=True), _material("Ivory", (0.75, 0.72, 0.65)), location=(1.4, 1.3, 0.35))
+    dome.visibake.mode = "vertex"
 
     radius = 0.2
     add("GlowBall", _bmesh_mesh("GlowBall", lambda bm: bmesh.ops.create_icosphere(

@@ -50,12 +50,8 @@ class DeviceChoice:
 
     def apply(self, prepared) -> None:
         """Make ``prepared`` (core.pipeline.Prepared) run its passes on this device."""
-        if self.name == "gpu" and prepared.layout.is_vertex is not None:
-            # The GPU gather reads atlases only; vertex-mode objects are gathered in numpy.
-            self.report["gather_note"] = "vertex-mode objects in the scene: the gathers ran in numpy"
-        else:
-            prepared.gather = self.gather
-            prepared.gather_device = self.name
+        prepared.gather = self.gather
+        prepared.gather_device = self.name
         prepared.accumulate_passes = self.accumulate_passes
         prepared.accumulate_device = self.name
         prepared.lamp_irradiance = self.lamp_irradiance

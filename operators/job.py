@@ -149,12 +149,13 @@ def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> la
     Mode vertex always takes vertex tables; mode auto takes them where the mesh is too
     dense or too big to unwrap, or where unwrapping fails; mode atlas never does.
     """
-    if props.mode == "vertex":
+    mode = obj.visibake.effective_mode(props)
+    if mode == "vertex":
         _check_vertex_topology(obj, mesh)
         planned.append((3 * len(mesh.triangles), 1))
         check_budget(planned, directions)
         return layout.vertex_plan("vertex mode was asked for")
-    if props.mode == "auto":
+    if mode == "auto":
         reason = layout.auto_vertex_reason(obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
         if reason is not None:
             planned.append((3 * len(mesh.triangles), 1))
@@ -167,7 +168,7 @@ def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> la
     try:
         plan = layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
     except layout.UnwrapFailed as error:
-        if props.mode != "auto" or not _vertex_topology_kept(obj, mesh):
+        if mode != "auto" or not _vertex_topology_kept(obj, mesh):
             raise
         planned[-1] = (3 * len(mesh.triangles), 1)
         check_budget(planned, directions)

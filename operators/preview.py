@@ -1,7 +1,7 @@
 """A render of the scene lit only by its baked textures (the demo's visual check).
 
 Each baked object is shown through an emission shader that reads its ``lighting``
-image, lamps are switched off, and Cycles renders with no bounces: what the camera
+image (or, in vertex mode, its ``VB_lighting`` colour attribute), lamps are switched off, and Cycles renders with no bounces: what the camera
 sees is exactly what the bake stored. Everything is restored afterwards.
 """
 from __future__ import annotations
@@ -11,7 +11,9 @@ import bpy
 from .writeback import image_name
 
 
-def _emission_material(name: str, image: bpy.types.Image, uv_map: str) -> bpy.types.Material:
+def _emission_material(name: str, image: bpy.types.Image | None, uv_map: str | None,
+                       attribute: str | None = None) -> bpy.types.Material:
+    """Emission of the baked ``image`` (looked up with ``uv_map``) or colour ``attribute``."""
     material = bpy.data.materials.new(name)
     if bpy.app.version < (5, 0, 0):
         material.use_nodes = True
@@ -20,12 +22,16 @@ def _emission_material(name: str, image: bpy.types.Image, uv_map: str) -> bpy.ty
     nodes.clear()
     output = nodes.new("ShaderNodeOutputMaterial")
     emission = nodes.new("ShaderNodeEmission")
-    texture = nodes.new("ShaderNodeTexImage")
-    texture.image = image
-    uv = nodes.new("ShaderNodeUVMap")
-    uv.uv_map = uv_map
-    links.new(uv.outputs["UV"], texture.inputs["Vector"])
-    links.new(texture.outputs["Color"], emission.inputs["Color"])
+    if attribute is not None:
+        source = nodes.new("ShaderNodeVertexColor")
+        source.layer_name = attribute
+    else:
+        source = nodes.new("ShaderNodeTexImage")
+        source.image = image
+        uv = nodes.new("ShaderNodeUVMap")
+        uv.uv_map = uv_map
+        links.new(uv.outputs["UV"], source.inputs["Vector"])
+    links.new(source.outputs["Color"], emission.inputs["Color"])
     links.new(emission.outputs["Emission"], output.inputs["Surface"])
     return material
 
@@ -46,10 +52,15 @@ def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_map
     try:
         for name in object_names:
             obj = bpy.data.objects[name]
-            image = bpy.data.images.get(image_name(name, "lighting"))
-            if image is None:
-                continue
-            material = _emission_material(f"__visibake_preview_{name}", image, uv_maps[name])
+            if uv_maps.get(name) is None:
+                if "VB_lighting" not in obj.data.color_attributes:
+                    continue
+                material = _emission_material(f"__visibake_preview_{name}", None, None, attribute="VB_lighting")
+            else:
+                image = bpy.data.images.get(image_name(name, "lighting"))
+                if image is None:
+                    continue
+                material = _emission_material(f"__visibake_preview_{name}", image, uv_maps[name])
             created.append(material)
             if not obj.material_slots:
                 obj.data.materials.append(None)

@@ -76,6 +76,16 @@ class VisiBakeObjectSettings(bpy.types.PropertyGroup):
     resolution: bpy.props.IntProperty(
         name="Resolution", default=0, min=0, soft_max=4096,
         description="Atlas size of this object in texels (0: the scene's setting)")
+    mode: bpy.props.EnumProperty(
+        name="Mode", default="SCENE",
+        items=[("SCENE", "Scene", "The scene's mode"),
+               ("auto", "Auto", "Texture atlas, or vertex tables where the mesh is too dense or too big to unwrap"),
+               ("atlas", "Atlas", "Texture atlas (UV map), results as images"),
+               ("vertex", "Vertex", "Per-vertex tables, results as colour attributes VB_<pass>")],
+        description="Where this object's samples live")
+
+    def effective_mode(self, scene_settings) -> str:
+        return scene_settings.mode if self.mode == "SCENE" else self.mode
 
 
 classes = (VisiBakeSceneSettings, VisiBakeObjectSettings)

@@ -187,7 +187,7 @@ def test_uncovered_texels_stay_clear_without_margin(clean_scene):
 
 
 DEMO_MESHES = {"Floor", "Ceiling", "WallRed", "WallGreen", "WallBack", "WallFront",
-               "Pedestal", "Suzanne", "Torus", "GlowBall"}
+               "Pedestal", "Suzanne", "Torus", "Dome", "GlowBall"}
 
 
 def test_demo_scene_contents(clean_scene, tmp_path):
@@ -226,6 +226,8 @@ def test_demo_scene_contents(clean_scene, tmp_path):
     assert 0 < triangles < 20000
     # The modifier matters: evaluated Suzanne has ~4x the triangles of its base mesh.
     assert scene.objects["Suzanne"].modifiers["Subdivision"].type == "SUBSURF"
+    # The dome is the demo's vertex-mode object (results as a colour attribute).
+    assert scene.objects["Dome"].visibake.mode == "vertex"
 
     world = scene.world
     background = world.node_tree.nodes["Background"]

@@ -158,3 +158,18 @@ def test_vertex_tables_are_cached_and_updated_like_atlas_tables(tmp_path):
     a, b = relight(updated, lights, World()), relight(fresh, lights, World())
     for x, y in zip(a.objects, b.objects):
         np.testing.assert_array_equal(x.images["lighting"], y.images["lighting"])
+
+
+def test_a_convex_mesh_does_not_shadow_its_own_vertices():
+    # An outward sphere under a sun: every vertex facing the sun is lit by exactly
+    # rho * S * cos / pi. A sample nudged behind its own faces (the mean of its
+    # triangles' middles lies inside a convex mesh) would be black instead.
+    sphere = inward_sphere(Material(base_color=np.full(3, 0.5)))
+    sphere.triangles = sphere.triangles[:, ::-1].copy()
+    sphere.corner_normals = -sphere.corner_normals[:, ::-1]
+    sun = Light("Sun", "SUN", np.ones(3), 2.0, direction=np.array([0.0, 0.0, -1.0]))
+    colors = bake(Scene([sphere], [sun]), BakeSettings(directions=16, bounces=0)).objects[0].images["lighting"]
+    up = sphere.positions[:, 2] / np.linalg.norm(sphere.positions, axis=1)
+    lit = up > 0.05
+    np.testing.assert_allclose(colors[lit, 0], 0.5 * 2.0 * up[lit] / np.pi, rtol=1e-3)
+    assert np.all(colors[up < -0.05, 0] == 0)

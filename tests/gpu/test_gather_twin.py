@@ -4,6 +4,10 @@ Tolerance: both sum the same float32 terms per direction; only the order of the 
 (per worker in numpy, per sample on the GPU) and fused multiply-adds differ, so they
 agree to ~1e-5 relative for sums of a few hundred terms. 1e-4 relative plus 1e-6
 absolute bounds that with room, and catches any misplaced texel (errors of order 1).
+The same tolerance holds with vertex-mode objects: their barycentric mix is the same
+float32 expression in the same order on both sides, and a wrong corner or a wrong
+nearest-corner pick (the weights of those cases include exact ties) is an error of
+order 1.
 """
 import numpy as np
 import pytest
@@ -31,6 +35,62 @@ def _random_case(core, samples=3000, directions=96, objects=3, channels=3, seed=
     return table, normals, scale, layout, radiance, world
 
 
+# Barycentrics with exactly equal largest weights in float32 (w0 = 1 - u - v): the
+# nearest-vertex lookup must pick the first of them, as np.argmax does.
+TIES = [(0.5, 0.5), (0.25, 0.5), (0.25, 0.25), (0.4, 0.4), (0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.5, 0.25)]
+
+
+def _vertex_case(core, samples=3000, directions=96, objects=6, channels=3, nearest=False, seed=0):
+    """Like _random_case, with every other object in vertex mode (a one-row atlas of its
+    samples, hit by triangle and barycentrics)."""
+    rng = np.random.default_rng(seed)
+    sizes, corner_samples = [], []
+    for index in range(objects):
+        if index % 2:
+            count = int(rng.integers(3, 60))
+            corners = rng.integers(0, count, size=(int(rng.integers(1, 80)), 3))
+            corners[rng.random(len(corners)) < 0.05] = -1  # degenerate triangles
+            sizes.append((count, 1))
+            corner_samples.append(corners)
+        else:
+            sizes.append((int(rng.integers(3, 40)), int(rng.integers(3, 40))))
+            corner_samples.append(None)
+    layout = core.transport.AtlasLayout.from_sizes(sizes, corner_samples, nearest)
+    dirs = core.directions.spherical_fibonacci(directions)
+    normals = rng.normal(size=(samples, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    codes = rng.choice([-3, -2, -1] + list(range(objects)), size=(directions, samples),
+                       p=[0.05, 0.35, 0.2] + [0.4 / objects] * objects).astype(np.int16)
+    codes[(dirs @ normals.T) <= 0] = core.visibility.BELOW_HORIZON
+    uv = rng.uniform(-0.05, 1.05, size=(directions, samples, 2)).astype(np.float32)
+    triangles = np.zeros((directions, samples), np.int32)
+    for index, corners in enumerate(corner_samples):
+        if corners is None:
+            continue
+        on = codes == index
+        triangles[on] = rng.integers(0, len(corners), size=int(on.sum()))
+        bary = rng.uniform(0, 1, size=(int(on.sum()), 2))
+        folded = bary.sum(axis=1) > 1
+        bary[folded] = 1 - bary[folded][:, ::-1]
+        tied = rng.random(len(bary)) < 0.2
+        bary[tied] = np.array(TIES)[rng.integers(0, len(TIES), size=int(tied.sum()))]
+        uv[on] = bary.astype(np.float32)
+    table = core.visibility.VisibilityTable(directions=dirs, hit_object=codes, hit_uv=uv,
+                                            hit_distance=np.ones((directions, samples), np.float32),
+                                            hit_triangle=triangles)
+    scale = core.transport.gather_normalisation(table, normals)
+    radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
+    world = rng.uniform(0, 1, size=(directions, channels))
+    return table, normals, scale, layout, radiance, world
+
+
+def _report(name, ours, twin):
+    difference = np.abs(ours - twin)
+    relative = difference / np.maximum(np.abs(twin), 1e-30)
+    print(f"\n{name}: max |GPU - numpy| {difference.max():.3g}, "
+          f"max relative (where |numpy| > 1e-3) {relative[np.abs(twin) > 1e-3].max(initial=0):.3g}")
+
+
 @pytest.mark.parametrize("channels", [3, 6, 15, 51])
 def test_gather_matches_numpy(visibake, gpu_shaders, channels):
     core = visibake.core
@@ -55,6 +115,76 @@ def test_exclusions_samples_and_small_batches_match_numpy(visibake, gpu_shaders)
     twin = core.transport.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
     assert np.all(ours[np.setdiff1d(np.arange(len(normals)), chosen)] == 0)
+
+
+@pytest.mark.parametrize("nearest", [False, True], ids=["interpolate", "nearest"])
+@pytest.mark.parametrize("channels", [3, 15, 51])
+def test_vertex_objects_match_numpy(visibake, gpu_shaders, channels, nearest):
+    core = visibake.core
+    table, normals, scale, layout, radiance, world = _vertex_case(core, channels=channels, nearest=nearest,
+                                                                  seed=100 + channels + nearest)
+    assert layout.is_vertex is not None and layout.is_vertex.any() and not layout.is_vertex.all()
+    ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
+    twin = core.transport.gather(table, normals, scale, layout, radiance, world)
+    _report(f"vertex objects, {channels} channels, nearest={nearest}", ours, twin)
+    assert ours.shape == twin.shape == (len(normals), channels)
+    np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
+    assert np.abs(twin).max() > 0.1
+    # The vertex objects matter: with their radiance zeroed the result changes.
+    vertex_rows = np.zeros(layout.size, bool)
+    for index in np.nonzero(layout.is_vertex)[0]:
+        start = layout.offsets[index]
+        vertex_rows[start:start + (layout.widths[index] + 1) * 2] = True
+    dark = np.where(vertex_rows[:, None], 0, radiance).astype(np.float32)
+    without = gpu_shaders.gather.gather(table, normals, scale, layout, dark, world)
+    assert np.abs(without - ours).max() > 0.1
+
+
+@pytest.mark.parametrize("nearest", [False, True], ids=["interpolate", "nearest"])
+def test_vertex_objects_with_exclusions_samples_and_small_batches_match_numpy(visibake, gpu_shaders, nearest):
+    core = visibake.core
+    table, normals, scale, layout, radiance, world = _vertex_case(core, samples=2500, objects=70, channels=6,
+                                                                  nearest=nearest, seed=11 + nearest)
+    rng = np.random.default_rng(5)
+    exclude = rng.random((len(normals), 70)) < 0.3
+    chosen = np.sort(rng.choice(len(normals), 900, replace=False))
+    gather = gpu_shaders.gather
+    texels = 2048 * 2  # the sample grid of 2500 samples
+    per_direction = texels * (gather.TABLE_BYTES_PER_ENTRY + gather.VERTEX_BYTES_PER_ENTRY)
+    # The fixed textures, from above: normals, 2 accumulator and 2 exclusion layers (16
+    # bytes per texel each), radiance (2 layers of 4096 wide rows), the corner table (16
+    # bytes per texel, 4096 wide rows, 2 texels per triangle), the small rest.
+    rows = -(-layout.size // 4096)
+    corner_rows = -(-2 * len(layout.corner_flat) // 4096)
+    fixed = 5 * 16 * texels + 32 * 4096 * rows + 16 * 4096 * corner_rows + 10_000
+    progress = []
+    ours = gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen,
+                         budget_bytes=fixed + 5 * per_direction, progress=progress.append)
+    twin = core.transport.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
+    _report(f"vertex objects, exclusions, {len(progress)} batches, nearest={nearest}", ours, twin)
+    assert len(progress) >= 12  # many batches (the budget holds a few directions)
+    np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
+    assert np.abs(twin).max() > 0.1
+    assert np.all(ours[np.setdiff1d(np.arange(len(normals)), chosen)] == 0)
+
+
+def test_triangle_indices_beyond_exact_floats_are_refused(visibake, gpu_shaders):
+    core = visibake.core
+    table, normals, scale, layout, radiance, world = _vertex_case(core, samples=300, directions=8)
+    table.hit_triangle[0, 0] = 1 << 24
+    with pytest.raises(ValueError, match="2\\^24"):
+        gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
+
+
+def test_vertex_objects_add_the_hit_triangle_to_each_batch(visibake):
+    import importlib
+
+    gather = importlib.import_module(f"{visibake.__name__}.gpu_shaders.gather")
+    samples, fixed, budget = 1 << 20, 100 << 20, 1 << 30
+    atlas = gather.batch_directions(samples, budget, fixed)
+    vertex = gather.batch_directions(samples, budget, fixed, vertex=True)
+    assert atlas == (budget - fixed) // (samples * 12)
+    assert vertex == (budget - fixed) // (samples * 16) < atlas
 
 
 def test_a_budget_too_small_for_one_direction_is_refused(visibake, gpu_shaders):
