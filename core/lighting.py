@@ -123,7 +123,8 @@ def lamp_irradiance(p, lights, report) -> tuple[np.ndarray, int]:
                     visibility[rays[blocked]] = 0.0
                     shadow_rays += len(rays)
             irradiance += part.irradiance * visibility[:, None]
-        report((light_index + 1) / len(lights))
+        if report is not None:
+            report((light_index + 1) / len(lights))
     return irradiance, shadow_rays
 
 

@@ -21,6 +21,7 @@ from .lighting import (LIGHTING_PASSES, MAX_GROUPS_PER_GATHER, LightGroup, Trans
                        lamp_irradiance, light_groups, light_key_parts, transport_groups)
 from .raster import dilate
 from .rays import RayScene, offset_ray_origins
+from .tessellation import check_vertex_objects
 from .samples import ObjectSamples, build_samples, build_vertex_samples, face_normals
 from .scene import BakeSettings, Scene
 from .images import sample_image
@@ -605,9 +606,23 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
     results = [BakeResult(objects=objects, report=_report(p, plan, parts, stages.times, gathers, shared_skips,
                                                           len(lightings)))
                for objects, plan, (_, parts) in zip(images, plans, per_lighting)]
-    for result in results:
+    for result, plan in zip(results, plans):
         result.report["passes"] = list(stages.passes)
+        _report_tessellation(p, plan["lights"], result.report)
     return results
+
+
+def _report_tessellation(p: Prepared, lights, report: dict) -> None:
+    """Per vertex-mode object: triangles whose light varies inside them (a warning if any)."""
+    for index, check in check_vertex_objects(p, lights).items():
+        entry = report["objects"][index]
+        entry["under_tessellated_triangles"] = check.flagged
+        entry["under_tessellated_area_share"] = round(check.area_share, 4)
+        if check.flagged:
+            report["warnings"].append(
+                f"object {entry['name']!r}: {check.flagged} of {check.triangles} triangles "
+                f"({check.area_share:.0%} of its area) have direct light varying inside them by up to "
+                f"{check.worst:.0%}, which its vertices cannot show; subdivide it or bake it as an atlas")
 
 
 def _report(p: Prepared, plan: dict, parts: dict, times: dict, gathers: int, shared_skips: list,

@@ -77,3 +77,11 @@ SPLIT_NORMAL_TOLERANCE = 1e-4
 # bake) towards the middle of their triangles, off the surfaces of objects that touch
 # them; small enough to change nothing a texel-free point sample could show.
 VERTEX_SAMPLE_INSET = 1e-4
+
+# A vertex-mode triangle is reported as too coarse when the direct light at its middle
+# differs from its corners' mean by more than this share of the larger: a shadow edge
+# or a highlight inside it, which interpolation between vertices cannot show. Light
+# below TESSELLATION_FLOOR of the object's brightest is not judged (dark regions'
+# relative differences are noise).
+TESSELLATION_DIFFERENCE = 0.25
+TESSELLATION_FLOOR = 1e-3

@@ -173,3 +173,17 @@ def test_a_convex_mesh_does_not_shadow_its_own_vertices():
     lit = up > 0.05
     np.testing.assert_allclose(colors[lit, 0], 0.5 * 2.0 * up[lit] / np.pi, rtol=1e-3)
     assert np.all(colors[up < -0.05, 0] == 0)
+
+
+def test_a_shadow_edge_inside_large_triangles_is_reported():
+    # A spot light's cone edge crosses the middle of a 2 x 2 quad plane: the corners
+    # see nothing of the light its middle gets. Finely tessellated, nothing is flagged.
+    spot = Light("Spot", "SPOT", np.ones(3), 500.0, position=np.array([0.0, 0.0, 1.0]),
+                 direction=np.array([0.0, 0.0, -1.0]), spot_size=np.radians(90), spot_blend=0.0)
+    coarse = bake(Scene([grid_mesh("Coarse", segments=1)], [spot]), BakeSettings(directions=16, bounces=0))
+    entry = coarse.report["objects"][0]
+    assert entry["under_tessellated_triangles"] == 2 and entry["under_tessellated_area_share"] == 1.0
+    assert any("which its vertices cannot show" in w for w in coarse.report["warnings"])
+    fine = bake(Scene([grid_mesh("Fine", segments=64)], [spot]), BakeSettings(directions=16, bounces=0))
+    entry = fine.report["objects"][0]
+    assert entry["under_tessellated_area_share"] < 0.1

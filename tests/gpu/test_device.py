@@ -6,7 +6,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun
+from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun, uv_sphere
 
 
 @pytest.fixture
@@ -16,6 +16,9 @@ def scene_file(clean_scene, tmp_path):
     mesh_object("Block", cube(0.5), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.5), uv_map=None)
     mesh_object("Glow", cube(0.1), material("Glow", (0.5, 0.5, 0.5), emission=(1.0, 0.8, 0.5), strength=20.0),
                 location=(0.6, -0.6, 0.2), uv_map=None)
+    ball = mesh_object("Ball", uv_sphere(0.25, 24, 12), material("Ivory", (0.7, 0.7, 0.6)),
+                       location=(-0.5, -0.4, 0.3), uv_map=None)
+    ball.visibake.mode = "vertex"  # its samples are vertices: the gathers look it up by triangle
     sun(3.0, tilt_degrees=30.0)
     point(60.0, (-0.5, 0.4, 1.0), name="Lamp")
     path = tmp_path / "scene.blend"
@@ -37,9 +40,20 @@ def _exr(path):
         return exr.channels()["RGBA"].pixels
 
 
+def _ball_colors():
+    attribute = bpy.data.objects["Ball"].data.color_attributes["VB_lighting"]
+    values = np.empty(len(attribute.data) * 4, np.float32)
+    attribute.data.foreach_get("color", values)
+    return values.reshape(-1, 4)
+
+
 def test_gpu_and_cpu_bakes_agree(visibake, gpu_shaders, scene_file, tmp_path):
     gpu_report = _bake(visibake, scene_file, tmp_path / "gpu", "gpu")
+    gpu_ball = _ball_colors()
     cpu_report = _bake(visibake, scene_file, tmp_path / "cpu", "cpu")
+    cpu_ball = _ball_colors()
+    np.testing.assert_allclose(gpu_ball, cpu_ball, rtol=1e-4, atol=1e-6)
+    assert cpu_ball[:, :3].max() > 0
     assert gpu_report["device"]["used"] == "gpu" and gpu_report["device"]["renderer"]
     assert cpu_report["device"]["used"] == "cpu"
     gathers = [p for p in gpu_report["passes"] if p["pass"].startswith("gather")]
