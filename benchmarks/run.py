@@ -16,9 +16,12 @@ lighting setups from one visibility bake against K Cycles bakes at matched error
 the limits of the libraries underneath (embreex rays/s, numpy lookups/s) measured in
 the same run, so every stage is also reported as a fraction of what its library can do.
 
+Last, vertex-table mode (``benchmarks/vertex.py``): a scene of vertex-mode objects
+against Cycles' colour-attribute bake, for both lookups (interpolated, nearest vertex).
+
 Peak memory is the resident high-water mark of each run (reset between runs on Linux).
 Writes ``<out>/<scene>.csv`` and ``<scene>.png`` (error against time, Pareto front),
-``relight.csv``, ``limits.csv``, ``summary.json`` and ``summary.md``.
+``relight.csv``, ``limits.csv``, ``vertex.csv``, ``summary.json`` and ``summary.md``.
 """
 import argparse
 import csv
@@ -326,6 +329,25 @@ def main(argv=None) -> int:
                 writer.writerows(table)
     summary["relight"] = relight_rows
     summary["limits"] = limit_rows
+
+    # Vertex-table mode against Cycles' colour-attribute bake, both lookups.
+    from benchmarks import vertex
+    from tools.cycles_bake import bake_diffuse_vertex_colors
+
+    scenes.reset()
+    vertex_rows = vertex.run(job, profile, bake_diffuse_vertex_colors)
+    cycles_vertex = [r for r in vertex_rows if r["method"] == "cycles"]
+    for row in vertex_rows:
+        if row["method"] == "visibake":
+            at = interpolate_time_at_error(cycles_vertex, row["relative_rmse"])
+            row["cycles_seconds_at_error"] = at
+            row["cycles_over_visibake"] = at / row["seconds"] if at else ""
+    with open(os.path.join(out, "vertex.csv"), "w", newline="") as handle:
+        fields = list(dict.fromkeys(key for row in vertex_rows for key in row))
+        writer = csv.DictWriter(handle, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(vertex_rows)
+    summary["vertex"] = vertex_rows
     with open(os.path.join(out, "summary.json"), "w") as handle:
         json.dump(summary, handle, indent=2, default=float)
     write_markdown(os.path.join(out, "summary.md"), summary, out)
@@ -441,6 +463,24 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
                      f"{float(row['visibake_relight_seconds_each']):.3f} | "
                      f"{float(row['visibake_batched_seconds_each']):.3f} | {float(row['cache_bytes']) / 2**20:.1f} | "
                      f"{float(row['cache_save_seconds']):.2f} | {float(row['cache_load_seconds']):.2f} |")
+    vertex_rows = summary.get("vertex", [])
+    if vertex_rows:
+        reference = vertex_rows[0]
+        lines += ["", f"Vertex-table mode (floor, wall and sphere as vertex tables, 2 bounces) against Cycles' "
+                  f"colour-attribute bake at {reference['reference_samples']} spp "
+                  f"({float(reference['reference_seconds']):.1f} s); Cycles' time at VisiBake's error from its sweep:",
+                  "", "| method | N or spp | lookup | seconds | rel. RMSE | bias | Cycles s at that error "
+                  "| Cycles / VisiBake |", "|---|---|---|---|---|---|---|---|"]
+        for row in vertex_rows:
+            if row["method"] == "cycles":
+                lines.append(f"| Cycles | {row['samples']} | | {float(row['seconds']):.2f} | "
+                             f"{float(row['relative_rmse']):.4f} | {float(row['bias']):+.4f} | | |")
+            else:
+                at = _number(row.get("cycles_seconds_at_error"))
+                ratio = _number(row.get("cycles_over_visibake"))
+                lines.append(f"| VisiBake | {row['directions']} | {row['lookup']} | {float(row['seconds']):.2f} | "
+                             f"{float(row['relative_rmse']):.4f} | {float(row['bias']):+.4f} | "
+                             f"{'n/a' if at is None else f'{at:.2f}'} | {'n/a' if ratio is None else f'{ratio:.1f}'} |")
     lines += ["", "Ceilings, and one bounce gather on the same table in numpy and on the GPU "
               "(lookups/s = table entries above the horizon per second):", "",
               "| scene | embreex rays/s (2 threads) | numpy lookups/s (bare np.take) | numpy gather lookups/s "

@@ -36,6 +36,13 @@ def test_smoke_profile_writes_csv_plot_and_summary(tmp_path):
     assert [r["setups"] for r in summary["relight"]] == [1, 2]
     assert summary["limits"][0]["embree_rays_per_second"] > 0
     assert "| sun_occluders" in (out / "summary.md").read_text()
+    vertex_rows = list(csv.DictReader(open(out / "vertex.csv")))
+    ours = [r for r in vertex_rows if r["method"] == "visibake"]
+    assert {r["lookup"] for r in ours} == {"interpolate", "nearest"} and len(ours) == 4
+    assert all(math.isfinite(float(r["relative_rmse"])) for r in vertex_rows)
+    assert "Vertex-table mode" in (out / "summary.md").read_text()
+    limits = summary["limits"][0]
+    assert limits["numpy_gather_lookups_per_second"] > 0
     # A second run finds the reference in the cache instead of baking it again.
     again = subprocess.run(
         [sys.executable, str(REPO_ROOT / "benchmarks" / "run.py"), "--profile", "smoke", "--out", str(out / "again"),
