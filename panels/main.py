@@ -21,6 +21,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         column.prop(props, "resolution")
         column.prop(props, "texel_density")
         column.prop(props, "mode")
+        column.prop(props, "vertex_lookup")
         column.prop(props, "bake_all")
         column.prop(props, "output_dir")
         column.prop(props, "light_groups")
@@ -32,6 +33,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         obj = context.object
         if obj is not None and obj.type == "MESH":
             layout.prop(obj.visibake, "resolution", text=f"{obj.name} Resolution")
+            layout.prop(obj.visibake, "mode", text=f"{obj.name} Mode")
         row = layout.row(align=True)
         row.operator("visibake.bake", icon="RENDER_STILL")
         row.operator("visibake.relight", icon="LIGHT")
