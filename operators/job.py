@@ -155,18 +155,23 @@ def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> la
         planned.append((3 * len(mesh.triangles), 1))
         check_budget(planned, directions)
         return layout.vertex_plan("vertex mode was asked for")
-    if mode == "auto":
-        reason = layout.auto_vertex_reason(obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
-        if reason is not None:
-            planned.append((3 * len(mesh.triangles), 1))
-            check_budget(planned, directions)
-            return layout.vertex_plan(f"vertex tables: {reason}")
     # Checked before any work at the planned size: validating a UV map rasterises it
     # at the bake resolution.
     planned.append(layout.planned_resolution(obj, props, mesh.positions, mesh.triangles))
     check_budget(planned, directions)
+    existing = None
+    if mode == "auto":
+        # A valid UV map of the user's is a request for textures; only a mesh that would
+        # have to be unwrapped is considered for vertex tables.
+        existing = layout.existing_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props)
+        reason = None if existing is not None else layout.auto_vertex_reason(
+            obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
+        if reason is not None:
+            planned[-1] = (3 * len(mesh.triangles), 1)
+            check_budget(planned, directions)
+            return layout.vertex_plan(f"vertex tables: {reason}")
     try:
-        plan = layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
+        plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
     except layout.UnwrapFailed as error:
         if mode != "auto" or not _vertex_topology_kept(obj, mesh):
             raise

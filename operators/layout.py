@@ -167,6 +167,20 @@ def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, e
     ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it.
     """
     mesh = obj.data
+    plan, rejected, world_area = _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
+                                                  settings)
+    if plan is not None:
+        return plan
+    return _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area)
+
+
+def existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings) -> LayoutPlan | None:
+    """The layout of a UV map the object already has and that is valid for baking, or None."""
+    return _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings)[0]
+
+
+def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings):
+    mesh = obj.data
     world_area = float(np.sum(_triangle_areas(evaluated_positions[evaluated_triangles]))) if len(evaluated_triangles) else 0.0
     candidates = []
     if owns_uv_map(mesh, UV_MAP_NAME):
@@ -184,9 +198,13 @@ def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, e
         problems = uv_layout_problems(corner_uv, *resolution)
         if not problems:
             why = "VisiBake's own UV map" if name == UV_MAP_NAME else "the mesh's UV map is valid for baking"
-            return LayoutPlan(name, resolution, why)
+            return LayoutPlan(name, resolution, why), rejected, world_area
         rejected.append(f"UV map {name!r}: {'; '.join(problems)}")
+    return None, rejected, world_area
 
+
+def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area):
+    mesh = obj.data
     if UV_MAP_NAME in mesh.uv_layers and not owns_uv_map(mesh, UV_MAP_NAME) and output:
         raise LayoutError(f"object {obj.name!r}: it has a UV map named {UV_MAP_NAME!r} that VisiBake did not "
                           "create; rename it so VisiBake can add its own")
