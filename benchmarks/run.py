@@ -184,6 +184,8 @@ def main(argv=None) -> int:
         # Every run traces its own table: a cache hit would time the disk, not the method.
         # The relighting case below measures the cache on purpose.
         props.use_cache = False
+        # These scenes compare images with Cycles' image bakes; vertex mode has its own case.
+        props.mode = "atlas"
         rows = []
         for resolution in profile["resolutions"]:
             for bounces in profile["bounces"]:
