@@ -5,7 +5,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only
+from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only, uv_sphere
 
 
 def _settings(mode="vertex", passes=("lighting",), bounces=0):
@@ -155,3 +155,34 @@ def test_vertex_colours_match_cycles(clean_scene, lookup):
         # fraction of the ~10% the bounce adds. Measured 0.3-0.4%; 2% leaves room for
         # another Cycles build, not for a misplaced sample (16% before the nudge).
         assert error < 0.02 and abs(bias) < 0.01
+
+
+def test_auto_falls_back_to_vertex_tables_when_xatlas_cannot_unwrap(clean_scene):
+    black_world()
+    # A sphere without a UV map at 4 x 4 texels: its charts cannot fit the atlas.
+    ball = mesh_object("Ball", uv_sphere(0.5, 24, 12), material("White", (0.6, 0.6, 0.6)), uv_map=None)
+    point(100.0, (0.0, 0.0, 2.0), name="Lamp")
+    props = _settings(mode="auto")
+    props.resolution = 4
+    select_only([ball])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    entry = next(o for o in _report()["objects"] if o["name"] == "Ball")
+    assert entry["mode"] == "vertex" and "unwrapping failed" in entry["layout_reason"]
+    assert "VB_lighting" in ball.data.color_attributes and "VisiBake" not in ball.data.uv_layers
+
+
+def test_auto_leaves_meshes_beyond_the_unwrap_budget_to_vertex_tables(visibake, clean_scene):
+    import importlib
+
+    budget = importlib.import_module(f"{visibake.__name__}.operators.layout").UNWRAP_TRIANGLE_BUDGET
+    black_world()
+    segments = int(np.ceil(np.sqrt(budget / 2))) + 1  # two triangles per grid quad
+    big = mesh_object("Big", grid(1.0, segments=segments), material("White", (0.6, 0.6, 0.6)), uv_map=None)
+    point(100.0, (0.0, 0.0, 2.0), name="Lamp")
+    props = _settings(mode="auto")
+    props.resolution = 4096  # texels finer than its vertices: only the budget rule applies
+    props.directions = 4
+    select_only([big])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    entry = next(o for o in _report()["objects"] if o["name"] == "Big")
+    assert entry["mode"] == "vertex" and "the budget is" in entry["layout_reason"]
