@@ -54,6 +54,8 @@ class ObjectResult:
     samples: int
     images: dict[str, np.ndarray] = field(default_factory=dict)
     domain: str | None = None
+    # Vertex mode: triangles whose light varies inside them (core.tessellation), to refine.
+    coarse_triangles: np.ndarray | None = None
 
 
 def element_colors(values: np.ndarray, element_sample: np.ndarray) -> np.ndarray:
@@ -608,14 +610,18 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
                for objects, plan, (_, parts) in zip(images, plans, per_lighting)]
     for result, plan in zip(results, plans):
         result.report["passes"] = list(stages.passes)
-        _report_tessellation(p, plan["lights"], result.report)
+        _report_tessellation(p, plan["lights"], result)
     return results
 
 
-def _report_tessellation(p: Prepared, lights, report: dict) -> None:
+def _report_tessellation(p: Prepared, lights, result: BakeResult) -> None:
     """Per vertex-mode object: triangles whose light varies inside them (a warning if any)."""
+    report = result.report
+    by_name = {o.name: o for o in result.objects}
     for index, check in check_vertex_objects(p, lights).items():
         entry = report["objects"][index]
+        if entry["name"] in by_name:
+            by_name[entry["name"]].coarse_triangles = check.flagged_triangles
         entry["under_tessellated_triangles"] = check.flagged
         entry["under_tessellated_area_share"] = round(check.area_share, 4)
         if check.flagged:

@@ -34,6 +34,7 @@ class TessellationCheck:
     triangles: int
     area_share: float
     worst: float
+    flagged_triangles: np.ndarray = None  # (flagged,) int64 indices into the mesh's triangles
 
 
 def _direct_light(p, lights, position, normal) -> np.ndarray:
@@ -78,5 +79,6 @@ def check_vertex_objects(p, lights) -> dict[int, TessellationCheck]:
         areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
         checks[index] = TessellationCheck(flagged=int(np.count_nonzero(flagged)), triangles=len(used),
                                           area_share=float(areas[flagged].sum() / max(areas.sum(), 1e-30)),
-                                          worst=float(difference[larger > floor].max(initial=0.0)))
+                                          worst=float(difference[larger > floor].max(initial=0.0)),
+                                          flagged_triangles=used[flagged].astype(np.int64))
     return checks

@@ -63,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help="also write every lighting pass per light group")
         sub.add_argument("--cache-dir", metavar="DIR", help="visibility cache folder (default: beside the .blend)")
         sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
+        sub.add_argument("--refine", action="store_true", default=None,
+                         help="bake subdivided copies of vertex-mode objects too coarse for their light")
         sub.add_argument("--device", choices=("auto", "gpu", "cpu"),
                          help="where the transport passes run (default: the preference, else auto)")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -86,6 +88,8 @@ def _apply_settings(args, props) -> None:
         value = getattr(args, name)
         if value is not None:
             setattr(props, name, value)
+    if args.refine is not None:
+        props.refine_vertex_objects = args.refine
     if args.cache_dir is not None:
         props.cache_dir = os.path.abspath(args.cache_dir)
     if args.no_cache:

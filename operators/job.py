@@ -20,7 +20,7 @@ from ..core.cache import VisibilityCache
 from ..core.pipeline import BakeResult, check_budget, peak_memory_bytes, prepare, relight_many
 from ..core.samples import face_normals
 from ..core.scene import Scene
-from . import device, extract, layout, writeback
+from . import device, extract, layout, refine, writeback
 
 CACHE_FOLDER_NAME = "visibake_cache"
 
@@ -185,6 +185,29 @@ def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> la
     return plan
 
 
+def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name) -> JobResult:
+    """Bake again with refined copies of the ``coarse`` [(object, triangles)] in their place.
+
+    If that bake fails or is cancelled the copies are removed and the originals shown
+    again, so the scene is as it was.
+    """
+    copies = {}
+    try:
+        for obj, triangles in coarse:
+            copies[obj.name] = refine.refined_copy(obj, triangles)
+        replaced = [copies.get(obj.name, obj) for obj in objects]
+        outcome = run_bake(context, replaced, out_dir, previews, progress, device_name=device_name, refine=False)
+    except BaseException:
+        for copy in copies.values():
+            refine.undo_refinement(copy)
+        raise
+    outcome.report["refined"] = [
+        {"object": name, "copy": copy.name, "coarse_triangles": int(len(triangles)),
+         "vertices": [len(bpy.data.objects[name].data.vertices), len(copy.data.vertices)]}
+        for (obj, triangles), (name, copy) in zip(coarse, copies.items())]
+    return outcome
+
+
 def _vertex_topology_kept(obj, mesh) -> bool:
     return mesh.vertex_count == len(obj.data.vertices) and mesh.loop_count == len(obj.data.loops)
 
@@ -198,7 +221,8 @@ def _check_vertex_topology(obj, mesh) -> None:
 
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
-             progress=None, relight_only: bool = False, setups=None, device_name: str | None = None) -> JobResult:
+             progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
+             refine: bool | None = None) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -213,6 +237,8 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         is relit from the one prepared table and written to ``out_dir/<setup>/``
         (files only; the scene's images keep the scene's own lighting).
     device_name : 'auto', 'gpu' or 'cpu' for the transport passes; None: the preference
+    refine : bake refined copies of vertex-mode objects whose triangles are too coarse for
+        their light (operators.refine); None: the scene's setting
     """
     scene = context.scene
     props = scene.visibake
@@ -265,6 +291,12 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     except BaseException:
         extracted.undo()
         raise
+    refine = props.refine_vertex_objects if refine is None else refine
+    if refine and setups is None and not relight_only:
+        coarse = [(bpy.data.objects[r.name], r.coarse_triangles) for r in results[0][1].objects
+                  if r.domain is not None and r.coarse_triangles is not None and len(r.coarse_triangles)]
+        if coarse:
+            return _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name)
     times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
 
     t = time.perf_counter()

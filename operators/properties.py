@@ -61,6 +61,11 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         items=[("interpolate", "Interpolate", "Mix the three vertices of the triangle a ray lands on"),
                ("nearest", "Nearest", "The paper's variant: the nearest vertex of that triangle")],
         description="How light is read where a ray lands on a vertex-mode object")
+    refine_vertex_objects: bpy.props.BoolProperty(
+        name="Refine Coarse Vertex Objects", default=False,
+        description="Where a vertex-mode object's triangles are too large for its light (a shadow edge inside "
+                    "them), bake a copy with those faces subdivided in its place and hide the original; your mesh "
+                    "is never changed")
     output_dir: bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")

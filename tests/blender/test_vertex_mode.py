@@ -186,3 +186,51 @@ def test_auto_leaves_meshes_beyond_the_unwrap_budget_to_vertex_tables(visibake, 
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     entry = next(o for o in _report()["objects"] if o["name"] == "Big")
     assert entry["mode"] == "vertex" and "the budget is" in entry["layout_reason"]
+
+
+def _spot_over_coarse_plane():
+    black_world()
+    plane = mesh_object("Plane", grid(1.0, segments=2), material("White", (0.6, 0.6, 0.6)))
+    spot = bpy.data.objects.new("Spot", bpy.data.lights.new("Spot", "SPOT"))
+    spot.data.energy, spot.data.spot_size, spot.data.spot_blend = 300.0, np.radians(60), 0.0
+    spot.data.shadow_soft_size = 0.0
+    spot.location = (0.3, 0.2, 1.0)
+    bpy.context.scene.collection.objects.link(spot)
+    return plane
+
+
+def test_refine_bakes_a_subdivided_copy_and_leaves_the_mesh_alone(clean_scene):
+    plane = _spot_over_coarse_plane()
+    vertices = len(plane.data.vertices)
+    props = _settings()
+    props.refine_vertex_objects = True
+    select_only([plane])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    report = _report()
+    [refined] = report["refined"]
+    copy = bpy.data.objects[refined["copy"]]
+    assert refined["object"] == "Plane" and refined["coarse_triangles"] > 0
+    assert len(copy.data.vertices) > vertices == len(plane.data.vertices)
+    assert plane.hide_render and not copy.hide_render
+    assert "VB_lighting" in copy.data.color_attributes and "VB_lighting" not in plane.data.color_attributes
+    assert plane.data is not copy.data and copy.matrix_world == plane.matrix_world
+    # The copy's report covers the copy; the plane itself was not baked in the end.
+    assert {o["name"] for o in report["objects"]} == {copy.name}
+
+
+def test_a_failed_refined_bake_restores_the_scene(visibake, clean_scene):
+    plane = _spot_over_coarse_plane()
+    names = set(bpy.data.objects.keys())
+    props = _settings()
+    calls = []
+
+    def cancel_in_the_second_bake(stage, fraction):
+        calls.append(stage)
+        if calls.count("layout") > 1:
+            raise visibake.core.pipeline.Cancelled()
+
+    with pytest.raises(visibake.core.pipeline.Cancelled):
+        visibake.operators.job.run_bake(bpy.context, [plane], progress=cancel_in_the_second_bake, refine=True)
+    assert set(bpy.data.objects.keys()) == names
+    assert not plane.hide_render and plane.visible_get()
+    assert "VB_lighting" not in plane.data.color_attributes

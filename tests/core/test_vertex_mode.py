@@ -187,3 +187,24 @@ def test_a_shadow_edge_inside_large_triangles_is_reported():
     fine = bake(Scene([grid_mesh("Fine", segments=64)], [spot]), BakeSettings(directions=16, bounces=0))
     entry = fine.report["objects"][0]
     assert entry["under_tessellated_area_share"] < 0.1
+
+
+def test_world_light_and_shadow_fractions_reach_vertex_samples():
+    # An open plane under a uniform sky of radiance L: E = pi L at every vertex, so the
+    # lighting is rho * L (the gather through misses, normalised weights: exact).
+    plane = grid_mesh("Plane", segments=4, material=Material(base_color=np.full(3, 0.5)))
+    lit = bake(Scene([plane], [], World(np.full(3, 2.0))), BakeSettings(directions=64, bounces=1))
+    np.testing.assert_allclose(lit.objects[0].images["lighting"][:, :3], 1.0, rtol=1e-5)
+    # Shadow fractions are looked up per vertex like per texel: under a roof, the
+    # fractions' soft shadow and the exact one darken the same vertices on average.
+    roof = quad_mesh("Roof", [(-0.5, -0.5, 0.5), (-0.5, 0.5, 0.5), (0.5, 0.5, 0.5), (0.5, -0.5, 0.5)],
+                     resolution=8)
+    sun = Light("Sun", "SUN", np.ones(3), 3.0, direction=np.array([0.0, 0.0, -1.0]))
+    means = {}
+    for shadows in ("exact", "fractions"):
+        result = bake(Scene([grid_mesh("Plane", segments=16), roof], [sun]),
+                      BakeSettings(directions=128, bounces=0, shadows=shadows))
+        means[shadows] = float(result.objects[0].images["lighting"][:, 0].mean())
+    unshadowed = 0.8 * 3.0 / np.pi
+    assert means["exact"] < 0.95 * unshadowed and means["fractions"] < 0.95 * unshadowed
+    assert means["fractions"] == pytest.approx(means["exact"], rel=0.25)
