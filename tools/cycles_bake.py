@@ -221,6 +221,16 @@ def _disjoint_groups(
     return [members for _, members in groups]
 
 
+def _objects_in_scene(objects) -> list:
+    """``objects`` as a list; ValueError naming any that are not in the current scene."""
+    objects = list(objects)
+    scene = bpy.context.scene
+    missing = [ob.name for ob in objects if scene.objects.get(ob.name) is not ob]
+    if missing:
+        raise ValueError(f"objects not in the current scene: {missing}")
+    return objects
+
+
 def _material_groups(objects: Sequence[bpy.types.Object]) -> list[list[bpy.types.Object]]:
     """Split objects into groups in which no two objects share a material.
 
@@ -369,13 +379,10 @@ def bake_diffuse(
     and every changed setting (engine, samples, bounces, active UV map, active
     node, ...) is restored.
     """
-    objects = list(objects)
+    objects = _objects_in_scene(objects)
     if not objects:
         return {}
     scene = bpy.context.scene
-    missing = [ob.name for ob in objects if scene.objects.get(ob.name) is not ob]
-    if missing:
-        raise ValueError(f"objects not in the current scene: {missing}")
     passes = set(pass_filter)
     out: dict[str, np.ndarray] = {}
     with reference_settings(scene, bounces, samples, margin, seed, threads), \
@@ -493,13 +500,10 @@ def bake_diffuse_vertex_colors(
     """
     if domain not in _COLOR_DOMAINS:
         raise ValueError(f"domain must be one of {_COLOR_DOMAINS}, not {domain!r}")
-    objects = list(objects)
+    objects = _objects_in_scene(objects)
     if not objects:
         return {}
     scene = bpy.context.scene
-    missing = [ob.name for ob in objects if scene.objects.get(ob.name) is not ob]
-    if missing:
-        raise ValueError(f"objects not in the current scene: {missing}")
     passes = set(pass_filter)
     out: dict[str, np.ndarray] = {}
     with reference_settings(scene, bounces, samples, 0, seed, threads, target="VERTEX_COLORS"), \

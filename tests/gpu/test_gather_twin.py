@@ -15,24 +15,34 @@ import pytest
 RTOL, ATOL = 1e-4, 1e-6
 
 
-def _random_case(core, samples=3000, directions=96, objects=3, channels=3, seed=0):
-    rng = np.random.default_rng(seed)
-    sizes = [(int(rng.integers(3, 40)), int(rng.integers(3, 40))) for _ in range(objects)]
-    layout = core.transport.AtlasLayout.from_sizes(sizes)
+def _random_codes(core, rng, samples, directions, objects):
+    """Directions, unit normals, random hit codes (below the horizon where the direction
+    faces away, as the tracer writes them) and hit coordinates."""
     dirs = core.directions.spherical_fibonacci(directions)
     normals = rng.normal(size=(samples, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     codes = rng.choice([-3, -2, -1] + list(range(objects)), size=(directions, samples),
                        p=[0.05, 0.35, 0.2] + [0.4 / objects] * objects).astype(np.int16)
-    # Below-horizon entries where the direction faces away, as the tracer writes them.
     codes[(dirs @ normals.T) <= 0] = core.visibility.BELOW_HORIZON
     uv = rng.uniform(-0.05, 1.05, size=(directions, samples, 2)).astype(np.float32)
+    return dirs, normals, codes, uv
+
+
+def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None):
     table = core.visibility.VisibilityTable(directions=dirs, hit_object=codes, hit_uv=uv,
-                                            hit_distance=np.ones((directions, samples), np.float32))
+                                            hit_distance=np.ones(codes.shape, np.float32), hit_triangle=triangles)
     scale = core.transport.gather_normalisation(table, normals)
     radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
-    world = rng.uniform(0, 1, size=(directions, channels))
+    world = rng.uniform(0, 1, size=(len(dirs), channels))
     return table, normals, scale, layout, radiance, world
+
+
+def _random_case(core, samples=3000, directions=96, objects=3, channels=3, seed=0):
+    rng = np.random.default_rng(seed)
+    sizes = [(int(rng.integers(3, 40)), int(rng.integers(3, 40))) for _ in range(objects)]
+    layout = core.transport.AtlasLayout.from_sizes(sizes)
+    dirs, normals, codes, uv = _random_codes(core, rng, samples, directions, objects)
+    return _case(core, rng, layout, dirs, normals, codes, uv, channels)
 
 
 # Barycentrics with exactly equal largest weights in float32 (w0 = 1 - u - v): the
@@ -56,13 +66,7 @@ def _vertex_case(core, samples=3000, directions=96, objects=6, channels=3, neare
             sizes.append((int(rng.integers(3, 40)), int(rng.integers(3, 40))))
             corner_samples.append(None)
     layout = core.transport.AtlasLayout.from_sizes(sizes, corner_samples, nearest)
-    dirs = core.directions.spherical_fibonacci(directions)
-    normals = rng.normal(size=(samples, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    codes = rng.choice([-3, -2, -1] + list(range(objects)), size=(directions, samples),
-                       p=[0.05, 0.35, 0.2] + [0.4 / objects] * objects).astype(np.int16)
-    codes[(dirs @ normals.T) <= 0] = core.visibility.BELOW_HORIZON
-    uv = rng.uniform(-0.05, 1.05, size=(directions, samples, 2)).astype(np.float32)
+    dirs, normals, codes, uv = _random_codes(core, rng, samples, directions, objects)
     triangles = np.zeros((directions, samples), np.int32)
     for index, corners in enumerate(corner_samples):
         if corners is None:
@@ -75,13 +79,7 @@ def _vertex_case(core, samples=3000, directions=96, objects=6, channels=3, neare
         tied = rng.random(len(bary)) < 0.2
         bary[tied] = np.array(TIES)[rng.integers(0, len(TIES), size=int(tied.sum()))]
         uv[on] = bary.astype(np.float32)
-    table = core.visibility.VisibilityTable(directions=dirs, hit_object=codes, hit_uv=uv,
-                                            hit_distance=np.ones((directions, samples), np.float32),
-                                            hit_triangle=triangles)
-    scale = core.transport.gather_normalisation(table, normals)
-    radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
-    world = rng.uniform(0, 1, size=(directions, channels))
-    return table, normals, scale, layout, radiance, world
+    return _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles)
 
 
 def _report(name, ours, twin):
