@@ -208,3 +208,18 @@ def test_world_light_and_shadow_fractions_reach_vertex_samples():
     unshadowed = 0.8 * 3.0 / np.pi
     assert means["exact"] < 0.95 * unshadowed and means["fractions"] < 0.95 * unshadowed
     assert means["fractions"] == pytest.approx(means["exact"], rel=0.25)
+
+
+def test_the_lighting_cache_tells_the_vertex_lookups_apart(tmp_path):
+    cache = VisibilityCache(str(tmp_path))
+    results = {}
+    for lookup in ("interpolate", "nearest", "interpolate"):
+        settings = BakeSettings(directions=64, bounces=1, passes=("indirect",), vertex_lookup=lookup)
+        scene = _bounce_scene("vertex", segments=6)
+        result = relight(prepare(scene, settings, cache=cache), scene.lights, World())
+        results.setdefault(lookup, []).append(result)
+    # The second lookup is transported anew (its gathers differ), the third read back.
+    assert results["nearest"][0].report["cache"]["lighting_reused"] == []
+    assert results["interpolate"][1].report["cache"]["lighting_reused"] == ["all"]
+    ceiling = {k: v[0].objects[1].images["indirect"] for k, v in results.items()}
+    assert np.any(ceiling["nearest"] != ceiling["interpolate"])
