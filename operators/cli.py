@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     for sub in (bake, relight, demo):
         sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
         sub.add_argument("--objects", metavar="A,B", help="comma-separated objects to bake (default: all visible meshes)")
+        sub.add_argument("--preset", choices=("draft", "production"),
+                         help="set directions, bounces, resolution and shadows together (options below override it)")
         sub.add_argument("--directions", type=int, metavar="N", help="size of the direction set (default 128)")
         sub.add_argument("--bounces", type=int, metavar="K", help="diffuse bounces (default 2)")
         sub.add_argument("--resolution", type=int, metavar="PX", help="atlas size in texels (default 256)")
@@ -83,6 +85,8 @@ def _apply_settings(args, props) -> None:
             raise job.BakeInputError(f"--{name} must be at least {minimum}, got {value}")
     if args.texel_density is not None and not args.texel_density >= 0:
         raise job.BakeInputError(f"--texel-density must be zero or more, got {args.texel_density}")
+    if args.preset is not None:
+        props.preset = args.preset.upper()
     for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate",
                  "light_groups"):
         value = getattr(args, name)

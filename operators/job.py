@@ -37,10 +37,13 @@ class JobResult:
 
 
 def cache_folder(scene) -> str:
-    """The cache folder: the scene's setting, else beside the saved .blend, else the user folder."""
+    """The cache folder: the scene's setting, the preference, beside the saved .blend, the user folder."""
     props = scene.visibake
     if props.cache_dir:
         return bpy.path.abspath(props.cache_dir)
+    prefs = device.preferences()
+    if prefs is not None and prefs.cache_dir:
+        return bpy.path.abspath(prefs.cache_dir)
     if bpy.data.filepath:
         return os.path.join(os.path.dirname(bpy.data.filepath), CACHE_FOLDER_NAME)
     package = __package__.rpartition(".")[0]
@@ -246,7 +249,8 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
     if setups is not None and not out_dir:
         raise BakeInputError("lighting setups are written as files: give an output folder")
-    settings = props.to_bake_settings()
+    prefs = device.preferences(context)
+    settings = props.to_bake_settings(threads=prefs.threads if prefs is not None else 0)
     try:
         settings.validate()
     except ValueError as error:

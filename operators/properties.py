@@ -5,16 +5,52 @@ from ..core.scene import BakeSettings, PASSES
 
 _PASS_ITEMS = [(p, p.capitalize(), f"Write the {p} pass") for p in PASSES]
 
+# What each preset sets; any later change to one of these makes the preset Custom.
+PRESETS = {
+    "DRAFT": {"directions": 64, "bounces": 1, "resolution": 128, "shadows": "exact", "rotate": False},
+    "PRODUCTION": {"directions": 256, "bounces": 3, "resolution": 512, "shadows": "exact", "rotate": True},
+}
+_applying_preset = False
+
+
+def _apply_preset(settings, context) -> None:
+    global _applying_preset
+    values = PRESETS.get(settings.preset)
+    if values is None:
+        return
+    _applying_preset = True
+    try:
+        for name, value in values.items():
+            setattr(settings, name, value)
+    finally:
+        _applying_preset = False
+
+
+def _mark_custom(settings, context) -> None:
+    """A setting changed by hand: the preset no longer describes the settings."""
+    if _applying_preset or settings.preset == "CUSTOM":
+        return
+    values = PRESETS.get(settings.preset, {})
+    if any(getattr(settings, name) != value for name, value in values.items()):
+        settings.preset = "CUSTOM"
+
 
 class VisiBakeSceneSettings(bpy.types.PropertyGroup):
+    preset: bpy.props.EnumProperty(
+        name="Preset", default="CUSTOM", update=_apply_preset,
+        items=[("DRAFT", "Draft", "64 directions, 1 bounce, 128 texels, exact shadows: a quick look"),
+               ("PRODUCTION", "Production", "256 directions, 3 bounces, 512 texels, exact shadows, rotated "
+                                            "direction set: final quality"),
+               ("CUSTOM", "Custom", "The settings below as they are")],
+        description="Set directions, bounces, resolution and shadows together")
     directions: bpy.props.IntProperty(
-        name="Directions", default=128, min=1, soft_min=16, soft_max=1024,
+        name="Directions", default=128, min=1, soft_min=16, soft_max=1024, update=_mark_custom,
         description="Size of the global direction set: rays per texel for visibility (more: less noise, slower)")
     bounces: bpy.props.IntProperty(
-        name="Bounces", default=2, min=0, soft_max=8,
+        name="Bounces", default=2, min=0, soft_max=8, update=_mark_custom,
         description="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)")
     shadows: bpy.props.EnumProperty(
-        name="Shadows", default="exact",
+        name="Shadows", default="exact", update=_mark_custom,
         items=[("fractions", "Fractions", "Shadows from the precomputed visibility (no ray at lighting time, soft)"),
                ("exact", "Exact", "One shadow ray per texel and light (sharp, traced at every bake)")],
         description="How direct light is shadowed")
@@ -22,7 +58,7 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="Passes", options={"ENUM_FLAG"}, items=_PASS_ITEMS, default={"lighting"},
         description="Which passes to write")
     resolution: bpy.props.IntProperty(
-        name="Resolution", default=256, min=1, soft_min=16, soft_max=4096,
+        name="Resolution", default=256, min=1, soft_min=16, soft_max=4096, update=_mark_custom,
         description="Atlas width and height in texels for objects without their own resolution")
     texel_density: bpy.props.FloatProperty(
         name="Texels per Unit", default=0.0, min=0.0, soft_max=1024.0,
@@ -38,7 +74,7 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="All Objects", default=False,
         description="Bake every visible mesh object instead of the selected ones")
     rotate: bpy.props.BoolProperty(
-        name="Rotate Directions", default=False,
+        name="Rotate Directions", default=False, update=_mark_custom,
         description="Randomly rotate the direction set (seeded): structured artefacts become noise")
     seed: bpy.props.IntProperty(name="Seed", default=0, min=0, description="Seed of the direction rotation")
     margin: bpy.props.IntProperty(
@@ -70,11 +106,11 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")
 
-    def to_bake_settings(self) -> BakeSettings:
+    def to_bake_settings(self, threads: int = 0) -> BakeSettings:
         return BakeSettings(directions=self.directions, bounces=self.bounces, shadows=self.shadows,
                             rotate=self.rotate, seed=self.seed, margin=self.margin,
                             passes=tuple(p for p in PASSES if p in self.passes), light_groups=self.light_groups,
-                            vertex_lookup=self.vertex_lookup)
+                            vertex_lookup=self.vertex_lookup, threads=threads)
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

@@ -1,6 +1,8 @@
 """The VisiBake tab of the 3D viewport sidebar (N-panel)."""
 import bpy
 
+from ..operators import cache_status
+
 
 class VIEW3D_PT_visibake(bpy.types.Panel):
     bl_label = "VisiBake"
@@ -15,6 +17,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         column = layout.column()
+        column.prop(props, "preset")
         column.prop(props, "directions")
         column.prop(props, "bounces")
         column.prop(props, "shadows")
@@ -37,6 +40,16 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("visibake.bake", icon="RENDER_STILL")
         row.operator("visibake.relight", icon="LIGHT")
+        if props.use_cache:
+            box = layout.box()
+            state = cache_status.status(context.scene)
+            if state["has_table"]:
+                box.label(text=f"Cache: table for these settings, {state['table_bytes'] / 2**20:.0f} MiB",
+                          icon="CHECKMARK")
+            else:
+                box.label(text="Cache: no table for these settings yet", icon="INFO")
+            box.label(text=f"{state['slots']} setting(s), {state['bytes'] / 2**20:.0f} MiB in {state['folder']}")
+            box.operator("visibake.clear_cache", icon="TRASH")
         last = context.scene.get("visibake_last_report")
         if last:
             layout.label(text=last)

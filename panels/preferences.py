@@ -18,11 +18,21 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
         description="GPU memory the transport passes may use; the table is streamed in batches of directions "
                     "that fit")
 
+    cache_dir: bpy.props.StringProperty(
+        name="Cache Folder", subtype="DIR_PATH", default="",
+        description="Where visibility caches go when a scene sets no folder of its own (e.g. a fast disk); "
+                    "empty: beside the saved .blend, else VisiBake's user folder")
+    threads: bpy.props.IntProperty(
+        name="Threads", default=0, min=0, soft_max=64,
+        description="Worker threads for ray tracing and gathers (0: all cores)")
+
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
         layout.prop(self, "device")
         layout.prop(self, "gpu_memory_mib")
+        layout.prop(self, "cache_dir")
+        layout.prop(self, "threads")
 
 
 classes = (VisiBakePreferences,)
