@@ -243,101 +243,162 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     refine : bake refined copies of vertex-mode objects whose triangles are too coarse for
         their light (operators.refine); None: the scene's setting
     """
-    scene = context.scene
-    props = scene.visibake
-    if not objects:
-        raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
-    if setups is not None and not out_dir:
-        raise BakeInputError("lighting setups are written as files: give an output folder")
-    prefs = device.preferences(context)
-    settings = props.to_bake_settings(threads=prefs.threads if prefs is not None else 0)
+    bake_job = BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine)
+    bake_job.start()
     try:
-        settings.validate()
-    except ValueError as error:
-        raise BakeInputError(str(error)) from None
-    if setups is None:
+        bake_job.compute()
+    except BaseException:
+        bake_job.abort()
+        raise
+    return bake_job.finish()
+
+
+class BakeJob:
+    """:func:`run_bake` in three steps, so the middle one can run on a worker thread.
+
+    ``start`` and ``finish`` use bpy and run on the main thread; ``compute`` is the
+    core's work (no bpy) and may run anywhere, unless :attr:`needs_main_thread` (the
+    GPU passes need Blender's GL context). After ``start``, either ``finish`` or
+    ``abort`` must follow.
+    """
+
+    def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
+                 setups=None, device_name=None, refine=None):
+        self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
+        self.progress, self.relight_only, self.setups = progress, relight_only, setups
+        self.device_name, self.refine = device_name, refine
+        self.results = None
+
+    @property
+    def needs_main_thread(self) -> bool:
+        return self.chosen_device.name == "gpu"
+
+    def start(self) -> None:
+        """Check the inputs, choose the device, lay out and read the scene (main thread)."""
+        context, objects, setups = self.context, self.objects, self.setups
+        props = context.scene.visibake
+        if not objects:
+            raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
+        if setups is not None and not self.out_dir:
+            raise BakeInputError("lighting setups are written as files: give an output folder")
+        prefs = device.preferences(context)
+        self.settings = settings = props.to_bake_settings(threads=prefs.threads if prefs is not None else 0)
         try:
-            writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
+            settings.validate()
         except ValueError as error:
             raise BakeInputError(str(error)) from None
-
-    try:
-        chosen_device = device.choose(context, device_name)
-    except device.DeviceError as error:
-        raise BakeInputError(str(error)) from None
-    started = time.perf_counter()
-    extracted = extract_scene(context, objects, progress)
-    cache = visibility_cache(scene)
-    try:
+        if setups is None:
+            try:
+                writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
+            except ValueError as error:
+                raise BakeInputError(str(error)) from None
         try:
-            if setups is None:
-                writeback.check_attribute_names(
-                    [o for o in objects if o.name in extracted.plans and extracted.plans[o.name].mode == "vertex"],
-                    settings.passes)
-            lightings = [(None, extracted.scene.lights, extracted.scene.world)]
-            if setups is not None:
-                lightings = [(s.name, s.lights, s.world) for s in setups(extracted.scene.lights, extracted.scene.world)]
+            self.chosen_device = device.choose(context, self.device_name)
+        except device.DeviceError as error:
+            raise BakeInputError(str(error)) from None
+        self.started = time.perf_counter()
+        self.extracted = extracted = extract_scene(context, objects, self.progress)
+        self.cache = visibility_cache(context.scene)
+        try:
+            try:
+                if setups is None:
+                    writeback.check_attribute_names(
+                        [o for o in objects if o.name in extracted.plans and extracted.plans[o.name].mode == "vertex"],
+                        settings.passes)
+                self.lightings = [(None, extracted.scene.lights, extracted.scene.world)]
+                if setups is not None:
+                    self.lightings = [(s.name, s.lights, s.world)
+                                      for s in setups(extracted.scene.lights, extracted.scene.world)]
+            except ValueError as error:
+                raise BakeInputError(str(error)) from None
+        except BaseException:
+            extracted.undo()
+            raise
+
+    def compute(self) -> None:
+        """The visibility table and the transport (no bpy: any thread)."""
+        try:
             # Relighting with a setup may need the table although the scene's own lights do not.
-            prepared = prepare(extracted.scene, settings, progress, table_needed=True if setups else None,
-                               cache=cache, require_cached_table=relight_only)
-            chosen_device.apply(prepared)
+            prepared = prepare(self.extracted.scene, self.settings, self.progress,
+                               table_needed=True if self.setups else None, cache=self.cache,
+                               require_cached_table=self.relight_only)
+            self.chosen_device.apply(prepared)
             # All setups' light groups share the gathers: one table walk serves them all.
-            relit = relight_many(prepared, [(lights, world) for _, lights, world in lightings], progress)
-            results = [(name, result) for (name, _, _), result in zip(lightings, relit)]
+            relit = relight_many(prepared, [(lights, world) for _, lights, world in self.lightings], self.progress)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+        self.results = [(name, result) for (name, _, _), result in zip(self.lightings, relit)]
+
+    def abort(self) -> None:
+        """Undo what ``start`` did to the scene (the bake failed or was cancelled)."""
+        self.extracted.undo()
+
+    def finish(self) -> JobResult:
+        """Write the results into the scene and files, and assemble the report (main thread)."""
+        results, setups = self.results, self.setups
+        try:
             if setups is None:
                 first = results[0][1].objects
-                writeback.check_image_names(writeback.image_name(o.name, p)
-                                            for o in first if o.domain is None for p in o.images)
-                writeback.check_attribute_names([bpy.data.objects[o.name] for o in first if o.domain is not None],
-                                                {p for o in first if o.domain is not None for p in o.images})
-        except ValueError as error:
-            raise BakeInputError(str(error)) from None
-    except BaseException:
-        extracted.undo()
-        raise
-    refine = props.refine_vertex_objects if refine is None else refine
-    if refine and setups is None and not relight_only:
-        coarse = [(bpy.data.objects[r.name], r.coarse_triangles) for r in results[0][1].objects
-                  if r.domain is not None and r.coarse_triangles is not None and len(r.coarse_triangles)]
-        if coarse:
-            return _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name)
-    times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
+                try:
+                    writeback.check_image_names(writeback.image_name(o.name, p)
+                                                for o in first if o.domain is None for p in o.images)
+                    writeback.check_attribute_names(
+                        [bpy.data.objects[o.name] for o in first if o.domain is not None],
+                        {p for o in first if o.domain is not None for p in o.images})
+                except ValueError as error:
+                    raise BakeInputError(str(error)) from None
+            props = self.context.scene.visibake
+            refine = props.refine_vertex_objects if self.refine is None else self.refine
+            if refine and setups is None and not self.relight_only:
+                coarse = [(bpy.data.objects[r.name], r.coarse_triangles) for r in results[0][1].objects
+                          if r.domain is not None and r.coarse_triangles is not None and len(r.coarse_triangles)]
+                if coarse:
+                    return _bake_refined(self.context, self.objects, coarse, self.out_dir, self.previews,
+                                         self.progress, self.device_name)
+        except BaseException:
+            self.abort()
+            raise
+        return self._write_and_report()
 
-    t = time.perf_counter()
-    files = []
-    for name, result in results:
-        if name is None:
-            files += writeback.write_outputs(result.objects, out_dir, previews)
-        else:
-            files += writeback.write_outputs(result.objects, os.path.join(out_dir, writeback.safe_file_name(name)),
-                                             previews, store_images=False)
-    times["write"] = time.perf_counter() - t
+    def _write_and_report(self) -> JobResult:
+        extracted, results, lightings, setups = self.extracted, self.results, self.lightings, self.setups
+        times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
+        t = time.perf_counter()
+        files = []
+        for name, result in results:
+            if name is None:
+                files += writeback.write_outputs(result.objects, self.out_dir, self.previews)
+            else:
+                files += writeback.write_outputs(result.objects,
+                                                 os.path.join(self.out_dir, writeback.safe_file_name(name)),
+                                                 self.previews, store_images=False)
+        times["write"] = time.perf_counter() - t
 
-    result = results[-1][1]
-    report = result.report
-    report["stage_seconds"] = {**{k: round(v, 4) for k, v in times.items() if k != "write"},
-                               **report["stage_seconds"], "write": round(times["write"], 4)}
-    report["total_seconds"] = round(time.perf_counter() - started, 4)
-    report["peak_memory_bytes"] = peak_memory_bytes()
-    report["files"] = files
-    report["warnings"] = warnings + report["warnings"]
-    for entry in report["objects"]:
-        plan = plans.get(entry["name"])
-        if plan is not None:
-            entry["mode"] = plan.mode
-            entry["layout_reason"] = plan.reason
-            entry["uv_map_created"] = plan.created
-    report["blender_version"] = bpy.app.version_string
-    report["lights"] = [light.name for light in lightings[-1][1]]
-    report["relight_only"] = relight_only
-    report["device"] = chosen_device.report
-    if setups is not None:
-        report["setups"] = [{"name": name, "lights": [light.name for light in lights],
-                             "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],
-                             "shadow_rays": r.report["rays"]["shadow_rays"],
-                             "lighting_reused": r.report["cache"].get("lighting_reused", [])}
-                            for (name, lights, _), (_, r) in zip(lightings, results)]
-    return JobResult(result=result, report=report, files=files)
+        result = results[-1][1]
+        report = result.report
+        report["stage_seconds"] = {**{k: round(v, 4) for k, v in times.items() if k != "write"},
+                                   **report["stage_seconds"], "write": round(times["write"], 4)}
+        report["total_seconds"] = round(time.perf_counter() - self.started, 4)
+        report["peak_memory_bytes"] = peak_memory_bytes()
+        report["files"] = files
+        report["warnings"] = warnings + report["warnings"]
+        for entry in report["objects"]:
+            plan = plans.get(entry["name"])
+            if plan is not None:
+                entry["mode"] = plan.mode
+                entry["layout_reason"] = plan.reason
+                entry["uv_map_created"] = plan.created
+        report["blender_version"] = bpy.app.version_string
+        report["lights"] = [light.name for light in lightings[-1][1]]
+        report["relight_only"] = self.relight_only
+        report["device"] = self.chosen_device.report
+        if setups is not None:
+            report["setups"] = [{"name": name, "lights": [light.name for light in lights],
+                                 "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],
+                                 "shadow_rays": r.report["rays"]["shadow_rays"],
+                                 "lighting_reused": r.report["cache"].get("lighting_reused", [])}
+                                for (name, lights, _), (_, r) in zip(lightings, results)]
+        return JobResult(result=result, report=report, files=files)
 
 
 def write_report(path: str, report: dict) -> None:
