@@ -1,4 +1,6 @@
 """The VisiBake tab of the 3D viewport sidebar (N-panel)."""
+import json
+
 import bpy
 
 from ..operators import cache_status
@@ -55,4 +57,48 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
             layout.label(text=last)
 
 
-classes = (VIEW3D_PT_visibake,)
+def report_lines(report: dict) -> list[tuple[str, str]]:
+    """(text, icon) lines of a bake report for the panel: stage times, rays, skips, warnings."""
+    lines = [(f"{report.get('total_seconds', 0):.1f} s in total", "TIME")]
+    for stage, seconds in report.get("stage_seconds", {}).items():
+        lines.append((f"{stage}: {seconds:.2f} s", "BLANK1"))
+    rays = report.get("rays", {})
+    lines.append((f"rays: {rays.get('visibility_cast', 0):,} traced, "
+                  f"{rays.get('visibility_skipped_below_horizon', 0):,} below the horizon skipped", "LIGHT_SUN"))
+    cache = report.get("cache", {})
+    if cache.get("state", "off") != "off":
+        lines.append((f"cache: {cache['state']}" + (f" ({cache['message']})" if cache.get("message") else ""),
+                      "FILE_CACHE"))
+    device = report.get("device", {})
+    if device:
+        lines.append((f"device: {device.get('used')} ({device.get('renderer', 'numpy')})", "MEMORY"))
+    lines += [(f"skipped: {item}", "FORWARD") for item in report.get("skipped", [])]
+    lines += [(item, "ERROR") for item in report.get("warnings", [])]
+    return lines
+
+
+class VIEW3D_PT_visibake_report(bpy.types.Panel):
+    bl_label = "Last Bake"
+    bl_idname = "VIEW3D_PT_visibake_report"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "VisiBake"
+    bl_parent_id = "VIEW3D_PT_visibake"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        return "visibake_report" in context.scene
+
+    def draw(self, context):
+        column = self.layout.column(align=True)
+        try:
+            report = json.loads(context.scene["visibake_report"])
+        except (TypeError, ValueError):
+            column.label(text="The last report cannot be read")
+            return
+        for text, icon in report_lines(report):
+            column.label(text=text, icon=icon)
+
+
+classes = (VIEW3D_PT_visibake, VIEW3D_PT_visibake_report)

@@ -1,0 +1,56 @@
+"""The panel, Python and the command line run the same bake with the same settings."""
+import json
+
+import bpy
+import numpy as np
+import OpenEXR
+
+from bpy_scenes import black_world, cube, grid, image_pixels, material, mesh_object, point, select_only
+
+
+def test_operator_and_command_line_agree(visibake, clean_scene, tmp_path):
+    black_world()
+    ground = mesh_object("Ground", grid(1.0, segments=2), material("White", (0.8, 0.8, 0.8)))
+    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4))
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    props = bpy.context.scene.visibake
+    props.preset = "DRAFT"
+    props.resolution = 24  # Custom from here on
+    props.passes = {"lighting", "ao"}
+    props.use_cache = False
+    path = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)  # the settings travel with the scene
+    select_only([ground, block])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    from_panel = {(name, p): image_pixels(f"VB_{name}_{p}") for name in ("Ground", "Block") for p in ("lighting", "ao")}
+    operator_report = json.loads(bpy.context.scene["visibake_report"])
+
+    out = tmp_path / "cli"
+    report_path = tmp_path / "cli.json"
+    assert visibake.cli.main(["bake", str(path), "--out", str(out), "--objects", "Ground,Block",
+                              "--report", str(report_path), "--no-progress"]) == 0
+    cli_report = json.loads(report_path.read_text())
+    for key in ("directions", "bounces", "shadows", "passes", "rotate", "seed", "margin"):
+        assert cli_report["settings"][key] == operator_report["settings"][key], key
+    for name in ("Ground", "Block"):
+        for pass_name in ("lighting", "ao"):
+            with OpenEXR.File(str(out / name / f"{pass_name}.exr")) as exr:
+                top_down = exr.channels()["RGBA"].pixels
+            # EXR rows run top-down, Blender's pixels bottom-up.
+            np.testing.assert_array_equal(top_down[::-1], from_panel[name, pass_name], err_msg=f"{name} {pass_name}")
+
+
+def test_the_panel_s_report_lines_cover_the_report(visibake, clean_scene):
+    black_world()
+    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    bpy.context.scene.visibake.resolution = 16
+    select_only([ground])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    report = json.loads(bpy.context.scene["visibake_report"])
+    lines = [text for text, _ in visibake.panels.main.report_lines(report)]
+    assert any(line.startswith("visibility:") or line.startswith("samples:") for line in lines)
+    assert sum(line.startswith("skipped:") for line in lines) == len(report["skipped"])
+    assert any(line.startswith("rays:") for line in lines)
+    # Panels are registered and poll as the scene has a report (drawing needs a window).
+    assert bpy.types.VIEW3D_PT_visibake_report.poll(bpy.context)
