@@ -1,4 +1,4 @@
 """Blender operators and the Blender side of the data flow (extraction, write-back)."""
-from . import bake, cache_status, properties
+from . import bake, cache_status, preview_nodes, properties
 
-classes = properties.classes + bake.classes + cache_status.classes
+classes = properties.classes + bake.classes + cache_status.classes + preview_nodes.classes

@@ -42,6 +42,9 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("visibake.bake", icon="RENDER_STILL")
         row.operator("visibake.relight", icon="LIGHT")
+        row = layout.row(align=True)
+        row.operator("visibake.preview_add", icon="SHADING_RENDERED")
+        row.operator("visibake.preview_remove", icon="X")
         if props.use_cache:
             box = layout.box()
             state = cache_status.status(context.scene)

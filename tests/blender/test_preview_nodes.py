@@ -1,0 +1,67 @@
+"""The baked-lighting preview: a node group wired into materials and taken out again."""
+import bpy
+import pytest
+
+from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only
+
+
+def _tree_state(mat):
+    tree = mat.node_tree
+    nodes = sorted((n.name, n.bl_idname) for n in tree.nodes)
+    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
+                   for l in tree.links)
+    active = [n.name for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and n.is_active_output]
+    return nodes, links, active
+
+
+@pytest.fixture
+def baked(clean_scene):
+    black_world()
+    white = material("White", (0.8, 0.8, 0.8))
+    ground = mesh_object("Ground", grid(1.0), white)
+    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4), uv_map=None)
+    block.visibake.mode = "vertex"
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    props = bpy.context.scene.visibake
+    props.directions, props.resolution, props.use_cache = 32, 16, False
+    select_only([ground, block])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    return ground, block
+
+
+def test_preview_is_added_beside_the_user_nodes_and_removed_without_a_trace(baked):
+    ground, block = baked
+    materials = [ground.material_slots[0].material, block.material_slots[0].material]
+    before = {m.name: _tree_state(m) for m in materials}
+    assert bpy.ops.visibake.preview_add() == {"FINISHED"}
+    for mat in materials:
+        nodes, links, active = _tree_state(mat)
+        old_nodes, old_links, old_active = before[mat.name]
+        assert set(old_nodes) <= set(nodes) and set(old_links) <= set(links)  # nothing deleted or rewired
+        assert active != old_active and len(nodes) == len(old_nodes) + 2
+    ground_group = bpy.data.node_groups["VisiBake Lighting Ground"]
+    image_node = next(n for n in ground_group.nodes if n.bl_idname == "ShaderNodeTexImage")
+    assert image_node.image.name == "VB_Ground_lighting"
+    block_group = bpy.data.node_groups["VisiBake Lighting Block"]
+    assert next(n for n in block_group.nodes if n.bl_idname == "ShaderNodeVertexColor").layer_name == "VB_lighting"
+    # Adding again replaces, it does not stack.
+    assert bpy.ops.visibake.preview_add() == {"FINISHED"}
+    assert len(_tree_state(materials[0])[0]) == len(before[materials[0].name][0]) + 2
+    assert bpy.ops.visibake.preview_remove() == {"FINISHED"}
+    for mat in materials:
+        assert _tree_state(mat) == before[mat.name]
+    assert not any(g.name.startswith("VisiBake Lighting") for g in bpy.data.node_groups)
+
+
+def test_a_shared_material_is_left_alone_with_a_warning(clean_scene):
+    black_world()
+    shared = material("Shared", (0.8, 0.8, 0.8))
+    a = mesh_object("A", grid(1.0), shared)
+    b = mesh_object("B", grid(1.0), shared, location=(3, 0, 0))
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    bpy.context.scene.visibake.resolution = 16
+    select_only([a, b])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    before = _tree_state(shared)
+    assert bpy.ops.visibake.preview_add() == {"FINISHED"}
+    assert _tree_state(shared) == before
