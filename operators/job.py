@@ -63,8 +63,9 @@ def visibility_cache(scene) -> VisibilityCache | None:
 
 
 def output_objects(context, props) -> list[bpy.types.Object]:
-    """The objects a bake writes results for: selected meshes, or all with ``bake_all``."""
-    meshes = extract.scene_meshes(context.scene)
+    """The objects a bake writes results for: selected meshes, or all with ``bake_all``,
+    except those whose role is Occlude Only."""
+    meshes = [o for o in extract.scene_meshes(context.scene) if o.visibake.role != "OCCLUDE"]
     if props.bake_all:
         return meshes
     return [o for o in meshes if o.select_get()]

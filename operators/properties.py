@@ -102,6 +102,9 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         description="Where a vertex-mode object's triangles are too large for its light (a shadow edge inside "
                     "them), bake a copy with those faces subdivided in its place and hide the original; your mesh "
                     "is never changed")
+    active_object_index: bpy.props.IntProperty(
+        name="Active Object", default=0, min=0,
+        description="The row of the objects list that is selected (the list's own state)")
     output_dir: bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")
@@ -114,6 +117,11 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):
+    role: bpy.props.EnumProperty(
+        name="Role", default="INCLUDE",
+        items=[("INCLUDE", "Bake", "Bake this object when it is selected, or with All Objects"),
+               ("OCCLUDE", "Occlude Only", "Never bake this object: it only casts shadows and reflects light")],
+        description="Whether this object gets results or only takes part in the light transport")
     resolution: bpy.props.IntProperty(
         name="Resolution", default=0, min=0, soft_max=4096,
         description="Atlas size of this object in texels (0: the scene's setting)")

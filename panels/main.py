@@ -80,6 +80,36 @@ def report_lines(report: dict) -> list[tuple[str, str]]:
     return lines
 
 
+class VISIBAKE_UL_objects(bpy.types.UIList):
+    """The scene's meshes with their VisiBake role, mode and resolution."""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_property, index=0, flt_flag=0):
+        row = layout.row(align=True)
+        row.label(text=item.name, icon="MESH_DATA")
+        row.prop(item.visibake, "role", text="")
+        row.prop(item.visibake, "mode", text="")
+        row.prop(item.visibake, "resolution", text="")
+
+    def filter_items(self, context, data, property):
+        objects = getattr(data, property)
+        flags = [self.bitflag_filter_item if obj.type == "MESH" else 0 for obj in objects]
+        return flags, []
+
+
+class VIEW3D_PT_visibake_objects(bpy.types.Panel):
+    bl_label = "Objects"
+    bl_idname = "VIEW3D_PT_visibake_objects"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "VisiBake"
+    bl_parent_id = "VIEW3D_PT_visibake"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        self.layout.template_list("VISIBAKE_UL_objects", "", context.scene, "objects", context.scene.visibake,
+                                  "active_object_index", rows=4)
+
+
 class VIEW3D_PT_visibake_report(bpy.types.Panel):
     bl_label = "Last Bake"
     bl_idname = "VIEW3D_PT_visibake_report"
@@ -104,4 +134,4 @@ class VIEW3D_PT_visibake_report(bpy.types.Panel):
             column.label(text=text, icon=icon)
 
 
-classes = (VIEW3D_PT_visibake, VIEW3D_PT_visibake_report)
+classes = (VIEW3D_PT_visibake, VISIBAKE_UL_objects, VIEW3D_PT_visibake_objects, VIEW3D_PT_visibake_report)

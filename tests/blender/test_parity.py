@@ -54,3 +54,20 @@ def test_the_panel_s_report_lines_cover_the_report(visibake, clean_scene):
     assert any(line.startswith("rays:") for line in lines)
     # Panels are registered and poll as the scene has a report (drawing needs a window).
     assert bpy.types.VIEW3D_PT_visibake_report.poll(bpy.context)
+
+
+def test_occlude_only_objects_shadow_but_get_no_results(visibake, clean_scene):
+    black_world()
+    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4))
+    point(80.0, (0.0, 0.0, 1.5), name="Lamp")
+    block.visibake.role = "OCCLUDE"
+    props = bpy.context.scene.visibake
+    props.bake_all, props.resolution, props.use_cache = True, 16, False
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    assert "VB_Ground_lighting" in bpy.data.images and "VB_Block_lighting" not in bpy.data.images
+    report = json.loads(bpy.context.scene["visibake_report"])
+    assert {o["name"]: o["output"] for o in report["objects"]} == {"Ground": True, "Block": False}
+    lit = image_pixels("VB_Ground_lighting")[..., 0]
+    assert lit.min() < 0.5 * lit.max()  # the block's shadow is on the ground
+    assert bpy.types.VISIBAKE_UL_objects is not None
