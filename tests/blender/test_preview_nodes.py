@@ -65,3 +65,4 @@ def test_a_shared_material_is_left_alone_with_a_warning(clean_scene):
     before = _tree_state(shared)
     assert bpy.ops.visibake.preview_add() == {"FINISHED"}
     assert _tree_state(shared) == before
+
