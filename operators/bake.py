@@ -68,9 +68,44 @@ class Progress:
         elapsed = time.perf_counter() - self.stage_started
         return elapsed * (1.0 - self.fraction) / self.fraction
 
+    # Rates assumed until the bake has measured its own (this machine, 2 cores: embree
+    # 5.4 Mrays/s, the numpy gather ~15 M lookups/s on the demo; docs/benchmarks.md).
+    ASSUMED_RATES = {"visibility": 5e6, "transport": 1.5e7}
+
+    def plan(self, work: dict) -> None:
+        """The bake's known work: {"visibility": rays to trace, "transport": table lookups}."""
+        self.work = dict(work)
+        self.rates = dict(self.ASSUMED_RATES)
+
+    def seconds_left(self) -> float | None:
+        """Time left for the whole bake, from the work still to do at the rates seen so far.
+
+        None without a :meth:`plan`. The running stage's rate replaces the assumed one
+        once it has done a few percent of its work.
+        """
+        work = getattr(self, "work", None)
+        if work is None:
+            return None
+        order = [name for name, _ in STAGES]
+        current = order.index(self.stage) if self.stage in order else 0
+        if self.stage in work and self.fraction >= 0.02:
+            elapsed = time.perf_counter() - self.stage_started
+            self.rates[self.stage] = max(work[self.stage] * self.fraction / max(elapsed, 1e-6), 1.0)
+        left = 0.0
+        for index, name in enumerate(order):
+            if name not in work or index < current:
+                continue
+            remaining = work[name] * ((1.0 - self.fraction) if index == current else 1.0)
+            left += remaining / self.rates[name]
+        return left
+
     def status_text(self) -> str:
-        left = self.stage_seconds_left()
-        eta = f", about {left:.0f} s left in this stage" if left is not None else ""
+        left = self.seconds_left()
+        if left is None:
+            left = self.stage_seconds_left()
+            eta = f", about {left:.0f} s left in this stage" if left is not None else ""
+        else:
+            eta = f", about {left:.0f} s left"
         return f"VisiBake: {self.stage} {int(100 * self.fraction)}% ({self.percent}% of the bake{eta}) - Esc to cancel"
 
 
@@ -133,6 +168,7 @@ class _BakeOperator:
             return {"CANCELLED"}
         except Cancelled:
             return {"CANCELLED"}
+        self._progress.plan(self._job_state.expected_work())
         if self._job_state.needs_main_thread:
             # The GPU passes need Blender's GL context, which lives on the main thread.
             return self._run_here(context)

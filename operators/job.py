@@ -316,6 +316,23 @@ class BakeJob:
             extracted.undo()
             raise
 
+    def expected_work(self) -> dict:
+        """Rays and lookups the bake will need, from the layout (before the samples exist).
+
+        Atlas texels count at the share a packed UV layout typically covers; a vertex-mode
+        object has about one sample per vertex. Half the directions lie above a sample's
+        horizon. For the time-left estimate in the UI, not for any decision.
+        """
+        samples = 0.0
+        for mesh in self.extracted.scene.meshes:
+            if mesh.mode == "vertex":
+                samples += mesh.vertex_count or len(mesh.positions)
+            else:
+                samples += layout.TYPICAL_PACKED_UV_AREA * mesh.resolution[0] * mesh.resolution[1]
+        rays = samples * self.settings.directions / 2
+        gathers = self.settings.bounces + 1
+        return {"visibility": rays, "transport": rays * gathers}
+
     def compute(self) -> None:
         """The visibility table and the transport (no bpy: any thread)."""
         try:

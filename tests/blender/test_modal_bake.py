@@ -39,6 +39,25 @@ def test_progress_percentages_status_and_cancel(visibake):
         progress("transport", 0.6)
 
 
+def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, scene):
+    job = visibake.operators.job
+    bake_job = job.BakeJob(bpy.context, list(scene))
+    bake_job.start()
+    try:
+        work = bake_job.expected_work()
+        # Ground 32 x 32 texels and the block's atlas, 64 directions, 2 bounces.
+        assert work["visibility"] > 0.7 * 32 * 32 * 64 / 2 and work["transport"] == 3 * work["visibility"]
+        progress = visibake.operators.bake.Progress()
+        progress.plan({"visibility": 1e6, "transport": 3e6})
+        progress("visibility", 0.0)
+        at_start = progress.seconds_left()
+        assert at_start == pytest.approx(1e6 / 5e6 + 3e6 / 1.5e7)  # the assumed rates
+        progress("transport", 0.5)
+        assert progress.seconds_left() < at_start and "s left" in progress.status_text()
+    finally:
+        bake_job.abort()
+
+
 def test_a_bake_on_a_worker_thread_gives_the_blocking_bake_s_images(visibake, scene):
     job = visibake.operators.job
     assert bpy.ops.visibake.bake() == {"FINISHED"}
