@@ -136,15 +136,8 @@ class _BakeOperator:
             progress(stage, fraction)
             window_manager.progress_update(progress.percent)
 
-        bake_job = self._job(context, report_progress)
         try:
-            bake_job.start()
-            try:
-                bake_job.compute()
-            except BaseException:
-                bake_job.abort()
-                raise
-            outcome = bake_job.finish()
+            outcome = self._job(context, report_progress).run()
         except job.BakeInputError as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
@@ -189,12 +182,7 @@ class _BakeOperator:
 
     def _run_here(self, context) -> set:
         try:
-            try:
-                self._job_state.compute()
-            except BaseException:
-                self._job_state.abort()
-                raise
-            return self._finished(context, self._job_state.finish())
+            return self._finished(context, self._job_state.compute_and_finish())
         except job.BakeInputError as error:
             self.report({"ERROR"}, str(error))
         except Cancelled:

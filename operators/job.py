@@ -244,14 +244,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     refine : bake refined copies of vertex-mode objects whose triangles are too coarse for
         their light (operators.refine); None: the scene's setting
     """
-    bake_job = BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine)
-    bake_job.start()
-    try:
-        bake_job.compute()
-    except BaseException:
-        bake_job.abort()
-        raise
-    return bake_job.finish()
+    return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine).run()
 
 
 class BakeJob:
@@ -269,6 +262,19 @@ class BakeJob:
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine = device_name, refine
         self.results = None
+
+    def run(self) -> JobResult:
+        """All three steps on this thread: the blocking bake."""
+        self.start()
+        return self.compute_and_finish()
+
+    def compute_and_finish(self) -> JobResult:
+        try:
+            self.compute()
+        except BaseException:
+            self.abort()
+            raise
+        return self.finish()
 
     @property
     def needs_main_thread(self) -> bool:
