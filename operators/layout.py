@@ -90,12 +90,15 @@ def owns_uv_map(mesh: bpy.types.Mesh, name: str) -> bool:
 
 
 def object_resolution(obj, settings, world_area: float, uv_area: float) -> tuple[int, int]:
-    """Atlas size: the object's own setting, else texel density, else the scene setting."""
+    """Atlas size: the object's own resolution or texel density, else the scene's texel
+    density, else the scene's resolution."""
     own = obj.visibake.resolution if hasattr(obj, "visibake") else 0
     if own > 0:
         return own, own
-    if settings.texel_density > 0 and world_area > 0:
-        size = int(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * settings.texel_density))
+    density = obj.visibake.texel_density if hasattr(obj, "visibake") else 0.0
+    density = density if density > 0 else settings.texel_density
+    if density > 0 and world_area > 0:
+        size = int(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * density))
         size = int(np.clip(size, 8, 8192))
         return size, size
     return settings.resolution, settings.resolution

@@ -125,6 +125,9 @@ class VisiBakeObjectSettings(bpy.types.PropertyGroup):
     resolution: bpy.props.IntProperty(
         name="Resolution", default=0, min=0, soft_max=4096,
         description="Atlas size of this object in texels (0: the scene's setting)")
+    texel_density: bpy.props.FloatProperty(
+        name="Texels per Unit", default=0.0, min=0.0, soft_max=1024.0,
+        description="If above zero (and Resolution is 0), size this object's atlas from its surface area")
     mode: bpy.props.EnumProperty(
         name="Mode", default="SCENE",
         items=[("SCENE", "Scene", "The scene's mode"),

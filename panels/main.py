@@ -39,6 +39,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         if obj is not None and obj.type == "MESH":
             layout.prop(obj.visibake, "resolution", text=f"{obj.name} Resolution")
             layout.prop(obj.visibake, "mode", text=f"{obj.name} Mode")
+            layout.prop(obj.visibake, "texel_density", text=f"{obj.name} Texels per Unit")
         row = layout.row(align=True)
         row.operator("visibake.bake", icon="RENDER_STILL")
         row.operator("visibake.relight", icon="LIGHT")

@@ -71,3 +71,16 @@ def test_occlude_only_objects_shadow_but_get_no_results(visibake, clean_scene):
     lit = image_pixels("VB_Ground_lighting")[..., 0]
     assert lit.min() < 0.5 * lit.max()  # the block's shadow is on the ground
     assert bpy.types.VISIBAKE_UL_objects is not None
+
+
+def test_an_object_s_own_texel_density_sizes_its_atlas(visibake, clean_scene):
+    black_world()
+    small = mesh_object("Small", grid(0.5), material("White", (0.8, 0.8, 0.8)))
+    big = mesh_object("Big", grid(2.0), material("White", (0.8, 0.8, 0.8)), location=(5, 0, 0))
+    point(80.0, (0.0, 0.0, 1.5), name="Lamp")
+    props = bpy.context.scene.visibake
+    props.bake_all, props.resolution, props.directions, props.use_cache = True, 16, 16, False
+    big.visibake.texel_density = 10.0  # 4 x 4 m with a full UV square: 40 texels a side
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    sizes = {o["name"]: o["resolution"] for o in json.loads(bpy.context.scene["visibake_report"])["objects"]}
+    assert sizes["Small"] == [16, 16] and sizes["Big"] == [40, 40]
