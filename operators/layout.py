@@ -169,7 +169,6 @@ def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, e
 
     ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it.
     """
-    mesh = obj.data
     plan, rejected, world_area = _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
                                                   settings)
     if plan is not None:

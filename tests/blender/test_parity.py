@@ -58,7 +58,7 @@ def test_the_panel_s_report_lines_cover_the_report(visibake, clean_scene):
 
 def test_occlude_only_objects_shadow_but_get_no_results(visibake, clean_scene):
     black_world()
-    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
     block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4))
     point(80.0, (0.0, 0.0, 1.5), name="Lamp")
     block.visibake.role = "OCCLUDE"
@@ -75,7 +75,7 @@ def test_occlude_only_objects_shadow_but_get_no_results(visibake, clean_scene):
 
 def test_an_object_s_own_texel_density_sizes_its_atlas(visibake, clean_scene):
     black_world()
-    small = mesh_object("Small", grid(0.5), material("White", (0.8, 0.8, 0.8)))
+    mesh_object("Small", grid(0.5), material("White", (0.8, 0.8, 0.8)))
     big = mesh_object("Big", grid(2.0), material("White", (0.8, 0.8, 0.8)), location=(5, 0, 0))
     point(80.0, (0.0, 0.0, 1.5), name="Lamp")
     props = bpy.context.scene.visibake

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_scenes import black_world, cube, grid, image_pixels, material, mesh_object, point, select_only, sun
+from bpy_scenes import black_world, cube, grid, image_pixels, material, mesh_object, point, sun
 
 
 @pytest.fixture

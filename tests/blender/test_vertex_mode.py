@@ -221,7 +221,7 @@ def test_refine_bakes_a_subdivided_copy_and_leaves_the_mesh_alone(clean_scene):
 def test_a_failed_refined_bake_restores_the_scene(visibake, clean_scene):
     plane = _spot_over_coarse_plane()
     names = set(bpy.data.objects.keys())
-    props = _settings()
+    _settings()
     calls = []
 
     def cancel_in_the_second_bake(stage, fraction):

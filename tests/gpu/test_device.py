@@ -11,7 +11,7 @@ from bpy_scenes import black_world, cube, grid, material, mesh_object, point, su
 
 @pytest.fixture
 def scene_file(clean_scene, tmp_path):
-    world = black_world()
+    black_world()
     mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
     mesh_object("Block", cube(0.5), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.5), uv_map=None)
     mesh_object("Glow", cube(0.1), material("Glow", (0.5, 0.5, 0.5), emission=(1.0, 0.8, 0.5), strength=20.0),
