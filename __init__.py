@@ -7,6 +7,7 @@ import bpy
 
 from . import operators, panels
 from .operators import cli, properties
+from .panels import preferences
 
 _classes = operators.classes + panels.classes
 _cli_handle = None
@@ -21,6 +22,7 @@ def register():
     for cls in _classes:
         bpy.utils.register_class(cls)
     properties.register_properties()
+    preferences.register_handlers()
     if hasattr(bpy.utils, "register_cli_command"):
         _cli_handle = bpy.utils.register_cli_command("visibake", _cli_command)
 
@@ -30,6 +32,7 @@ def unregister():
     if _cli_handle is not None:
         bpy.utils.unregister_cli_command(_cli_handle)
         _cli_handle = None
+    preferences.unregister_handlers()
     properties.unregister_properties()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

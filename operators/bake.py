@@ -22,8 +22,8 @@ def summary(report: dict) -> str:
 
 # The stages of a bake in the order they run, and their rough share of its time (the
 # demo: layout and samples a few percent, visibility and transport the rest).
-STAGES = (("layout", 0.05), ("samples", 0.03), ("cache", 0.07), ("visibility", 0.45), ("transport", 0.38),
-          ("outputs", 0.02))
+STAGES = (("layout", 0.03), ("unwrap", 0.05), ("samples", 0.03), ("cache", 0.07), ("visibility", 0.42),
+          ("transport", 0.38), ("outputs", 0.02))
 
 
 class Progress:
@@ -69,11 +69,13 @@ class Progress:
         return elapsed * (1.0 - self.fraction) / self.fraction
 
     # Rates assumed until the bake has measured its own (this machine, 2 cores: embree
-    # 5.4 Mrays/s, the numpy gather ~15 M lookups/s on the demo; docs/benchmarks.md).
-    ASSUMED_RATES = {"visibility": 5e6, "transport": 1.5e7}
+    # 5.4 Mrays/s, the numpy gather ~15 M lookups/s on the demo, docs/benchmarks.md;
+    # xatlas ~5k triangles/s on a 65k-triangle sphere).
+    ASSUMED_RATES = {"unwrap": 5e3, "visibility": 5e6, "transport": 1.5e7}
 
     def plan(self, work: dict) -> None:
-        """The bake's known work: {"visibility": rays to trace, "transport": table lookups}."""
+        """The bake's known work: {"unwrap": triangles, "visibility": rays to trace,
+        "transport": table lookups}; a stage left out costs nothing."""
         self.work = dict(work)
         self.rates = dict(self.ASSUMED_RATES)
 
@@ -109,6 +111,110 @@ class Progress:
         return f"VisiBake: {self.stage} {int(100 * self.fraction)}% ({self.percent}% of the bake{eta}) - Esc to cancel"
 
 
+class ModalBake:
+    """The panel's bake as :class:`job.BakeJob`'s steps, advanced one timer tick at a time.
+
+    Main-thread steps run inside :meth:`tick`; each long step runs on a worker thread
+    that ``tick`` looks at without waiting, so Blender's UI stays live. Unwraps run in
+    child processes, because xatlas keeps the GIL for the whole unwrap. A cancel is
+    honoured between steps, and inside a worker step through the progress callback
+    (every batch of rays or directions; a child unwrap is killed at once).
+    """
+
+    def __init__(self, bake_job: "job.BakeJob", progress: Progress):
+        self.job, self.progress = bake_job, progress
+        self.steps = [("plan", bake_job.plan, False),
+                      ("unwrap", lambda: bake_job.unwrap(in_child=True), True),
+                      ("extract", bake_job.extract, False),
+                      ("visibility", bake_job.compute_visibility, True),
+                      ("lighting", bake_job.compute_lighting, None),  # None: a worker unless the GPU needs main
+                      ("finish", bake_job.finish, False)]
+        self.next_step = 0
+        self.outcome = None
+        self.error = None
+        self.done = False
+        self._thread = None
+        self._thread_error = None
+
+    def tick(self) -> bool:
+        """Advance the bake as far as it can go without waiting; True once it has ended.
+
+        Then either :attr:`outcome` (a :class:`job.JobResult`) or :attr:`error` is set,
+        and after an error the scene is as it was before the bake.
+        """
+        while not self.done:
+            if self._thread is not None:
+                if self._thread.is_alive():
+                    return False
+                self._thread = None
+                if self._thread_error is not None:
+                    return self._end(self._thread_error)
+            if self.progress.cancelled:
+                return self._end(Cancelled())
+            name, step, on_worker = self.steps[self.next_step]
+            self.next_step += 1
+            if on_worker is None:
+                on_worker = not self.job.needs_main_thread
+            if on_worker:
+                self._thread = threading.Thread(target=self._run_on_worker, args=(step,),
+                                                name=f"VisiBake {name}", daemon=True)
+                self._thread.start()
+                continue
+            try:
+                result = step()
+            except BaseException as error:  # noqa: BLE001  (reported by the operator)
+                return self._end(error)
+            if name == "plan":
+                self.progress.plan(self.job.expected_work())
+            if name == "finish":
+                self.outcome, self.done = result, True
+        return True
+
+    def _run_on_worker(self, step) -> None:
+        try:
+            step()
+        except BaseException as error:  # noqa: BLE001  (handed to the main thread in tick())
+            self._thread_error = error
+
+    def _end(self, error: BaseException) -> bool:
+        self.error, self.done = error, True
+        self.job.abort()
+        return True
+
+
+def failure_message(error: BaseException) -> tuple[str, str]:
+    """(report level, plain words) for a bake that ended with ``error``."""
+    if isinstance(error, Cancelled):
+        return "WARNING", "VisiBake: bake cancelled; nothing was changed"
+    if isinstance(error, job.BakeInputError):
+        return "ERROR", str(error)
+    if isinstance(error, (KeyError, ReferenceError)):
+        # An object deleted or renamed under the bake (by a script: the UI is held).
+        return "ERROR", f"VisiBake: the scene changed during the bake ({error}); nothing was changed, bake again"
+    return "ERROR", (f"VisiBake: the bake failed ({type(error).__name__}: {error}); nothing was changed. "
+                     "Please report this with the file and the console output")
+
+
+# Events a running bake lets through: view navigation and timers. Everything else is
+# held, so the scene cannot be edited (or undone) under the bake; Esc cancels.
+_NAVIGATION_EVENTS = frozenset({
+    "MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "WHEELINMOUSE",
+    "WHEELOUTMOUSE", "TRACKPADPAN", "TRACKPADZOOM", "MOUSEROTATE", "MOUSESMARTZOOM", "WINDOW_DEACTIVATE", "NONE",
+    "NUMPAD_0", "NUMPAD_1", "NUMPAD_2", "NUMPAD_3", "NUMPAD_4", "NUMPAD_5", "NUMPAD_6", "NUMPAD_7", "NUMPAD_8",
+    "NUMPAD_9", "NUMPAD_PERIOD", "NUMPAD_PLUS", "NUMPAD_MINUS"})
+
+
+def event_action(event_type: str, value: str) -> str:
+    """What the running bake does with an event: 'cancel', 'tick', 'pass' or 'hold'."""
+    if event_type == "ESC":
+        return "cancel" if value == "PRESS" else "hold"
+    if event_type.startswith("TIMER"):
+        return "tick" if event_type == "TIMER" else "pass"
+    if event_type in _NAVIGATION_EVENTS or event_type.startswith("NDOF_"):
+        return "pass"
+    return "hold"
+
+
 class _BakeOperator:
     relight_only = False
 
@@ -126,6 +232,11 @@ class _BakeOperator:
         self.report({"INFO"}, summary(outcome.report))
         return {"FINISHED"}
 
+    def _failed(self, error: BaseException) -> set:
+        level, message = failure_message(error)
+        self.report({level}, message)
+        return {"CANCELLED"}
+
     def execute(self, context):
         """The whole bake, blocking (scripts, the command line, background mode)."""
         window_manager = context.window_manager
@@ -138,90 +249,48 @@ class _BakeOperator:
 
         try:
             outcome = self._job(context, report_progress).run()
-        except job.BakeInputError as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        except Cancelled:
-            self.report({"WARNING"}, "VisiBake: bake cancelled; nothing was changed")
-            return {"CANCELLED"}
+        except (job.BakeInputError, Cancelled) as error:
+            return self._failed(error)
         finally:
             window_manager.progress_end()
         return self._finished(context, outcome)
 
     def invoke(self, context, event):
-        """From the panel: the bake runs on a worker thread; the UI shows progress and Esc cancels."""
+        """From the panel: the bake runs beside the UI, which shows progress; Esc cancels."""
         if bpy.app.background or context.window is None:
             return self.execute(context)
-        self._progress = Progress()
-        self._job_state = self._job(context, self._progress)
-        try:
-            self._job_state.start()
-        except job.BakeInputError as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        except Cancelled:
-            return {"CANCELLED"}
-        self._progress.plan(self._job_state.expected_work())
-        if self._job_state.needs_main_thread:
-            # The GPU passes need Blender's GL context, which lives on the main thread.
-            return self._run_here(context)
-        self._error = None
-        self._thread = threading.Thread(target=self._compute, name="VisiBake bake", daemon=True)
-        self._thread.start()
+        progress = Progress()
+        self._bake = ModalBake(self._job(context, progress), progress)
+        if self._bake.tick():  # ended at once: bad input, or nothing left to wait for
+            return self._ended(context)
         window_manager = context.window_manager
         self._timer = window_manager.event_timer_add(0.1, window=context.window)
         window_manager.progress_begin(0, 100)
         window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 
-    def _compute(self) -> None:
-        try:
-            self._job_state.compute()
-        except BaseException as error:  # noqa: BLE001  (handed to the main thread in modal())
-            self._error = error
-
-    def _run_here(self, context) -> set:
-        try:
-            return self._finished(context, self._job_state.compute_and_finish())
-        except job.BakeInputError as error:
-            self.report({"ERROR"}, str(error))
-        except Cancelled:
-            self.report({"WARNING"}, "VisiBake: bake cancelled; nothing was changed")
-        return {"CANCELLED"}
-
     def modal(self, context, event):
-        if event.type == "ESC" and event.value == "PRESS":
-            self._progress.cancel()
-        if event.type != "TIMER":
-            return {"RUNNING_MODAL"} if event.type == "ESC" else {"PASS_THROUGH"}
+        action = event_action(event.type, event.value)
+        if action == "cancel":
+            self._bake.progress.cancel()
+        if action != "tick":
+            return {"PASS_THROUGH"} if action == "pass" else {"RUNNING_MODAL"}
         window_manager = context.window_manager
-        window_manager.progress_update(self._progress.percent)
+        window_manager.progress_update(self._bake.progress.percent)
         if context.workspace is not None:
-            context.workspace.status_text_set(self._progress.status_text())
-        if self._thread.is_alive():
-            return {"RUNNING_MODAL"}
+            context.workspace.status_text_set(self._bake.progress.status_text())
+        if not self._bake.tick():
+            return {"PASS_THROUGH"}
         window_manager.event_timer_remove(self._timer)
         window_manager.progress_end()
         if context.workspace is not None:
             context.workspace.status_text_set(None)
-        if self._error is not None:
-            self._job_state.abort()
-            if isinstance(self._error, Cancelled):
-                self.report({"WARNING"}, "VisiBake: bake cancelled; nothing was changed")
-            elif isinstance(self._error, job.BakeInputError):
-                self.report({"ERROR"}, str(self._error))
-            else:
-                self.report({"ERROR"}, f"VisiBake: the bake failed ({type(self._error).__name__}: {self._error}); "
-                                       "nothing was changed")
-            return {"CANCELLED"}
-        try:
-            return self._finished(context, self._job_state.finish())
-        except job.BakeInputError as error:
-            self.report({"ERROR"}, str(error))
-        except (KeyError, ReferenceError) as error:
-            # The scene changed under the running bake (an object deleted or renamed).
-            self.report({"ERROR"}, f"VisiBake: the scene changed during the bake ({error}); bake again")
-        return {"CANCELLED"}
+        return self._ended(context)
+
+    def _ended(self, context) -> set:
+        if self._bake.error is not None:
+            return self._failed(self._bake.error)
+        return self._finished(context, self._bake.outcome)
 
 
 class VISIBAKE_OT_bake(_BakeOperator, bpy.types.Operator):

@@ -17,12 +17,15 @@ import bpy
 import numpy as np
 
 from ..core.cache import VisibilityCache
-from ..core.pipeline import BakeResult, check_budget, peak_memory_bytes, prepare, relight_many
+from ..core.pipeline import BakeResult, Cancelled, check_budget, peak_memory_bytes, prepare, relight_many
 from ..core.samples import face_normals
 from ..core.scene import Scene
 from . import device, extract, layout, refine, writeback
 
 CACHE_FOLDER_NAME = "visibake_cache"
+# An exact shadow ray costs about as much as this many table lookups (embree ~5 M rays/s,
+# the numpy gather ~15 M lookups/s on 2 cores); weighs them in the time-left estimate.
+SHADOW_RAY_IN_LOOKUPS = 3.0
 
 
 class BakeInputError(ValueError):
@@ -86,51 +89,113 @@ class Extracted:
         layout.remove_created_uv_maps(self.created)
 
 
-def extract_scene(context, objects, progress=None) -> Extracted:
-    """Lay out and read every visible mesh (``objects`` get outputs), lamps and world.
+@dataclass
+class Planned:
+    """The first step of an extraction: every mesh read and its layout chosen.
 
-    Creates ``VisiBake`` UV maps where needed; on an error they are removed again
-    before this raises.
+    Nothing in the scene has changed yet; the unwraps the plans need are still to run
+    (:func:`run_unwraps`, anywhere), and :func:`complete_extraction` writes their UV maps.
     """
+
+    objects: list  # the bpy objects that take part, in the order of ``meshes``
+    meshes: list  # core.scene.Mesh as read, without their layout yet
+    plans: dict  # object name -> layout.LayoutPlan
+    budget: dict  # object name -> planned samples (width, height), for check_budget
+    warnings: list
+    seconds: dict
+
+    @property
+    def unwraps(self) -> list:
+        return [plan.pending for plan in self.plans.values() if plan.pending is not None]
+
+
+def plan_extraction(context, objects, progress=None) -> Planned:
+    """Read every visible mesh (``objects`` get outputs) and choose its layout (main thread)."""
     scene = context.scene
     props = scene.visibake
-    directions = props.directions
-    times = {}
     started = time.perf_counter()
     outputs = set(o.name for o in objects)
     all_meshes = extract.scene_meshes(scene)
     warnings: list[str] = []
+    depsgraph = context.evaluated_depsgraph_get()
+    planned = Planned([], [], {}, {}, warnings, {})
+    for index, obj in enumerate(all_meshes):
+        mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
+        if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
+            warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
+            continue
+        try:
+            planned.plans[obj.name] = _plan(obj, mesh, props, planned.budget, props.directions)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+        planned.objects.append(obj)
+        planned.meshes.append(mesh)
+        if progress:
+            progress("layout", (index + 1) / len(all_meshes))
+    planned.seconds["layout"] = time.perf_counter() - started
+    return planned
+
+
+def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None:
+    """Run the plans' unwraps (no bpy: any thread). ``in_child``: each in a child
+    process, which a cancel through ``progress`` kills at once."""
+    started = time.perf_counter()
+    unwraps = planned.unwraps
+    for index, pending in enumerate(unwraps):
+        fraction = index / len(unwraps)
+
+        def cancelled() -> bool:
+            try:
+                if progress:
+                    progress("unwrap", fraction)
+            except Cancelled:
+                return True
+            return False
+
+        if cancelled():
+            raise Cancelled()
+        pending.run(in_child, cancelled)
+        if in_child and cancelled():
+            raise Cancelled()
+    if unwraps and progress:
+        progress("unwrap", 1.0)
+    planned.seconds["unwrap"] = time.perf_counter() - started
+
+
+def complete_extraction(context, planned: Planned) -> Extracted:
+    """Write the unwrapped UV maps and read the scene as the core needs it (main thread).
+
+    On an error the UV maps written here are removed again before this raises.
+    """
+    scene = context.scene
+    props = scene.visibake
+    warnings, times = planned.warnings, planned.seconds
     created: list[tuple[bpy.types.Mesh, str]] = []
+    t = time.perf_counter()
     try:
-        depsgraph = context.evaluated_depsgraph_get()
-        plans = {}
-        meshes = []
-        planned = []
-        for index, obj in enumerate(all_meshes):
-            mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
-            if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
-                warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
+        for obj, mesh in zip(planned.objects, planned.meshes):
+            plan = planned.plans[obj.name]
+            if plan.pending is None:
                 continue
             try:
-                plan = _plan(obj, mesh, props, planned, directions, created)
+                plan = _complete_plan(obj, mesh, plan, planned.budget, props)
             except ValueError as error:
                 raise BakeInputError(str(error)) from None
-            plans[obj.name] = plan
-            meshes.append(mesh)
-            if progress:
-                progress("layout", (index + 1) / len(all_meshes))
-        times["layout"] = time.perf_counter() - started
-
-        t = time.perf_counter()
-        rewritten = [obj for obj in all_meshes if obj.name in plans and plans[obj.name].written]
+            planned.plans[obj.name] = plan
+            if plan.created:
+                created.append((obj.data, plan.uv_map))
+        meshes = planned.meshes
+        rewritten = [obj for obj in planned.objects if planned.plans[obj.name].written]
         if rewritten:
             # The new UV maps live on the base meshes; evaluate again so modifiers carry them.
+            depsgraph = context.evaluated_depsgraph_get()
             depsgraph.update()
+            outputs = {mesh.name for mesh in meshes if mesh.output}
             again = {obj.name: extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, [])
                      for obj in rewritten}
             meshes = [again.get(mesh.name, mesh) for mesh in meshes]
         for mesh in meshes:
-            plan = plans[mesh.name]
+            plan = planned.plans[mesh.name]
             mesh.bake_uv_map, mesh.resolution, mesh.mode = plan.uv_map, plan.resolution, plan.mode
             if plan.internal_uv is not None:
                 mesh.uv_maps[plan.uv_map] = plan.internal_uv
@@ -144,25 +209,48 @@ def extract_scene(context, objects, progress=None) -> Extracted:
     except BaseException:
         layout.remove_created_uv_maps(created)
         raise
-    return Extracted(core_scene, plans, created, warnings, times)
+    return Extracted(core_scene, planned.plans, created, warnings, times)
 
 
-def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> layout.LayoutPlan:
-    """The layout of one object: an atlas (its UV map, or one unwrapped now) or vertex tables.
+def extract_scene(context, objects, progress=None) -> Extracted:
+    """Lay out and read every visible mesh (``objects`` get outputs), lamps and world.
+
+    Creates ``VisiBake`` UV maps where needed; on an error they are removed again
+    before this raises. The three steps in one, on this thread.
+    """
+    planned = plan_extraction(context, objects, progress)
+    run_unwraps(planned, progress)
+    return complete_extraction(context, planned)
+
+
+def _complete_plan(obj, mesh, plan, budget: dict, props) -> layout.LayoutPlan:
+    """Apply a plan's unwrap; mode auto takes vertex tables where it failed."""
+    try:
+        return layout.complete_layout(obj, plan)
+    except layout.UnwrapFailed as error:
+        if obj.visibake.effective_mode(props) != "auto" or not _vertex_topology_kept(obj, mesh):
+            raise
+        budget[obj.name] = (3 * len(mesh.triangles), 1)
+        check_budget(list(budget.values()), props.directions)
+        return layout.vertex_plan(f"vertex tables: {error}")
+
+
+def _plan(obj, mesh, props, budget: dict, directions: int) -> layout.LayoutPlan:
+    """The layout of one object: an atlas (its UV map, or one to unwrap) or vertex tables.
 
     Mode vertex always takes vertex tables; mode auto takes them where the mesh is too
-    dense or too big to unwrap, or where unwrapping fails; mode atlas never does.
+    dense or too big to unwrap (or, later, where unwrapping fails); mode atlas never does.
     """
     mode = obj.visibake.effective_mode(props)
     if mode == "vertex":
         _check_vertex_topology(obj, mesh)
-        planned.append((3 * len(mesh.triangles), 1))
-        check_budget(planned, directions)
+        budget[obj.name] = (3 * len(mesh.triangles), 1)
+        check_budget(list(budget.values()), directions)
         return layout.vertex_plan("vertex mode was asked for")
     # Checked before any work at the planned size: validating a UV map rasterises it
     # at the bake resolution.
-    planned.append(layout.planned_resolution(obj, props, mesh.positions, mesh.triangles))
-    check_budget(planned, directions)
+    budget[obj.name] = layout.planned_resolution(obj, props, mesh.positions, mesh.triangles)
+    check_budget(list(budget.values()), directions)
     existing = None
     if mode == "auto":
         # A valid UV map of the user's is a request for textures; only a mesh that would
@@ -171,21 +259,12 @@ def _plan(obj, mesh, props, planned: list, directions: int, created: list) -> la
         reason = None if existing is not None else layout.auto_vertex_reason(
             obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
         if reason is not None:
-            planned[-1] = (3 * len(mesh.triangles), 1)
-            check_budget(planned, directions)
+            budget[obj.name] = (3 * len(mesh.triangles), 1)
+            check_budget(list(budget.values()), directions)
             return layout.vertex_plan(f"vertex tables: {reason}")
-    try:
-        plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
-    except layout.UnwrapFailed as error:
-        if mode != "auto" or not _vertex_topology_kept(obj, mesh):
-            raise
-        planned[-1] = (3 * len(mesh.triangles), 1)
-        check_budget(planned, directions)
-        return layout.vertex_plan(f"vertex tables: {error}")
-    if plan.created:
-        created.append((obj.data, plan.uv_map))
-    planned[-1] = plan.resolution
-    check_budget(planned, directions)
+    plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
+    budget[obj.name] = plan.resolution
+    check_budget(list(budget.values()), directions)
     return plan
 
 
@@ -248,12 +327,14 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
 
 
 class BakeJob:
-    """:func:`run_bake` in three steps, so the middle one can run on a worker thread.
+    """:func:`run_bake` in steps, so the long ones can run on worker threads.
 
-    ``start`` and ``finish`` use bpy and run on the main thread; ``compute`` is the
-    core's work (no bpy) and may run anywhere, unless :attr:`needs_main_thread` (the
-    GPU passes need Blender's GL context). After ``start``, either ``finish`` or
-    ``abort`` must follow.
+    :meth:`plan`, :meth:`extract` and :meth:`finish` use bpy and run on the main
+    thread; :meth:`unwrap`, :meth:`compute_visibility` and :meth:`compute_lighting` are
+    the core's work (no bpy) and may run anywhere, except that the lighting needs the
+    main thread when :attr:`needs_main_thread` (the GPU passes need Blender's GL
+    context). Only :meth:`extract` changes the scene before :meth:`finish`; after it,
+    either ``finish`` or :meth:`abort` must follow.
     """
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
@@ -261,10 +342,11 @@ class BakeJob:
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine = device_name, refine
+        self.extracted = None
         self.results = None
 
     def run(self) -> JobResult:
-        """All three steps on this thread: the blocking bake."""
+        """Every step on this thread: the blocking bake."""
         self.start()
         return self.compute_and_finish()
 
@@ -281,7 +363,17 @@ class BakeJob:
         return self.chosen_device.name == "gpu"
 
     def start(self) -> None:
-        """Check the inputs, choose the device, lay out and read the scene (main thread)."""
+        """Everything before the core's work, on this (the main) thread: :meth:`plan`,
+        :meth:`unwrap`, :meth:`extract`."""
+        self.plan()
+        self.unwrap()
+        self.extract()
+
+    def plan(self) -> None:
+        """Check the inputs, choose the device, read the meshes and choose their layouts.
+
+        Changes nothing in the scene (main thread).
+        """
         context, objects, setups = self.context, self.objects, self.setups
         props = context.scene.visibake
         if not objects:
@@ -304,7 +396,18 @@ class BakeJob:
         except device.DeviceError as error:
             raise BakeInputError(str(error)) from None
         self.started = time.perf_counter()
-        self.extracted = extracted = extract_scene(context, objects, self.progress)
+        self.lamp_count = len(extract.scene_lights(context.scene))
+        self.planned = plan_extraction(context, objects, self.progress)
+
+    def unwrap(self, in_child: bool = False) -> None:
+        """The unwraps the layouts need (no bpy: any thread). ``in_child``: in child
+        processes, so that a cancel stops them at once and the UI stays free."""
+        run_unwraps(self.planned, self.progress, in_child)
+
+    def extract(self) -> None:
+        """Write the unwrapped UV maps and read the scene for the core (main thread)."""
+        context, objects, setups, settings = self.context, self.objects, self.setups, self.settings
+        self.extracted = extracted = complete_extraction(context, self.planned)
         self.cache = visibility_cache(context.scene)
         try:
             try:
@@ -320,42 +423,65 @@ class BakeJob:
                 raise BakeInputError(str(error)) from None
         except BaseException:
             extracted.undo()
+            self.extracted = None
             raise
 
     def expected_work(self) -> dict:
-        """Rays and lookups the bake will need, from the layout (before the samples exist).
+        """The bake's work, known once it is planned: triangles to unwrap, rays to trace,
+        and table lookups (plus exact shadow rays, in lookups) to transport.
 
         Atlas texels count at the share a packed UV layout typically covers; a vertex-mode
         object has about one sample per vertex. Half the directions lie above a sample's
         horizon. For the time-left estimate in the UI, not for any decision.
         """
         samples = 0.0
-        for mesh in self.extracted.scene.meshes:
-            if mesh.mode == "vertex":
+        for mesh in self.planned.meshes:
+            plan = self.planned.plans[mesh.name]
+            if plan.mode == "vertex":
                 samples += mesh.vertex_count or len(mesh.positions)
             else:
-                samples += layout.TYPICAL_PACKED_UV_AREA * mesh.resolution[0] * mesh.resolution[1]
+                samples += layout.TYPICAL_PACKED_UV_AREA * plan.resolution[0] * plan.resolution[1]
         rays = samples * self.settings.directions / 2
         gathers = self.settings.bounces + 1
-        return {"visibility": rays, "transport": rays * gathers}
+        shadow_rays = samples * self.lamp_count if self.settings.shadows == "exact" else 0.0
+        work = {"visibility": rays, "transport": rays * gathers + SHADOW_RAY_IN_LOOKUPS * shadow_rays}
+        triangles = sum(len(pending.triangles) for pending in self.planned.unwraps)
+        if triangles:
+            work["unwrap"] = float(triangles)
+        return work
 
     def compute(self) -> None:
         """The visibility table and the transport (no bpy: any thread)."""
+        self.compute_visibility()
+        self.compute_lighting()
+
+    def compute_visibility(self) -> None:
+        """The visibility table, traced or from the cache (no bpy: any thread)."""
         try:
             # Relighting with a setup may need the table although the scene's own lights do not.
-            prepared = prepare(self.extracted.scene, self.settings, self.progress,
-                               table_needed=True if self.setups else None, cache=self.cache,
-                               require_cached_table=self.relight_only)
-            self.chosen_device.apply(prepared)
+            self.prepared = prepare(self.extracted.scene, self.settings, self.progress,
+                                    table_needed=True if self.setups else None, cache=self.cache,
+                                    require_cached_table=self.relight_only)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+
+    def compute_lighting(self) -> None:
+        """Direct and indirect light from the table (any thread for numpy; the main
+        thread when :attr:`needs_main_thread`)."""
+        try:
+            self.chosen_device.apply(self.prepared)
             # All setups' light groups share the gathers: one table walk serves them all.
-            relit = relight_many(prepared, [(lights, world) for _, lights, world in self.lightings], self.progress)
+            relit = relight_many(self.prepared, [(lights, world) for _, lights, world in self.lightings],
+                                 self.progress)
         except ValueError as error:
             raise BakeInputError(str(error)) from None
         self.results = [(name, result) for (name, _, _), result in zip(self.lightings, relit)]
 
     def abort(self) -> None:
-        """Undo what ``start`` did to the scene (the bake failed or was cancelled)."""
-        self.extracted.undo()
+        """Undo what the main-thread steps did to the scene (the bake failed or was cancelled)."""
+        if self.extracted is not None:
+            self.extracted.undo()
+            self.extracted = None
 
     def finish(self) -> JobResult:
         """Write the results into the scene and files, and assemble the report (main thread)."""

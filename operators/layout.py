@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..core.atlas import loop_uvs, unwrap, uv_layout_problems
+from ..core.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_problems
+from ..core.unwrap_child import unwrap_in_child
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -40,6 +41,32 @@ DENSE_MIN_VERTICES = 1024
 
 
 @dataclass
+class PendingUnwrap:
+    """An unwrap chosen on the main thread and run later, anywhere: it needs no bpy.
+
+    ``loops`` is None for an object without outputs, whose unwrap stays in memory.
+    """
+
+    object_name: str
+    positions: np.ndarray
+    triangles: np.ndarray
+    loops: np.ndarray | None
+    resolution: int
+    result: UnwrapResult | None = None
+    error: str | None = None
+
+    def run(self, in_child: bool = False, cancelled=None) -> None:
+        """Unwrap, in this process or (cancellable, leaving the UI free) in a child process."""
+        try:
+            if in_child:
+                self.result = unwrap_in_child(self.positions, self.triangles, self.resolution, cancelled)
+            else:
+                self.result = unwrap(self.positions, self.triangles, self.resolution)
+        except (RuntimeError, ValueError) as error:
+            self.error = str(error)
+
+
+@dataclass
 class LayoutPlan:
     """How one object is laid out: the UV map to bake on and why it was chosen."""
 
@@ -50,6 +77,7 @@ class LayoutPlan:
     created: bool = False  # the UV map did not exist before this bake
     written: bool = False  # the UV map was (re)written by this bake
     mode: str = "atlas"  # or "vertex": samples at vertices, results as colour attributes
+    pending: PendingUnwrap | None = None  # an unwrap still to run; see complete_layout
 
 
 def vertex_plan(reason: str) -> LayoutPlan:
@@ -155,19 +183,13 @@ def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndar
     return created
 
 
-def _unwrap(obj, positions, triangles, resolution):
-    try:
-        return unwrap(positions, triangles, resolution)
-    except (RuntimeError, ValueError) as error:
-        raise UnwrapFailed(f"object {obj.name!r}: unwrapping failed at {resolution}x{resolution} ({error}); "
-                          "raise its resolution") from None
-
-
 def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, evaluated_triangles,
                 settings, output: bool) -> LayoutPlan:
-    """Choose (and for output objects, create) the UV layout ``obj`` bakes on.
+    """Choose the UV layout ``obj`` bakes on, changing nothing yet.
 
     ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it.
+    A plan that needs an unwrap carries it as ``pending``: run it, then
+    :func:`complete_layout` writes the UV map.
     """
     plan, rejected, world_area = _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
                                                   settings)
@@ -211,21 +233,37 @@ def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output,
         raise LayoutError(f"object {obj.name!r}: it has a UV map named {UV_MAP_NAME!r} that VisiBake did not "
                           "create; rename it so VisiBake can add its own")
     reason = "; ".join(rejected) if rejected else "the mesh has no UV map"
+    resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
     if output:
         positions, triangles, loops = _base_triangles(mesh)
         if len(triangles) == 0:
             raise LayoutError(f"object {obj.name!r} has no faces")
-        resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
-        unwrapped = _unwrap(obj, positions, triangles, resolution[0])
-        created = write_uv_map(mesh, positions, triangles, loops, unwrapped.corner_uv)
-        return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", created=created,
-                          written=True)
+        return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", written=True,
+                          pending=PendingUnwrap(obj.name, positions, triangles, loops, resolution[0]))
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
     # the evaluated mesh in memory and leave the user's mesh alone.
-    resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
-    unwrapped = _unwrap(obj, evaluated_positions, evaluated_triangles, resolution[0])
     return LayoutPlan(INTERNAL_UV_MAP, resolution, f"unwrapped in memory, no UV map written ({reason})",
-                      internal_uv=unwrapped.corner_uv)
+                      pending=PendingUnwrap(obj.name, evaluated_positions, evaluated_triangles, None, resolution[0]))
+
+
+def complete_layout(obj, plan: LayoutPlan) -> LayoutPlan:
+    """Apply a plan's finished unwrap: write the ``VisiBake`` UV map, or keep the UVs in memory.
+
+    Raises :class:`UnwrapFailed` if the unwrap failed.
+    """
+    pending = plan.pending
+    if pending is None:
+        return plan
+    if pending.result is None:
+        raise UnwrapFailed(f"object {obj.name!r}: unwrapping failed at {pending.resolution}x{pending.resolution} "
+                           f"({pending.error or 'it did not run'}); raise its resolution")
+    if pending.loops is None:
+        plan.internal_uv = pending.result.corner_uv
+    else:
+        plan.created = write_uv_map(obj.data, pending.positions, pending.triangles, pending.loops,
+                                    pending.result.corner_uv)
+    plan.pending = None
+    return plan
 
 
 def remove_created_uv_maps(created: list[tuple[bpy.types.Mesh, str]]) -> None:

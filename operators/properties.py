@@ -35,6 +35,23 @@ def _mark_custom(settings, context) -> None:
         settings.preset = "CUSTOM"
 
 
+def settings_untouched(settings) -> bool:
+    """True for VisiBake settings nobody has set yet: a new scene, or a file saved without VisiBake."""
+    return not any(settings.is_property_set(name) for name in settings.bl_rna.properties.keys()
+                   if name != "rna_type")
+
+
+def apply_default_preset(scene, preset: str) -> bool:
+    """Give an untouched scene the preferred preset; True if it did.
+
+    Scenes whose settings anybody has set (VisiBake's or the user's) are never changed.
+    """
+    if preset not in PRESETS or not settings_untouched(scene.visibake):
+        return False
+    scene.visibake.preset = preset
+    return True
+
+
 class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     preset: bpy.props.EnumProperty(
         name="Preset", default="CUSTOM", update=_apply_preset,

@@ -3,7 +3,8 @@ import json
 
 import bpy
 
-from ..operators import cache_status
+from ..operators import cache_status, device, properties
+from .preferences import apply_default_preset_to_new_scenes
 
 
 class VIEW3D_PT_visibake(bpy.types.Panel):
@@ -16,6 +17,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         props = context.scene.visibake
+        _offer_default_preset(props)
         layout.use_property_split = True
         layout.use_property_decorate = False
         column = layout.column()
@@ -59,6 +61,18 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         last = context.scene.get("visibake_last_report")
         if last:
             layout.label(text=last)
+
+
+def _offer_default_preset(props) -> None:
+    """A scene added during the session has no settings yet: give it the preferred preset.
+
+    Draw code may not write to the scene, so a timer does it right after this draw.
+    """
+    prefs = device.preferences()
+    if prefs is None or prefs.default_preset == "NONE" or not properties.settings_untouched(props):
+        return
+    if not bpy.app.timers.is_registered(apply_default_preset_to_new_scenes):
+        bpy.app.timers.register(apply_default_preset_to_new_scenes, first_interval=0.0)
 
 
 def report_lines(report: dict) -> list[tuple[str, str]]:

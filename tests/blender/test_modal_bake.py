@@ -1,16 +1,21 @@
-"""The bake the panel runs: on a worker thread, with progress and a cancel.
+"""The bake the panel runs: beside the UI, with progress and a cancel.
 
-Background mode has no event loop, so the modal operator itself cannot run here; what
-it is built from can: BakeJob's three steps with compute() on a thread, and the
-Progress object the modal loop reads and cancels through.
+Background mode has no window and no event loop, so the modal operator itself cannot
+run here (bpy does not let a test make an operator instance either). Everything its
+``modal`` does is in plain objects that can: ``ModalBake``, which the operator ticks on
+every timer event, ``event_action``, which decides what each event does, ``Progress``,
+which the status bar reads and Esc cancels through, and ``failure_message``. The tests
+below drive them exactly as ``modal`` does, with a real bake.
 """
 import threading
+import time
 
 import bpy
 import numpy as np
 import pytest
 
-from bpy_scenes import black_world, cube, grid, image_pixels, material, mesh_object, point, select_only
+from bpy_scenes import (black_world, cube, grid, image_pixels, material, mesh_object, point, select_only,
+                        uv_sphere)
 
 
 @pytest.fixture
@@ -45,8 +50,11 @@ def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, sce
     bake_job.start()
     try:
         work = bake_job.expected_work()
-        # Ground 32 x 32 texels and the block's atlas, 64 directions, 2 bounces.
-        assert work["visibility"] > 0.7 * 32 * 32 * 64 / 2 and work["transport"] == 3 * work["visibility"]
+        # Ground 32 x 32 texels and the block's atlas, 64 directions, 2 bounces, one lamp
+        # with exact shadows (a shadow ray weighs as SHADOW_RAY_IN_LOOKUPS lookups).
+        assert work["visibility"] > 0.7 * 32 * 32 * 64 / 2
+        samples = work["visibility"] / 32
+        assert work["transport"] == pytest.approx(3 * work["visibility"] + job.SHADOW_RAY_IN_LOOKUPS * samples)
         progress = visibake.operators.bake.Progress()
         progress.plan({"visibility": 1e6, "transport": 3e6})
         progress("visibility", 0.0)
@@ -105,3 +113,143 @@ def test_cancel_from_another_thread_leaves_the_scene_as_it_was(visibake, scene):
     bake_job.abort()
     assert "VisiBake" not in block.data.uv_layers
     assert "VB_Ground_lighting" not in bpy.data.images and "VB_Block_lighting" not in bpy.data.images
+
+
+def _modal(visibake, objects, **job_options):
+    bake = visibake.operators.bake
+    progress = bake.Progress()
+    return bake.ModalBake(visibake.operators.job.BakeJob(bpy.context, list(objects), progress=progress,
+                                                         **job_options), progress)
+
+
+def _tick_until_done(modal, on_tick=None, limit_seconds=120.0):
+    """Tick as the operator does on its 0.1 s timer; returns the ticks that found the bake running."""
+    waiting = 0
+    deadline = time.perf_counter() + limit_seconds
+    while not modal.tick():
+        waiting += 1
+        if on_tick is not None:
+            on_tick(modal)
+        assert time.perf_counter() < deadline, "the bake never ended"
+        time.sleep(0.02)
+    return waiting
+
+
+def test_the_modal_bake_ticks_to_the_blocking_bake_s_images(visibake, scene):
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    blocking = image_pixels("VB_Ground_lighting")
+    bpy.data.images.remove(bpy.data.images["VB_Ground_lighting"])
+    modal = _modal(visibake, scene)
+    waiting = _tick_until_done(modal)
+    assert modal.error is None and modal.outcome is not None
+    assert waiting > 0  # the long steps ran beside the ticks, not inside them
+    assert modal.progress.percent == 100
+    np.testing.assert_array_equal(blocking, image_pixels("VB_Ground_lighting"))
+
+
+@pytest.mark.parametrize("stage", ["unwrap", "visibility", "transport"])
+def test_a_cancel_in_any_stage_leaves_the_scene_as_it_was(visibake, scene, stage):
+    bake = visibake.operators.bake
+    uv_maps = {obj.name: [layer.name for layer in obj.data.uv_layers] for obj in scene}
+    images = set(bpy.data.images.keys())
+    progress = bake.Progress()
+    seen = []
+
+    def esc_when_the_stage_starts(name, fraction):
+        # Esc pressed just as the stage starts (on a tiny scene a tick might miss it).
+        seen.append(name)
+        if name == stage:
+            progress.cancel()
+        progress(name, fraction)
+
+    modal = bake.ModalBake(visibake.operators.job.BakeJob(bpy.context, list(scene),
+                                                         progress=esc_when_the_stage_starts), progress)
+    _tick_until_done(modal)
+    assert isinstance(modal.error, visibake.core.pipeline.Cancelled), modal.error
+    assert stage in seen and "outputs" not in seen
+    assert {obj.name: [layer.name for layer in obj.data.uv_layers] for obj in scene} == uv_maps
+    assert set(bpy.data.images.keys()) == images
+    level, message = bake.failure_message(modal.error)
+    assert level == "WARNING" and "nothing was changed" in message
+
+
+def test_a_cancel_between_steps_is_honoured_before_the_next_one(visibake, scene):
+    modal = _modal(visibake, scene)
+    assert modal.tick() is False  # planned; the unwrap of the block runs on a worker
+    modal.progress.cancel()
+    _tick_until_done(modal)
+    assert isinstance(modal.error, visibake.core.pipeline.Cancelled)
+    assert "VisiBake" not in scene[1].data.uv_layers and "VB_Ground_lighting" not in bpy.data.images
+
+
+def test_a_cancel_stops_a_long_unwrap_at_once(visibake, clean_scene):
+    # ~65k triangles: xatlas takes about 12 s here, during which it holds the GIL, so
+    # on a thread it could be neither interrupted nor left to run beside the UI.
+    sphere = mesh_object("Sphere", uv_sphere(1.0, segments=256, rings=128), material("W", (0.8, 0.8, 0.8)),
+                         uv_map=None)
+    sphere.visibake.mode = "atlas"
+    props = bpy.context.scene.visibake
+    props.directions, props.resolution, props.use_cache = 16, 256, False
+    select_only([sphere])
+    modal = _modal(visibake, [sphere])
+    ticks_in_unwrap = []
+
+    def cancel_in_unwrap(modal):
+        if modal.progress.stage == "unwrap":
+            ticks_in_unwrap.append(time.perf_counter())
+            if len(ticks_in_unwrap) == 5:
+                modal.progress.cancel()
+
+    _tick_until_done(modal, cancel_in_unwrap)
+    stopped = time.perf_counter() - ticks_in_unwrap[4]
+    assert isinstance(modal.error, visibake.core.pipeline.Cancelled)
+    # The ticks kept coming while xatlas ran (the UI was live), and the cancel did not
+    # wait for the unwrap: a loose bound, to tell a kill from a 12 s wait on a slow machine.
+    assert len(ticks_in_unwrap) >= 5 and stopped < 4.0
+    assert "VisiBake" not in sphere.data.uv_layers
+
+
+def test_with_the_gpu_passes_the_lighting_runs_on_the_main_thread(visibake, scene):
+    threads = {}
+    bake = visibake.operators.bake
+    progress = bake.Progress()
+
+    def record(stage, fraction):
+        threads.setdefault(stage, set()).add(threading.current_thread() is threading.main_thread())
+        progress(stage, fraction)
+
+    bake_job = visibake.operators.job.BakeJob(bpy.context, list(scene), progress=record, device_name="gpu")
+    modal = bake.ModalBake(bake_job, progress)
+    _tick_until_done(modal)
+    assert modal.error is None, modal.error
+    assert threads["visibility"] == {False} and threads["transport"] == {True}
+
+
+def test_bad_input_ends_the_modal_bake_on_its_first_tick(visibake, scene):
+    bpy.context.scene.visibake.passes = set()
+    modal = _modal(visibake, scene)
+    assert modal.tick() is True
+    level, message = visibake.operators.bake.failure_message(modal.error)
+    assert level == "ERROR" and "passes" in message
+
+
+def test_events_during_a_bake_navigation_passes_edits_are_held_esc_cancels(visibake):
+    action = visibake.operators.bake.event_action
+    assert action("ESC", "PRESS") == "cancel"
+    assert action("TIMER", "NOTHING") == "tick"
+    for navigation in ("MOUSEMOVE", "MIDDLEMOUSE", "WHEELUPMOUSE", "TRACKPADPAN", "NUMPAD_5", "NDOF_MOTION",
+                       "TIMER_REPORT"):
+        assert action(navigation, "PRESS") == "pass", navigation
+    for edit in ("Z", "LEFTMOUSE", "RIGHTMOUSE", "G", "X", "DEL", "TAB", "F12", "RET"):
+        assert action(edit, "PRESS") == "hold", edit
+
+
+def test_failure_messages_say_what_happened_and_what_to_do(visibake):
+    message = visibake.operators.bake.failure_message
+    job = visibake.operators.job
+    assert message(job.BakeInputError("no mesh objects to bake: select some")) == (
+        "ERROR", "no mesh objects to bake: select some")
+    level, text = message(ReferenceError("StructRNA of type Object has been removed"))
+    assert level == "ERROR" and "bake again" in text
+    level, text = message(ZeroDivisionError("division by zero"))
+    assert level == "ERROR" and "nothing was changed" in text and "report" in text

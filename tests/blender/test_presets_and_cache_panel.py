@@ -87,3 +87,36 @@ def test_the_cache_folder_preference(visibake, clean_scene, tmp_path):
     finally:
         prefs.cache_dir = ""
     assert os.path.isdir(tmp_path / "fast disk")
+
+
+def test_the_default_preset_preference_sets_up_new_scenes_only(visibake, clean_scene, tmp_path):
+    untouched_file = tmp_path / "untouched.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(untouched_file), copy=True)  # no VisiBake settings in it
+    prefs = visibake.operators.device.preferences()
+    prefs.default_preset = "DRAFT"
+    touched = bpy.context.scene
+    touched.visibake.directions = 300
+    fresh = bpy.data.scenes.new("Fresh")
+    visibake.panels.preferences.apply_default_preset_to_new_scenes()
+    assert (fresh.visibake.preset, fresh.visibake.directions, fresh.visibake.bounces) == ("DRAFT", 64, 1)
+    assert (touched.visibake.preset, touched.visibake.directions) == ("CUSTOM", 300)
+
+    # Opening a file: its scenes without settings get the preset (the load_post handler)...
+    bpy.ops.wm.open_mainfile(filepath=str(untouched_file))
+    props = bpy.context.scene.visibake
+    assert (props.preset, props.directions, props.resolution) == ("DRAFT", 64, 128)
+    # ...and a scene with settings keeps them, preset and all.
+    props.resolution = 100
+    assert props.preset == "CUSTOM"
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "touched.blend"))
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "touched.blend"))
+    props = bpy.context.scene.visibake
+    assert (props.preset, props.directions, props.resolution) == ("CUSTOM", 64, 100)
+
+
+def test_with_no_default_preset_new_scenes_keep_the_built_in_settings(visibake, clean_scene):
+    assert visibake.operators.device.preferences().default_preset == "NONE"
+    fresh = bpy.data.scenes.new("Fresh")
+    visibake.panels.preferences.apply_default_preset_to_new_scenes()
+    assert (fresh.visibake.preset, fresh.visibake.directions) == ("CUSTOM", 128)
+    assert visibake.operators.properties.settings_untouched(fresh.visibake)

@@ -66,3 +66,53 @@ def test_a_shared_material_is_left_alone_with_a_warning(clean_scene):
     assert bpy.ops.visibake.preview_add() == {"FINISHED"}
     assert _tree_state(shared) == before
 
+
+
+def _undoable(operator, **options):
+    """Run an operator as a click in the UI does: with an undo step (bpy.ops skips it by default)."""
+    return operator("EXEC_DEFAULT", True, **options)
+
+
+def test_undo_and_redo_of_adding_and_removing_the_preview(baked):
+    names = ("White", "Red")
+    before = {name: _tree_state(bpy.data.materials[name]) for name in names}
+    bpy.ops.ed.undo_push(message="baked")
+    assert _undoable(bpy.ops.visibake.preview_add) == {"FINISHED"}
+    added = {name: _tree_state(bpy.data.materials[name]) for name in names}
+    assert added != before
+
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    # Undo reloads the data: look everything up again by name.
+    assert {name: _tree_state(bpy.data.materials[name]) for name in names} == before
+    assert not any(g.name.startswith("VisiBake Lighting") for g in bpy.data.node_groups)
+    assert bpy.ops.ed.redo() == {"FINISHED"}
+    assert {name: _tree_state(bpy.data.materials[name]) for name in names} == added
+
+    assert _undoable(bpy.ops.visibake.preview_remove) == {"FINISHED"}
+    assert {name: _tree_state(bpy.data.materials[name]) for name in names} == before
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    assert {name: _tree_state(bpy.data.materials[name]) for name in names} == added
+    assert "VisiBake Lighting Ground" in bpy.data.node_groups
+
+
+def test_undo_of_a_bake_takes_its_images_uv_map_and_colours_away(clean_scene):
+    black_world()
+    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4), uv_map=None)
+    dome = mesh_object("Dome", cube(4.0), material("Grey", (0.5, 0.5, 0.5)), flip=True, uv_map=None)
+    dome.visibake.mode = "vertex"
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    props = bpy.context.scene.visibake
+    props.directions, props.resolution, props.use_cache = 32, 32, False
+    select_only([ground, block, dome])
+    bpy.ops.ed.undo_push(message="scene built")
+    assert _undoable(bpy.ops.visibake.bake) == {"FINISHED"}
+    assert "VB_Ground_lighting" in bpy.data.images, list(bpy.data.images.keys())
+    assert "VisiBake" in bpy.data.objects["Block"].data.uv_layers
+    assert "VB_lighting" in bpy.data.objects["Dome"].data.color_attributes
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    assert "VB_Ground_lighting" not in bpy.data.images and "VB_Block_lighting" not in bpy.data.images
+    assert "VisiBake" not in bpy.data.objects["Block"].data.uv_layers
+    assert "VB_lighting" not in bpy.data.objects["Dome"].data.color_attributes
+    assert bpy.ops.ed.redo() == {"FINISHED"}
+    assert "VB_Ground_lighting" in bpy.data.images and "VB_lighting" in bpy.data.objects["Dome"].data.color_attributes

@@ -1,0 +1,60 @@
+"""The unwrap in a child process: the same result as in this process, and a cancel that stops it."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from core.atlas import unwrap
+from core.pipeline import Cancelled
+from core.unwrap_child import unwrap_in_child
+
+
+def _sphere(segments: int, rings: int):
+    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
+    phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    positions = np.concatenate([np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3),
+                                [[0, 0, 1], [0, 0, -1]]])
+    triangles = []
+    for r in range(rings - 2):
+        for s in range(segments):
+            a, b = r * segments + s, r * segments + (s + 1) % segments
+            c, d = a + segments, b + segments
+            triangles += [(a, c, b), (b, c, d)]
+    top, bottom, last = len(positions) - 2, len(positions) - 1, (rings - 2) * segments
+    for s in range(segments):
+        triangles += [(top, s, (s + 1) % segments), (bottom, last + (s + 1) % segments, last + s)]
+    return positions, np.array(triangles)
+
+
+def test_the_child_gives_the_in_process_unwrap_bit_for_bit():
+    positions, triangles = _sphere(24, 12)
+    here = unwrap(positions, triangles, 64)
+    child = unwrap_in_child(positions, triangles, 64)
+    np.testing.assert_array_equal(here.corner_uv, child.corner_uv)
+    np.testing.assert_array_equal(here.degenerate, child.degenerate)
+    assert (here.width, here.height, here.chart_count) == (child.width, child.height, child.chart_count)
+    assert here.texels_per_unit == child.texels_per_unit
+
+
+def test_the_child_s_errors_come_back_as_the_same_exceptions():
+    positions, triangles = _sphere(24, 12)
+    with pytest.raises(ValueError) as here:
+        unwrap(positions, triangles, 4)
+    with pytest.raises(ValueError) as there:
+        unwrap_in_child(positions, triangles, 4)
+    assert str(there.value) == str(here.value) and "too small" in str(here.value)
+    with pytest.raises(RuntimeError, match="the unwrap process failed"):
+        unwrap_in_child(positions, triangles, 64, python="/bin/false")
+
+
+def test_a_cancel_kills_the_child_within_a_second():
+    positions, triangles = _sphere(256, 128)  # ~65k triangles: about 12 s of xatlas on 2 cores
+    asked = threading.Event()
+    started = time.perf_counter()
+    timer = threading.Timer(0.5, asked.set)
+    timer.start()
+    with pytest.raises(Cancelled):
+        unwrap_in_child(positions, triangles, 1024, cancelled=asked.is_set)
+    assert time.perf_counter() - started < 1.5
