@@ -24,6 +24,24 @@ from . import job
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
+# Every setting of the panel (scene.visibake) and the preferences, and how the command
+# line sets it; tests/blender/test_parity.py checks that none is missing. The scene's
+# settings travel in the .blend as well, so options only override them.
+SCENE_SETTING_OPTIONS = {
+    "preset": "--preset", "directions": "--directions", "bounces": "--bounces", "shadows": "--shadows",
+    "passes": "--passes", "resolution": "--resolution", "texel_density": "--texel-density", "mode": "--mode",
+    "rotate": "--rotate", "seed": "--seed", "margin": "--margin", "use_cache": "--no-cache",
+    "cache_dir": "--cache-dir", "light_groups": "--light-groups", "vertex_lookup": "--vertex-lookup",
+    "refine_vertex_objects": "--refine", "output_dir": "--out",
+    "bake_all": "--objects",  # the command bakes every visible mesh unless --objects names some
+    "active_object_index": None,  # the selected row of the panel's list: UI state, not a setting
+}
+PREFERENCE_OPTIONS = {
+    "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
+    "gpu_memory_mib": None,  # a property of the machine: the command uses the preference as it is
+    "default_preset": "--preset",  # the command takes a preset per run
+}
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -67,8 +85,12 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
         sub.add_argument("--refine", action="store_true", default=None,
                          help="bake subdivided copies of vertex-mode objects too coarse for their light")
+        sub.add_argument("--vertex-lookup", choices=("interpolate", "nearest"),
+                         help="how light is read where a ray lands on a vertex-mode object (default interpolate)")
         sub.add_argument("--device", choices=("auto", "gpu", "cpu"),
                          help="where the transport passes run (default: the preference, else auto)")
+        sub.add_argument("--threads", type=int, metavar="N",
+                         help="worker threads for ray tracing and gathers, 0: all cores (default: the preference)")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -78,7 +100,7 @@ def _apply_settings(args, props) -> None:
 
     Checked first: Blender clamps out-of-range values silently on assignment.
     """
-    for name in ("directions", "bounces", "resolution", "margin"):
+    for name in ("directions", "bounces", "resolution", "margin", "threads", "seed"):
         value = getattr(args, name)
         minimum = 1 if name in ("directions", "resolution") else 0
         if value is not None and value < minimum:
@@ -88,7 +110,7 @@ def _apply_settings(args, props) -> None:
     if args.preset is not None:
         props.preset = args.preset.upper()
     for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate",
-                 "light_groups"):
+                 "light_groups", "vertex_lookup"):
         value = getattr(args, name)
         if value is not None:
             setattr(props, name, value)
@@ -216,7 +238,8 @@ def run(args) -> int:
     setups = _setups(args)
     try:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
-                               relight_only=args.command == "relight", setups=setups, device_name=args.device)
+                               relight_only=args.command == "relight", setups=setups, device_name=args.device,
+                               threads=args.threads)
     finally:
         progress.close()
     report = outcome.report

@@ -305,7 +305,7 @@ def _check_vertex_topology(obj, mesh) -> None:
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
              progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
-             refine: bool | None = None) -> JobResult:
+             refine: bool | None = None, threads: int | None = None) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -322,8 +322,10 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     device_name : 'auto', 'gpu' or 'cpu' for the transport passes; None: the preference
     refine : bake refined copies of vertex-mode objects whose triangles are too coarse for
         their light (operators.refine); None: the scene's setting
+    threads : worker threads for ray tracing and gathers (0: all cores); None: the preference
     """
-    return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine).run()
+    return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
+                   threads).run()
 
 
 class BakeJob:
@@ -338,10 +340,10 @@ class BakeJob:
     """
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
-                 setups=None, device_name=None, refine=None):
+                 setups=None, device_name=None, refine=None, threads=None):
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
-        self.device_name, self.refine = device_name, refine
+        self.device_name, self.refine, self.threads = device_name, refine, threads
         self.extracted = None
         self.results = None
 
@@ -381,7 +383,8 @@ class BakeJob:
         if setups is not None and not self.out_dir:
             raise BakeInputError("lighting setups are written as files: give an output folder")
         prefs = device.preferences(context)
-        self.settings = settings = props.to_bake_settings(threads=prefs.threads if prefs is not None else 0)
+        threads = self.threads if self.threads is not None else (prefs.threads if prefs is not None else 0)
+        self.settings = settings = props.to_bake_settings(threads=threads)
         try:
             settings.validate()
         except ValueError as error:

@@ -25,10 +25,18 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         column.prop(props, "directions")
         column.prop(props, "bounces")
         column.prop(props, "shadows")
+        column.prop(props, "rotate")
+        seed = column.row()
+        seed.active = props.rotate
+        seed.prop(props, "seed")
+        column.separator()
         column.prop(props, "resolution")
         column.prop(props, "texel_density")
+        column.prop(props, "margin")
         column.prop(props, "mode")
         column.prop(props, "vertex_lookup")
+        column.prop(props, "refine_vertex_objects")
+        column.separator()
         column.prop(props, "bake_all")
         column.prop(props, "output_dir")
         column.prop(props, "light_groups")
@@ -39,6 +47,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         layout.row().prop(props, "passes", expand=True)
         obj = context.object
         if obj is not None and obj.type == "MESH":
+            layout.prop(obj.visibake, "role", text=f"{obj.name} Role")
             layout.prop(obj.visibake, "resolution", text=f"{obj.name} Resolution")
             layout.prop(obj.visibake, "mode", text=f"{obj.name} Mode")
             layout.prop(obj.visibake, "texel_density", text=f"{obj.name} Texels per Unit")

@@ -30,7 +30,8 @@ def test_operator_and_command_line_agree(visibake, clean_scene, tmp_path):
     assert visibake.cli.main(["bake", str(path), "--out", str(out), "--objects", "Ground,Block",
                               "--report", str(report_path), "--no-progress"]) == 0
     cli_report = json.loads(report_path.read_text())
-    for key in ("directions", "bounces", "shadows", "passes", "rotate", "seed", "margin"):
+    for key in ("directions", "bounces", "shadows", "passes", "rotate", "seed", "margin", "light_groups",
+                "vertex_lookup", "threads"):
         assert cli_report["settings"][key] == operator_report["settings"][key], key
     for name in ("Ground", "Block"):
         for pass_name in ("lighting", "ao"):
@@ -84,3 +85,30 @@ def test_an_object_s_own_texel_density_sizes_its_atlas(visibake, clean_scene):
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     sizes = {o["name"]: o["resolution"] for o in json.loads(bpy.context.scene["visibake_report"])["objects"]}
     assert sizes["Small"] == [16, 16] and sizes["Big"] == [40, 40]
+
+
+def test_every_setting_of_the_panel_and_the_preferences_has_a_command_line_option(visibake):
+    cli = visibake.cli
+    options = {option for action in cli.build_parser()._subparsers._group_actions[0].choices["bake"]._actions
+               for option in action.option_strings}
+    scene_settings = set(bpy.types.Scene.bl_rna.properties["visibake"].fixed_type.properties.keys()) - {"rna_type", "name"}
+    assert scene_settings == set(cli.SCENE_SETTING_OPTIONS), "a scene setting without a command-line option"
+    preferences = set(visibake.operators.device.preferences().bl_rna.properties.keys()) - {"rna_type", "bl_idname"}
+    assert preferences == set(cli.PREFERENCE_OPTIONS), "a preference without a command-line option"
+    for option in [*cli.SCENE_SETTING_OPTIONS.values(), *cli.PREFERENCE_OPTIONS.values()]:
+        assert option is None or option in options, option
+
+
+def test_the_command_line_s_vertex_lookup_and_threads_reach_the_bake(visibake, clean_scene, tmp_path):
+    black_world()
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    path = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    report = tmp_path / "report.json"
+    assert visibake.cli.main(["bake", str(path), "--directions", "16", "--resolution", "8", "--vertex-lookup",
+                              "nearest", "--threads", "1", "--report", str(report), "--no-progress",
+                              "--no-cache"]) == 0
+    settings = json.loads(report.read_text())["settings"]
+    assert settings["vertex_lookup"] == "nearest" and settings["threads"] == 1
+    assert visibake.cli.main(["bake", str(path), "--threads", "-1", "--no-progress"]) == 2
