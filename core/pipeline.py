@@ -182,6 +182,13 @@ class _Stages:
         self.times[name] = self.times.get(name, 0.0) + seconds
         self._moved += seconds
 
+    def expect(self, name: str, share: float) -> None:
+        """Tell the progress callback, if it has an ``expect`` method, that stage ``name``
+        will do ``share`` of the work it was planned with (0: none, e.g. a valid cache)."""
+        expect = getattr(self.progress, "expect", None)
+        if expect is not None:
+            expect(name, float(share))
+
     def report(self, fraction: float) -> None:
         if self.progress is not None and self._name is not None:
             self.progress(self._name, float(fraction))
@@ -371,6 +378,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
             meshes, object_keys, key, settings, directions, position, geometric, sample_offset, ray_scene, cache,
             require_cached_table, stages, skipped, warnings)
     else:
+        stages.expect("visibility", 0.0)
+        stages.expect("cache", 0.0)
         skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
         status = status or CacheStatus(state="unused", message="no pass needs the visibility table")
     stages.stop()
@@ -405,6 +414,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             if meta is None:
                 status.state, status.message = "miss", "no cached visibility for this scene and these settings"
             elif meta.get("key") == key:
+                stages.expect("visibility", 0.0)
                 cached = cache.load_table(settings, meta)
                 if not np.array_equal(cached.sample_offset, sample_offset) or not np.array_equal(
                         cached.arrays["directions"], directions):
@@ -413,6 +423,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
                 status.state, status.message = "hit", "the cached visibility is valid"
                 status.bytes_on_disk = os.path.getsize(status.path)
                 status.load_seconds = time.perf_counter() - started
+                stages.report(1.0)
                 skipped.append(f"visibility stage: the cached table is valid ({status.path})")
                 return table, status, 0
             else:
@@ -453,6 +464,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             stages.start("cache")
             old = cache.load_table(settings, meta)
             old_table = table_from_arrays(old.arrays, old.counters)
+            stages.report(0.5)  # read; writing the updated table is the other half
             stages.start("visibility")
             changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
             table, counts = update_table(old_table, old.sample_offset, ray_scene, changed_scene, changed, directions,
@@ -480,6 +492,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             warnings.append(f"visibility cache {status.path} could not be written ({error}); the next bake "
                             "traces the table again")
         status.save_seconds = time.perf_counter() - started
+        stages.report(1.0)
     return table, status, rays
 
 
@@ -550,6 +563,9 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
                 plan["reused"].append(group.name)
             else:
                 pending.append((index, group, key))
+    total_groups = sum(len(plan["groups"]) for plan in plans)
+    if total_groups:
+        stages.expect("transport", len(pending) / total_groups)
     gathers = 0
     batches = [pending[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(pending), MAX_GROUPS_PER_GATHER)]
     shared_skips: list[str] = []

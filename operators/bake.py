@@ -32,34 +32,85 @@ class Progress:
     The callback the core calls raises :class:`Cancelled` once :meth:`cancel` was
     asked for: the core calls it every batch of rays or directions (a fraction of a
     second), so a cancel takes effect within about a second.
+
+    With a :meth:`plan` (the bake's known work), the time left and the percentage come
+    from the work still to do at the rates measured so far; the core corrects the plan
+    through :meth:`expect` when it learns that a stage has less to do (a valid cache).
     """
+
+    # Rates assumed until the bake has measured its own (this machine, 2 cores: embree
+    # 5.4 Mrays/s, the numpy gather ~15 M lookups/s on the demo, docs/benchmarks.md;
+    # xatlas ~5k triangles/s on a 65k-triangle sphere, plus a child process per
+    # unwrap; samples placed and results written ~1 M/s; the cache ~350 MB/s on disk).
+    ASSUMED_RATES = {"unwrap": 5e3, "samples": 1.3e6, "cache": 3.5e8, "visibility": 5e6, "transport": 1.5e7,
+                     "outputs": 1e6}
 
     def __init__(self):
         self.stage = "layout"
         self.fraction = 0.0
-        self.stage_started = time.perf_counter()
+        self.started = self.stage_started = time.perf_counter()
         self.cancelled = False
-        self.done_share = 0.0  # of the stages finished before the current one
+        self.done_share = 0.0  # of the stages finished before the current one (without a plan)
+        self.work = None
+        self._anchor = None  # (time, fraction) of the running stage's first step
+        self._highest_percent = 0
 
     def __call__(self, stage: str, fraction: float) -> None:
         if self.cancelled:
             raise Cancelled()
         if stage != self.stage:
-            shares = dict(STAGES)
-            if stage in shares and self.stage in shares:
-                order = [name for name, _ in STAGES]
-                if order.index(stage) > order.index(self.stage):
-                    self.done_share = sum(shares[name] for name in order[:order.index(stage)])
+            order = [name for name, _ in STAGES]
+            if stage in order and self.stage in order and order.index(stage) > order.index(self.stage):
+                shares = dict(STAGES)
+                self.done_share = sum(shares[name] for name in order[:order.index(stage)])
+            if self.work is not None and self.stage in self.work:
+                # What it did is done; what it did not (the cache stage checks first and
+                # writes later) is still to come.
+                self._measure()
+                self.work[self.stage] *= 1.0 - self.fraction
             self.stage, self.stage_started = stage, time.perf_counter()
+            self._anchor = None
         self.fraction = min(max(float(fraction), 0.0), 1.0)
+        if self._anchor is None and self.fraction > 0.0:
+            # Rates are measured from the first step of real work on: a stage's set-up
+            # (building the ray scene, reading inputs) is spent once, not per unit.
+            self._anchor = (time.perf_counter(), self.fraction)
 
     def cancel(self) -> None:
         self.cancelled = True
 
+    def plan(self, work: dict) -> None:
+        """The bake's known work per stage (see ``BakeJob.expected_work``); a stage left out costs nothing."""
+        self.work = {name: float(units) for name, units in work.items()}
+        self.rates = dict(self.ASSUMED_RATES)
+
+    def expect(self, stage: str, share: float) -> None:
+        """Stage ``stage`` will do only ``share`` of its planned work (0: it is skipped)."""
+        if self.work is not None and stage in self.work:
+            self.work[stage] *= max(0.0, float(share))
+
+    def _measure(self) -> None:
+        """The running stage's own rate replaces the assumed one once it has done a few
+        percent more than at its first step."""
+        if self._anchor is None or self.stage not in self.work or self.work[self.stage] <= 0:
+            return
+        since, at = self._anchor
+        if self.fraction - at >= 0.02:
+            elapsed = time.perf_counter() - since
+            self.rates[self.stage] = max(self.work[self.stage] * (self.fraction - at) / max(elapsed, 1e-6), 1e-6)
+
     @property
     def percent(self) -> int:
-        share = dict(STAGES).get(self.stage, 0.0)
-        return int(100 * min(1.0, self.done_share + share * self.fraction))
+        left = self.seconds_left()
+        if left is None:
+            share = dict(STAGES).get(self.stage, 0.0)
+            percent = int(100 * min(1.0, self.done_share + share * self.fraction))
+        else:
+            elapsed = time.perf_counter() - self.started
+            percent = int(100 * elapsed / max(elapsed + left, 1e-6)) if left > 0 else 100
+        # Never backwards: an estimate that grows should not undo the bar.
+        self._highest_percent = max(self._highest_percent, min(percent, 100))
+        return self._highest_percent
 
     def stage_seconds_left(self) -> float | None:
         """Time left in the running stage at its present rate; None before a first estimate."""
@@ -68,38 +119,16 @@ class Progress:
         elapsed = time.perf_counter() - self.stage_started
         return elapsed * (1.0 - self.fraction) / self.fraction
 
-    # Rates assumed until the bake has measured its own (this machine, 2 cores: embree
-    # 5.4 Mrays/s, the numpy gather ~15 M lookups/s on the demo, docs/benchmarks.md;
-    # xatlas ~5k triangles/s on a 65k-triangle sphere).
-    ASSUMED_RATES = {"unwrap": 5e3, "visibility": 5e6, "transport": 1.5e7}
-
-    def plan(self, work: dict) -> None:
-        """The bake's known work: {"unwrap": triangles, "visibility": rays to trace,
-        "transport": table lookups}; a stage left out costs nothing."""
-        self.work = dict(work)
-        self.rates = dict(self.ASSUMED_RATES)
-
     def seconds_left(self) -> float | None:
         """Time left for the whole bake, from the work still to do at the rates seen so far.
 
-        None without a :meth:`plan`. The running stage's rate replaces the assumed one
-        once it has done a few percent of its work.
+        None without a :meth:`plan`.
         """
-        work = getattr(self, "work", None)
-        if work is None:
+        if self.work is None:
             return None
-        order = [name for name, _ in STAGES]
-        current = order.index(self.stage) if self.stage in order else 0
-        if self.stage in work and self.fraction >= 0.02:
-            elapsed = time.perf_counter() - self.stage_started
-            self.rates[self.stage] = max(work[self.stage] * self.fraction / max(elapsed, 1e-6), 1.0)
-        left = 0.0
-        for index, name in enumerate(order):
-            if name not in work or index < current:
-                continue
-            remaining = work[name] * ((1.0 - self.fraction) if index == current else 1.0)
-            left += remaining / self.rates[name]
-        return left
+        self._measure()
+        return sum(units * ((1.0 - self.fraction) if name == self.stage else 1.0) / self.rates[name]
+                   for name, units in self.work.items())
 
     def status_text(self) -> str:
         left = self.seconds_left()

@@ -17,15 +17,16 @@ import bpy
 import numpy as np
 
 from ..core.cache import VisibilityCache
+from ..core.lighting import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
 from ..core.pipeline import BakeResult, Cancelled, check_budget, peak_memory_bytes, prepare, relight_many
 from ..core.samples import face_normals
 from ..core.scene import Scene
 from . import device, extract, layout, refine, writeback
 
 CACHE_FOLDER_NAME = "visibake_cache"
-# An exact shadow ray costs about as much as this many table lookups (embree ~5 M rays/s,
-# the numpy gather ~15 M lookups/s on 2 cores); weighs them in the time-left estimate.
-SHADOW_RAY_IN_LOOKUPS = 3.0
+# Bytes per sample and direction of a cached table (hit object, hit uv, distance, and
+# the hit triangle when a vertex-mode object exists); sizes the cache's I/O in estimates.
+TABLE_BYTES_PER_ENTRY = 18
 
 
 class BakeInputError(ValueError):
@@ -399,7 +400,8 @@ class BakeJob:
         except device.DeviceError as error:
             raise BakeInputError(str(error)) from None
         self.started = time.perf_counter()
-        self.lamp_count = len(extract.scene_lights(context.scene))
+        self.shadow_rays_per_sample = sum(shadow_rays_per_sample(lamp.data.type, settings)
+                                          for lamp in extract.scene_lights(context.scene))
         self.planned = plan_extraction(context, objects, self.progress)
 
     def unwrap(self, in_child: bool = False) -> None:
@@ -430,8 +432,9 @@ class BakeJob:
             raise
 
     def expected_work(self) -> dict:
-        """The bake's work, known once it is planned: triangles to unwrap, rays to trace,
-        and table lookups (plus exact shadow rays, in lookups) to transport.
+        """The bake's work, known once it is planned: triangles to unwrap, samples to place
+        and write out, rays to trace, cache bytes, and table lookups (plus exact shadow
+        rays, in lookups) to transport.
 
         Atlas texels count at the share a packed UV layout typically covers; a vertex-mode
         object has about one sample per vertex. Half the directions lie above a sample's
@@ -446,8 +449,12 @@ class BakeJob:
                 samples += layout.TYPICAL_PACKED_UV_AREA * plan.resolution[0] * plan.resolution[1]
         rays = samples * self.settings.directions / 2
         gathers = self.settings.bounces + 1
-        shadow_rays = samples * self.lamp_count if self.settings.shadows == "exact" else 0.0
-        work = {"visibility": rays, "transport": rays * gathers + SHADOW_RAY_IN_LOOKUPS * shadow_rays}
+        shadow_rays = samples * self.shadow_rays_per_sample if self.settings.shadows == "exact" else 0.0
+        work = {"samples": samples, "visibility": rays,
+                "transport": rays * gathers + SHADOW_RAY_IN_LOOKUPS * shadow_rays, "outputs": samples}
+        if self.context.scene.visibake.use_cache:
+            # The table is written after a trace or read on a hit: one pass over its bytes.
+            work["cache"] = rays * 2 * TABLE_BYTES_PER_ENTRY
         triangles = sum(len(pending.triangles) for pending in self.planned.unwraps)
         if triangles:
             work["unwrap"] = float(triangles)
