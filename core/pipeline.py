@@ -141,11 +141,11 @@ def usable_lights(lights, warnings: list[str]):
     for light in lights:
         strength = float(light.strength)
         if not np.isfinite(strength) or abs(strength) > tol.MAX_LIGHT_STRENGTH:
-            raise BakeRefused(f"light {light.name!r}: strength {strength:g} is not a usable number "
-                              f"(at most {tol.MAX_LIGHT_STRENGTH:g})")
+            raise BakeRefused(f"light {light.name!r}: strength {strength:g} is not a usable number; set it to a "
+                              f"finite value of at most {tol.MAX_LIGHT_STRENGTH:g}")
         color = np.asarray(light.color, np.float64)
         if not np.all(np.isfinite(color)):
-            raise BakeRefused(f"light {light.name!r}: its colour is not finite")
+            raise BakeRefused(f"light {light.name!r}: its colour is not finite; set its colour again")
         if strength < 0 or np.any(color < 0):
             warnings.append(f"light {light.name!r}: negative light is not supported (Cycles subtracts it); "
                             "it was left out")
@@ -343,7 +343,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
             continue
         meshes.append(mesh)
     if not any(m.output for m in meshes):
-        raise BakeRefused("there is no mesh with faces to bake")
+        raise BakeRefused("there is no mesh with faces to bake; select meshes that have faces")
     object_samples: list[ObjectSamples] = []
     for index, mesh in enumerate(meshes):
         object_samples.append(build_vertex_samples(mesh) if mesh.mode == "vertex" else build_samples(mesh))

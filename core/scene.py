@@ -178,7 +178,8 @@ class BakeSettings:
             raise ValueError(f"shadow regions must be >= 1, got {self.shadow_regions}")
         unknown = [p for p in self.passes if p not in PASSES]
         if unknown or not self.passes:
-            raise ValueError(f"passes must be a non-empty subset of {', '.join(PASSES)}, got {', '.join(self.passes) or 'none'}")
+            raise ValueError(f"passes: choose at least one of {', '.join(PASSES)}"
+                             + (f" (unknown: {', '.join(unknown)})" if unknown else ""))
         if self.margin < 0:
             raise ValueError(f"margin must be >= 0, got {self.margin}")
         if self.area_light_samples < 1:

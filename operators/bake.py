@@ -294,9 +294,20 @@ class _BakeOperator:
             return self._ended(context)
         window_manager = context.window_manager
         self._timer = window_manager.event_timer_add(0.1, window=context.window)
+        self._area = context.area  # its header shows the stage
         window_manager.progress_begin(0, 100)
         window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}
+
+    def _show(self, context, text) -> None:
+        """``text`` in the status bar and the header of the area the bake started from; None clears."""
+        if context.workspace is not None:
+            context.workspace.status_text_set(text)
+        try:
+            if self._area is not None:
+                self._area.header_text_set(text)
+        except ReferenceError:  # the area was closed
+            self._area = None
 
     def modal(self, context, event):
         action = event_action(event.type, event.value)
@@ -305,15 +316,13 @@ class _BakeOperator:
         if action != "tick":
             return {"PASS_THROUGH"} if action == "pass" else {"RUNNING_MODAL"}
         window_manager = context.window_manager
-        window_manager.progress_update(self._bake.progress.percent)
-        if context.workspace is not None:
-            context.workspace.status_text_set(self._bake.progress.status_text())
+        window_manager.progress_update(self._bake.progress.percent)  # the cursor shows it
+        self._show(context, self._bake.progress.status_text())
         if not self._bake.tick():
             return {"PASS_THROUGH"}
         window_manager.event_timer_remove(self._timer)
         window_manager.progress_end()
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
+        self._show(context, None)
         return self._ended(context)
 
     def _ended(self, context) -> set:

@@ -172,7 +172,8 @@ def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndar
         active = mesh.uv_layers.active_index if len(mesh.uv_layers) else -1
         layer = mesh.uv_layers.new(name=UV_MAP_NAME, do_init=False)
         if layer is None:
-            raise LayoutError(f"mesh {mesh.name!r} cannot hold another UV map (Blender allows 8)")
+            raise LayoutError(f"mesh {mesh.name!r} cannot hold another UV map (Blender allows 8); delete one, "
+                              "or bake the object with Mode Vertex")
         mesh[OWNED_UV_KEY] = UV_MAP_NAME
         if active >= 0:
             mesh.uv_layers.active_index = active
@@ -237,7 +238,7 @@ def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output,
     if output:
         positions, triangles, loops = _base_triangles(mesh)
         if len(triangles) == 0:
-            raise LayoutError(f"object {obj.name!r} has no faces")
+            raise LayoutError(f"object {obj.name!r} has no faces; deselect it or give it faces")
         return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", written=True,
                           pending=PendingUnwrap(obj.name, positions, triangles, loops, resolution[0]))
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
