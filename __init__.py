@@ -6,7 +6,7 @@ hard-coded: extensions load as ``bl_ext.<repository>.visibake``.
 import bpy
 
 from . import operators, panels
-from .operators import cli, properties
+from .operators import cache_status, cli, properties
 from .panels import preferences
 
 _classes = operators.classes + panels.classes
@@ -23,6 +23,7 @@ def register():
         bpy.utils.register_class(cls)
     properties.register_properties()
     preferences.register_handlers()
+    cache_status.register_handlers()
     if hasattr(bpy.utils, "register_cli_command"):
         _cli_handle = bpy.utils.register_cli_command("visibake", _cli_command)
 
@@ -32,6 +33,7 @@ def unregister():
     if _cli_handle is not None:
         bpy.utils.unregister_cli_command(_cli_handle)
         _cli_handle = None
+    cache_status.unregister_handlers()
     preferences.unregister_handlers()
     properties.unregister_properties()
     for cls in reversed(_classes):

@@ -6,7 +6,7 @@ import time
 import bpy
 
 from ..core.pipeline import Cancelled
-from . import job
+from . import cache_status, job
 
 
 def summary(report: dict) -> str:
@@ -256,6 +256,7 @@ class _BakeOperator:
     def _finished(self, context, outcome) -> set:
         context.scene["visibake_last_report"] = summary(outcome.report)
         context.scene["visibake_report"] = json.dumps(outcome.report, default=float)
+        cache_status.remember_bake(context.scene, context.evaluated_depsgraph_get(), outcome.report)
         for warning in outcome.report["warnings"]:
             self.report({"WARNING"}, warning)
         self.report({"INFO"}, summary(outcome.report))

@@ -38,6 +38,9 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         column.prop(props, "refine_vertex_objects")
         column.separator()
         column.prop(props, "bake_all")
+        prefs = device.preferences()
+        if prefs is not None:
+            column.prop(prefs, "device", text="Device (Preference)")
         column.prop(props, "output_dir")
         column.prop(props, "light_groups")
         column.prop(props, "use_cache")
@@ -60,11 +63,17 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         if props.use_cache:
             box = layout.box()
             state = cache_status.status(context.scene)
-            if state["has_table"]:
-                box.label(text=f"Cache: table for these settings, {state['table_bytes'] / 2**20:.0f} MiB",
-                          icon="CHECKMARK")
-            else:
+            size = f"{state['table_bytes'] / 2**20:.0f} MiB"
+            if not state["has_table"]:
                 box.label(text="Cache: no table for these settings yet", icon="INFO")
+            elif state["validity"] == "valid":
+                box.label(text=f"Cache: valid for the scene as it is, {size}", icon="CHECKMARK")
+            elif state["validity"] == "stale":
+                box.label(text=f"Cache: stale, {size}; the next bake re-traces what changed", icon="ERROR")
+                for reason in state["reasons"]:
+                    box.label(text=reason, icon="BLANK1")
+            else:
+                box.label(text=f"Cache: table for these settings, {size} (checked at the next bake)", icon="FILE_CACHE")
             box.label(text=f"{state['slots']} setting(s), {state['bytes'] / 2**20:.0f} MiB in {state['folder']}")
             box.operator("visibake.clear_cache", icon="TRASH")
         last = context.scene.get("visibake_last_report")
@@ -113,6 +122,7 @@ class VISIBAKE_UL_objects(bpy.types.UIList):
         row.prop(item.visibake, "role", text="")
         row.prop(item.visibake, "mode", text="")
         row.prop(item.visibake, "resolution", text="")
+        row.prop(item.visibake, "texel_density", text="")
 
     def filter_items(self, context, data, property):
         objects = getattr(data, property)

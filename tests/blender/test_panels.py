@@ -114,6 +114,8 @@ def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, 
     assert settings <= set(_props(drawn))  # every scene setting is on the panel
     active_object = {options["property"] for name, options in drawn
                      if name == "prop" and options["owner"] == "VisiBakeObjectSettings"}
+    device = [options["property"] for name, options in drawn if name == "prop" and options["owner"] == "VisiBakePreferences"]
+    assert device == ["device"]  # a preference, shown where the bake is set up
     assert active_object == {"role", "resolution", "mode", "texel_density"}  # and the active object's own
     assert {"visibake.bake", "visibake.relight", "visibake.preview_add", "visibake.preview_remove",
             "visibake.clear_cache"} <= set(_operators(drawn))
@@ -130,13 +132,18 @@ def test_after_a_bake_the_panel_shows_the_cache_and_the_last_bake(visibake, scen
     assert not main.VIEW3D_PT_visibake_report.poll(bpy.context)
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     labels = _labels(_draw(main.VIEW3D_PT_visibake))
-    assert any(text.startswith("Cache: table for these settings") for text in labels)
+    assert any(text.startswith("Cache: valid for the scene as it is") for text in labels)
     assert any(text.startswith("VisiBake: baked 2 object(s)") for text in labels)
     assert main.VIEW3D_PT_visibake_report.poll(bpy.context)
     report = json.loads(bpy.context.scene["visibake_report"])
     labels = _labels(_draw(main.VIEW3D_PT_visibake_report))
     assert labels == [text for text, _ in main.report_lines(report)]
     assert any(text.startswith("cache: miss") for text in labels)
+
+    scene[0].location.x += 0.25
+    bpy.context.view_layer.update()
+    labels = _labels(_draw(main.VIEW3D_PT_visibake))
+    assert any(text.startswith("Cache: stale") for text in labels) and "changed: Ground" in labels
 
     bpy.context.scene["visibake_report"] = "{not json"
     assert _labels(_draw(main.VIEW3D_PT_visibake_report)) == ["The last report cannot be read"]
@@ -152,7 +159,7 @@ def test_the_objects_list_shows_meshes_with_their_role_mode_and_resolution(visib
     ui_list = type("ListStandIn", (), {"bitflag_filter_item": 1 << 30})()
     main.VISIBAKE_UL_objects.draw_item(ui_list, bpy.context, CheckedLayout(drawn), bpy.context.scene, block, 0,
                                        bpy.context.scene.visibake, "active_object_index")
-    assert _props(drawn) == ["role", "mode", "resolution"] and _labels(drawn) == ["Block"]
+    assert _props(drawn) == ["role", "mode", "resolution", "texel_density"] and _labels(drawn) == ["Block"]
     flags, order = main.VISIBAKE_UL_objects.filter_items(ui_list, bpy.context, bpy.context.scene, "objects")
     shown = [obj.name for obj, flag in zip(bpy.context.scene.objects, flags) if flag]
     assert sorted(shown) == ["Block", "Ground"] and lamp.name not in shown and order == []

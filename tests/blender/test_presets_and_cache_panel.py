@@ -120,3 +120,38 @@ def test_with_no_default_preset_new_scenes_keep_the_built_in_settings(visibake, 
     visibake.panels.preferences.apply_default_preset_to_new_scenes()
     assert (fresh.visibake.preset, fresh.visibake.directions) == ("CUSTOM", 128)
     assert visibake.operators.properties.settings_untouched(fresh.visibake)
+
+
+def test_the_cache_status_tells_valid_from_stale(baked_saved_scene):
+    cache_status = baked_saved_scene.operators.cache_status
+    scene = bpy.context.scene
+    ground = bpy.data.objects["Ground"]
+
+    def state():
+        bpy.context.view_layer.update()  # runs the depsgraph handler, as the UI does on every change
+        current = cache_status.status(scene)
+        return current["validity"], current["reasons"]
+
+    assert state() == ("valid", [])
+    assert bpy.ops.visibake.preview_add() == {"FINISHED"}  # materials are not in the table's key
+    assert state() == ("valid", [])
+    ground.location.x += 0.5
+    assert state() == ("stale", ["changed: Ground"])
+    ground.location.x -= 0.5
+    assert state() == ("valid", [])  # fingerprinted again: as it was
+    ground.data.vertices[0].co.z += 0.1
+    ground.data.update()
+    assert state() == ("stale", ["changed: Ground"])
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    assert state() == ("valid", [])
+    scene.visibake.resolution = 20
+    assert state() == ("stale", ["resolution or mode changed"])
+    scene.visibake.resolution = 16
+    mesh_object("Extra", grid(0.2), location=(0, 0, 1))
+    assert state() == ("stale", ["added: Extra"])
+    bpy.data.objects["Extra"].hide_render = True
+    assert state() == ("valid", [])
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.open_mainfile(filepath=bpy.data.filepath)
+    current = cache_status.status(bpy.context.scene)
+    assert current["has_table"] and current["validity"] == "unknown"  # known again after the next bake
