@@ -160,21 +160,27 @@ class VISIBAKE_OT_clear_cache(bpy.types.Operator):
         return context.window_manager.invoke_confirm(self, event)
 
     def execute(self, context):
-        slots = scene_slots(context.scene)
-        freed = 0
-        for slot in slots:
-            # Only what VisiBake writes: its table and lighting files (and nothing else
-            # that might have been put in the folder).
-            for name in os.listdir(slot):
-                path = os.path.join(slot, name)
-                if os.path.isfile(path) and (name == TABLE_FILE or name.endswith(".npz")):
-                    freed += os.path.getsize(path)
-                    os.remove(path)
-            if not os.listdir(slot):
-                shutil.rmtree(slot, ignore_errors=True)
-        _baked.pop(context.scene.session_uid, None)
-        self.report({"INFO"}, f"VisiBake: cleared {len(slots)} cached table(s), {freed / 2**20:.1f} MiB")
+        slots, freed = clear(context.scene)
+        self.report({"INFO"}, f"VisiBake: cleared {slots} cached table(s), {freed / 2**20:.1f} MiB")
         return {"FINISHED"}
+
+
+def clear(scene) -> tuple[int, int]:
+    """Delete ``scene``'s cached visibility, every direction setting; returns (slots, bytes freed)."""
+    slots = scene_slots(scene)
+    freed = 0
+    for slot in slots:
+        # Only what VisiBake writes: its table and lighting files (and nothing else
+        # that might have been put in the folder).
+        for name in os.listdir(slot):
+            path = os.path.join(slot, name)
+            if os.path.isfile(path) and (name == TABLE_FILE or name.endswith(".npz")):
+                freed += os.path.getsize(path)
+                os.remove(path)
+        if not os.listdir(slot):
+            shutil.rmtree(slot, ignore_errors=True)
+    _baked.pop(scene.session_uid, None)
+    return len(slots), freed
 
 
 classes = (VISIBAKE_OT_clear_cache,)

@@ -36,6 +36,11 @@ SCENE_SETTING_OPTIONS = {
     "bake_all": "--objects",  # the command bakes every visible mesh unless --objects names some
     "active_object_index": None,  # the selected row of the panel's list: UI state, not a setting
 }
+# Every operator of the panel, and the command that does the same.
+OPERATOR_COMMANDS = {
+    "visibake.bake": "bake", "visibake.relight": "relight", "visibake.preview_add": "preview",
+    "visibake.preview_remove": "preview --remove", "visibake.clear_cache": "clear-cache",
+}
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
     "gpu_memory_mib": None,  # a property of the machine: the command uses the preference as it is
@@ -53,6 +58,15 @@ def build_parser() -> argparse.ArgumentParser:
         "relight", help="re-light a .blend from its cached visibility (fails if the geometry changed)")
     relight.add_argument("input", nargs="?", help="the .blend to relight; omitted: the built-in demo scene")
     demo = commands.add_parser("demo", help="bake the built-in demo scene with previews and a summary")
+    preview = commands.add_parser(
+        "preview", help="wire a baked .blend's lighting into its materials for preview (or --remove it), and save")
+    preview.add_argument("input", help="the baked .blend")
+    preview.add_argument("--save", metavar="OUT.blend", required=True, help="where to save the result")
+    preview.add_argument("--remove", action="store_true", help="take VisiBake's preview out of every material")
+    preview.add_argument("--objects", metavar="A,B", help="objects to preview (default: all visible meshes)")
+    clear = commands.add_parser("clear-cache", help="delete the cached visibility of a .blend's scene")
+    clear.add_argument("input", help="the .blend whose cache to delete")
+    clear.add_argument("--cache-dir", metavar="DIR", help="the cache folder, if not the default")
     for sub in (bake, relight):
         sub.add_argument("--setups", metavar="SETUPS.json",
                          help="lighting setups (lights and world) to write one set of outputs each, into OUT/<setup>/")
@@ -92,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--threads", type=int, metavar="N",
                          help="worker threads for ray tracing and gathers, 0: all cores (default: the preference)")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
+    for sub in (bake, relight):
+        sub.add_argument("--preview-nodes", action="store_true",
+                         help="wire the results into the objects' materials for preview (see preview; use with --save)")
     return parser
 
 
@@ -220,7 +237,45 @@ def _checked(function, *arguments):
         raise job.BakeInputError(str(error)) from None
 
 
+def run_preview(args) -> int:
+    """``preview``: what Show Baked Lighting (or Remove Preview) does, on a saved file."""
+    from . import preview_nodes
+
+    _load_input(args)
+    if args.remove:
+        changed = preview_nodes.remove_preview()
+        print(f"visibake: preview removed from {changed} material(s)", flush=True)
+    else:
+        try:
+            wired, warnings = preview_nodes.add_preview(_select_objects(args, bpy.context.scene))
+        except ValueError as error:
+            raise job.BakeInputError(str(error)) from None
+        for warning in warnings:
+            print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+        print(f"visibake: baked lighting shown in {wired} material(s)", flush=True)
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
+    return EXIT_OK
+
+
+def run_clear_cache(args) -> int:
+    """``clear-cache``: what Clear Cache does."""
+    from . import cache_status
+
+    _load_input(args)
+    if args.cache_dir is not None:
+        bpy.context.scene.visibake.cache_dir = os.path.abspath(args.cache_dir)
+    slots, freed = cache_status.clear(bpy.context.scene)
+    print(f"visibake: cleared {slots} cached table(s), {freed / 2**20:.1f} MiB", flush=True)
+    return EXIT_OK
+
+
 def run(args) -> int:
+    if args.command == "preview":
+        return run_preview(args)
+    if args.command == "clear-cache":
+        return run_clear_cache(args)
+    if getattr(args, "preview_nodes", False) and not args.save:
+        raise job.BakeInputError("--preview-nodes changes the materials: give --save OUT.blend to keep them")
     _load_input(args)
     scene = bpy.context.scene
     props = scene.visibake
@@ -243,6 +298,15 @@ def run(args) -> int:
     finally:
         progress.close()
     report = outcome.report
+    if getattr(args, "preview_nodes", False):
+        from . import preview_nodes
+
+        try:
+            _, warnings = preview_nodes.add_preview(
+                [bpy.data.objects[entry["name"]] for entry in report["objects"] if entry["output"]])
+        except ValueError as error:
+            raise job.BakeInputError(str(error)) from None
+        report["warnings"] += warnings
     if args.save:
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
         report["files"].append(os.path.abspath(args.save))

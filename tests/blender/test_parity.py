@@ -112,3 +112,45 @@ def test_the_command_line_s_vertex_lookup_and_threads_reach_the_bake(visibake, c
     settings = json.loads(report.read_text())["settings"]
     assert settings["vertex_lookup"] == "nearest" and settings["threads"] == 1
     assert visibake.cli.main(["bake", str(path), "--threads", "-1", "--no-progress"]) == 2
+
+
+def test_every_operator_of_the_panel_has_a_command(visibake):
+    cli = visibake.cli
+    registered = {cls.bl_idname for cls in visibake.operators.classes if issubclass(cls, bpy.types.Operator)}
+    assert registered == set(cli.OPERATOR_COMMANDS)
+    commands = cli.build_parser()._subparsers._group_actions[0].choices
+    for command in cli.OPERATOR_COMMANDS.values():
+        name, *options = command.split()
+        assert name in commands, name
+        known = {o for action in commands[name]._actions for o in action.option_strings}
+        assert set(options) <= known, command
+
+
+def test_the_preview_and_clear_cache_commands_do_what_the_buttons_do(visibake, clean_scene, tmp_path):
+    black_world()
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    path = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    cache = tmp_path / "cache"
+    options = ["--directions", "16", "--resolution", "8", "--cache-dir", str(cache), "--no-progress"]
+    assert visibake.cli.main(["bake", str(path), "--preview-nodes", *options]) == 2  # nothing to keep it in
+    baked = tmp_path / "baked.blend"
+    assert visibake.cli.main(["bake", str(path), "--preview-nodes", "--save", str(baked), *options]) == 0
+    assert any(cache.iterdir())
+
+    bpy.ops.wm.open_mainfile(filepath=str(baked))
+    white = bpy.data.materials["White"]
+    assert "VisiBake Lighting Ground" in bpy.data.node_groups
+    assert any(node.get("visibake_preview") for node in white.node_tree.nodes)
+    removed = tmp_path / "removed.blend"
+    assert visibake.cli.main(["preview", str(baked), "--remove", "--save", str(removed)]) == 0
+    bpy.ops.wm.open_mainfile(filepath=str(removed))
+    assert "VisiBake Lighting Ground" not in bpy.data.node_groups
+    again = tmp_path / "again.blend"
+    assert visibake.cli.main(["preview", str(removed), "--save", str(again)]) == 0
+    bpy.ops.wm.open_mainfile(filepath=str(again))
+    assert "VisiBake Lighting Ground" in bpy.data.node_groups
+
+    assert visibake.cli.main(["clear-cache", str(path), "--cache-dir", str(cache)]) == 0
+    assert not any(p.is_file() for p in cache.rglob("*"))
