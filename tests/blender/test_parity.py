@@ -99,12 +99,18 @@ def test_every_setting_of_the_panel_and_the_preferences_has_a_command_line_optio
         assert option is None or option in options, option
 
 
-def test_the_command_line_s_vertex_lookup_and_threads_reach_the_bake(visibake, clean_scene, tmp_path):
+def _saved_lit_ground(tmp_path):
+    """A ground plane and a lamp, saved as scene.blend (the scene stays open)."""
     black_world()
     mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
     point(80.0, (0.5, 0.3, 1.2), name="Lamp")
     path = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    return path
+
+
+def test_the_command_line_s_vertex_lookup_and_threads_reach_the_bake(visibake, clean_scene, tmp_path):
+    path = _saved_lit_ground(tmp_path)
     report = tmp_path / "report.json"
     assert visibake.cli.main(["bake", str(path), "--directions", "16", "--resolution", "8", "--vertex-lookup",
                               "nearest", "--threads", "1", "--report", str(report), "--no-progress",
@@ -127,11 +133,7 @@ def test_every_operator_of_the_panel_has_a_command(visibake):
 
 
 def test_the_preview_and_clear_cache_commands_do_what_the_buttons_do(visibake, clean_scene, tmp_path):
-    black_world()
-    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
-    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
-    path = tmp_path / "scene.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    path = _saved_lit_ground(tmp_path)
     cache = tmp_path / "cache"
     options = ["--directions", "16", "--resolution", "8", "--cache-dir", str(cache), "--no-progress"]
     assert visibake.cli.main(["bake", str(path), "--preview-nodes", *options]) == 2  # nothing to keep it in
