@@ -317,10 +317,14 @@ class _BakeOperator:
         if action != "tick":
             return {"PASS_THROUGH"} if action == "pass" else {"RUNNING_MODAL"}
         window_manager = context.window_manager
-        window_manager.progress_update(self._bake.progress.percent)  # the cursor shows it
-        self._show(context, self._bake.progress.status_text())
-        if not self._bake.tick():
-            return {"PASS_THROUGH"}
+        try:
+            window_manager.progress_update(self._bake.progress.percent)  # the cursor shows it
+            self._show(context, self._bake.progress.status_text())
+            if not self._bake.tick():
+                return {"PASS_THROUGH"}
+        except BaseException as error:  # noqa: BLE001  (a fault of ours: end the bake, never leave the UI held)
+            self._bake.error = self._bake.error or error
+            self._bake.job.abort()
         window_manager.event_timer_remove(self._timer)
         window_manager.progress_end()
         self._show(context, None)

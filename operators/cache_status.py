@@ -88,11 +88,14 @@ def remember_bake(scene, depsgraph, report: dict) -> None:
         _baked.pop(scene.session_uid, None)
         return
     uv_maps = {entry["name"]: entry.get("uv_map", "") for entry in report["objects"]}
-    _baked[scene.session_uid] = {
-        "table": cache_state["path"], "layout": _layout_settings(scene), "uv_maps": uv_maps,
-        "fingerprints": {name: fingerprint(bpy.data.objects[name], depsgraph, uv_map)
-                         for name, uv_map in uv_maps.items()},
-        "suspects": set()}
+    try:
+        fingerprints = {name: fingerprint(bpy.data.objects[name], depsgraph, uv_map)
+                        for name, uv_map in uv_maps.items()}
+    except (KeyError, ReferenceError):  # an object renamed or removed since: the state is unknown
+        _baked.pop(scene.session_uid, None)
+        return
+    _baked[scene.session_uid] = {"table": cache_state["path"], "layout": _layout_settings(scene), "uv_maps": uv_maps,
+                                 "fingerprints": fingerprints, "suspects": set()}
 
 
 def note_changes(scene, depsgraph) -> None:
