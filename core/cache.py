@@ -34,13 +34,17 @@ from . import tolerances as tol
 from .scene import BakeSettings, Mesh
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3  # 3: one checksum per array, backface counts stored
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
 # of re-mixing a handful of light groups, small next to the table.
 LIGHTING_ENTRIES_KEPT = 16
-_TABLE_ARRAYS = ("directions", "hit_object", "hit_uv", "hit_distance", "traced_per_sample")
+# A table's small arrays (a few bytes per sample) are read with its header; the large
+# ones (per sample and direction) only when the table is used.
+_SMALL_TABLE_ARRAYS = ("directions", "traced_per_sample", "backface_per_sample")
+_LARGE_TABLE_ARRAYS = ("hit_object", "hit_uv", "hit_distance")
+_TABLE_ARRAYS = _SMALL_TABLE_ARRAYS + _LARGE_TABLE_ARRAYS
 _OPTIONAL_TABLE_ARRAYS = ("hit_triangle",)
 
 
@@ -96,15 +100,13 @@ def arrays_key(*parts) -> str:
     return hasher.hexdigest()
 
 
-def _digest(arrays: dict) -> str:
-    """CRC-32 over names, dtypes, shapes and bytes: a check against damage, not tampering,
-    at disk speed (a cryptographic hash of a 700 MB table costs a second more)."""
-    crc = 0
-    for name in sorted(arrays):
-        array = np.ascontiguousarray(arrays[name])
-        crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode(), crc)
-        crc = zlib.crc32(array.data, crc)
-    return f"crc32:{crc:08x}"
+def _digest(name: str, array: np.ndarray) -> str:
+    """CRC-32 over an array's name, dtype, shape and bytes: a check against damage, not
+    tampering, at disk speed (a cryptographic hash of a 700 MB table costs a second more).
+    One per array, so that each can be read and checked on its own."""
+    array = np.ascontiguousarray(array)
+    crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode())
+    return f"crc32:{zlib.crc32(array.data, crc):08x}"
 
 
 class CorruptCache(Exception):
@@ -113,7 +115,7 @@ class CorruptCache(Exception):
 
 def _write(path: str, meta: dict, arrays: dict) -> int:
     """Write atomically (a reader never sees half a file); returns the size in bytes."""
-    meta = {**meta, "format": FORMAT_VERSION, "digest": _digest(arrays)}
+    meta = {**meta, "format": FORMAT_VERSION, "digests": {name: _digest(name, a) for name, a in arrays.items()}}
     header = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     folder = os.path.dirname(path)
     os.makedirs(folder, exist_ok=True)
@@ -148,8 +150,10 @@ def _read_arrays(path: str, meta: dict, names) -> dict:
             arrays = {name: data[name] for name in names}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
         raise CorruptCache(f"unreadable ({type(error).__name__}: {error})") from None
-    if _digest(arrays) != meta.get("digest"):
-        raise CorruptCache("its contents do not match their checksum")
+    digests = meta.get("digests") or {}
+    for name, array in arrays.items():
+        if _digest(name, array) != digests.get(name):
+            raise CorruptCache(f"its {name} does not match its checksum")
     return arrays
 
 
@@ -204,6 +208,26 @@ class VisibilityCache:
         if not os.path.exists(path):
             return None
         return _read_meta(path)
+
+    def deferred_table(self, settings: BakeSettings, meta: dict, damaged=None):
+        """The slot's table with only its small arrays read (and checked) now; the large
+        ones are read on first use. ``damaged(error)`` -> dict of large arrays is called
+        if they turn out not to match their checksums then (and may raise)."""
+        from .visibility import DeferredTable
+
+        path = self.table_path(settings)
+        small = _read_arrays(path, meta, _SMALL_TABLE_ARRAYS)
+        large = _LARGE_TABLE_ARRAYS + tuple(n for n in _OPTIONAL_TABLE_ARRAYS if n in meta.get("arrays", ()))
+
+        def read_large():
+            try:
+                return _read_arrays(path, meta, large)
+            except CorruptCache as error:
+                if damaged is None:
+                    raise
+                return damaged(error)
+
+        return DeferredTable(small, meta["counters"], "hit_triangle" in large, read_large)
 
     def load_table(self, settings: BakeSettings, meta: dict) -> CachedTable:
         names = _TABLE_ARRAYS + tuple(n for n in _OPTIONAL_TABLE_ARRAYS if n in meta.get("arrays", ()))

@@ -145,7 +145,7 @@ def _direct_share(p, lamp_rays: float, emitter_rays: float) -> float:
     gathers' lookups: the progress bar then moves at an even pace through both."""
     lamp_cost = lamp_rays * (SHADOW_RAY_IN_LOOKUPS if p.settings.shadows == "exact" else 0.2)
     shadow = lamp_cost + emitter_rays * SHADOW_RAY_IN_LOOKUPS
-    lookups = (p.table.hit_object.size / 2 if p.table is not None else 0.0) * (p.bounces_needed() + 1)
+    lookups = (len(p.directions) * len(p.position) / 2 if p.table is not None else 0.0) * (p.bounces_needed() + 1)
     if shadow + lookups <= 0:
         return 0.5
     return float(np.clip(shadow / (shadow + lookups), 0.02, 0.98))

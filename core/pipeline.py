@@ -26,7 +26,7 @@ from .samples import ObjectSamples, build_samples, build_vertex_samples, face_no
 from .scene import BakeSettings, Scene
 from .images import sample_image
 from .transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
-from .visibility import table_bytes, table_from_arrays, trace_table, update_table
+from .visibility import DeferredTable, table_bytes, table_from_arrays, trace_table, update_table
 from .cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
 from . import tolerances as tol
 
@@ -406,6 +406,35 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
     names = [m.name for m in meshes]
     status = CacheStatus()
     meta = None
+    triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
+    triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
+    # Vertex-mode objects have no bake UV map: their hits keep barycentrics instead.
+    corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] if m.mode == "atlas" else np.zeros((len(m.triangles), 3, 2))
+                                for m in meshes]).astype(np.float32)
+    vertex_object = np.array([m.mode == "vertex" for m in meshes], bool)
+    all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
+
+    def trace(report):
+        return trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
+                           all_face_normals, settings.chunk_rays, report, vertex_object)
+
+    def save(table):
+        try:
+            status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)
+        except OSError as error:
+            warnings.append(f"visibility cache {status.path} could not be written ({error}); the next bake "
+                            "traces the table again")
+
+    def damaged(error):
+        """The deferred table's large arrays are damaged: trace them again (never for a relight)."""
+        if require_cached_table:
+            raise BakeRefused(f"the cached visibility is damaged ({error}); bake first")
+        status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
+        warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
+        fresh = trace(None)
+        save(fresh)
+        return {name: getattr(fresh, name) for name in ("hit_object", "hit_uv", "hit_distance", "hit_triangle")}
+
     if cache is not None:
         status.path = cache.table_path(settings)
         started = time.perf_counter()
@@ -415,15 +444,15 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
                 status.state, status.message = "miss", "no cached visibility for this scene and these settings"
             elif meta.get("key") == key:
                 stages.expect("visibility", 0.0)
-                cached = cache.load_table(settings, meta)
-                if not np.array_equal(cached.sample_offset, sample_offset) or not np.array_equal(
-                        cached.arrays["directions"], directions):
+                if meta.get("sample_offset") != [int(x) for x in sample_offset]:
                     raise CorruptCache("its layout does not match its key")
-                table = table_from_arrays(cached.arrays, cached.counters)
+                # Read when a pass needs it: a bake whose lighting is cached never does.
+                table = cache.deferred_table(settings, meta, damaged)
+                if not np.array_equal(table.directions, directions):
+                    raise CorruptCache("its directions do not match its key")
                 status.state, status.message = "hit", "the cached visibility is valid"
                 status.bytes_on_disk = os.path.getsize(status.path)
                 status.load_seconds = time.perf_counter() - started
-                stages.report(1.0)
                 skipped.append(f"visibility stage: the cached table is valid ({status.path})")
                 return table, status, 0
             else:
@@ -448,13 +477,6 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
         detail = status.message or "the cache is off"
         raise BakeRefused(f"no valid cached visibility for relighting ({detail}); bake first")
 
-    triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
-    triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
-    # Vertex-mode objects have no bake UV map: their hits keep barycentrics instead.
-    corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] if m.mode == "atlas" else np.zeros((len(m.triangles), 3, 2))
-                                for m in meshes]).astype(np.float32)
-    vertex_object = np.array([m.mode == "vertex" for m in meshes], bool)
-    all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
     table = None
     rays = 0
     stages.start("visibility")
@@ -480,20 +502,33 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
             warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
     if table is None:
-        table = trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
-                            all_face_normals, settings.chunk_rays, stages.report, vertex_object)
+        table = trace(stages.report)
         rays = table.rays_cast
     if cache is not None:
         stages.start("cache")
         started = time.perf_counter()
-        try:
-            status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)
-        except OSError as error:
-            warnings.append(f"visibility cache {status.path} could not be written ({error}); the next bake "
-                            "traces the table again")
+        save(table)
         status.save_seconds = time.perf_counter() - started
         stages.report(1.0)
     return table, status, rays
+
+
+def _read_deferred_table(p: Prepared, stages: _Stages, needed: bool) -> None:
+    """Read a cached table's large arrays now if the transport or AO needs them, as the
+    cache stage inside the transport; otherwise tell the progress there is nothing left
+    to read."""
+    table = p.table
+    if not isinstance(table, DeferredTable) or table.loaded:
+        return
+    if not needed:
+        stages.expect("cache", 0.0)
+        return
+    stages.start("cache")
+    table.load()
+    if p.cache_status is not None:
+        p.cache_status.load_seconds += table.read_seconds
+    stages.report(1.0)
+    stages.start("transport")
 
 
 def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
@@ -566,6 +601,7 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
     total_groups = sum(len(plan["groups"]) for plan in plans)
     if total_groups:
         stages.expect("transport", len(pending) / total_groups)
+    _read_deferred_table(p, stages, needed=bool(pending) or "ao" in wants)
     gathers = 0
     batches = [pending[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(pending), MAX_GROUPS_PER_GATHER)]
     shared_skips: list[str] = []
@@ -652,6 +688,8 @@ def _report(p: Prepared, plan: dict, parts: dict, times: dict, gathers: int, sha
     """The bake report of one lighting (times and gathers are those of the whole call)."""
     table = p.table
     skipped, warnings = plan["skipped"] + shared_skips, plan["warnings"]
+    # A cached table found damaged when it was read (after the plan was made).
+    warnings += [w for w in p.warnings if w not in warnings]
     if plan["reused"]:
         names = "all lights" if plan["reused"] == ["all"] else ", ".join(repr(n) for n in plan["reused"])
         skipped.append(f"transport of {names}: lighting, materials and settings unchanged since a cached bake")

@@ -7,6 +7,7 @@ landing point. Directions below the horizon are never traced.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,52 @@ class VisibilityTable:
     def nbytes(self) -> int:
         extra = self.hit_triangle.nbytes if self.hit_triangle is not None else 0
         return self.hit_object.nbytes + self.hit_uv.nbytes + self.hit_distance.nbytes + extra
+
+
+class DeferredTable:
+    """A valid cached table whose large arrays (per sample and direction) are read from
+    disk on first use, so a bake whose lighting comes from the cache never reads them.
+
+    Has every field of :class:`VisibilityTable`; the small ones (directions, per-sample
+    counts, counters) are there at once, ``buried`` and ``nbytes`` need no read.
+    """
+
+    _LARGE = ("hit_object", "hit_uv", "hit_distance", "hit_triangle")
+
+    def __init__(self, small: dict, counters: dict, has_triangles: bool, read_large):
+        self.directions = small["directions"]
+        self.traced_per_sample = small["traced_per_sample"]
+        self.backface_per_sample = small["backface_per_sample"]
+        self.rays_cast = int(counters["rays_cast"])
+        self.rays_below_horizon = int(counters["rays_below_horizon"])
+        self.backface_hits = int(self.backface_per_sample.sum())
+        self._has_triangles = has_triangles
+        self._read_large = read_large
+        self._large = None
+        self.read_seconds = 0.0
+
+    @property
+    def loaded(self) -> bool:
+        return self._large is not None
+
+    def load(self) -> None:
+        if self._large is None:
+            started = time.perf_counter()
+            self._large = self._read_large()
+            self.read_seconds = time.perf_counter() - started
+
+    def __getattr__(self, name):
+        if name in DeferredTable._LARGE:
+            self.load()
+            return self._large.get(name)
+        raise AttributeError(name)
+
+    def buried(self) -> np.ndarray:
+        return 2 * self.backface_per_sample > self.traced_per_sample
+
+    @property
+    def nbytes(self) -> int:
+        return table_bytes(len(self.directions), len(self.traced_per_sample), self._has_triangles)
 
 
 def table_bytes(directions: int, samples: int, vertex_objects: bool = False) -> int:
@@ -117,9 +164,11 @@ def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray,
 
 
 def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
-    """A table from its stored arrays (see core.cache); the per-sample counts are rederived."""
+    """A table from its stored arrays (see core.cache)."""
     hit_object = arrays["hit_object"]
-    backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
+    backface_per_sample = arrays.get("backface_per_sample")
+    if backface_per_sample is None:
+        backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
     return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv=arrays["hit_uv"],
                            hit_distance=arrays["hit_distance"], hit_triangle=arrays.get("hit_triangle"),
                            rays_cast=int(counters["rays_cast"]),

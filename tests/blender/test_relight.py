@@ -182,18 +182,25 @@ def test_cli_sun_sweep(visibake, room, tmp_path):
 def test_a_damaged_cache_file_is_reported_and_rebuilt(visibake, room):
     assert _bake() == {"FINISHED"}
     path = _last_report(visibake)["cache"]["path"]
-    reference = image_pixels("VB_Ground_lighting")
     with open(path, "r+b") as handle:  # a bit flipped in the middle of the table
         handle.seek(os.path.getsize(path) // 2)
         byte = handle.read(1)
         handle.seek(-1, os.SEEK_CUR)
         handle.write(bytes([byte[0] ^ 0x01]))
-    with pytest.raises(RuntimeError, match="bake first"):
+    # The lighting of the unchanged scene is cached and needs no table; a changed lamp
+    # makes the transport read it, and the damage is found.
+    bpy.data.objects["Lamp"].data.energy = 120.0
+    with pytest.raises(RuntimeError, match="damaged"):
         _bake("relight")  # never trusted, not even by Relight
     assert _bake() == {"FINISHED"}
     report = _last_report(visibake)
     assert report["cache"]["state"] == "corrupt"
     assert any("it was rebuilt" in w for w in report["warnings"])
-    np.testing.assert_array_equal(reference, image_pixels("VB_Ground_lighting"))
+    rebuilt = image_pixels("VB_Ground_lighting")
+    bpy.context.scene.visibake.use_cache = False
+    assert _bake() == {"FINISHED"}  # a fresh trace, no cache at all
+    np.testing.assert_array_equal(rebuilt, image_pixels("VB_Ground_lighting"))
+    bpy.context.scene.visibake.use_cache = True
+    bpy.data.objects["Lamp"].data.energy = 90.0
     assert _bake() == {"FINISHED"}
     assert _last_report(visibake)["cache"]["state"] == "hit"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from core.cache import VisibilityCache
+from core.visibility import DeferredTable
 from core.pipeline import BakeRefused, bake, prepare, relight
 from core.scene import BakeSettings, Light, Material, Scene, World
 from core_scenes import quad_mesh
@@ -141,6 +142,8 @@ def test_a_corrupted_cache_is_detected_and_rebuilt(tmp_path, corrupt):
     good = prepare(Scene(_meshes(), [SUN]), settings, cache=cache)
     corrupt(good.cache_status.path)
     again = prepare(Scene(_meshes(), [SUN]), settings, cache=cache)
+    # A damaged header is found at once, a damaged array when a pass first reads it.
+    again.table.hit_object
     assert again.cache_status.state == "corrupt"
     assert any("rebuilt" in w for w in again.warnings)
     _assert_same_table(good.table, again.table)
@@ -190,3 +193,37 @@ def test_an_unwritable_cache_folder_warns_and_the_bake_goes_on(tmp_path):
     prepared = prepare(Scene(_meshes(), [SUN]), _settings(), cache=cache)
     assert any("could not be written" in w for w in prepared.warnings)
     _assert_same_images(relight(prepared, [SUN], World()), bake(Scene(_meshes(), [SUN]), _settings()))
+
+
+def test_a_bake_whose_lighting_is_cached_never_reads_the_table(tmp_path):
+    cache = VisibilityCache(str(tmp_path))
+    settings = _settings()
+    first = relight(prepare(Scene(_meshes(), [SUN]), settings, cache=cache), [SUN], World())
+    again = prepare(Scene(_meshes(), [SUN]), settings, cache=cache)
+    assert isinstance(again.table, DeferredTable) and not again.table.loaded
+    second = relight(again, [SUN], World())
+    assert not again.table.loaded and second.report["cache"]["lighting_reused"] == ["all"]
+    assert second.report["rays"]["visibility_in_table"] == first.report["rays"]["visibility_in_table"]
+    assert second.report["table_bytes"] == first.report["table_bytes"]
+    for a, b in zip(first.objects, second.objects):
+        for name in a.images:
+            np.testing.assert_array_equal(a.images[name], b.images[name])
+    third = relight(again, [dataclasses.replace(SUN, strength=SUN.strength * 2)], World())
+    assert again.table.loaded and third.report["cache"]["lighting_reused"] == []
+
+
+def test_a_damaged_table_found_when_read_refuses_a_relight_and_is_rebuilt_by_a_bake(tmp_path):
+    cache = VisibilityCache(str(tmp_path))
+    settings = _settings()
+    good = prepare(Scene(_meshes(), [SUN]), settings, cache=cache)
+    _corrupt_flip_bit(good.cache_status.path)
+    for_relight = prepare(Scene(_meshes(), [SUN]), settings, cache=cache, require_cached_table=True)
+    with pytest.raises(BakeRefused, match="damaged"):
+        for_relight.table.hit_object
+    rebuilt = prepare(Scene(_meshes(), [SUN]), settings, cache=cache)
+    result = relight(rebuilt, [SUN], World())
+    assert result.report["cache"]["state"] == "corrupt"
+    assert any("rebuilt" in w for w in result.report["warnings"])
+    _assert_same_table(good.table, rebuilt.table)
+    assert prepare(Scene(_meshes(), [SUN]), settings, cache=cache).cache_status.state == "hit"
+
