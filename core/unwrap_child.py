@@ -22,16 +22,27 @@ import numpy as np
 from .atlas import UnwrapResult, unwrap
 
 _CHILD_PACKAGE = "_visibake_core_child"
+_CANNOT_IMPORT = 3  # the child's exit status when it cannot import what it needs
 _BOOTSTRAP = f"""
 import importlib.util, os, sys
 core_dir, request, answer = sys.argv[1:4]
-spec = importlib.util.spec_from_file_location(
-    {_CHILD_PACKAGE!r}, os.path.join(core_dir, "__init__.py"), submodule_search_locations=[core_dir])
-package = importlib.util.module_from_spec(spec)
-sys.modules[{_CHILD_PACKAGE!r}] = package
-spec.loader.exec_module(package)
-importlib.import_module({_CHILD_PACKAGE!r} + ".unwrap_child").child_main(request, answer)
+try:
+    import numpy, xatlas
+    spec = importlib.util.spec_from_file_location(
+        {_CHILD_PACKAGE!r}, os.path.join(core_dir, "__init__.py"), submodule_search_locations=[core_dir])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[{_CHILD_PACKAGE!r}] = package
+    spec.loader.exec_module(package)
+    child = importlib.import_module({_CHILD_PACKAGE!r} + ".unwrap_child")
+except ImportError as error:
+    print(error, file=sys.stderr)
+    sys.exit({_CANNOT_IMPORT})
+child.child_main(request, answer)
 """
+
+
+class ChildUnavailable(RuntimeError):
+    """No child process could unwrap (no usable interpreter): unwrap in this process instead."""
 
 
 def child_main(request_path: str, answer_path: str) -> None:
@@ -57,7 +68,8 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
 
     ``cancelled`` () -> bool is asked every ``poll_seconds``; when it says yes the child
     is killed and :class:`core.pipeline.Cancelled` raised. Raises ``ValueError`` where
-    ``unwrap`` would, and ``RuntimeError`` if the child dies (a crash in xatlas).
+    ``unwrap`` would, ``RuntimeError`` if the child dies (a crash in xatlas), and
+    :class:`ChildUnavailable` if no child can run the unwrap at all.
     """
     from .pipeline import Cancelled  # here: the child should not import embree
 
@@ -69,9 +81,12 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
         np.savez(request, positions=np.asarray(positions, np.float64), triangles=np.asarray(triangles, np.int64),
                  resolution=int(resolution))
         with open(os.path.join(folder, "stderr.txt"), "w+b") as errors:
-            child = subprocess.Popen([python or sys.executable, "-c", _BOOTSTRAP, core_dir, request, answer],
-                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errors,
-                                     env=environment)
+            try:
+                child = subprocess.Popen([python or sys.executable, "-c", _BOOTSTRAP, core_dir, request, answer],
+                                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errors,
+                                         env=environment)
+            except OSError as error:
+                raise ChildUnavailable(f"cannot start {python or sys.executable}: {error}") from None
             try:
                 while child.poll() is None:
                     if cancelled is not None and cancelled():
@@ -83,8 +98,10 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
                     child.wait()
             errors.seek(0)
             message = errors.read().decode("utf-8", "replace").strip().splitlines()
+        last = message[-1] if message else f"exit status {child.returncode}"
+        if child.returncode == _CANNOT_IMPORT:
+            raise ChildUnavailable(f"the unwrap process cannot import what it needs: {last}")
         if child.returncode != 0 or not os.path.exists(answer):
-            last = message[-1] if message else f"exit status {child.returncode}"
             raise RuntimeError(f"the unwrap process failed: {last}")
         with np.load(answer) as data:
             if "error" in data:

@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 
 from ..core.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_problems
-from ..core.unwrap_child import unwrap_in_child
+from ..core.unwrap_child import ChildUnavailable, unwrap_in_child
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -59,9 +59,12 @@ class PendingUnwrap:
         """Unwrap, in this process or (cancellable, leaving the UI free) in a child process."""
         try:
             if in_child:
-                self.result = unwrap_in_child(self.positions, self.triangles, self.resolution, cancelled)
-            else:
-                self.result = unwrap(self.positions, self.triangles, self.resolution)
+                try:
+                    self.result = unwrap_in_child(self.positions, self.triangles, self.resolution, cancelled)
+                    return
+                except ChildUnavailable:
+                    pass  # no interpreter to run it: unwrap here, blocking but correct
+            self.result = unwrap(self.positions, self.triangles, self.resolution)
         except (RuntimeError, ValueError) as error:
             self.error = str(error)
 

@@ -1,4 +1,5 @@
 """The unwrap in a child process: the same result as in this process, and a cancel that stops it."""
+import sys
 import threading
 import time
 
@@ -7,7 +8,7 @@ import pytest
 
 from core.atlas import unwrap
 from core.pipeline import Cancelled
-from core.unwrap_child import unwrap_in_child
+from core.unwrap_child import ChildUnavailable, unwrap_in_child
 
 
 def _sphere(segments: int, rings: int):
@@ -47,6 +48,20 @@ def test_the_child_s_errors_come_back_as_the_same_exceptions():
     assert str(there.value) == str(here.value) and "too small" in str(here.value)
     with pytest.raises(RuntimeError, match="the unwrap process failed"):
         unwrap_in_child(positions, triangles, 64, python="/bin/false")
+
+
+def test_without_a_usable_interpreter_the_child_says_so(tmp_path):
+    positions, triangles = _sphere(8, 4)
+    with pytest.raises(ChildUnavailable, match="cannot start"):
+        unwrap_in_child(positions, triangles, 64, python="/nonexistent/python")
+    # An interpreter without xatlas: this one, with xatlas blocked before the child's code runs.
+    without_xatlas = tmp_path / "python-without-xatlas"
+    prelude = ("import sys; sys.modules['xatlas'] = None; code = sys.argv[2]; "
+               "sys.argv = sys.argv[:1] + sys.argv[3:]; exec(code)")
+    without_xatlas.write_text(f'#!/bin/sh\nexec "{sys.executable}" -c "{prelude}" "$@"\n')
+    without_xatlas.chmod(0o755)
+    with pytest.raises(ChildUnavailable, match="cannot import"):
+        unwrap_in_child(positions, triangles, 64, python=str(without_xatlas))
 
 
 def test_a_cancel_kills_the_child_within_a_second():
