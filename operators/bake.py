@@ -40,9 +40,9 @@ class Progress:
 
     # Rates assumed until the bake has measured its own (this machine, 2 cores: embree
     # 5.4 Mrays/s, the numpy gather ~15 M lookups/s on the demo, docs/benchmarks.md;
-    # xatlas ~5k triangles/s on a 65k-triangle sphere, plus a child process per
-    # unwrap; samples placed and results written ~1 M/s; the cache ~350 MB/s on disk).
-    ASSUMED_RATES = {"unwrap": 5e3, "samples": 1.3e6, "cache": 3.5e8, "visibility": 5e6, "transport": 1.5e7,
+    # unwraps are planned in this machine's seconds, layout.unwrap_seconds; samples
+    # placed and results written ~1 M/s; the cache ~350 MB/s on disk).
+    ASSUMED_RATES = {"unwrap": 1.0, "samples": 1.3e6, "cache": 3.5e8, "visibility": 5e6, "transport": 1.5e7,
                      "outputs": 1e6}
 
     def __init__(self):
@@ -53,12 +53,14 @@ class Progress:
         self.done_share = 0.0  # of the stages finished before the current one (without a plan)
         self.work = None
         self._anchor = None  # (time, fraction) of the running stage's first step
+        self._reported_at = self.started
         self._highest_percent = 0
 
     def __call__(self, stage: str, fraction: float) -> None:
         if self.cancelled:
             raise Cancelled()
-        if stage != self.stage:
+        stage_changed = stage != self.stage
+        if stage_changed:
             order = [name for name, _ in STAGES]
             if stage in order and self.stage in order and order.index(stage) > order.index(self.stage):
                 shares = dict(STAGES)
@@ -70,7 +72,10 @@ class Progress:
                 self.work[self.stage] *= 1.0 - self.fraction
             self.stage, self.stage_started = stage, time.perf_counter()
             self._anchor = None
-        self.fraction = min(max(float(fraction), 0.0), 1.0)
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        if stage_changed or fraction != self.fraction:
+            self._reported_at = time.perf_counter()  # progress made (a cancel check is not)
+        self.fraction = fraction
         if self._anchor is None and self.fraction > 0.0:
             # Rates are measured from the first step of real work on: a stage's set-up
             # (building the ray scene, reading inputs) is spent once, not per unit.
@@ -127,8 +132,15 @@ class Progress:
         if self.work is None:
             return None
         self._measure()
-        return sum(units * ((1.0 - self.fraction) if name == self.stage else 1.0) / self.rates[name]
-                   for name, units in self.work.items())
+        left = 0.0
+        for name, units in self.work.items():
+            if name != self.stage:
+                left += units / self.rates[name]
+            else:
+                # Time passes between reports (one large unwrap reports only when done).
+                since = time.perf_counter() - self._reported_at
+                left += max(units * (1.0 - self.fraction) / self.rates[name] - since, 0.0)
+        return left
 
     def status_text(self) -> str:
         left = self.seconds_left()

@@ -142,8 +142,10 @@ def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None
     process, which a cancel through ``progress`` kills at once."""
     started = time.perf_counter()
     unwraps = planned.unwraps
+    # Progress by expected time: one large mesh takes longer than many small ones.
+    costs = np.cumsum([0.0] + [layout.unwrap_seconds(len(p.triangles)) for p in unwraps])
     for index, pending in enumerate(unwraps):
-        fraction = index / len(unwraps)
+        fraction = costs[index] / costs[-1]
 
         def cancelled() -> bool:
             try:
@@ -432,9 +434,9 @@ class BakeJob:
             raise
 
     def expected_work(self) -> dict:
-        """The bake's work, known once it is planned: triangles to unwrap, samples to place
-        and write out, rays to trace, cache bytes, and table lookups (plus exact shadow
-        rays, in lookups) to transport.
+        """The bake's work, known once it is planned: unwraps (in seconds of the measured
+        machine), samples to place and write out, rays to trace, cache bytes, and table
+        lookups (plus exact shadow rays, in lookups) to transport.
 
         Atlas texels count at the share a packed UV layout typically covers; a vertex-mode
         object has about one sample per vertex. Half the directions lie above a sample's
@@ -455,9 +457,9 @@ class BakeJob:
         if self.context.scene.visibake.use_cache:
             # The table is written after a trace or read on a hit: one pass over its bytes.
             work["cache"] = rays * 2 * TABLE_BYTES_PER_ENTRY
-        triangles = sum(len(pending.triangles) for pending in self.planned.unwraps)
-        if triangles:
-            work["unwrap"] = float(triangles)
+        if self.planned.unwraps:
+            # In seconds of the measured machine: xatlas grows faster than linearly.
+            work["unwrap"] = sum(layout.unwrap_seconds(len(p.triangles)) for p in self.planned.unwraps)
         return work
 
     def compute(self) -> None:

@@ -59,11 +59,24 @@ def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, sce
         progress.plan({"visibility": 1e6, "transport": 3e6})
         progress("visibility", 0.0)
         at_start = progress.seconds_left()
-        assert at_start == pytest.approx(1e6 / 5e6 + 3e6 / 1.5e7)  # the assumed rates
+        assert at_start == pytest.approx(1e6 / 5e6 + 3e6 / 1.5e7, abs=0.01)  # the assumed rates
         progress("transport", 0.5)
         assert progress.seconds_left() < at_start and "s left" in progress.status_text()
     finally:
         bake_job.abort()
+
+
+def test_time_left_counts_down_through_a_step_that_reports_only_at_its_end(visibake):
+    progress = visibake.operators.bake.Progress()
+    progress.plan({"unwrap": 2.0, "visibility": 5e6})  # an unwrap of 2 s, then 1 s of rays
+    progress("unwrap", 0.0)
+    first = progress.seconds_left()
+    time.sleep(0.3)
+    progress("unwrap", 0.0)  # a cancel check: no progress
+    assert first == pytest.approx(3.0, abs=0.05) and progress.seconds_left() <= first - 0.25
+    progress("unwrap", 1.0)  # as run_unwraps reports at the end
+    progress("visibility", 0.0)
+    assert progress.seconds_left() == pytest.approx(1.0, abs=0.05)
 
 
 def test_a_bake_on_a_worker_thread_gives_the_blocking_bake_s_images(visibake, scene):
