@@ -35,16 +35,18 @@ class UnwrapFailed(LayoutError):
 # machine, so 100k triangles keeps an unwrap under about a minute.
 UNWRAP_TRIANGLE_BUDGET = 100_000
 
-
-def unwrap_seconds(triangles: int) -> float:
-    """Rough time of one unwrap on that machine, for the time-left estimate: a power law
-    through the two measurements above (exponent ln 70 / ln 9 = 1.93; it predicts 19 s at
-    65k triangles, where 18-21 s was measured), plus starting the child process."""
-    return 2.0 * (triangles / 20_000) ** 1.93 + 0.2
 # "Dense" needs many vertices as well as close ones: a low-poly object at a draft
 # resolution (a quad at 1 x 1 texels) has vertices farther apart than a texel's size
 # too, but an artist still expects an image for it.
 DENSE_MIN_VERTICES = 1024
+
+
+def unwrap_seconds(triangles: int) -> float:
+    """Rough time of one unwrap on the machine of UNWRAP_TRIANGLE_BUDGET's measurements,
+    for the time-left estimate: a power law through them (exponent ln 70 / ln 9 = 1.93;
+    it predicts 19 s at 65k triangles, where 18-21 s was measured), plus starting the
+    child process."""
+    return 2.0 * (triangles / 20_000) ** 1.93 + 0.2
 
 
 @dataclass
@@ -54,7 +56,6 @@ class PendingUnwrap:
     ``loops`` is None for an object without outputs, whose unwrap stays in memory.
     """
 
-    object_name: str
     positions: np.ndarray
     triangles: np.ndarray
     loops: np.ndarray | None
@@ -250,11 +251,11 @@ def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output,
         if len(triangles) == 0:
             raise LayoutError(f"object {obj.name!r} has no faces; deselect it or give it faces")
         return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", written=True,
-                          pending=PendingUnwrap(obj.name, positions, triangles, loops, resolution[0]))
+                          pending=PendingUnwrap(positions, triangles, loops, resolution[0]))
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
     # the evaluated mesh in memory and leave the user's mesh alone.
     return LayoutPlan(INTERNAL_UV_MAP, resolution, f"unwrapped in memory, no UV map written ({reason})",
-                      pending=PendingUnwrap(obj.name, evaluated_positions, evaluated_triangles, None, resolution[0]))
+                      pending=PendingUnwrap(evaluated_positions, evaluated_triangles, None, resolution[0]))
 
 
 def complete_layout(obj, plan: LayoutPlan) -> LayoutPlan:
