@@ -6,7 +6,9 @@ hard-coded: extensions load as ``bl_ext.<repository>.visibake``.
 import bpy
 
 from . import operators, panels
-from .operators import cache_status, cli, properties
+from .operators.adapter import cache_status
+from .operators import cli
+from .panels import properties
 from .panels import preferences
 
 _classes = operators.classes + panels.classes

@@ -45,10 +45,10 @@ def main(argv=None) -> int:
     extension = load_extension()
     import bpy
 
-    demo_scene = importlib.import_module(f"{extension.__name__}.operators.demo_scene")
-    job = importlib.import_module(f"{extension.__name__}.operators.job")
-    pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline")
-    VisibilityCache = importlib.import_module(f"{extension.__name__}.core.cache").VisibilityCache
+    demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
+    job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
+    pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
+    VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
 
     bpy.ops.wm.read_homefile(use_empty=True)
     objects = demo_scene.build_demo_scene(bpy.context.scene)

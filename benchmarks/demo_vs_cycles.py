@@ -63,8 +63,8 @@ def main() -> int:
     import bpy
     from tools.cycles_bake import bake_diffuse
 
-    demo_scene = importlib.import_module(f"{extension.__name__}.operators.demo_scene")
-    job = importlib.import_module(f"{extension.__name__}.operators.job")
+    demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
+    job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
 
     bpy.ops.wm.read_homefile(use_empty=True)
     objects = demo_scene.build_demo_scene(bpy.context.scene)
@@ -118,7 +118,7 @@ def main() -> int:
     cheap, cheap_seconds = cycles(args.timing_samples)
     print(f"Cycles {args.timing_samples} spp: {cheap_seconds:.1f} s", flush=True)
 
-    extract = importlib.import_module(f"{extension.__name__}.operators.extract")
+    extract = importlib.import_module(f"{extension.__name__}.operators.adapter.extract")
     depsgraph = bpy.context.evaluated_depsgraph_get()
     meshes = [extract.read_mesh(o, depsgraph, "", (0, 0), True, []) for o in objects]
     raw_rate = embree_rays_per_second(meshes)

@@ -81,9 +81,9 @@ def main(argv=None) -> int:
     extension = load_extension()
     import bpy
 
-    demo_scene = importlib.import_module(f"{extension.__name__}.operators.demo_scene")
+    demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
     bake = importlib.import_module(f"{extension.__name__}.operators.bake")
-    job = importlib.import_module(f"{extension.__name__}.operators.job")
+    job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
 
     bpy.ops.wm.read_homefile(use_empty=True)
     objects = demo_scene.build_demo_scene(bpy.context.scene)

@@ -163,9 +163,9 @@ def main(argv=None) -> int:
     from benchmarks import limits, reference, scenes
     from tools.cycles_bake import bake_diffuse
 
-    job = importlib.import_module(f"{extension.__name__}.operators.job")
-    pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline")
-    VisibilityCache = importlib.import_module(f"{extension.__name__}.core.cache").VisibilityCache
+    job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
+    pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
+    VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
     gpu_runtime = importlib.import_module(f"{extension.__name__}.gpu_shaders.runtime")
     gpu_gather = importlib.import_module(f"{extension.__name__}.gpu_shaders.gather")
     names = args.scenes or profile["scenes"] or scenes.SCENE_NAMES

@@ -15,7 +15,7 @@ Shared conventions, so that VisiBake and Cycles see exactly the same thing:
   triangles would dominate the bake time).
 - Objects standing on a floor have no bottom face and touch the floor at z = 0:
   no coplanar faces, so no texel depends on how a tracer breaks ties at t = 0.
-- Rooms are overlapping 0.2 m slabs (as in ``operators/demo_scene.py``), so a ray aimed
+- Rooms are overlapping 0.2 m slabs (as in ``operators/adapter/demo_scene.py``), so a ray aimed
   at a seam always lands inside a face. Each slab is split along the room's
   boundary planes into the faces seen from inside (baked: one object per wall) and
   the rest, which is outside or buried in another slab (one unbaked "RoomShell"

@@ -1,4 +1,4 @@
-"""Gutter dilation on the GPU: the twin of :func:`core.raster.dilate`, same contract.
+"""Gutter dilation on the GPU: the twin of :func:`core.outputs.dilation.dilate`, same contract.
 
 One compute dispatch per pass, ping-ponging between two pairs of textures (the values
 as RGBA32F array layers, 4 channels a layer, and the filled mask as R32F). Channels
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.raster import check_dilate_arguments
+from ..core.outputs.dilation import check_dilate_arguments
 from . import runtime
 
 GROUP_SIZE = 16  # local work group: 16 x 16 texels of one channel layer
@@ -50,7 +50,7 @@ def layers_per_chunk(width: int, height: int, layers: int, budget_bytes: int) ->
 
 def dilate(image: np.ndarray, coverage: np.ndarray, margin: int,
            budget_bytes: int = DEFAULT_BUDGET_BYTES) -> tuple[np.ndarray, np.ndarray]:
-    """Fill the gutter on the GPU. Parameters and results as :func:`core.raster.dilate`.
+    """Fill the gutter on the GPU. Parameters and results as :func:`core.outputs.dilation.dilate`.
 
     Parameters
     ----------
@@ -74,7 +74,7 @@ def dilate(image: np.ndarray, coverage: np.ndarray, margin: int,
     height, width = coverage.shape
     if width > runtime.MAX_TEXTURE_SIZE or height > runtime.MAX_TEXTURE_SIZE:
         raise ValueError(f"dilate: a {width}x{height} image exceeds the GPU texture limit of "
-                         f"{runtime.MAX_TEXTURE_SIZE} texels a side; use core.raster.dilate")
+                         f"{runtime.MAX_TEXTURE_SIZE} texels a side; use core.outputs.dilation.dilate")
     channels = 1 if flat_channels else image.shape[2]
     values = np.zeros((height, width, channels), np.float32)
     values[coverage] = image.reshape(height, width, channels)[coverage]

@@ -1,8 +1,8 @@
-"""Direct light from lamps on the GPU: the twin of :func:`core.lighting.lamp_irradiance`.
+"""Direct light from lamps on the GPU: the twin of :func:`core.transport.direct.lamp_irradiance`.
 
 The GPU evaluates every lamp (every virtual point of an area lamp) per sample and
 applies the shadowing; the CPU keeps what needs the table or the ray tracer, exactly
-as numpy does it: shadow fractions of local lamps (``core.shadows.shadow_fractions``,
+as numpy does it: shadow fractions of local lamps (``core.visibility.shadows.shadow_fractions``,
 counts per sample and region) and, with exact shadows, the shadow rays themselves
 (uploaded as one bit per sample and virtual point).
 
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import tolerances as tol
-from ..core.lights import area_light_points, light_contributions
-from ..core.shadows import shadow_fractions
+from ..core.lights.lamps import area_light_points, light_contributions
+from ..core.visibility.shadows import shadow_fractions
 from . import runtime
 
 GROUP_SIZE = 16  # local work group: 16 x 16 samples
@@ -49,7 +49,7 @@ def lamp_rows(light, origin: np.ndarray, area_light_samples: int) -> np.ndarray:
     """The lamp texture of one lamp: (P, 4, 4) float64, one row of 4 texels per virtual point.
 
     Holds only what does not depend on the sample, with the constants of
-    :func:`core.lights.light_contributions` folded into an rgb scale. ``origin`` (3,)
+    :func:`core.lights.lamps.light_contributions` folded into an rgb scale. ``origin`` (3,)
     is subtracted from positions, as from the samples'.
     """
     color = np.asarray(light.color, np.float64)[:3]
@@ -133,7 +133,7 @@ def chunk_samples(samples: int, per_sample_bytes: int, fixed_bytes: int, budget_
 def lamp_irradiance(p, lights, report=None, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` and the shadow rays traced (int).
 
-    Same contract as :func:`core.lighting.lamp_irradiance`: ``p`` is a prepared scene,
+    Same contract as :func:`core.transport.direct.lamp_irradiance`: ``p`` is a prepared scene,
     shadows as ``p.settings.shadows`` says, ``report(fraction)`` after each lamp.
     """
     samples = len(p.position)

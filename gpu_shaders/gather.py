@@ -1,11 +1,11 @@
-"""The gather on the GPU: the twin of :func:`core.transport.gather`, same contract.
+"""The gather on the GPU: the twin of :func:`core.transport.gather.gather`, same contract.
 
 The table is streamed in batches of directions as 2D texture arrays (one layer per
 direction), sized so the batch plus the fixed textures stay within the GPU memory
 budget; every texture is freed when the call returns, also on an error.
 
 Vertex-mode objects (``layout.is_vertex``) are looked up as
-:meth:`core.transport.AtlasLayout.vertex_lookup` does: the batch also carries the hit
+:meth:`core.transport.gather.AtlasLayout.vertex_lookup` does: the batch also carries the hit
 triangles, and the layout's corner table and per-object corner bases are uploaded once.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 from . import runtime
 
 # Channel layers (4 channels each) one dispatch accumulates: 12 x 4 = 48 channels,
-# 16 light groups (core.lighting.MAX_GROUPS_PER_GATHER); the shader's sums[] size.
+# 16 light groups (core.transport.groups.MAX_GROUPS_PER_GATHER); the shader's sums[] size.
 MAX_CHANNEL_LAYERS = 12
 GROUP_SIZE = 16  # local work group: 16 x 16 samples
 RADIANCE_WIDTH = 4096
@@ -117,7 +117,7 @@ def batch_directions(samples: int, budget_bytes: int, fixed_bytes: int, vertex: 
 def gather(table, normals: np.ndarray, scale: np.ndarray, layout, radiance: np.ndarray, world: np.ndarray,
            progress=None, exclude: np.ndarray | None = None, threads: int = 0,
            samples: np.ndarray | None = None, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> np.ndarray:
-    """E(p) = sum_i w_i(p) L(S_i[p]) on the GPU. Parameters as :func:`core.transport.gather`.
+    """E(p) = sum_i w_i(p) L(S_i[p]) on the GPU. Parameters as :func:`core.transport.gather.gather`.
 
     ``threads`` is unused; ``samples`` only zeroes the others (the GPU computes all).
     Returns (K, C) float64.

@@ -1,4 +1,4 @@
-"""Accumulation of the lighting passes on the GPU: twin of :func:`core.lighting.accumulate_passes`."""
+"""Accumulation of the lighting passes on the GPU: twin of :func:`core.transport.passes.accumulate_passes`."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,10 +19,10 @@ def _build(info) -> None:
 
 
 def accumulate_passes(albedo: np.ndarray, wants, groups: dict, per_group: bool) -> dict:
-    """Same contract as :func:`core.lighting.accumulate_passes`; values summed in float32."""
+    """Same contract as :func:`core.transport.passes.accumulate_passes`; values summed in float32."""
     if not groups:
         return {}
-    from ..core.lighting import group_pass_name
+    from ..core.transport.passes import group_pass_name
 
     runtime.ensure_context()
     import gpu

@@ -17,10 +17,10 @@ import traceback
 
 import bpy
 
-from ..core import setups as lighting_setups
-from ..core.pipeline import Cancelled
-from ..core.scene import PASSES
-from . import job
+from ..core.lights import setups as lighting_setups
+from ..core.errors import Cancelled
+from ..core.settings import PASSES
+from .adapter import job
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -148,7 +148,7 @@ def _apply_settings(args, props) -> None:
 
 
 def _select_objects(args, scene) -> list:
-    from . import extract
+    from .adapter import extract
 
     meshes = extract.scene_meshes(scene)
     if not args.objects:
@@ -203,7 +203,7 @@ def _load_input(args) -> None:
             raise job.BakeInputError(f"input must be a .blend file: {args.input}")
         bpy.ops.wm.open_mainfile(filepath=path)
     else:
-        from . import demo_scene
+        from .adapter import demo_scene
 
         # read_homefile keeps the preferences, so VisiBake stays enabled (factory
         # settings would disable it in the middle of its own command).
@@ -239,7 +239,7 @@ def _checked(function, *arguments):
 
 def run_preview(args) -> int:
     """``preview``: what Show Baked Lighting (or Remove Preview) does, on a saved file."""
-    from . import preview_nodes
+    from .adapter import preview_nodes
 
     _load_input(args)
     if args.remove:
@@ -259,7 +259,7 @@ def run_preview(args) -> int:
 
 def run_clear_cache(args) -> int:
     """``clear-cache``: what Clear Cache does."""
-    from . import cache_status
+    from .adapter import cache_status
 
     _load_input(args)
     if args.cache_dir is not None:
@@ -299,7 +299,7 @@ def run(args) -> int:
         progress.close()
     report = outcome.report
     if getattr(args, "preview_nodes", False):
-        from . import preview_nodes
+        from .adapter import preview_nodes
 
         try:
             _, warnings = preview_nodes.add_preview(
@@ -311,7 +311,7 @@ def run(args) -> int:
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
         report["files"].append(os.path.abspath(args.save))
     if args.command == "demo":
-        from . import preview
+        from .adapter import preview_render as preview
 
         started = time.perf_counter()
         render_path = os.path.join(out_dir, "preview_render.png")

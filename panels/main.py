@@ -3,7 +3,8 @@ import json
 
 import bpy
 
-from ..operators import cache_status, device, properties
+from ..operators.adapter import cache_status, device
+from . import properties
 from .preferences import apply_default_preset_to_new_scenes
 
 

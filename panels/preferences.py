@@ -1,7 +1,8 @@
 """VisiBake's add-on preferences: machine settings that are not part of a scene."""
 import bpy
 
-from ..operators import device, properties
+from ..operators.adapter import device
+from . import properties
 
 
 class VisiBakePreferences(bpy.types.AddonPreferences):

@@ -22,8 +22,8 @@ from bpy_scenes import black_world, cube, grid, material, mesh_object, point, su
 
 
 def _load_demo_scene():
-    # By file path: operators/__init__.py belongs to the extension and imports far more.
-    spec = importlib.util.spec_from_file_location("visibake_demo_scene", REPO_ROOT / "operators" / "demo_scene.py")
+    # By file path: operators/adapter/__init__.py belongs to the extension and imports far more.
+    spec = importlib.util.spec_from_file_location("visibake_demo_scene", REPO_ROOT / "operators" / "adapter" / "demo_scene.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -23,7 +23,7 @@ SAMPLES = 128
 
 def extract_module():
     from blender_support import extension_module_name
-    return importlib.import_module(extension_module_name() + ".operators.extract")
+    return importlib.import_module(extension_module_name() + ".operators.adapter.extract")
 
 
 def euler_matrix(degrees):

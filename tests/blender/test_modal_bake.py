@@ -31,7 +31,7 @@ def scene(clean_scene):
 
 
 def test_progress_percentages_status_and_cancel(visibake):
-    progress = visibake.operators.bake.Progress()
+    progress = visibake.core.pipeline.progress.Progress()
     seen = []
     for stage in ("layout", "samples", "visibility", "transport", "outputs"):
         for fraction in (0.0, 0.5, 1.0):
@@ -40,12 +40,12 @@ def test_progress_percentages_status_and_cancel(visibake):
     assert seen == sorted(seen) and seen[-1] == 100 and seen[0] == 0
     assert "Esc to cancel" in progress.status_text()
     progress.cancel()
-    with pytest.raises(visibake.core.pipeline.Cancelled):
+    with pytest.raises(visibake.core.errors.Cancelled):
         progress("transport", 0.6)
 
 
 def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, scene):
-    job = visibake.operators.job
+    job = visibake.operators.adapter.job
     bake_job = job.BakeJob(bpy.context, list(scene))
     bake_job.start()
     try:
@@ -55,7 +55,7 @@ def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, sce
         assert work["visibility"] > 0.7 * 32 * 32 * 64 / 2
         samples = work["visibility"] / 32
         assert work["transport"] == pytest.approx(3 * work["visibility"] + job.SHADOW_RAY_IN_LOOKUPS * samples)
-        progress = visibake.operators.bake.Progress()
+        progress = visibake.core.pipeline.progress.Progress()
         progress.plan({"visibility": 1e6, "transport": 3e6})
         progress("visibility", 0.0)
         at_start = progress.seconds_left()
@@ -67,7 +67,7 @@ def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, sce
 
 
 def test_time_left_counts_down_through_a_step_that_reports_only_at_its_end(visibake):
-    progress = visibake.operators.bake.Progress()
+    progress = visibake.core.pipeline.progress.Progress()
     progress.plan({"unwrap": 2.0, "visibility": 5e6})  # an unwrap of 2 s, then 1 s of rays
     progress("unwrap", 0.0)
     first = progress.seconds_left()
@@ -80,10 +80,10 @@ def test_time_left_counts_down_through_a_step_that_reports_only_at_its_end(visib
 
 
 def test_a_bake_on_a_worker_thread_gives_the_blocking_bake_s_images(visibake, scene):
-    job = visibake.operators.job
+    job = visibake.operators.adapter.job
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     blocking = image_pixels("VB_Ground_lighting")
-    progress = visibake.operators.bake.Progress()
+    progress = visibake.core.pipeline.progress.Progress()
     bake_job = job.BakeJob(bpy.context, list(scene), progress=progress)
     bake_job.start()
     worker = threading.Thread(target=bake_job.compute)
@@ -95,9 +95,9 @@ def test_a_bake_on_a_worker_thread_gives_the_blocking_bake_s_images(visibake, sc
 
 
 def test_cancel_from_another_thread_leaves_the_scene_as_it_was(visibake, scene):
-    job = visibake.operators.job
+    job = visibake.operators.adapter.job
     ground, block = scene
-    progress = visibake.operators.bake.Progress()
+    progress = visibake.core.pipeline.progress.Progress()
     stages = []
 
     def cancel_during_visibility(stage, fraction):
@@ -121,7 +121,7 @@ def test_cancel_from_another_thread_leaves_the_scene_as_it_was(visibake, scene):
     worker.start()
     worker.join(timeout=60)
     assert not worker.is_alive()
-    assert errors and isinstance(errors[0], visibake.core.pipeline.Cancelled)
+    assert errors and isinstance(errors[0], visibake.core.errors.Cancelled)
     assert "transport" not in stages  # stopped in the visibility stage
     bake_job.abort()
     assert "VisiBake" not in block.data.uv_layers
@@ -131,7 +131,7 @@ def test_cancel_from_another_thread_leaves_the_scene_as_it_was(visibake, scene):
 def _modal(visibake, objects, **job_options):
     bake = visibake.operators.bake
     progress = bake.Progress()
-    return bake.ModalBake(visibake.operators.job.BakeJob(bpy.context, list(objects), progress=progress,
+    return bake.ModalBake(visibake.operators.adapter.job.BakeJob(bpy.context, list(objects), progress=progress,
                                                          **job_options), progress)
 
 
@@ -175,10 +175,10 @@ def test_a_cancel_in_any_stage_leaves_the_scene_as_it_was(visibake, scene, stage
             progress.cancel()
         progress(name, fraction)
 
-    modal = bake.ModalBake(visibake.operators.job.BakeJob(bpy.context, list(scene),
+    modal = bake.ModalBake(visibake.operators.adapter.job.BakeJob(bpy.context, list(scene),
                                                          progress=esc_when_the_stage_starts), progress)
     _tick_until_done(modal)
-    assert isinstance(modal.error, visibake.core.pipeline.Cancelled), modal.error
+    assert isinstance(modal.error, visibake.core.errors.Cancelled), modal.error
     assert stage in seen and "outputs" not in seen
     assert {obj.name: [layer.name for layer in obj.data.uv_layers] for obj in scene} == uv_maps
     assert set(bpy.data.images.keys()) == images
@@ -191,7 +191,7 @@ def test_a_cancel_between_steps_is_honoured_before_the_next_one(visibake, scene)
     assert modal.tick() is False  # planned; the unwrap of the block runs on a worker
     modal.progress.cancel()
     _tick_until_done(modal)
-    assert isinstance(modal.error, visibake.core.pipeline.Cancelled)
+    assert isinstance(modal.error, visibake.core.errors.Cancelled)
     assert "VisiBake" not in scene[1].data.uv_layers and "VB_Ground_lighting" not in bpy.data.images
 
 
@@ -215,7 +215,7 @@ def test_a_cancel_stops_a_long_unwrap_at_once(visibake, clean_scene):
 
     _tick_until_done(modal, cancel_in_unwrap)
     stopped = time.perf_counter() - ticks_in_unwrap[4]
-    assert isinstance(modal.error, visibake.core.pipeline.Cancelled)
+    assert isinstance(modal.error, visibake.core.errors.Cancelled)
     # The ticks kept coming while xatlas ran (the UI was live), and the cancel did not
     # wait for the unwrap: a loose bound, to tell a kill from a 12 s wait on a slow machine.
     assert len(ticks_in_unwrap) >= 5 and stopped < 4.0
@@ -231,7 +231,7 @@ def test_with_the_gpu_passes_the_lighting_runs_on_the_main_thread(visibake, scen
         threads.setdefault(stage, set()).add(threading.current_thread() is threading.main_thread())
         progress(stage, fraction)
 
-    bake_job = visibake.operators.job.BakeJob(bpy.context, list(scene), progress=record, device_name="gpu")
+    bake_job = visibake.operators.adapter.job.BakeJob(bpy.context, list(scene), progress=record, device_name="gpu")
     modal = bake.ModalBake(bake_job, progress)
     _tick_until_done(modal)
     assert modal.error is None, modal.error
@@ -259,7 +259,7 @@ def test_events_during_a_bake_navigation_passes_edits_are_held_esc_cancels(visib
 
 def test_failure_messages_say_what_happened_and_what_to_do(visibake):
     message = visibake.operators.bake.failure_message
-    job = visibake.operators.job
+    job = visibake.operators.adapter.job
     assert message(job.BakeInputError("no mesh objects to bake: select some")) == (
         "ERROR", "no mesh objects to bake: select some")
     level, text = message(ReferenceError("StructRNA of type Object has been removed"))

@@ -166,7 +166,7 @@ def test_the_objects_list_shows_meshes_with_their_role_mode_and_resolution(visib
 
 
 def test_the_preferences_draw_every_preference(visibake, clean_scene):
-    prefs = visibake.operators.device.preferences()
+    prefs = visibake.operators.adapter.device.preferences()
     drawn = []
     stand_in = type("PrefsStandIn", (), {"layout": CheckedLayout(drawn),
                                          "__getattr__": lambda self, name: getattr(prefs, name)})()
@@ -182,7 +182,7 @@ def test_every_operator_setting_and_choice_has_a_tooltip(visibake):
         assert len(_operator_rna(cls.bl_idname).description) > 20, cls.bl_idname
     groups = [bpy.types.Scene.bl_rna.properties["visibake"].fixed_type,
               bpy.types.Object.bl_rna.properties["visibake"].fixed_type,
-              visibake.operators.device.preferences().bl_rna]
+              visibake.operators.adapter.device.preferences().bl_rna]
     for group in groups:
         for prop in group.properties:
             if prop.identifier in ("rna_type", "name", "bl_idname"):

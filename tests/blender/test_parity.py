@@ -93,7 +93,7 @@ def test_every_setting_of_the_panel_and_the_preferences_has_a_command_line_optio
                for option in action.option_strings}
     scene_settings = set(bpy.types.Scene.bl_rna.properties["visibake"].fixed_type.properties.keys()) - {"rna_type", "name"}
     assert scene_settings == set(cli.SCENE_SETTING_OPTIONS), "a scene setting without a command-line option"
-    preferences = set(visibake.operators.device.preferences().bl_rna.properties.keys()) - {"rna_type", "bl_idname"}
+    preferences = set(visibake.operators.adapter.device.preferences().bl_rna.properties.keys()) - {"rna_type", "bl_idname"}
     assert preferences == set(cli.PREFERENCE_OPTIONS), "a preference without a command-line option"
     for option in [*cli.SCENE_SETTING_OPTIONS.values(), *cli.PREFERENCE_OPTIONS.values()]:
         assert option is None or option in options, option

@@ -47,7 +47,7 @@ def baked_saved_scene(visibake, clean_scene, tmp_path):
 
 
 def test_cache_status_and_clear_cache(baked_saved_scene, tmp_path):
-    cache_status = baked_saved_scene.operators.cache_status
+    cache_status = baked_saved_scene.operators.adapter.cache_status
     state = cache_status.status(bpy.context.scene)
     assert state["enabled"] and state["has_table"] and state["table_bytes"] > 0 and state["slots"] == 1
     assert state["folder"] == str(tmp_path / "visibake_cache")
@@ -66,7 +66,7 @@ def test_cache_status_and_clear_cache(baked_saved_scene, tmp_path):
 
 
 def test_the_cache_folder_preference(visibake, clean_scene, tmp_path):
-    prefs = visibake.operators.device.preferences()
+    prefs = visibake.operators.adapter.device.preferences()
     assert prefs is not None
     prefs.cache_dir = str(tmp_path / "fast disk")
     try:
@@ -92,7 +92,7 @@ def test_the_cache_folder_preference(visibake, clean_scene, tmp_path):
 def test_the_default_preset_preference_sets_up_new_scenes_only(visibake, clean_scene, tmp_path):
     untouched_file = tmp_path / "untouched.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(untouched_file), copy=True)  # no VisiBake settings in it
-    prefs = visibake.operators.device.preferences()
+    prefs = visibake.operators.adapter.device.preferences()
     prefs.default_preset = "DRAFT"
     touched = bpy.context.scene
     touched.visibake.directions = 300
@@ -115,15 +115,15 @@ def test_the_default_preset_preference_sets_up_new_scenes_only(visibake, clean_s
 
 
 def test_with_no_default_preset_new_scenes_keep_the_built_in_settings(visibake, clean_scene):
-    assert visibake.operators.device.preferences().default_preset == "NONE"
+    assert visibake.operators.adapter.device.preferences().default_preset == "NONE"
     fresh = bpy.data.scenes.new("Fresh")
     visibake.panels.preferences.apply_default_preset_to_new_scenes()
     assert (fresh.visibake.preset, fresh.visibake.directions) == ("CUSTOM", 128)
-    assert visibake.operators.properties.settings_untouched(fresh.visibake)
+    assert visibake.panels.properties.settings_untouched(fresh.visibake)
 
 
 def test_the_cache_status_tells_valid_from_stale(baked_saved_scene):
-    cache_status = baked_saved_scene.operators.cache_status
+    cache_status = baked_saved_scene.operators.adapter.cache_status
     scene = bpy.context.scene
     ground = bpy.data.objects["Ground"]
 

@@ -60,10 +60,10 @@ def test_cancel_leaves_the_scene_as_it_was(visibake, clean_scene):
 
     def cancel_in_transport(stage, fraction):
         if stage == "transport":
-            raise visibake.core.pipeline.Cancelled()
+            raise visibake.core.errors.Cancelled()
 
-    with pytest.raises(visibake.core.pipeline.Cancelled):
-        visibake.operators.job.run_bake(bpy.context, [ground], progress=cancel_in_transport)
+    with pytest.raises(visibake.core.errors.Cancelled):
+        visibake.operators.adapter.job.run_bake(bpy.context, [ground], progress=cancel_in_transport)
     assert "VisiBake" not in ground.data.uv_layers
     assert set(bpy.data.images.keys()) == images
 

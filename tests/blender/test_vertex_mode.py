@@ -174,7 +174,7 @@ def test_auto_falls_back_to_vertex_tables_when_xatlas_cannot_unwrap(clean_scene)
 def test_auto_leaves_meshes_beyond_the_unwrap_budget_to_vertex_tables(visibake, clean_scene):
     import importlib
 
-    budget = importlib.import_module(f"{visibake.__name__}.operators.layout").UNWRAP_TRIANGLE_BUDGET
+    budget = importlib.import_module(f"{visibake.__name__}.operators.adapter.layout").UNWRAP_TRIANGLE_BUDGET
     black_world()
     segments = int(np.ceil(np.sqrt(budget / 2))) + 1  # two triangles per grid quad
     big = mesh_object("Big", grid(1.0, segments=segments), material("White", (0.6, 0.6, 0.6)), uv_map=None)
@@ -227,10 +227,10 @@ def test_a_failed_refined_bake_restores_the_scene(visibake, clean_scene):
     def cancel_in_the_second_bake(stage, fraction):
         calls.append(stage)
         if calls.count("layout") > 1:
-            raise visibake.core.pipeline.Cancelled()
+            raise visibake.core.errors.Cancelled()
 
-    with pytest.raises(visibake.core.pipeline.Cancelled):
-        visibake.operators.job.run_bake(bpy.context, [plane], progress=cancel_in_the_second_bake, refine=True)
+    with pytest.raises(visibake.core.errors.Cancelled):
+        visibake.operators.adapter.job.run_bake(bpy.context, [plane], progress=cancel_in_the_second_bake, refine=True)
     assert set(bpy.data.objects.keys()) == names
     assert not plane.hide_render and plane.visible_get()
     assert "VB_lighting" not in plane.data.color_attributes

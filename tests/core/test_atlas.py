@@ -1,9 +1,9 @@
-"""core.atlas: UV layout checks and xatlas unwrapping."""
+"""core.sampling.atlas: UV layout checks and xatlas unwrapping."""
 import numpy as np
 import pytest
 
-from core.atlas import UnwrapResult, _curved_planar_regions, unwrap, uv_layout_problems, uv_layout_stats
-from core.raster import rasterize
+from core.sampling.atlas import UnwrapResult, _curved_planar_regions, unwrap, uv_layout_problems, uv_layout_stats
+from core.sampling.raster import rasterize
 
 UNIT_SQUARE = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from core.directions import ShadowRegions, direction_set, random_rotation, spherical_fibonacci
+from core.visibility.directions import ShadowRegions, direction_set, random_rotation, spherical_fibonacci
 
 
 @given(st.integers(min_value=1, max_value=4096))

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from core.lights import area_light_points, light_contributions, spot_mask
+from core.lights.lamps import area_light_points, light_contributions, spot_mask
 from core.scene import Light
 
 UP = np.array([[0.0, 0.0, 1.0]])

@@ -1,8 +1,11 @@
 import numpy as np
 import pytest
 
-from core.pipeline import BakeRefused, bake, prepare, relight
-from core.scene import BakeSettings, Light, Material, Scene, World
+from core.errors import BakeRefused
+from core.pipeline.relight import bake, relight
+from core.pipeline.prepare import prepare
+from core.settings import BakeSettings
+from core.scene import Light, Material, Scene, World
 from core_scenes import box_interior, quad_mesh
 
 

@@ -1,11 +1,12 @@
-"""core.raster: texel-centre coverage, the edge rule, and gutter dilation."""
+"""core.sampling.raster: texel-centre coverage, the edge rule, and gutter dilation."""
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from core import tolerances as tol
-from core.raster import TexelSamples, degenerate_uv_triangles, dilate, rasterize, texel_centres
+from core.sampling.raster import TexelSamples, degenerate_uv_triangles, rasterize, texel_centres
+from core.outputs.dilation import dilate
 
 UNIT_SQUARE = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
 
@@ -179,7 +180,7 @@ def test_tiny_triangle_between_centres_gets_nothing():
 
 
 def test_large_triangle_spans_several_chunks(monkeypatch):
-    import core.raster as raster
+    import core.sampling.raster as raster
 
     reference = rasterize(UNIT_SQUARE, 64, 48)
     monkeypatch.setattr(raster, "RASTER_CHUNK_PAIRS", 100)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from core.rays import RayScene, offset_ray_origins
+from core.visibility.rays import RayScene, offset_ray_origins
 
 
 def _plane(z, size, centre=(0.0, 0.0)):

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from core.directions import ShadowRegions, spherical_fibonacci
-from core.shadows import shadow_fractions
-from core.transport import AtlasLayout, ambient_occlusion, gather, gather_normalisation
-from core.visibility import BELOW_HORIZON, MISS, VisibilityTable
+from core.visibility.directions import ShadowRegions, spherical_fibonacci
+from core.visibility.shadows import shadow_fractions
+from core.transport.gather import AtlasLayout, ambient_occlusion, gather, gather_normalisation
+from core.visibility.table import BELOW_HORIZON, MISS, VisibilityTable
 
 
 def _table(directions, normals, hit_object, hit_uv, hit_distance=None):

@@ -6,9 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from core.atlas import unwrap
-from core.pipeline import Cancelled
-from core.unwrap_child import ChildUnavailable, unwrap_in_child
+from core.sampling.atlas import unwrap
+from core.errors import Cancelled
+from core.sampling.unwrap_child import ChildUnavailable, unwrap_in_child
 
 
 def _sphere(segments: int, rings: int):

@@ -2,10 +2,12 @@
 import numpy as np
 import pytest
 
-from core.cache import VisibilityCache
-from core.pipeline import bake, prepare, relight
-from core.scene import BakeSettings, Light, Material, Mesh, Scene, World
-from core.samples import build_vertex_samples
+from core.visibility.cache import VisibilityCache
+from core.pipeline.relight import bake, relight
+from core.pipeline.prepare import prepare
+from core.settings import BakeSettings
+from core.scene import Light, Material, Mesh, Scene, World
+from core.sampling.samples import build_vertex_samples
 from core_scenes import quad_mesh
 
 

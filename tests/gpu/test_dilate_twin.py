@@ -1,4 +1,4 @@
-"""The GPU gutter dilation against core.raster.dilate on the same random images.
+"""The GPU gutter dilation against core.outputs.dilation.dilate on the same random images.
 
 Tolerance: none. The shader adds the filled neighbours in the order numpy's einsum
 does (one after the other for several channels, SIMD lanes for one channel) and
@@ -88,7 +88,7 @@ def test_dilate_matches_numpy(visibake, gpu_dilate, kind, height, width, channel
     coverage = _coverage(kind, height, width, rng)
     shape = (height, width) if channels is None else (height, width, channels)
     image = _image(shape, coverage, rng)
-    got, filled = _compare(visibake.core.raster.dilate, gpu_dilate, image, coverage, margin)
+    got, filled = _compare(visibake.core.outputs.dilation.dilate, gpu_dilate, image, coverage, margin)
     if margin and coverage.any() and not coverage.all():
         assert filled.any()  # the case exercises the passes
     assert not np.any(filled & coverage)
@@ -98,8 +98,8 @@ def test_single_channel_2d_and_3d_agree_and_float64_input(visibake, gpu_dilate):
     rng = np.random.default_rng(5)
     coverage = _coverage("islands", 70, 90, rng)
     image = _image((70, 90, 1), coverage, rng, np.float64)
-    flat, _ = _compare(visibake.core.raster.dilate, gpu_dilate, image[..., 0], coverage, 6)
-    stacked, _ = _compare(visibake.core.raster.dilate, gpu_dilate, image, coverage, 6)
+    flat, _ = _compare(visibake.core.outputs.dilation.dilate, gpu_dilate, image[..., 0], coverage, 6)
+    stacked, _ = _compare(visibake.core.outputs.dilation.dilate, gpu_dilate, image, coverage, 6)
     np.testing.assert_array_equal(flat, stacked[..., 0])
 
 
@@ -112,7 +112,7 @@ def test_non_finite_covered_values_spread_as_in_numpy(visibake, gpu_dilate):
         image[rng.random(shape) < 0.05] = np.inf
         image[rng.random(shape) < 0.05] = -np.inf
         image[rng.random(shape) < 0.05] = np.nan
-        got, _ = _compare(visibake.core.raster.dilate, gpu_dilate, image, coverage, 5)
+        got, _ = _compare(visibake.core.outputs.dilation.dilate, gpu_dilate, image, coverage, 5)
         assert np.isnan(got).any() and np.isinf(got).any()
 
 
@@ -124,7 +124,7 @@ def test_channels_in_several_rounds_under_a_small_budget(visibake, gpu_shaders, 
     texels = 48 * 64
     budget = texels * (module.FIXED_BYTES_PER_TEXEL + 2 * module.LAYER_BYTES_PER_TEXEL)
     assert module.layers_per_chunk(64, 48, 12, budget) == 2
-    expected = visibake.core.raster.dilate(image, coverage, 7)
+    expected = visibake.core.outputs.dilation.dilate(image, coverage, 7)
     got = gpu_dilate(image, coverage, 7, budget_bytes=budget)
     np.testing.assert_array_equal(got[0], expected[0])
     np.testing.assert_array_equal(got[1], expected[1])
@@ -142,7 +142,7 @@ def test_channels_in_several_rounds_under_a_small_budget(visibake, gpu_shaders, 
 def test_invalid_arguments_fail_as_in_numpy(visibake, gpu_dilate, image_shape, coverage_shape, margin):
     image, coverage = np.zeros(image_shape, np.float32), np.ones(coverage_shape, bool)
     with pytest.raises(ValueError) as expected:
-        visibake.core.raster.dilate(image, coverage, margin)
+        visibake.core.outputs.dilation.dilate(image, coverage, margin)
     with pytest.raises(ValueError) as got:
         gpu_dilate(image, coverage, margin)
     assert str(got.value) == str(expected.value)
@@ -164,7 +164,7 @@ def test_large_rgb_image_and_timing(visibake, gpu_dilate):
     got, filled = gpu_dilate(image, coverage, 4)
     gpu_seconds = time.perf_counter() - started
     started = time.perf_counter()
-    expected, expected_filled = visibake.core.raster.dilate(image, coverage, 4)
+    expected, expected_filled = visibake.core.outputs.dilation.dilate(image, coverage, 4)
     numpy_seconds = time.perf_counter() - started
     print(f"\ndilate 1024^2 RGB, margin 4: GPU {gpu_seconds:.3f} s, numpy {numpy_seconds:.3f} s")
     np.testing.assert_array_equal(filled, expected_filled)

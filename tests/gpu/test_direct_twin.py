@@ -1,4 +1,4 @@
-"""The GPU direct-light pass against core.lighting.lamp_irradiance on the same prepared scenes.
+"""The GPU direct-light pass against core.transport.direct.lamp_irradiance on the same prepared scenes.
 
 Tolerance: both evaluate the same formulas per sample and virtual point; the GPU in
 float32 (positions relative to the samples' centre, offsets, normalisation, pow() of
@@ -98,10 +98,10 @@ def prepared(visibake):
                 meshes = [builders.box_interior(size=1.0, resolution=36),
                           builders.quad_mesh("Tile", [(-0.15, -0.15, -0.2), (0.15, -0.15, -0.2), (0.15, 0.15, -0.2),
                                                       (-0.15, 0.15, -0.2)], resolution=8)]
-            settings = core.scene.BakeSettings(directions=64, bounces=0, shadows=shadows,
+            settings = core.settings.BakeSettings(directions=64, bounces=0, shadows=shadows,
                                                shadow_regions=spec["shadow_regions"],
                                                area_light_samples=spec["area_light_samples"])
-            made[scene, shadows] = core.pipeline.prepare(core.scene.Scene(meshes, []), settings, table_needed=True)
+            made[scene, shadows] = core.pipeline.prepare.prepare(core.scene.Scene(meshes, []), settings, table_needed=True)
         return made[scene, shadows]
 
     return get
@@ -114,7 +114,7 @@ def direct(gpu_shaders, visibake):
 
 def _compare(visibake, direct, p, lights, label, **keywords):
     ours, our_rays = direct.lamp_irradiance(p, lights, lambda f: None, **keywords)
-    twin, twin_rays = visibake.core.lighting.lamp_irradiance(p, lights, lambda f: None)
+    twin, twin_rays = visibake.core.transport.direct.lamp_irradiance(p, lights, lambda f: None)
     assert ours.shape == twin.shape == (len(p.position), 3)
     assert ours.dtype == np.float64
     assert our_rays == twin_rays
@@ -137,7 +137,7 @@ def test_each_lamp_kind_matches_numpy(visibake, direct, prepared, kind, scene, s
     light = _light(visibake.core, kind, spec["height"], spec["area_scale"], spec["spot_aim"])
     ours, twin = _compare(visibake, direct, p, [light], f"{kind} {scene} {shadows}")
     # Shadowing took part: some samples facing the lamp are dark or dimmed.
-    unshadowed = sum(part.irradiance for part in visibake.core.lights.light_contributions(
+    unshadowed = sum(part.irradiance for part in visibake.core.lights.lamps.light_contributions(
         light, p.position, p.normal, p.settings.area_light_samples))
     assert np.any(twin.sum(axis=1) < 0.99 * unshadowed.sum(axis=1))
 

@@ -1,4 +1,4 @@
-"""The GPU gather against core.transport.gather on the same random tables.
+"""The GPU gather against core.transport.gather.gather on the same random tables.
 
 Tolerance: both sum the same float32 terms per direction; only the order of the sums
 (per worker in numpy, per sample on the GPU) and fused multiply-adds differ, so they
@@ -18,20 +18,20 @@ RTOL, ATOL = 1e-4, 1e-6
 def _random_codes(core, rng, samples, directions, objects):
     """Directions, unit normals, random hit codes (below the horizon where the direction
     faces away, as the tracer writes them) and hit coordinates."""
-    dirs = core.directions.spherical_fibonacci(directions)
+    dirs = core.visibility.directions.spherical_fibonacci(directions)
     normals = rng.normal(size=(samples, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     codes = rng.choice([-3, -2, -1] + list(range(objects)), size=(directions, samples),
                        p=[0.05, 0.35, 0.2] + [0.4 / objects] * objects).astype(np.int16)
-    codes[(dirs @ normals.T) <= 0] = core.visibility.BELOW_HORIZON
+    codes[(dirs @ normals.T) <= 0] = core.visibility.table.BELOW_HORIZON
     uv = rng.uniform(-0.05, 1.05, size=(directions, samples, 2)).astype(np.float32)
     return dirs, normals, codes, uv
 
 
 def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None):
-    table = core.visibility.VisibilityTable(directions=dirs, hit_object=codes, hit_uv=uv,
+    table = core.visibility.table.VisibilityTable(directions=dirs, hit_object=codes, hit_uv=uv,
                                             hit_distance=np.ones(codes.shape, np.float32), hit_triangle=triangles)
-    scale = core.transport.gather_normalisation(table, normals)
+    scale = core.transport.gather.gather_normalisation(table, normals)
     radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
     world = rng.uniform(0, 1, size=(len(dirs), channels))
     return table, normals, scale, layout, radiance, world
@@ -40,7 +40,7 @@ def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None)
 def _random_case(core, samples=3000, directions=96, objects=3, channels=3, seed=0):
     rng = np.random.default_rng(seed)
     sizes = [(int(rng.integers(3, 40)), int(rng.integers(3, 40))) for _ in range(objects)]
-    layout = core.transport.AtlasLayout.from_sizes(sizes)
+    layout = core.transport.gather.AtlasLayout.from_sizes(sizes)
     dirs, normals, codes, uv = _random_codes(core, rng, samples, directions, objects)
     return _case(core, rng, layout, dirs, normals, codes, uv, channels)
 
@@ -65,7 +65,7 @@ def _vertex_case(core, samples=3000, directions=96, objects=6, channels=3, neare
         else:
             sizes.append((int(rng.integers(3, 40)), int(rng.integers(3, 40))))
             corner_samples.append(None)
-    layout = core.transport.AtlasLayout.from_sizes(sizes, corner_samples, nearest)
+    layout = core.transport.gather.AtlasLayout.from_sizes(sizes, corner_samples, nearest)
     dirs, normals, codes, uv = _random_codes(core, rng, samples, directions, objects)
     triangles = np.zeros((directions, samples), np.int32)
     for index, corners in enumerate(corner_samples):
@@ -94,7 +94,7 @@ def test_gather_matches_numpy(visibake, gpu_shaders, channels):
     core = visibake.core
     table, normals, scale, layout, radiance, world = _random_case(core, channels=channels, seed=channels)
     ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
-    twin = core.transport.gather(table, normals, scale, layout, radiance, world)
+    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world)
     assert ours.shape == twin.shape == (len(normals), channels)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
     assert np.abs(twin).max() > 0.1  # the case is not trivially zero
@@ -110,7 +110,7 @@ def test_exclusions_samples_and_small_batches_match_numpy(visibake, gpu_shaders)
     fixed = 4 * (2500 * 4 * 3) + layout.size * 16 + 200_000
     ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude,
                                      samples=chosen, budget_bytes=fixed + 5 * 2048 * 2 * 12)
-    twin = core.transport.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
+    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
     assert np.all(ours[np.setdiff1d(np.arange(len(normals)), chosen)] == 0)
 
@@ -123,7 +123,7 @@ def test_vertex_objects_match_numpy(visibake, gpu_shaders, channels, nearest):
                                                                   seed=100 + channels + nearest)
     assert layout.is_vertex is not None and layout.is_vertex.any() and not layout.is_vertex.all()
     ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
-    twin = core.transport.gather(table, normals, scale, layout, radiance, world)
+    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world)
     _report(f"vertex objects, {channels} channels, nearest={nearest}", ours, twin)
     assert ours.shape == twin.shape == (len(normals), channels)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
@@ -158,7 +158,7 @@ def test_vertex_objects_with_exclusions_samples_and_small_batches_match_numpy(vi
     progress = []
     ours = gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen,
                          budget_bytes=fixed + 5 * per_direction, progress=progress.append)
-    twin = core.transport.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
+    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
     _report(f"vertex objects, exclusions, {len(progress)} batches, nearest={nearest}", ours, twin)
     assert len(progress) >= 12  # many batches (the budget holds a few directions)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)

@@ -1,0 +1,84 @@
+"""Where vertex tables are too coarse: triangles whose light varies inside them.
+
+A vertex-mode object shows light interpolated between its vertices, so a shadow edge
+or a highlight that falls inside a large triangle is lost. This check evaluates the
+lamps' direct light (exact shadows) at every triangle's middle and at its three
+corners' samples, and flags the triangle when the middle differs from the corners'
+mean by more than a set share: the triangles to subdivide, or the objects to bake
+as an atlas.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from .. import tolerances as tol
+from ..visibility.rays import offset_ray_origins
+from ..geometry import face_normals
+
+
+@dataclass
+class TessellationCheck:
+    """The verdict on one vertex-mode object.
+
+    flagged : triangles whose middle's light differs from the corners' mean
+    triangles : triangles checked (the valid ones)
+    area_share : flagged area over the object's area
+    worst : the largest difference, relative to the larger of the two values
+    """
+
+    flagged: int
+    triangles: int
+    area_share: float
+    worst: float
+    flagged_triangles: np.ndarray = None  # (flagged,) int64 indices into the mesh's triangles
+
+
+def _direct_light(p, lights, position, normal) -> np.ndarray:
+    """Lamp irradiance (K, 3) at ``position`` with exact shadows, through ``p.lamp_irradiance``'s numpy twin."""
+    from ..transport.direct import lamp_irradiance
+
+    shim = SimpleNamespace(position=position, normal=normal, geometric=normal,
+                           origins=offset_ray_origins(position, normal), ray_scene=p.ray_scene, table=None,
+                           settings=dataclasses.replace(p.settings, shadows="exact"))
+    irradiance, _ = lamp_irradiance(shim, lights, None)
+    return irradiance
+
+
+def check_vertex_objects(p, lights) -> dict[int, TessellationCheck]:
+    """Check every vertex-mode object with outputs of prepared scene ``p`` under ``lights``.
+
+    Returns object index -> TessellationCheck (no entry without lamps or such objects).
+    """
+    checks = {}
+    if not lights:
+        return checks
+    for index, mesh in enumerate(p.meshes):
+        if mesh.mode != "vertex" or not mesh.output:
+            continue
+        samples = p.object_samples[index]
+        a = p.sample_offset[index]
+        normals, valid = face_normals(mesh.positions, mesh.triangles)
+        used = np.nonzero(valid & np.all(samples.corner_sample >= 0, axis=1))[0]
+        if len(used) == 0:
+            continue
+        corners = mesh.positions[mesh.triangles[used]].astype(np.float64)
+        middle = corners.mean(axis=1)
+        at_middle = _direct_light(p, lights, middle, normals[used]).sum(axis=1)
+        rows = a + samples.corner_sample[used]
+        at_vertices = _direct_light(p, lights, p.position[a:a + len(samples)],
+                                    p.normal[a:a + len(samples)]).sum(axis=1)
+        interpolated = at_vertices[rows - a].mean(axis=1)
+        larger = np.maximum(at_middle, interpolated)
+        floor = tol.TESSELLATION_FLOOR * max(float(larger.max()), 1e-30)
+        difference = np.abs(at_middle - interpolated) / np.maximum(larger, floor)
+        flagged = (difference > tol.TESSELLATION_DIFFERENCE) & (larger > floor)
+        areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        checks[index] = TessellationCheck(flagged=int(np.count_nonzero(flagged)), triangles=len(used),
+                                          area_share=float(areas[flagged].sum() / max(areas.sum(), 1e-30)),
+                                          worst=float(difference[larger > floor].max(initial=0.0)),
+                                          flagged_triangles=used[flagged].astype(np.int64))
+    return checks

@@ -1,0 +1,71 @@
+"""Memory: what this machine has, what a bake may take, and the refusal before
+anything is allocated."""
+from __future__ import annotations
+
+import os
+import sys
+
+from ..errors import BakeRefused
+from ..visibility.table import table_bytes
+
+
+def physical_memory_bytes() -> int:
+    """Installed memory, or 0 where it cannot be read."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def peak_memory_bytes() -> int:
+    """Peak resident memory of this process so far, or 0 where it cannot be read."""
+    try:
+        import resource
+    except ImportError:
+        return 0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)
+
+
+def memory_budget_bytes() -> int:
+    """How much the table may take: half the installed memory (the rest is Blender's)."""
+    physical = physical_memory_bytes()
+    return physical // 2 if physical else 8 << 30
+
+
+def human_bytes(count: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if count < 1024 or unit == "TiB":
+            return f"{count:.1f} {unit}"
+        count /= 1024
+    return f"{count:.1f} TiB"
+
+
+def check_budget(sizes, directions: int, budget: int | None = None) -> None:
+    """Refuse, before anything is allocated, atlases or a table that cannot fit in memory.
+
+    Parameters
+    ----------
+    sizes : iterable of (width, height), the atlas of every object
+    directions : size of the direction set
+
+    The bound counts every texel of every atlas (covered ones are fewer), so a bake
+    that passes here cannot run out of memory in the table.
+    """
+    budget = memory_budget_bytes() if budget is None else budget
+    sizes = [(int(w), int(h)) for w, h in sizes]
+    for width, height in sizes:
+        if width < 1 or height < 1:
+            raise BakeRefused(f"atlas resolution must be at least 1x1, got {width}x{height}")
+    texels = sum(w * h for w, h in sizes)
+    # Per texel: coverage, per-sample geometry and colours, radiance atlases and outputs.
+    per_texel = 200
+    need_atlas = texels * per_texel
+    if need_atlas > budget:
+        raise BakeRefused(f"the atlases ({texels} texels) would need about {human_bytes(need_atlas)}, "
+                          f"more than the {human_bytes(budget)} available; lower the resolution")
+    need_table = table_bytes(directions, texels)
+    if need_table + need_atlas > budget:
+        raise BakeRefused(f"the visibility table ({directions} directions x up to {texels} texels) "
+                          f"could need {human_bytes(need_table)}, more than the {human_bytes(budget - need_atlas)} "
+                          f"available; lower the directions or the resolution")

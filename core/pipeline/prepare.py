@@ -1,0 +1,360 @@
+"""Preparation: samples, ray scene and the visibility table (traced, read from the
+cache or updated for the objects that changed). Everything here depends on geometry
+and settings alone, so a :class:`Prepared` serves every later relight."""
+from __future__ import annotations
+
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..visibility.directions import ShadowRegions, direction_set
+from ..visibility.shadows import ShadowFractions, shadow_fractions
+from ..lights.environment import has_light
+from ..transport.groups import (LightGroup, light_key_parts)
+from ..transport.passes import accumulate_passes
+from ..transport.direct import lamp_irradiance
+from ..outputs.dilation import dilate
+from ..visibility.rays import RayScene, offset_ray_origins
+from ..sampling.samples import ObjectSamples, build_samples, build_vertex_samples
+from ..geometry import face_normals
+from ..settings import BakeSettings
+from ..scene import Scene
+from ..transport.gather import AtlasLayout, gather, gather_normalisation
+from ..visibility.table import DeferredTable, table_from_arrays, trace_table, update_table
+from ..visibility.cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
+from ..errors import BakeRefused
+from .budget import check_budget
+from .progress import Stages
+
+
+@dataclass
+class Prepared:
+    """What a bake computes from geometry, materials and settings alone.
+
+    Reused unchanged by every :func:`relight`: lights and world can change without
+    tracing a single visibility ray again (the reason the method exists).
+    """
+
+    settings: BakeSettings
+    meshes: list
+    object_samples: list
+    sample_offset: np.ndarray  # (objects + 1,) int64
+    position: np.ndarray  # (K, 3) float64
+    normal: np.ndarray  # (K, 3) float64 shading normals
+    geometric: np.ndarray  # (K, 3) float64
+    albedo: np.ndarray  # (K, 3) float64
+    emission: np.ndarray  # (K, 3) float64
+    layout: AtlasLayout
+    directions: np.ndarray  # (N, 3) float64
+    ray_scene: RayScene
+    origins: np.ndarray  # (K, 3) float32, offset off the surface
+    table: object  # VisibilityTable or None
+    stage_seconds: dict
+    skipped: list
+    warnings: list
+    table_key: str = ""
+    visibility_rays: int = 0  # rays this preparation traced for the table (0 on a cache hit)
+    cache: VisibilityCache | None = None
+    cache_status: CacheStatus | None = None
+    # The gather implementation: core.transport.gather.gather, or a twin with the same
+    # contract (gpu_shaders.gather.gather) chosen by the Blender side.
+    gather: Callable = gather
+    gather_device: str = "cpu"
+    lamp_irradiance: Callable = lamp_irradiance  # core.transport.direct.lamp_irradiance or a twin
+    direct_device: str = "cpu"
+    accumulate_passes: Callable = accumulate_passes  # core.transport.passes.accumulate_passes or a twin
+    accumulate_device: str = "cpu"
+    dilate: Callable = dilate  # core.outputs.dilation.dilate or a twin
+    dilate_device: str = "cpu"
+    dilation_seconds: float = 0.0
+    dilation_calls: int = 0
+    _gather_scale: np.ndarray | None = None
+    _shadow_regions: ShadowRegions | None = None
+    _distant_fractions: ShadowFractions | None = None
+
+    def shadow_regions(self) -> ShadowRegions:
+        if self._shadow_regions is None:
+            self._shadow_regions = ShadowRegions(self.directions, self.settings.shadow_regions)
+        return self._shadow_regions
+
+    def distant_fractions(self) -> ShadowFractions:
+        """The paper's shadow fractions for distant lights: computed once, shared by every sun."""
+        if self._distant_fractions is None:
+            self._distant_fractions = shadow_fractions(self.table, self.shadow_regions())
+        return self._distant_fractions
+
+    def gather_scale(self) -> np.ndarray:
+        """Per-sample gather normalisation (K,), computed once per preparation."""
+        if self._gather_scale is None:
+            self._gather_scale = gather_normalisation(self.table, self.normal)
+        return self._gather_scale
+
+    def bounces_needed(self) -> int:
+        """The bounces to gather: none when no requested pass contains indirect light."""
+        wants = set(self.settings.passes)
+        return self.settings.bounces if wants & {"lighting", "indirect", "irradiance"} else 0
+
+    def output_samples(self) -> np.ndarray | None:
+        """(k,) int64 samples of the objects with outputs, or None if every object has outputs."""
+        if all(m.output for m in self.meshes):
+            return None
+        return np.concatenate([np.arange(a, b) for m, a, b in zip(self.meshes, self.sample_offset[:-1],
+                                                                  self.sample_offset[1:]) if m.output])
+
+    def lighting_key(self, group: LightGroup) -> str:
+        """Hash of everything one group's transport depends on besides the table's key."""
+        s = self.settings
+        emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
+        parts = [self.table_key, self.bounces_needed(), s.shadows, s.shadow_regions, s.area_light_samples,
+                 s.emitter_samples, max(s.margin, 2), s.vertex_lookup, self.albedo, self.normal,
+                 np.where(emitting[:, None], self.emission, 0.0), group.world, group.emitting,
+                 np.array([m.output for m in self.meshes])]
+        for index in np.nonzero(group.emitting)[0]:
+            parts += [np.asarray(m.emission, np.float64) for m in self.meshes[index].materials if m is not None]
+        for light in group.lights:
+            parts += light_key_parts(light)
+        return arrays_key(*parts)
+
+    def to_atlas(self, values: np.ndarray) -> np.ndarray:
+        """Per-sample values (K, C) as the packed, gutter-dilated radiance atlas (size, C)."""
+        margin = max(self.settings.margin, 2)
+        images = []
+        for samples, a, b in zip(self.object_samples, self.sample_offset[:-1], self.sample_offset[1:]):
+            image = np.zeros((samples.height * samples.width, values.shape[1]), np.float32)
+            image[samples.pixel] = values[a:b]
+            image = image.reshape(samples.height, samples.width, values.shape[1])
+            if not samples.coverage.all():  # a vertex-mode object covers its whole one-row "atlas"
+                image, _ = self.timed_dilate(image, samples.coverage, margin)
+            images.append(image)
+        return self.layout.pack(images)
+
+    def timed_dilate(self, image, coverage, margin):
+        """``self.dilate`` with its calls and time counted for the report's passes."""
+        started = time.perf_counter()
+        result = self.dilate(image, coverage, margin)
+        self.dilation_seconds += time.perf_counter() - started
+        self.dilation_calls += 1
+        return result
+
+
+def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None,
+            cache: VisibilityCache | None = None, require_cached_table: bool = False) -> Prepared:
+    """Samples and the visibility table of ``scene``'s meshes.
+
+    Parameters
+    ----------
+    table_needed : bool or None
+        None: trace the table only if ``scene``'s own lights, world and materials
+        need it. True: always (for relighting with lights not known yet).
+    cache : VisibilityCache or None
+        Where a valid table is read from, and a new or updated one written to.
+    require_cached_table : bool
+        Refuse (:class:`BakeRefused`) instead of tracing when the table is needed and
+        the cache holds no valid one: a relight must not silently become a bake.
+    """
+    settings.validate()
+    # A vertex-mode object has at most one sample per triangle corner.
+    check_budget([m.resolution if m.mode == "atlas" else (3 * len(m.triangles), 1) for m in scene.meshes],
+                 settings.directions)
+    stages = Stages(progress)
+    skipped: list[str] = []
+    warnings: list[str] = []
+
+    stages.start("samples")
+    meshes = []
+    for mesh in scene.meshes:
+        if len(mesh.triangles) == 0:
+            warnings.append(f"object {mesh.name!r} has no faces and was skipped")
+            continue
+        meshes.append(mesh)
+    if not any(m.output for m in meshes):
+        raise BakeRefused("there is no mesh with faces to bake; select meshes that have faces")
+    object_samples: list[ObjectSamples] = []
+    for index, mesh in enumerate(meshes):
+        object_samples.append(build_vertex_samples(mesh) if mesh.mode == "vertex" else build_samples(mesh))
+        stages.report((index + 1) / len(meshes))
+    for mesh, samples in zip(meshes, object_samples):
+        if len(samples) == 0:
+            warnings.append(f"object {mesh.name!r}: no texel centre falls inside its UV layout at "
+                            f"{mesh.resolution[0]}x{mesh.resolution[1]}; raise the resolution")
+        if samples.uv_overlap_texels:
+            warnings.append(f"object {mesh.name!r}: {samples.uv_overlap_texels} texels are covered by "
+                            "overlapping UV islands; each was given to one triangle")
+    counts = np.array([len(s) for s in object_samples], np.int64)
+    position = np.concatenate([s.position for s in object_samples])
+    geometric = np.concatenate([s.geometric_normal for s in object_samples])
+    emission = np.concatenate([s.emission for s in object_samples]).astype(np.float64)
+    directions = direction_set(settings.directions, settings.rotate, settings.seed)
+    if table_needed is None:
+        table_needed = (settings.bounces > 0 or bool(np.any(emission > 0)) or "ao" in settings.passes
+                        or has_light(scene.world)
+                        or (settings.shadows == "fractions" and bool(scene.lights)))
+
+    ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
+    sample_offset = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    object_keys = [object_key(m) for m in meshes]
+    key = table_key(object_keys, settings)
+    table = None
+    status = CacheStatus() if cache is None else None
+    visibility_rays = 0
+    if table_needed:
+        stages.start("cache" if cache is not None else "visibility")
+        table, status, visibility_rays = _cached_or_traced_table(
+            meshes, object_keys, key, settings, directions, position, geometric, sample_offset, ray_scene, cache,
+            require_cached_table, stages, skipped, warnings)
+    else:
+        stages.expect("visibility", 0.0)
+        stages.expect("cache", 0.0)
+        skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
+        status = status or CacheStatus(state="unused", message="no pass needs the visibility table")
+    stages.stop()
+
+    return Prepared(
+        settings=settings, meshes=meshes, object_samples=object_samples,
+        sample_offset=np.concatenate([[0], np.cumsum(counts)]), position=position,
+        normal=np.concatenate([s.normal for s in object_samples]), geometric=geometric,
+        albedo=np.concatenate([s.albedo for s in object_samples]).astype(np.float64), emission=emission,
+        layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples],
+                                      [getattr(s, "corner_sample", None) for s in object_samples],
+                                      settings.vertex_lookup == "nearest"), directions=directions,
+        ray_scene=ray_scene, origins=offset_ray_origins(position, geometric), table=table,
+        stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings, table_key=key,
+        visibility_rays=visibility_rays, cache=cache, cache_status=status)
+
+
+def _cached_or_traced_table(meshes, object_keys, key, settings, directions, position, geometric, sample_offset,
+                            ray_scene, cache, require_cached_table, stages, skipped, warnings):
+    """The table from the cache if it is valid, updated if only some objects changed, else traced.
+
+    Returns (table, CacheStatus, rays traced against the scene).
+    """
+    names = [m.name for m in meshes]
+    status = CacheStatus()
+    meta = None
+    triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
+    triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
+    # Vertex-mode objects have no bake UV map: their hits keep barycentrics instead.
+    corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] if m.mode == "atlas" else np.zeros((len(m.triangles), 3, 2))
+                                for m in meshes]).astype(np.float32)
+    vertex_object = np.array([m.mode == "vertex" for m in meshes], bool)
+    all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
+
+    def trace(report):
+        return trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
+                           all_face_normals, settings.chunk_rays, report, vertex_object)
+
+    def save(table):
+        try:
+            status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)
+        except OSError as error:
+            warnings.append(f"visibility cache {status.path} could not be written ({error}); the next bake "
+                            "traces the table again")
+
+    def damaged(error):
+        """The deferred table's large arrays are damaged: trace them again (never for a relight)."""
+        if require_cached_table:
+            raise BakeRefused(f"the cached visibility is damaged ({error}); bake first")
+        status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
+        warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
+        fresh = trace(None)
+        save(fresh)
+        return {name: getattr(fresh, name) for name in ("hit_object", "hit_uv", "hit_distance", "hit_triangle")}
+
+    if cache is not None:
+        status.path = cache.table_path(settings)
+        started = time.perf_counter()
+        try:
+            meta = cache.read_table_meta(settings)
+            if meta is None:
+                status.state, status.message = "miss", "no cached visibility for this scene and these settings"
+            elif meta.get("key") == key:
+                stages.expect("visibility", 0.0)
+                if meta.get("sample_offset") != [int(x) for x in sample_offset]:
+                    raise CorruptCache("its layout does not match its key")
+                # Read when a pass needs it: a bake whose lighting is cached never does.
+                table = cache.deferred_table(settings, meta, damaged)
+                if not np.array_equal(table.directions, directions):
+                    raise CorruptCache("its directions do not match its key")
+                status.state, status.message = "hit", "the cached visibility is valid"
+                status.bytes_on_disk = os.path.getsize(status.path)
+                status.load_seconds = time.perf_counter() - started
+                skipped.append(f"visibility stage: the cached table is valid ({status.path})")
+                return table, status, 0
+            else:
+                status.state = "stale"
+                old_names, old_keys = meta.get("object_names", []), meta.get("object_keys", [])
+                if old_names == names:
+                    status.changed_objects = [n for n, a, b in zip(names, object_keys, old_keys) if a != b]
+                    status.message = f"changed since the cached bake: {', '.join(status.changed_objects)}"
+                else:
+                    added = sorted(set(names) - set(old_names))
+                    removed = sorted(set(old_names) - set(names))
+                    status.changed_objects = added + removed
+                    status.message = ("the scene's objects changed since the cached bake"
+                                      + (f" (added: {', '.join(added)})" if added else "")
+                                      + (f" (removed: {', '.join(removed)})" if removed else ""))
+        except CorruptCache as error:
+            status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
+            warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
+            meta = None
+        status.load_seconds = time.perf_counter() - started
+    if require_cached_table:
+        detail = status.message or "the cache is off"
+        raise BakeRefused(f"no valid cached visibility for relighting ({detail}); bake first")
+
+    table = None
+    rays = 0
+    stages.start("visibility")
+    changed = [i for i, n in enumerate(names) if n in status.changed_objects]
+    if status.state == "stale" and meta is not None and meta.get("object_names") == names and len(changed) < len(names):
+        try:
+            stages.start("cache")
+            old = cache.load_table(settings, meta)
+            old_table = table_from_arrays(old.arrays, old.counters)
+            stages.report(0.5)  # read; writing the updated table is the other half
+            stages.start("visibility")
+            changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
+            table, counts = update_table(old_table, old.sample_offset, ray_scene, changed_scene, changed, directions,
+                                         position, geometric, sample_offset, corner_uv, triangle_offset,
+                                         all_face_normals, settings.chunk_rays, stages.report, vertex_object)
+            del old, old_table
+            rays = counts.full + counts.changed_only
+            status.state = "updated"
+            skipped.append(f"visibility of unchanged objects: {counts.kept} of {table.rays_cast} table entries kept; "
+                           f"{counts.changed_only} rays traced against the changed objects only, {counts.full} "
+                           f"against the whole scene (changed: {', '.join(status.changed_objects)})")
+        except CorruptCache as error:
+            status.state, status.message = "corrupt", f"the cache file cannot be trusted: {error}"
+            warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
+    if table is None:
+        table = trace(stages.report)
+        rays = table.rays_cast
+    if cache is not None:
+        stages.start("cache")
+        started = time.perf_counter()
+        save(table)
+        status.save_seconds = time.perf_counter() - started
+        stages.report(1.0)
+    return table, status, rays
+
+
+def read_deferred_table(p: Prepared, stages: Stages, needed: bool) -> None:
+    """Read a cached table's large arrays now if the transport or AO needs them, as the
+    cache stage inside the transport; otherwise tell the progress there is nothing left
+    to read."""
+    table = p.table
+    if not isinstance(table, DeferredTable) or table.loaded:
+        return
+    if not needed:
+        stages.expect("cache", 0.0)
+        return
+    stages.start("cache")
+    table.load()
+    if p.cache_status is not None:
+        p.cache_status.load_seconds += table.read_seconds
+    stages.report(1.0)
+    stages.start("transport")

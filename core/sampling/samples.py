@@ -1,0 +1,225 @@
+"""Surface samples of one object: texels of its atlas mapped to world space."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import face_normals
+
+from .. import tolerances as tol
+from ..outputs.images import bilinear_wrap
+from .raster import rasterize
+from ..scene import Mesh
+
+
+@dataclass
+class ObjectSamples:
+    """The covered texels of one object's atlas.
+
+    pixel : (k,) int64 flat index y * width + x (row 0 at v = 0)
+    triangle : (k,) int32
+    barycentric : (k, 3) float32
+    position : (k, 3) float64 world space
+    normal : (k, 3) float64 unit shading normal
+    geometric_normal : (k, 3) float64 unit face normal
+    albedo : (k, 3) float32
+    emission : (k, 3) float32
+    coverage : (height, width) bool
+    """
+
+    width: int
+    height: int
+    pixel: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    position: np.ndarray
+    normal: np.ndarray
+    geometric_normal: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    coverage: np.ndarray
+    uv_overlap_texels: int = 0
+
+    def __len__(self) -> int:
+        return len(self.pixel)
+
+
+def _normalise(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(vectors, axis=1)
+    good = np.isfinite(length) & (length > 1e-12)
+    out = fallback.copy()
+    out[good] = vectors[good] / length[good, None]
+    return out
+
+
+def build_samples(mesh: Mesh) -> ObjectSamples:
+    """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel."""
+    width, height = mesh.resolution
+    corner_uv = mesh.uv_maps[mesh.bake_uv_map]
+    normals, valid = face_normals(mesh.positions, mesh.triangles)
+    # Degenerate or non-finite triangles get no samples: they have no normal to shade with.
+    raster_uv = np.where(valid[:, None, None], corner_uv, 0.0).astype(np.float64)
+    raster = rasterize(raster_uv, width, height)
+    tri = raster.triangle
+    bary = np.clip(raster.barycentric.astype(np.float64), tol.SAMPLE_BARYCENTRIC_INSET, None)
+    bary /= bary.sum(axis=1, keepdims=True)
+    corners = mesh.positions[mesh.triangles[tri]].astype(np.float64)
+    position = np.einsum("kc,kcd->kd", bary, corners)
+    geometric = normals[tri]
+    shading = np.einsum("kc,kcd->kd", bary, mesh.corner_normals[tri].astype(np.float64))
+    shading = _normalise(shading, geometric)
+    # A shading normal on the far side of the surface would shade nothing; fall back.
+    backwards = np.einsum("kd,kd->k", shading, geometric) <= 0
+    shading[backwards] = geometric[backwards]
+
+    albedo = np.empty((len(tri), 3), np.float32)
+    emission = np.empty((len(tri), 3), np.float32)
+    materials = mesh.materials or []
+    material_of_sample = mesh.material_index[tri] if len(mesh.material_index) else np.zeros(len(tri), np.int32)
+    material_of_sample = np.clip(material_of_sample, 0, max(len(materials) - 1, 0))
+    for index, material in enumerate(materials or [None]):
+        chosen = material_of_sample == index
+        if not np.any(chosen):
+            continue
+        if material is None:
+            albedo[chosen] = 0.8
+            emission[chosen] = 0.0
+            continue
+        texture = material.base_color_texture
+        uv_name = material.texture_uv_map
+        if texture is not None and uv_name in mesh.uv_maps:
+            tex_uv = np.einsum("kc,kcd->kd", bary[chosen], mesh.uv_maps[uv_name][tri[chosen]].astype(np.float64))
+            albedo[chosen] = bilinear_wrap(texture[..., :3], tex_uv[:, 0], tex_uv[:, 1])
+        else:
+            albedo[chosen] = material.base_color[:3]
+        emission[chosen] = material.emission[:3]
+    np.clip(albedo, 0.0, 1.0, out=albedo)
+    np.nan_to_num(albedo, copy=False, nan=0.0)
+    np.nan_to_num(emission, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+    np.clip(emission, 0.0, None, out=emission)
+
+    return ObjectSamples(
+        width=width, height=height, pixel=raster.pixel, triangle=tri,
+        barycentric=raster.barycentric, position=position, normal=shading,
+        geometric_normal=geometric, albedo=albedo, emission=emission,
+        coverage=raster.coverage, uv_overlap_texels=int(raster.overlap_count),
+    )
+
+
+@dataclass
+class VertexSamples(ObjectSamples):
+    """Samples at the vertices of one object (the paper's section 5), as a 1 x k "atlas".
+
+    A vertex is one sample where all its corners share a shading normal, and one
+    sample per distinct normal where the mesh has split normals (sharp edges), so a
+    cube's corner is lit three ways, as its faces are. Laid out as a one-row image of
+    k texels (``pixel`` = 0..k-1, full coverage), the transport treats the object like
+    any other; only a ray landing on it reads its light differently (the triangle's
+    three samples, not a bilinear texel lookup).
+
+    corner_sample : (m, 3) int32 the sample of each triangle corner
+    domain : 'POINT' (one value per vertex) or 'CORNER' (per face corner, where
+        split normals made several samples at one vertex)
+    element_sample : (vertex_count or loop_count,) int64 the sample of each output
+        element, -1 for elements no valid triangle uses
+    """
+
+    corner_sample: np.ndarray | None = None
+    domain: str = "POINT"
+    element_sample: np.ndarray | None = None
+
+
+def _corner_albedo_emission(mesh: Mesh, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo and emission at every corner of ``triangles``: (t, 3, 3) float64 each."""
+    count = len(triangles)
+    albedo = np.full((count, 3, 3), 0.8)
+    emission = np.zeros((count, 3, 3))
+    materials = mesh.materials or []
+    material_of = mesh.material_index[triangles] if len(mesh.material_index) else np.zeros(count, np.int32)
+    material_of = np.clip(material_of, 0, max(len(materials) - 1, 0))
+    for index, material in enumerate(materials):
+        chosen = np.nonzero(material_of == index)[0]
+        if material is None or len(chosen) == 0:
+            continue
+        texture = material.base_color_texture
+        uv_name = material.texture_uv_map
+        if texture is not None and uv_name in mesh.uv_maps:
+            uv = mesh.uv_maps[uv_name][triangles[chosen]].astype(np.float64)  # (c, 3, 2)
+            flat = uv.reshape(-1, 2)
+            albedo[chosen] = bilinear_wrap(texture[..., :3], flat[:, 0], flat[:, 1]).reshape(-1, 3, 3)
+        else:
+            albedo[chosen] = np.asarray(material.base_color, np.float64)[:3]
+        emission[chosen] = np.asarray(material.emission, np.float64)[:3]
+    albedo = np.clip(np.nan_to_num(albedo, nan=0.0), 0.0, 1.0)
+    emission = np.clip(np.nan_to_num(emission, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
+    return albedo, emission
+
+
+def build_vertex_samples(mesh: Mesh) -> VertexSamples:
+    """One sample per vertex (per distinct shading normal where normals are split).
+
+    Corners of degenerate or non-finite triangles make no sample. Albedo and emission
+    of a sample are the mean over its corners (a vertex between two materials gets
+    their mix, as an interpolated vertex colour would show it).
+    """
+    normals, valid = face_normals(mesh.positions, mesh.triangles)
+    used = np.nonzero(valid)[0]
+    corner_vertex = mesh.triangles[used].astype(np.int64)  # (t, 3)
+    corner_normal = np.asarray(mesh.corner_normals[used], np.float64).reshape(-1, 3)
+    corner_normal = _normalise(corner_normal, np.repeat(normals[used], 3, axis=0))
+    vertex_of_corner = corner_vertex.ravel()
+    # Corners of one vertex whose normals agree to float32 rounding share a sample.
+    rounded = np.round(corner_normal / tol.SPLIT_NORMAL_TOLERANCE).astype(np.int64)
+    keys = np.concatenate([vertex_of_corner[:, None], rounded], axis=1)
+    unique_keys, sample_of_corner = np.unique(keys, axis=0, return_inverse=True)
+    sample_of_corner = sample_of_corner.ravel()
+    count = len(unique_keys)
+    split = count > len(np.unique(vertex_of_corner))
+
+    normal = np.zeros((count, 3))
+    np.add.at(normal, sample_of_corner, corner_normal)
+    face_sum = np.zeros((count, 3))
+    np.add.at(face_sum, sample_of_corner, np.repeat(normals[used], 3, axis=0))
+    normal = _normalise(normal, _normalise(face_sum, np.tile([0.0, 0.0, 1.0], (count, 1))))
+    position = mesh.positions[unique_keys[:, 0]].astype(np.float64)
+    # A vertex where two objects meet (a floor's edge under a wall) lies on the other
+    # object's surface, and its rays would hit it at t = 0. Like Cycles' vertex bake
+    # (which moves each corner towards its triangle's middle), move the sample a hair
+    # into one of its triangles, the one facing most like its normal: it then lies on
+    # that face, in front of which its rays start. (The mean of several triangles'
+    # middles would lie behind the faces of a convex or concave vertex.)
+    facing = np.einsum("kd,kd->k", np.repeat(normals[used], 3, axis=0), normal[sample_of_corner])
+    order = np.lexsort((-facing, sample_of_corner))
+    first = order[np.r_[True, np.diff(sample_of_corner[order]) != 0]]
+    chosen_triangle = used[first // 3]
+    towards = mesh.positions[mesh.triangles[chosen_triangle]].mean(axis=1) - position
+    length = np.linalg.norm(towards, axis=1)
+    scale = tol.VERTEX_SAMPLE_INSET * np.maximum(1.0, np.abs(position).max(axis=1))
+    step = np.divide(np.minimum(length, scale), length, out=np.zeros_like(length), where=length > 0)
+    position = position + towards * step[:, None]
+    corners_per_sample = np.bincount(sample_of_corner, minlength=count).astype(np.float64)[:, None]
+    corner_albedo, corner_emission = _corner_albedo_emission(mesh, used)
+    albedo = np.zeros((count, 3))
+    emission = np.zeros((count, 3))
+    np.add.at(albedo, sample_of_corner, corner_albedo.reshape(-1, 3))
+    np.add.at(emission, sample_of_corner, corner_emission.reshape(-1, 3))
+    albedo /= corners_per_sample
+    emission /= corners_per_sample
+
+    corner_sample = np.full((len(mesh.triangles), 3), -1, np.int32)
+    corner_sample[used] = sample_of_corner.reshape(-1, 3)
+    if split and mesh.corner_loops is not None:
+        domain = "CORNER"
+        element_sample = np.full(max(mesh.loop_count, 0), -1, np.int64)
+        element_sample[np.asarray(mesh.corner_loops)[used].ravel()] = sample_of_corner
+    else:
+        domain = "POINT"
+        element_sample = np.full(max(mesh.vertex_count, len(mesh.positions)), -1, np.int64)
+        element_sample[unique_keys[:, 0]] = np.arange(count)
+    return VertexSamples(
+        width=count, height=1, pixel=np.arange(count, dtype=np.int64), triangle=np.zeros(count, np.int32),
+        barycentric=np.zeros((count, 3), np.float32), position=position, normal=normal,
+        geometric_normal=normal.copy(), albedo=albedo.astype(np.float32), emission=emission.astype(np.float32),
+        coverage=np.ones((1, count), bool), corner_sample=corner_sample, domain=domain,
+        element_sample=element_sample)

@@ -1,0 +1,76 @@
+"""Shadow fractions per sample and region (the paper's Figure 5) and their lookup."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import tolerances as tol
+from .directions import ShadowRegions
+from .table import BELOW_HORIZON, MISS, VisibilityTable
+
+
+@dataclass
+class ShadowFractions:
+    """Per sample and region: traced directions and how many of them escaped.
+
+    The fraction f_j = lit_j / traced_j; the lookup weights regions by a_j * traced_j,
+    so a region whose directions all lie below the horizon takes no part instead of
+    darkening grazing light as a fraction of zero would.
+
+    lit : (K, M) uint16
+    traced : (K, M) uint16
+    """
+
+    regions: ShadowRegions
+    lit: np.ndarray
+    traced: np.ndarray
+
+    def fractions(self) -> np.ndarray:
+        """f_j, (K, M) float32 (0 where a region was not traced)."""
+        traced = self.traced.astype(np.float32)
+        return np.divide(self.lit, traced, out=np.zeros_like(traced), where=traced > 0)
+
+    def visibility(self, to_light: np.ndarray) -> np.ndarray:
+        """V(p, l) in [0, 1] for one light direction per sample.
+
+        Parameters
+        ----------
+        to_light : (K, 3) float64 unit vectors from each sample towards the light
+
+        Returns
+        -------
+        visibility : (K,) float64
+        """
+        weights = np.clip(np.einsum("kd,md->km", to_light, self.regions.centres), 0.0, None) ** self.regions.exponent
+        numerator = np.einsum("km,km->k", weights, self.lit.astype(np.float64))
+        denominator = np.einsum("km,km->k", weights, self.traced.astype(np.float64))
+        return np.divide(numerator, denominator, out=np.zeros_like(numerator), where=denominator > 0)
+
+
+def shadow_fractions(table: VisibilityTable, regions: ShadowRegions,
+                     light_distance: np.ndarray | None = None) -> ShadowFractions:
+    """Count, per sample and region, the traced directions and the unoccluded ones.
+
+    Parameters
+    ----------
+    light_distance : (K,) float or None
+        Distance from each sample to a local light. Hits beyond it do not shadow
+        that light. None (a distant light) counts only misses, as in the paper; a
+        point light inside a closed room would otherwise be fully shadowed, since
+        every direction from inside hits a wall somewhere.
+    """
+    samples = table.hit_object.shape[1]
+    lit = np.zeros((samples, regions.count), np.uint16)
+    traced = np.zeros((samples, regions.count), np.uint16)
+    limit = None
+    if light_distance is not None:
+        limit = (np.asarray(light_distance, np.float64) * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)
+    for i, region in enumerate(regions.nearest):
+        row = table.hit_object[i]
+        traced[:, region] += row != BELOW_HORIZON
+        if limit is None:
+            lit[:, region] += row == MISS
+        else:
+            lit[:, region] += (row != BELOW_HORIZON) & (table.hit_distance[i] >= limit)
+    return ShadowFractions(regions=regions, lit=lit, traced=traced)

@@ -1,0 +1,381 @@
+"""The visibility bake: the paper's scattering textures S_i for every sample.
+
+For every sample p and every direction d_i above p's geometric horizon one ray is
+traced; the table stores where it lands as a continuous coordinate in the hit
+object's atlas (so later lookups filter bilinearly), or a code for why it holds no
+landing point. Directions below the horizon are never traced.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import tolerances as tol
+from .rays import RayScene, offset_ray_origins
+
+MISS = -1
+BELOW_HORIZON = -2
+BACKFACE = -3
+
+
+@dataclass
+class VisibilityTable:
+    """S_i[p] for all samples of all objects, one row per direction.
+
+    directions : (N, 3) float64
+    hit_object : (N, K) int16, object index, or MISS / BELOW_HORIZON / BACKFACE
+    hit_uv : (N, K, 2) float32, atlas coordinate of the hit (0 where no hit); on a
+        vertex-mode object, embree's barycentric (u, v) in the hit triangle instead
+    hit_distance : (N, K) float32, distance to the hit (inf where nothing was hit),
+        so shadow fractions can ignore occluders beyond a local light
+    hit_triangle : (N, K) int32, the hit triangle (of its object) where the hit object
+        is in vertex mode; None when the scene has no vertex-mode object
+    """
+
+    directions: np.ndarray
+    hit_object: np.ndarray
+    hit_uv: np.ndarray
+    hit_distance: np.ndarray
+    hit_triangle: np.ndarray | None = None
+    rays_cast: int = 0
+    rays_below_horizon: int = 0
+    backface_hits: int = 0
+    backface_per_sample: np.ndarray | None = None  # (K,) int32
+    traced_per_sample: np.ndarray | None = None  # (K,) int32
+
+    def buried(self) -> np.ndarray:
+        """(K,) bool: samples most of whose rays hit the back of a face.
+
+        Such texels lie inside other geometry (a wall overlapping a floor slab);
+        nobody sees them, and their backface hits say nothing about the scene.
+        """
+        return 2 * self.backface_per_sample > self.traced_per_sample
+
+    @property
+    def nbytes(self) -> int:
+        extra = self.hit_triangle.nbytes if self.hit_triangle is not None else 0
+        return self.hit_object.nbytes + self.hit_uv.nbytes + self.hit_distance.nbytes + extra
+
+
+class DeferredTable:
+    """A valid cached table whose large arrays (per sample and direction) are read from
+    disk on first use, so a bake whose lighting comes from the cache never reads them.
+
+    Has every field of :class:`VisibilityTable`; the small ones (directions, per-sample
+    counts, counters) are there at once, ``buried`` and ``nbytes`` need no read.
+    """
+
+    _LARGE = ("hit_object", "hit_uv", "hit_distance", "hit_triangle")
+
+    def __init__(self, small: dict, counters: dict, has_triangles: bool, read_large):
+        self.directions = small["directions"]
+        self.traced_per_sample = small["traced_per_sample"]
+        self.backface_per_sample = small["backface_per_sample"]
+        self.rays_cast = int(counters["rays_cast"])
+        self.rays_below_horizon = int(counters["rays_below_horizon"])
+        self.backface_hits = int(self.backface_per_sample.sum())
+        self._has_triangles = has_triangles
+        self._read_large = read_large
+        self._large = None
+        self.read_seconds = 0.0
+
+    @property
+    def loaded(self) -> bool:
+        return self._large is not None
+
+    def load(self) -> None:
+        if self._large is None:
+            started = time.perf_counter()
+            self._large = self._read_large()
+            self.read_seconds = time.perf_counter() - started
+
+    def __getattr__(self, name):
+        if name in DeferredTable._LARGE:
+            self.load()
+            return self._large.get(name)
+        raise AttributeError(name)
+
+    def buried(self) -> np.ndarray:
+        return 2 * self.backface_per_sample > self.traced_per_sample
+
+    @property
+    def nbytes(self) -> int:
+        return table_bytes(len(self.directions), len(self.traced_per_sample), self._has_triangles)
+
+
+def table_bytes(directions: int, samples: int, vertex_objects: bool = False) -> int:
+    """Memory the table of ``samples`` samples needs, for refusing before allocating."""
+    return directions * samples * (2 + 8 + 4 + (4 if vertex_objects else 0))
+
+
+@dataclass
+class _Geometry:
+    """What the table writer needs to turn a hit into a table entry (all objects)."""
+
+    corner_uv: np.ndarray  # (T, 3, 2) float32
+    triangle_offset: np.ndarray  # (objects,) int64
+    face_normals: np.ndarray  # (T, 3) float64
+    vertex_object: np.ndarray | None = None  # (objects,) bool, objects in vertex mode
+
+
+def _record(table: dict, geometry: _Geometry, directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+            hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
+            where: np.ndarray | None = None) -> None:
+    """Write traced rays into the table arrays: hits, backfaces, and (unless ``where``) misses.
+
+    ``hit_geometry`` holds object indices (-1: miss). With ``where`` given, only
+    those rays are written (an update that keeps the old entry elsewhere).
+    """
+    if where is None:
+        missed = hit_geometry < 0
+        table["hit_object"][rows[missed], cols[missed]] = MISS
+        table["hit_uv"][rows[missed], cols[missed]] = 0.0
+        table["hit_distance"][rows[missed], cols[missed]] = np.inf
+        hit = ~missed
+    else:
+        hit = where & (hit_geometry >= 0)
+    global_triangle = geometry.triangle_offset[hit_geometry[hit]] + triangle[hit]
+    facing = np.einsum("kd,kd->k", geometry.face_normals[global_triangle], directions[rows[hit]])
+    back = facing > 0.0
+    u = bary[hit, 0:1]
+    v = bary[hit, 1:2]
+    uv = geometry.corner_uv[global_triangle]
+    landing = (1.0 - u - v) * uv[:, 0] + u * uv[:, 1] + v * uv[:, 2]
+    if geometry.vertex_object is not None:
+        # A vertex-mode object keeps where in the triangle the ray landed, not an atlas
+        # coordinate: its light is the mix of the triangle's three samples.
+        on_vertices = geometry.vertex_object[hit_geometry[hit]]
+        landing = np.where(on_vertices[:, None], bary[hit], landing)
+        table["hit_triangle"][rows[hit], cols[hit]] = np.where(on_vertices & ~back, triangle[hit], 0)
+    table["hit_object"][rows[hit], cols[hit]] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
+    table["hit_uv"][rows[hit], cols[hit]] = np.where(back[:, None], 0.0, landing)
+    table["hit_distance"][rows[hit], cols[hit]] = distance[hit]
+
+
+def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int) -> VisibilityTable:
+    backface_per_sample = np.count_nonzero(arrays["hit_object"] == BACKFACE, axis=0).astype(np.int32)
+    count, samples = arrays["hit_object"].shape
+    return VisibilityTable(directions=directions, **arrays, rays_cast=rays_cast,
+                           rays_below_horizon=count * samples - int(traced_per_sample.sum()),
+                           backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
+                           traced_per_sample=traced_per_sample)
+
+
+def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
+    """A table from its stored arrays (see core.visibility.cache)."""
+    hit_object = arrays["hit_object"]
+    backface_per_sample = arrays.get("backface_per_sample")
+    if backface_per_sample is None:
+        backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
+    return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv=arrays["hit_uv"],
+                           hit_distance=arrays["hit_distance"], hit_triangle=arrays.get("hit_triangle"),
+                           rays_cast=int(counters["rays_cast"]),
+                           rays_below_horizon=int(counters["rays_below_horizon"]),
+                           backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
+                           traced_per_sample=arrays["traced_per_sample"])
+
+
+def _vertex_mask(vertex_object) -> np.ndarray | None:
+    if vertex_object is None or not np.any(vertex_object):
+        return None
+    return np.asarray(vertex_object, bool)
+
+
+def _empty_arrays(count: int, samples: int, vertex_objects: bool = False) -> dict:
+    arrays = {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
+              "hit_uv": np.zeros((count, samples, 2), np.float32),
+              "hit_distance": np.full((count, samples), np.inf, np.float32)}
+    if vertex_objects:
+        arrays["hit_triangle"] = np.zeros((count, samples), np.int32)
+    return arrays
+
+
+def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarray,
+                geometric_normals: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
+                face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None,
+                vertex_object: np.ndarray | None = None) -> VisibilityTable:
+    """Trace every (sample, direction) pair above the sample's horizon.
+
+    Parameters
+    ----------
+    ray_scene : RayScene with one geometry per object, in object order
+    directions : (N, 3) float64
+    positions, geometric_normals : (K, 3) float64 of all samples, objects concatenated
+    corner_uv : (T, 3, 2) float32 bake-UV corners of all objects' triangles, concatenated
+    triangle_offset : (objects,) int64 index of each object's first triangle in corner_uv
+    face_normals : (T, 3) float64 unit face normals, concatenated like corner_uv
+    chunk_rays : rays per batch (bounds memory)
+    progress : callable(fraction) or None; may raise to cancel
+    vertex_object : (objects,) bool or None, objects whose hits keep triangle and
+        barycentrics (``hit_triangle``) instead of an atlas coordinate
+
+    Returns
+    -------
+    VisibilityTable
+    """
+    count = len(directions)
+    samples = len(positions)
+    vertex_object = _vertex_mask(vertex_object)
+    arrays = _empty_arrays(count, samples, vertex_object is not None)
+    geometry = _Geometry(corner_uv, triangle_offset, face_normals, vertex_object)
+    origins_all = offset_ray_origins(positions, geometric_normals)
+    directions32 = directions.astype(np.float32)
+    chunk = max(1, chunk_rays // max(count, 1))
+    rays_cast = 0
+    traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
+    for start in range(0, samples, chunk):
+        stop = min(samples, start + chunk)
+        # Direction-major order: consecutive rays share a direction (coherent for
+        # embree) and land in one row of the table (contiguous writes).
+        above = (directions @ geometric_normals[start:stop].T) > 0.0
+        direction_index, sample_index = np.nonzero(above)
+        if len(sample_index):
+            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins_all[start:stop][sample_index],
+                                                                         directions32[direction_index])
+            _record(arrays, geometry, directions, direction_index, sample_index + start, hit_geometry, triangle,
+                    bary, distance)
+            rays_cast += len(sample_index)
+        if progress is not None:
+            progress(stop / samples)
+    return _finish(directions, arrays, traced_per_sample, rays_cast)
+
+
+@dataclass
+class UpdateCounts:
+    """Rays an incremental update traced, for the bake report."""
+
+    full: int = 0  # against the whole scene (changed objects' samples, entries that hit a changed object)
+    changed_only: int = 0  # against the changed objects alone (could they now be in the way?)
+    kept: int = 0  # entries of unchanged samples that no ray had to revisit
+
+
+def _bounding_sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (3,) and radius of a sphere around the finite ``positions`` (n, 3), slightly enlarged."""
+    finite = positions[np.all(np.isfinite(positions), axis=1)]
+    if len(finite) == 0:
+        return np.zeros(3), 0.0
+    low, high = finite.min(axis=0), finite.max(axis=0)
+    centre = (low + high) / 2
+    radius = float(np.linalg.norm(high - low) / 2)
+    return centre, radius * (1.0 + tol.CULL_SPHERE_MARGIN) + tol.CULL_SPHERE_MARGIN * float(np.abs(centre).max())
+
+
+def _may_hit_spheres(origins: np.ndarray, directions: np.ndarray, spheres) -> np.ndarray:
+    """(N, k) bool: whether the ray from origin k along direction i passes through any sphere.
+
+    One matrix product per sphere: the squared distance from the centre to the ray's
+    line is |v|^2 - (d . v)^2 with v = centre - origin; the sphere must not lie behind.
+    """
+    near = np.zeros((len(directions), len(origins)), bool)
+    for centre, radius in spheres:
+        v = centre - origins
+        along = directions @ v.T
+        squared = np.einsum("kd,kd->k", v, v)
+        near |= ((squared[None, :] - along * along) < radius * radius) & (along > -radius)
+    return near
+
+
+def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RayScene, changed_scene: RayScene,
+                 changed: list[int], directions: np.ndarray, positions: np.ndarray, geometric_normals: np.ndarray,
+                 sample_offset: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
+                 face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None,
+                 vertex_object: np.ndarray | None = None):
+    """The table after some objects changed, reusing every entry that cannot have changed.
+
+    ``old``'s arrays are updated in place when the sample layout is unchanged.
+
+    Unchanged objects' samples keep their positions and horizons, so an entry of theirs
+    changes only if its ray used to hit a changed object (retraced against the whole
+    scene), or if a changed object now lies nearer than the old hit (found by tracing
+    against the changed objects alone, a far smaller BVH). Backface entries do not
+    record their object and are always retraced. Samples of changed objects are traced
+    from scratch. The result equals a fresh :func:`trace_table` of the new scene.
+
+    Parameters
+    ----------
+    old : the table of the previous bake, same objects in the same order, same directions
+    old_offset, sample_offset : (objects + 1,) int64 first sample of each object, old and new
+    changed_scene : RayScene with the new geometry of the ``changed`` objects only, in that order
+    changed : indices of the objects whose geometry, UVs or resolution changed
+    other parameters : as :func:`trace_table`, for the new scene
+
+    Returns
+    -------
+    table : VisibilityTable
+    counts : UpdateCounts
+    """
+    count = len(directions)
+    samples = len(positions)
+    objects = len(sample_offset) - 1
+    vertex_object = _vertex_mask(vertex_object)
+    in_place = np.array_equal(old_offset, sample_offset)
+    if in_place:
+        # Same layout (a moved object keeps its samples): update the old arrays where they are.
+        arrays = {"hit_object": old.hit_object, "hit_uv": old.hit_uv, "hit_distance": old.hit_distance}
+        if vertex_object is not None:
+            arrays["hit_triangle"] = old.hit_triangle
+    else:
+        arrays = _empty_arrays(count, samples, vertex_object is not None)
+    geometry = _Geometry(corner_uv, triangle_offset, face_normals, vertex_object)
+    origins_all = offset_ray_origins(positions, geometric_normals)
+    directions32 = directions.astype(np.float32)
+    traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
+    is_changed = np.zeros(objects, bool)
+    is_changed[list(changed)] = True
+    changed_map = np.asarray(changed, np.int32)
+    spheres = [_bounding_sphere(changed_scene.positions(i)) for i in range(len(changed))]
+    counts = UpdateCounts()
+    chunk = max(1, chunk_rays // max(count, 1))
+    spans = []
+    for index in range(objects):
+        a, b = int(sample_offset[index]), int(sample_offset[index + 1])
+        spans.extend((index, start, min(b, start + chunk)) for start in range(a, b, chunk))
+    for done, (index, start, stop) in enumerate(spans):
+        cols = slice(start, stop)
+        if is_changed[index]:
+            redo = (directions @ geometric_normals[cols].T) > 0.0
+            if in_place:
+                arrays["hit_object"][:, cols] = BELOW_HORIZON
+                arrays["hit_uv"][:, cols] = 0.0
+                arrays["hit_distance"][:, cols] = np.inf
+                if "hit_triangle" in arrays:
+                    arrays["hit_triangle"][:, cols] = 0
+        else:
+            if not in_place:
+                old_start = int(old_offset[index]) + start - int(sample_offset[index])
+                old_cols = slice(old_start, old_start + stop - start)
+                for name in arrays:
+                    previous = getattr(old, name)
+                    if previous is not None:  # no hit_triangle before: nothing hit a vertex object
+                        arrays[name][:, cols] = previous[:, old_cols]
+            code = arrays["hit_object"][:, cols]
+            hit_changed = np.zeros(code.shape, bool)
+            hits = code >= 0
+            hit_changed[hits] = is_changed[code[hits]]
+            redo = hit_changed | (code == BACKFACE)
+            probe = (code == MISS) | (hits & ~hit_changed)
+            probe &= _may_hit_spheres(origins_all[cols], directions, spheres)
+            counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
+            direction_index, sample_index = np.nonzero(probe)
+            if len(sample_index):
+                found, triangle, bary, distance = changed_scene.intersect(
+                    origins_all[cols][sample_index], directions32[direction_index])
+                rows, where = direction_index, sample_index + start
+                nearer = (found >= 0) & (distance < arrays["hit_distance"][rows, where])
+                mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
+                _record(arrays, geometry, directions, rows, where, mapped, triangle, bary, distance, where=nearer)
+                counts.changed_only += len(sample_index)
+                counts.kept += len(sample_index) - int(np.count_nonzero(nearer))
+        direction_index, sample_index = np.nonzero(redo)
+        if len(sample_index):
+            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins_all[cols][sample_index],
+                                                                         directions32[direction_index])
+            _record(arrays, geometry, directions, direction_index, sample_index + start, hit_geometry, triangle,
+                    bary, distance)
+            counts.full += len(sample_index)
+        if progress is not None:
+            progress((done + 1) / len(spans))
+    table = _finish(directions, arrays, traced_per_sample, int(traced_per_sample.sum()))
+    return table, counts

@@ -1,0 +1,572 @@
+"""One bake, Blender side: plan layouts, extract, run the core, write results.
+
+Shared by the operator, the command line and the tests, so all three run the same
+code with the same settings (``scene.visibake``). Either the whole bake lands or
+the scene is left as it was: UV maps created for a bake that fails or is cancelled
+are removed again, and nothing is written before the core has finished.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+
+import bpy
+
+import numpy as np
+
+from ...core.visibility.cache import VisibilityCache
+from ...core.transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
+from ...core.pipeline.relight import BakeResult, relight_many
+from ...core.errors import Cancelled
+from ...core.pipeline.budget import check_budget, peak_memory_bytes
+from ...core.pipeline.prepare import prepare
+from ...core.geometry import face_normals
+from ...core.scene import Scene
+from . import EXTENSION_PACKAGE, device, extract, layout, refine, writeback
+
+CACHE_FOLDER_NAME = "visibake_cache"
+# Bytes per sample and direction of a cached table (hit object, hit uv, distance, and
+# the hit triangle when a vertex-mode object exists); sizes the cache's I/O in estimates.
+TABLE_BYTES_PER_ENTRY = 18
+
+
+class BakeInputError(ValueError):
+    """Bad input (objects, settings, names): the message is meant for the user."""
+
+
+@dataclass
+class JobResult:
+    result: BakeResult
+    report: dict
+    files: list[str] = field(default_factory=list)
+
+
+def cache_folder(scene) -> str:
+    """The cache folder: the scene's setting, the preference, beside the saved .blend, the user folder."""
+    props = scene.visibake
+    if props.cache_dir:
+        return bpy.path.abspath(props.cache_dir)
+    prefs = device.preferences()
+    if prefs is not None and prefs.cache_dir:
+        return bpy.path.abspath(prefs.cache_dir)
+    if bpy.data.filepath:
+        return os.path.join(os.path.dirname(bpy.data.filepath), CACHE_FOLDER_NAME)
+    package = EXTENSION_PACKAGE
+    try:
+        return bpy.utils.extension_path_user(package, path="cache", create=True)
+    except ValueError:
+        # Not installed as an extension (run from a source checkout by tools/visibake.py).
+        return os.path.join(bpy.utils.user_resource("CONFIG"), "visibake", "cache")
+
+
+def visibility_cache(scene) -> VisibilityCache | None:
+    """The cache of this scene (named after the .blend), or None when caching is off."""
+    if not scene.visibake.use_cache:
+        return None
+    label = os.path.splitext(os.path.basename(bpy.data.filepath))[0] if bpy.data.filepath else "untitled"
+    return VisibilityCache(cache_folder(scene), f"{label}-{scene.name}")
+
+
+def output_objects(context, props) -> list[bpy.types.Object]:
+    """The objects a bake writes results for: selected meshes, or all with ``bake_all``,
+    except those whose role is Occlude Only."""
+    meshes = [o for o in extract.scene_meshes(context.scene) if o.visibake.role != "OCCLUDE"]
+    if props.bake_all:
+        return meshes
+    return [o for o in meshes if o.select_get()]
+
+
+@dataclass
+class Extracted:
+    """The core scene of a bake, and what the Blender side did to produce it."""
+
+    scene: Scene
+    plans: dict  # object name -> layout.LayoutPlan
+    created: list  # (mesh, UV map name) created for this bake
+    warnings: list
+    seconds: dict
+
+    def undo(self) -> None:
+        """Remove the UV maps this extraction created (a bake that did not finish)."""
+        layout.remove_created_uv_maps(self.created)
+
+
+@dataclass
+class Planned:
+    """The first step of an extraction: every mesh read and its layout chosen.
+
+    Nothing in the scene has changed yet; the unwraps the plans need are still to run
+    (:func:`run_unwraps`, anywhere), and :func:`complete_extraction` writes their UV maps.
+    """
+
+    objects: list  # the bpy objects that take part, in the order of ``meshes``
+    meshes: list  # core.scene.Mesh as read, without their layout yet
+    plans: dict  # object name -> layout.LayoutPlan
+    budget: dict  # object name -> planned samples (width, height), for check_budget
+    warnings: list
+    seconds: dict
+
+    @property
+    def unwraps(self) -> list:
+        return [plan.pending for plan in self.plans.values() if plan.pending is not None]
+
+
+def plan_extraction(context, objects, progress=None) -> Planned:
+    """Read every visible mesh (``objects`` get outputs) and choose its layout (main thread)."""
+    scene = context.scene
+    props = scene.visibake
+    started = time.perf_counter()
+    outputs = set(o.name for o in objects)
+    all_meshes = extract.scene_meshes(scene)
+    warnings: list[str] = []
+    depsgraph = context.evaluated_depsgraph_get()
+    planned = Planned([], [], {}, {}, warnings, {})
+    for index, obj in enumerate(all_meshes):
+        mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
+        if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
+            warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
+            continue
+        try:
+            planned.plans[obj.name] = _plan(obj, mesh, props, planned.budget, props.directions)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+        planned.objects.append(obj)
+        planned.meshes.append(mesh)
+        if progress:
+            progress("layout", (index + 1) / len(all_meshes))
+    planned.seconds["layout"] = time.perf_counter() - started
+    return planned
+
+
+def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None:
+    """Run the plans' unwraps (no bpy: any thread). ``in_child``: each in a child
+    process, which a cancel through ``progress`` kills at once."""
+    started = time.perf_counter()
+    unwraps = planned.unwraps
+    # Progress by expected time: one large mesh takes longer than many small ones.
+    costs = np.cumsum([0.0] + [layout.unwrap_seconds(len(p.triangles)) for p in unwraps])
+    for index, pending in enumerate(unwraps):
+        fraction = costs[index] / costs[-1]
+
+        def cancelled() -> bool:
+            try:
+                if progress:
+                    progress("unwrap", fraction)
+            except Cancelled:
+                return True
+            return False
+
+        if cancelled():
+            raise Cancelled()
+        pending.run(in_child, cancelled)
+        if in_child and cancelled():
+            raise Cancelled()
+    if unwraps and progress:
+        progress("unwrap", 1.0)
+    planned.seconds["unwrap"] = time.perf_counter() - started
+
+
+def complete_extraction(context, planned: Planned) -> Extracted:
+    """Write the unwrapped UV maps and read the scene as the core needs it (main thread).
+
+    On an error the UV maps written here are removed again before this raises.
+    """
+    scene = context.scene
+    props = scene.visibake
+    warnings, times = planned.warnings, planned.seconds
+    created: list[tuple[bpy.types.Mesh, str]] = []
+    t = time.perf_counter()
+    try:
+        for obj, mesh in zip(planned.objects, planned.meshes):
+            plan = planned.plans[obj.name]
+            if plan.pending is None:
+                continue
+            try:
+                plan = _complete_plan(obj, mesh, plan, planned.budget, props)
+            except ValueError as error:
+                raise BakeInputError(str(error)) from None
+            planned.plans[obj.name] = plan
+            if plan.created:
+                created.append((obj.data, plan.uv_map))
+        meshes = planned.meshes
+        rewritten = [obj for obj in planned.objects if planned.plans[obj.name].written]
+        if rewritten:
+            # The new UV maps live on the base meshes; evaluate again so modifiers carry them.
+            depsgraph = context.evaluated_depsgraph_get()
+            depsgraph.update()
+            outputs = {mesh.name for mesh in meshes if mesh.output}
+            again = {obj.name: extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, [])
+                     for obj in rewritten}
+            meshes = [again.get(mesh.name, mesh) for mesh in meshes]
+        for mesh in meshes:
+            plan = planned.plans[mesh.name]
+            mesh.bake_uv_map, mesh.resolution, mesh.mode = plan.uv_map, plan.resolution, plan.mode
+            if plan.internal_uv is not None:
+                mesh.uv_maps[plan.uv_map] = plan.internal_uv
+        world = extract.read_world(scene, warnings)
+        world.light_group = getattr(scene.world, "lightgroup", "") if scene.world else ""
+        core_scene = Scene(meshes=meshes, lights=[extract.read_light(o) for o in extract.scene_lights(scene)],
+                           world=world)
+        times["extract"] = time.perf_counter() - t
+        if not any(m.output for m in meshes):
+            raise BakeInputError("none of the objects to bake has faces")
+    except BaseException:
+        layout.remove_created_uv_maps(created)
+        raise
+    return Extracted(core_scene, planned.plans, created, warnings, times)
+
+
+def extract_scene(context, objects, progress=None) -> Extracted:
+    """Lay out and read every visible mesh (``objects`` get outputs), lamps and world.
+
+    Creates ``VisiBake`` UV maps where needed; on an error they are removed again
+    before this raises. The three steps in one, on this thread.
+    """
+    planned = plan_extraction(context, objects, progress)
+    run_unwraps(planned, progress)
+    return complete_extraction(context, planned)
+
+
+def _complete_plan(obj, mesh, plan, budget: dict, props) -> layout.LayoutPlan:
+    """Apply a plan's unwrap; mode auto takes vertex tables where it failed."""
+    try:
+        return layout.complete_layout(obj, plan)
+    except layout.UnwrapFailed as error:
+        if obj.visibake.effective_mode(props) != "auto" or not _vertex_topology_kept(obj, mesh):
+            raise
+        budget[obj.name] = (3 * len(mesh.triangles), 1)
+        check_budget(list(budget.values()), props.directions)
+        return layout.vertex_plan(f"vertex tables: {error}")
+
+
+def _plan(obj, mesh, props, budget: dict, directions: int) -> layout.LayoutPlan:
+    """The layout of one object: an atlas (its UV map, or one to unwrap) or vertex tables.
+
+    Mode vertex always takes vertex tables; mode auto takes them where the mesh is too
+    dense or too big to unwrap (or, later, where unwrapping fails); mode atlas never does.
+    """
+    mode = obj.visibake.effective_mode(props)
+    if mode == "vertex":
+        _check_vertex_topology(obj, mesh)
+        budget[obj.name] = (3 * len(mesh.triangles), 1)
+        check_budget(list(budget.values()), directions)
+        return layout.vertex_plan("vertex mode was asked for")
+    # Checked before any work at the planned size: validating a UV map rasterises it
+    # at the bake resolution.
+    budget[obj.name] = layout.planned_resolution(obj, props, mesh.positions, mesh.triangles)
+    check_budget(list(budget.values()), directions)
+    existing = None
+    if mode == "auto":
+        # A valid UV map of the user's is a request for textures; only a mesh that would
+        # have to be unwrapped is considered for vertex tables.
+        existing = layout.existing_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props)
+        reason = None if existing is not None else layout.auto_vertex_reason(
+            obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
+        if reason is not None:
+            budget[obj.name] = (3 * len(mesh.triangles), 1)
+            check_budget(list(budget.values()), directions)
+            return layout.vertex_plan(f"vertex tables: {reason}")
+    plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
+    budget[obj.name] = plan.resolution
+    check_budget(list(budget.values()), directions)
+    return plan
+
+
+def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name) -> JobResult:
+    """Bake again with refined copies of the ``coarse`` [(object, triangles)] in their place.
+
+    If that bake fails or is cancelled the copies are removed and the originals shown
+    again, so the scene is as it was.
+    """
+    copies = {}
+    try:
+        for obj, triangles in coarse:
+            copies[obj.name] = refine.refined_copy(obj, triangles)
+        replaced = [copies.get(obj.name, obj) for obj in objects]
+        outcome = run_bake(context, replaced, out_dir, previews, progress, device_name=device_name, refine=False)
+    except BaseException:
+        for copy in copies.values():
+            refine.undo_refinement(copy)
+        raise
+    outcome.report["refined"] = [
+        {"object": name, "copy": copy.name, "coarse_triangles": int(len(triangles)),
+         "vertices": [len(bpy.data.objects[name].data.vertices), len(copy.data.vertices)]}
+        for (obj, triangles), (name, copy) in zip(coarse, copies.items())]
+    return outcome
+
+
+def _vertex_topology_kept(obj, mesh) -> bool:
+    return mesh.vertex_count == len(obj.data.vertices) and mesh.loop_count == len(obj.data.loops)
+
+
+def _check_vertex_topology(obj, mesh) -> None:
+    if mesh.output and not _vertex_topology_kept(obj, mesh):
+        raise BakeInputError(
+            f"object {obj.name!r}: vertex mode writes colour attributes on the mesh, but its modifiers change "
+            f"its vertices ({len(obj.data.vertices)} -> {mesh.vertex_count}) or corners; apply the modifiers "
+            "or use mode atlas")
+
+
+def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
+             progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
+             refine: bool | None = None, threads: int | None = None) -> JobResult:
+    """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
+
+    Every other visible mesh of the scene occludes and reflects light but gets no
+    output. Raises :class:`BakeInputError` for bad input, ``core.errors.Cancelled``
+    if ``progress`` cancels; in both cases the scene is left unchanged.
+
+    Parameters
+    ----------
+    relight_only : refuse unless the visibility cache holds a valid table for the
+        scene's current geometry (the table is never traced again)
+    setups : callable(lights, world) -> list of core.lights.setups.Setup, or None. Each setup
+        is relit from the one prepared table and written to ``out_dir/<setup>/``
+        (files only; the scene's images keep the scene's own lighting).
+    device_name : 'auto', 'gpu' or 'cpu' for the transport passes; None: the preference
+    refine : bake refined copies of vertex-mode objects whose triangles are too coarse for
+        their light (operators.adapter.refine); None: the scene's setting
+    threads : worker threads for ray tracing and gathers (0: all cores); None: the preference
+    """
+    return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
+                   threads).run()
+
+
+class BakeJob:
+    """:func:`run_bake` in steps, so the long ones can run on worker threads.
+
+    :meth:`plan`, :meth:`extract` and :meth:`finish` use bpy and run on the main
+    thread; :meth:`unwrap`, :meth:`compute_visibility` and :meth:`compute_lighting` are
+    the core's work (no bpy) and may run anywhere, except that the lighting needs the
+    main thread when :attr:`needs_main_thread` (the GPU passes need Blender's GL
+    context). Only :meth:`extract` changes the scene before :meth:`finish`; after it,
+    either ``finish`` or :meth:`abort` must follow.
+    """
+
+    def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
+                 setups=None, device_name=None, refine=None, threads=None):
+        self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
+        self.progress, self.relight_only, self.setups = progress, relight_only, setups
+        self.device_name, self.refine, self.threads = device_name, refine, threads
+        self.extracted = None
+        self.results = None
+
+    def run(self) -> JobResult:
+        """Every step on this thread: the blocking bake."""
+        self.start()
+        return self.compute_and_finish()
+
+    def compute_and_finish(self) -> JobResult:
+        try:
+            self.compute()
+        except BaseException:
+            self.abort()
+            raise
+        return self.finish()
+
+    @property
+    def needs_main_thread(self) -> bool:
+        return self.chosen_device.name == "gpu"
+
+    def start(self) -> None:
+        """Everything before the core's work, on this (the main) thread: :meth:`plan`,
+        :meth:`unwrap`, :meth:`extract`."""
+        self.plan()
+        self.unwrap()
+        self.extract()
+
+    def plan(self) -> None:
+        """Check the inputs, choose the device, read the meshes and choose their layouts.
+
+        Changes nothing in the scene (main thread).
+        """
+        context, objects, setups = self.context, self.objects, self.setups
+        props = context.scene.visibake
+        if not objects:
+            raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
+        if setups is not None and not self.out_dir:
+            raise BakeInputError("lighting setups are written as files: give an output folder")
+        prefs = device.preferences(context)
+        threads = self.threads if self.threads is not None else (prefs.threads if prefs is not None else 0)
+        self.settings = settings = props.to_bake_settings(threads=threads)
+        try:
+            settings.validate()
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+        if setups is None:
+            try:
+                writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
+            except ValueError as error:
+                raise BakeInputError(str(error)) from None
+        try:
+            self.chosen_device = device.choose(context, self.device_name)
+        except device.DeviceError as error:
+            raise BakeInputError(str(error)) from None
+        self.started = time.perf_counter()
+        self.shadow_rays_per_sample = sum(shadow_rays_per_sample(lamp.data.type, settings)
+                                          for lamp in extract.scene_lights(context.scene))
+        self.planned = plan_extraction(context, objects, self.progress)
+
+    def unwrap(self, in_child: bool = False) -> None:
+        """The unwraps the layouts need (no bpy: any thread). ``in_child``: in child
+        processes, so that a cancel stops them at once and the UI stays free."""
+        run_unwraps(self.planned, self.progress, in_child)
+
+    def extract(self) -> None:
+        """Write the unwrapped UV maps and read the scene for the core (main thread)."""
+        context, objects, setups, settings = self.context, self.objects, self.setups, self.settings
+        self.extracted = extracted = complete_extraction(context, self.planned)
+        self.cache = visibility_cache(context.scene)
+        try:
+            try:
+                if setups is None:
+                    writeback.check_attribute_names(
+                        [o for o in objects if o.name in extracted.plans and extracted.plans[o.name].mode == "vertex"],
+                        settings.passes)
+                self.lightings = [(None, extracted.scene.lights, extracted.scene.world)]
+                if setups is not None:
+                    self.lightings = [(s.name, s.lights, s.world)
+                                      for s in setups(extracted.scene.lights, extracted.scene.world)]
+            except ValueError as error:
+                raise BakeInputError(str(error)) from None
+        except BaseException:
+            extracted.undo()
+            self.extracted = None
+            raise
+
+    def expected_work(self) -> dict:
+        """The bake's work, known once it is planned: unwraps (in seconds of the measured
+        machine), samples to place and write out, rays to trace, cache bytes, and table
+        lookups (plus exact shadow rays, in lookups) to transport.
+
+        Atlas texels count at the share a packed UV layout typically covers; a vertex-mode
+        object has about one sample per vertex. Half the directions lie above a sample's
+        horizon. For the time-left estimate in the UI, not for any decision.
+        """
+        samples = 0.0
+        for mesh in self.planned.meshes:
+            plan = self.planned.plans[mesh.name]
+            if plan.mode == "vertex":
+                samples += mesh.vertex_count or len(mesh.positions)
+            else:
+                samples += layout.TYPICAL_PACKED_UV_AREA * plan.resolution[0] * plan.resolution[1]
+        rays = samples * self.settings.directions / 2
+        gathers = self.settings.bounces + 1
+        shadow_rays = samples * self.shadow_rays_per_sample if self.settings.shadows == "exact" else 0.0
+        work = {"samples": samples, "visibility": rays,
+                "transport": rays * gathers + SHADOW_RAY_IN_LOOKUPS * shadow_rays, "outputs": samples}
+        if self.context.scene.visibake.use_cache:
+            # The table is written after a trace or read on a hit: one pass over its bytes.
+            work["cache"] = rays * 2 * TABLE_BYTES_PER_ENTRY
+        if self.planned.unwraps:
+            # In seconds of the measured machine: xatlas grows faster than linearly.
+            work["unwrap"] = sum(layout.unwrap_seconds(len(p.triangles)) for p in self.planned.unwraps)
+        return work
+
+    def compute(self) -> None:
+        """The visibility table and the transport (no bpy: any thread)."""
+        self.compute_visibility()
+        self.compute_lighting()
+
+    def compute_visibility(self) -> None:
+        """The visibility table, traced or from the cache (no bpy: any thread)."""
+        try:
+            # Relighting with a setup may need the table although the scene's own lights do not.
+            self.prepared = prepare(self.extracted.scene, self.settings, self.progress,
+                                    table_needed=True if self.setups else None, cache=self.cache,
+                                    require_cached_table=self.relight_only)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+
+    def compute_lighting(self) -> None:
+        """Direct and indirect light from the table (any thread for numpy; the main
+        thread when :attr:`needs_main_thread`)."""
+        try:
+            self.chosen_device.apply(self.prepared)
+            # All setups' light groups share the gathers: one table walk serves them all.
+            relit = relight_many(self.prepared, [(lights, world) for _, lights, world in self.lightings],
+                                 self.progress)
+        except ValueError as error:
+            raise BakeInputError(str(error)) from None
+        self.results = [(name, result) for (name, _, _), result in zip(self.lightings, relit)]
+
+    def abort(self) -> None:
+        """Undo what the main-thread steps did to the scene (the bake failed or was cancelled)."""
+        if self.extracted is not None:
+            self.extracted.undo()
+            self.extracted = None
+
+    def finish(self) -> JobResult:
+        """Write the results into the scene and files, and assemble the report (main thread)."""
+        results, setups = self.results, self.setups
+        try:
+            if setups is None:
+                first = results[0][1].objects
+                try:
+                    writeback.check_image_names(writeback.image_name(o.name, p)
+                                                for o in first if o.domain is None for p in o.images)
+                    writeback.check_attribute_names(
+                        [bpy.data.objects[o.name] for o in first if o.domain is not None],
+                        {p for o in first if o.domain is not None for p in o.images})
+                except ValueError as error:
+                    raise BakeInputError(str(error)) from None
+            props = self.context.scene.visibake
+            refine = props.refine_vertex_objects if self.refine is None else self.refine
+            if refine and setups is None and not self.relight_only:
+                coarse = [(bpy.data.objects[r.name], r.coarse_triangles) for r in results[0][1].objects
+                          if r.domain is not None and r.coarse_triangles is not None and len(r.coarse_triangles)]
+                if coarse:
+                    return _bake_refined(self.context, self.objects, coarse, self.out_dir, self.previews,
+                                         self.progress, self.device_name)
+        except BaseException:
+            self.abort()
+            raise
+        return self._write_and_report()
+
+    def _write_and_report(self) -> JobResult:
+        extracted, results, lightings, setups = self.extracted, self.results, self.lightings, self.setups
+        times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
+        t = time.perf_counter()
+        files = []
+        for name, result in results:
+            if name is None:
+                files += writeback.write_outputs(result.objects, self.out_dir, self.previews)
+            else:
+                files += writeback.write_outputs(result.objects,
+                                                 os.path.join(self.out_dir, writeback.safe_file_name(name)),
+                                                 self.previews, store_images=False)
+        times["write"] = time.perf_counter() - t
+
+        result = results[-1][1]
+        report = result.report
+        report["stage_seconds"] = {**{k: round(v, 4) for k, v in times.items() if k != "write"},
+                                   **report["stage_seconds"], "write": round(times["write"], 4)}
+        report["total_seconds"] = round(time.perf_counter() - self.started, 4)
+        report["peak_memory_bytes"] = peak_memory_bytes()
+        report["files"] = files
+        report["warnings"] = warnings + report["warnings"]
+        for entry in report["objects"]:
+            plan = plans.get(entry["name"])
+            if plan is not None:
+                entry["mode"] = plan.mode
+                entry["layout_reason"] = plan.reason
+                entry["uv_map_created"] = plan.created
+        report["blender_version"] = bpy.app.version_string
+        report["lights"] = [light.name for light in lightings[-1][1]]
+        report["relight_only"] = self.relight_only
+        report["device"] = self.chosen_device.report
+        if setups is not None:
+            report["setups"] = [{"name": name, "lights": [light.name for light in lights],
+                                 "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],
+                                 "shadow_rays": r.report["rays"]["shadow_rays"],
+                                 "lighting_reused": r.report["cache"].get("lighting_reused", [])}
+                                for (name, lights, _), (_, r) in zip(lightings, results)]
+        return JobResult(result=result, report=report, files=files)
+
+
+def write_report(path: str, report: dict) -> None:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w", encoding="utf-8") as handle:
+        json.dump(report, handle, indent=2, default=float)

@@ -1,0 +1,288 @@
+"""Blender side of the atlas: which UV map each object bakes on, and unwrapping.
+
+A user's UV map is used when it is valid for baking; otherwise the mesh gets a new
+UV map named ``VisiBake`` (unwrapped with xatlas on the base mesh, so modifiers
+interpolate it like any other UV map). Maps VisiBake created are marked on the
+mesh, and only those are ever rewritten or removed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_problems
+from ...core.sampling.unwrap_child import ChildUnavailable, unwrap_in_child
+
+UV_MAP_NAME = "VisiBake"
+INTERNAL_UV_MAP = "__visibake_internal__"
+OWNED_UV_KEY = "visibake_uv_map"
+# Share of the UV square xatlas typically fills; sizes a texel-density atlas before unwrapping.
+TYPICAL_PACKED_UV_AREA = 0.7
+
+
+class LayoutError(ValueError):
+    """An object cannot get a bake layout; the message says why."""
+
+
+class UnwrapFailed(LayoutError):
+    """xatlas could not unwrap the object (mode auto then falls back to vertex tables)."""
+
+
+# Mode auto leaves the unwrap to vertex tables above this many triangles: xatlas took
+# ~2 s at 20k and ~140 s at 180k triangles (growing faster than linearly) on a 2-core
+# machine, so 100k triangles keeps an unwrap under about a minute.
+UNWRAP_TRIANGLE_BUDGET = 100_000
+
+# "Dense" needs many vertices as well as close ones: a low-poly object at a draft
+# resolution (a quad at 1 x 1 texels) has vertices farther apart than a texel's size
+# too, but an artist still expects an image for it.
+DENSE_MIN_VERTICES = 1024
+
+
+def unwrap_seconds(triangles: int) -> float:
+    """Rough time of one unwrap on the machine of UNWRAP_TRIANGLE_BUDGET's measurements,
+    for the time-left estimate: a power law through them (exponent ln 70 / ln 9 = 1.93;
+    it predicts 19 s at 65k triangles, where 18-21 s was measured), plus starting the
+    child process."""
+    return 2.0 * (triangles / 20_000) ** 1.93 + 0.2
+
+
+@dataclass
+class PendingUnwrap:
+    """An unwrap chosen on the main thread and run later, anywhere: it needs no bpy.
+
+    ``loops`` is None for an object without outputs, whose unwrap stays in memory.
+    """
+
+    positions: np.ndarray
+    triangles: np.ndarray
+    loops: np.ndarray | None
+    resolution: int
+    result: UnwrapResult | None = None
+    error: str | None = None
+
+    def run(self, in_child: bool = False, cancelled=None) -> None:
+        """Unwrap, in this process or (cancellable, leaving the UI free) in a child process."""
+        try:
+            if in_child:
+                try:
+                    self.result = unwrap_in_child(self.positions, self.triangles, self.resolution, cancelled)
+                    return
+                except ChildUnavailable:
+                    pass  # no interpreter to run it: unwrap here, blocking but correct
+            self.result = unwrap(self.positions, self.triangles, self.resolution)
+        except (RuntimeError, ValueError) as error:
+            self.error = str(error)
+
+
+@dataclass
+class LayoutPlan:
+    """How one object is laid out: the UV map to bake on and why it was chosen."""
+
+    uv_map: str
+    resolution: tuple[int, int]
+    reason: str
+    internal_uv: np.ndarray | None = None  # (m, 3, 2) for objects that get no UV map written
+    created: bool = False  # the UV map did not exist before this bake
+    written: bool = False  # the UV map was (re)written by this bake
+    mode: str = "atlas"  # or "vertex": samples at vertices, results as colour attributes
+    pending: PendingUnwrap | None = None  # an unwrap still to run; see complete_layout
+
+
+def vertex_plan(reason: str) -> LayoutPlan:
+    return LayoutPlan(uv_map="", resolution=(0, 0), reason=reason, mode="vertex")
+
+
+def auto_vertex_reason(obj, evaluated_positions, evaluated_triangles, evaluated_loop_count: int,
+                       settings) -> str | None:
+    """Why mode auto should bake ``obj`` with vertex tables before trying an atlas, or None.
+
+    Only where the results can be written to the mesh: vertex colours live on the base
+    mesh, so its modifiers must keep the vertices and corners as they are.
+    """
+    mesh = obj.data
+    if len(evaluated_positions) != len(mesh.vertices) or evaluated_loop_count != len(mesh.loops):
+        return None
+    triangles = len(evaluated_triangles)
+    if triangles > UNWRAP_TRIANGLE_BUDGET:
+        return (f"{triangles} triangles: unwrapping would take over a minute (the budget is "
+                f"{UNWRAP_TRIANGLE_BUDGET} triangles)")
+    corners = evaluated_positions[evaluated_triangles]
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    edges = edges[np.isfinite(edges) & (edges > 0)]
+    area = float(np.sum(_triangle_areas(corners)))
+    resolution = object_resolution(obj, settings, area, TYPICAL_PACKED_UV_AREA)
+    if len(edges) == 0 or area <= 0:
+        return None
+    texel = np.sqrt(area / (TYPICAL_PACKED_UV_AREA * resolution[0] * resolution[1]))
+    spacing = float(np.median(edges))
+    if spacing < texel and len(evaluated_positions) >= DENSE_MIN_VERTICES:
+        return (f"its vertices are {spacing:.3g} apart, finer than a texel ({texel:.3g}) at "
+                f"{resolution[0]}x{resolution[1]}")
+    return None
+
+
+def owns_uv_map(mesh: bpy.types.Mesh, name: str) -> bool:
+    return mesh.get(OWNED_UV_KEY) == name and name in mesh.uv_layers
+
+
+def object_resolution(obj, settings, world_area: float, uv_area: float) -> tuple[int, int]:
+    """Atlas size: the object's own resolution or texel density, else the scene's texel
+    density, else the scene's resolution."""
+    own = obj.visibake.resolution if hasattr(obj, "visibake") else 0
+    if own > 0:
+        return own, own
+    density = obj.visibake.texel_density if hasattr(obj, "visibake") else 0.0
+    density = density if density > 0 else settings.texel_density
+    if density > 0 and world_area > 0:
+        size = int(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * density))
+        size = int(np.clip(size, 8, 8192))
+        return size, size
+    return settings.resolution, settings.resolution
+
+
+def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarray) -> tuple[int, int]:
+    """The atlas size ``obj`` will get, known before its UV map is looked at.
+
+    With a texel density the real size depends on how much of the UV square the
+    layout fills; the typical packed share stands in for it here.
+    """
+    world_area = float(np.sum(_triangle_areas(positions[triangles]))) if len(triangles) else 0.0
+    return object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
+
+
+def _triangle_areas(corners: np.ndarray) -> np.ndarray:
+    """Areas of (m, 3, 2 or 3) triangles; 0 where a corner is not finite."""
+    corners = np.where(np.isfinite(corners), corners, 0.0)
+    if corners.shape[-1] == 2:
+        a = corners[:, 1] - corners[:, 0]
+        b = corners[:, 2] - corners[:, 0]
+        return 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+
+
+def _base_triangles(mesh: bpy.types.Mesh):
+    mesh.calc_loop_triangles()
+    count = len(mesh.loop_triangles)
+    triangles = np.empty(count * 3, np.int32)
+    loops = np.empty(count * 3, np.int64)
+    mesh.loop_triangles.foreach_get("vertices", triangles)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    positions = np.empty(len(mesh.vertices) * 3, np.float64)
+    mesh.vertices.foreach_get("co", positions)
+    return positions.reshape(-1, 3), triangles.reshape(-1, 3), loops.reshape(-1, 3)
+
+
+def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndarray, loops: np.ndarray,
+                 corner_uv: np.ndarray) -> bool:
+    """Write per-corner UVs into the owned ``VisiBake`` map; True if the map was created now."""
+    created = UV_MAP_NAME not in mesh.uv_layers
+    if created:
+        active = mesh.uv_layers.active_index if len(mesh.uv_layers) else -1
+        layer = mesh.uv_layers.new(name=UV_MAP_NAME, do_init=False)
+        if layer is None:
+            raise LayoutError(f"mesh {mesh.name!r} cannot hold another UV map (Blender allows 8); delete one, "
+                              "or bake the object with Mode Vertex")
+        mesh[OWNED_UV_KEY] = UV_MAP_NAME
+        if active >= 0:
+            mesh.uv_layers.active_index = active
+    layer = mesh.uv_layers[UV_MAP_NAME]
+    per_loop, _ = loop_uvs(positions, triangles, loops, corner_uv, len(mesh.loops))
+    layer.uv.foreach_set("vector", per_loop.ravel())
+    mesh.update()
+    return created
+
+
+def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, evaluated_triangles,
+                settings, output: bool) -> LayoutPlan:
+    """Choose the UV layout ``obj`` bakes on, changing nothing yet.
+
+    ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it.
+    A plan that needs an unwrap carries it as ``pending``: run it, then
+    :func:`complete_layout` writes the UV map.
+    """
+    plan, rejected, world_area = _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
+                                                  settings)
+    if plan is not None:
+        return plan
+    return _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area)
+
+
+def existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings) -> LayoutPlan | None:
+    """The layout of a UV map the object already has and that is valid for baking, or None."""
+    return _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings)[0]
+
+
+def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings):
+    mesh = obj.data
+    world_area = float(np.sum(_triangle_areas(evaluated_positions[evaluated_triangles]))) if len(evaluated_triangles) else 0.0
+    candidates = []
+    if owns_uv_map(mesh, UV_MAP_NAME):
+        candidates.append(UV_MAP_NAME)
+    active = next((layer.name for layer in mesh.uv_layers if layer.active_render), None)
+    if active and active not in candidates and active != UV_MAP_NAME:
+        candidates.append(active)
+    rejected = []
+    for name in candidates:
+        corner_uv = evaluated_uv.get(name)
+        if corner_uv is None:
+            continue
+        uv_area = float(np.sum(_triangle_areas(corner_uv.astype(np.float64))))
+        resolution = object_resolution(obj, settings, world_area, uv_area)
+        problems = uv_layout_problems(corner_uv, *resolution)
+        if not problems:
+            why = "VisiBake's own UV map" if name == UV_MAP_NAME else "the mesh's UV map is valid for baking"
+            return LayoutPlan(name, resolution, why), rejected, world_area
+        rejected.append(f"UV map {name!r}: {'; '.join(problems)}")
+    return None, rejected, world_area
+
+
+def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area):
+    mesh = obj.data
+    if UV_MAP_NAME in mesh.uv_layers and not owns_uv_map(mesh, UV_MAP_NAME) and output:
+        raise LayoutError(f"object {obj.name!r}: it has a UV map named {UV_MAP_NAME!r} that VisiBake did not "
+                          "create; rename it so VisiBake can add its own")
+    reason = "; ".join(rejected) if rejected else "the mesh has no UV map"
+    resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
+    if output:
+        positions, triangles, loops = _base_triangles(mesh)
+        if len(triangles) == 0:
+            raise LayoutError(f"object {obj.name!r} has no faces; deselect it or give it faces")
+        return LayoutPlan(UV_MAP_NAME, resolution, f"unwrapped with xatlas ({reason})", written=True,
+                          pending=PendingUnwrap(positions, triangles, loops, resolution[0]))
+    # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
+    # the evaluated mesh in memory and leave the user's mesh alone.
+    return LayoutPlan(INTERNAL_UV_MAP, resolution, f"unwrapped in memory, no UV map written ({reason})",
+                      pending=PendingUnwrap(evaluated_positions, evaluated_triangles, None, resolution[0]))
+
+
+def complete_layout(obj, plan: LayoutPlan) -> LayoutPlan:
+    """Apply a plan's finished unwrap: write the ``VisiBake`` UV map, or keep the UVs in memory.
+
+    Raises :class:`UnwrapFailed` if the unwrap failed.
+    """
+    pending = plan.pending
+    if pending is None:
+        return plan
+    if pending.result is None:
+        raise UnwrapFailed(f"object {obj.name!r}: unwrapping failed at {pending.resolution}x{pending.resolution} "
+                           f"({pending.error or 'it did not run'}); raise its resolution")
+    if pending.loops is None:
+        plan.internal_uv = pending.result.corner_uv
+    else:
+        plan.created = write_uv_map(obj.data, pending.positions, pending.triangles, pending.loops,
+                                    pending.result.corner_uv)
+    plan.pending = None
+    return plan
+
+
+def remove_created_uv_maps(created: list[tuple[bpy.types.Mesh, str]]) -> None:
+    """Undo :func:`write_uv_map` for maps created during a bake that did not finish."""
+    for mesh, name in created:
+        layer = mesh.uv_layers.get(name)
+        if layer is not None:
+            mesh.uv_layers.remove(layer)
+        if mesh.get(OWNED_UV_KEY) == name:
+            del mesh[OWNED_UV_KEY]
