@@ -4,6 +4,8 @@
 #   make wheels   registry wheels bundled in the extension -> ./wheels/
 #   make build    dist/<id>-<version>.zip with Blender's own extension tool, then validate it
 #   make test     pytest (tests/core, tests/blender, tests/gpu)
+#   make test-core  tests/core only (no bpy, no extension build): seconds
+#   make lint     ruff (pinned in requirements.txt; config in ruff.toml)
 #   make demo     tools/visibake.py demo --out out/demo
 #   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|standard|bounces|full)
 #   make clean    build/test outputs;  make distclean  also .venv and wheels
@@ -57,7 +59,7 @@ if command -v apt-get >/dev/null 2>&1; then \
 else echo "missing system packages ($(1)) and no apt-get to install them" >&2; exit 1; fi
 endef
 
-.PHONY: venv wheels build test demo bench clean distclean
+.PHONY: venv wheels build test test-core lint demo bench clean distclean
 
 venv: $(VENV_STAMP)
 
@@ -106,6 +108,13 @@ build: venv wheels
 
 test: venv build
 	$(PY) -m pytest tests $(PYTEST_FLAGS)
+
+# The core tests need no extension zip and never import bpy (tests/core/test_layering.py).
+test-core: venv
+	$(PY) -m pytest tests/core $(PYTEST_FLAGS)
+
+lint: venv
+	$(VENV)/bin/ruff check .
 
 demo: venv build
 	$(PY) tools/visibake.py demo --out out/demo

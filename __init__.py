@@ -6,10 +6,9 @@ hard-coded: extensions load as ``bl_ext.<repository>.visibake``.
 import bpy
 
 from . import operators, panels
-from .operators.adapter import cache_status
 from .operators import cli
-from .panels import properties
-from .panels import preferences
+from .operators.adapter import cache_status
+from .panels import preferences, properties
 
 _classes = operators.classes + panels.classes
 _cli_handle = None

@@ -39,8 +39,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "cache_update.json"))
     args = parser.parse_args(argv)
 
-    from tools.visibake import load_extension
     from benchmarks.run import machine
+    from tools.visibake import load_extension
 
     extension = load_extension()
     import bpy
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
         lights = [dataclasses.replace(light, strength=light.strength * 2) if light.kind == "POINT" else light
                   for light in scene.lights]
         warm.cache = None  # time the transport, not the lighting cache
-        _, seconds = timed(lambda: pipeline.relight(warm, lights, scene.world))
+        _, seconds = timed(lambda prepared=warm: pipeline.relight(prepared, lights, scene.world))
         results["relight_seconds"] = seconds
         del warm
 

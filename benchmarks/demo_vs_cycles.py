@@ -27,7 +27,6 @@ from benchmarks.limits import embree_rays_per_second  # noqa: E402
 from tools.visibake import load_extension  # noqa: E402
 
 
-
 def covered_error(ours: dict, reference: dict) -> dict:
     squared, total, count, worst = 0.0, 0.0, 0, 0.0
     ours_sum = 0.0
@@ -61,6 +60,7 @@ def main() -> int:
     import importlib
 
     import bpy
+
     from tools.cycles_bake import bake_diffuse
 
     demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
@@ -126,7 +126,8 @@ def main() -> int:
 
     rows = []
     for run in runs:
-        run["visibility_rays_per_second"] = run["rays"]["visibility_cast"] / max(run["stage_seconds"]["visibility"], 1e-9)
+        visibility_seconds = max(run["stage_seconds"]["visibility"], 1e-9)
+        run["visibility_rays_per_second"] = run["rays"]["visibility_cast"] / visibility_seconds
         run["visibility_fraction_of_embree"] = run["visibility_rays_per_second"] / raw_rate
         error = covered_error(run.pop("images"), reference)
         rows.append({**run, **error})

@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/eta.py [--directions 128] [--resolution 256]
 
-Drives ``operators.bake.ModalBake`` exactly as the modal operator does (a tick every
+Drives ``operators.adapter.modal.ModalBake`` exactly as the modal operator does (a tick every
 0.1 s on the main thread, long steps on workers, unwraps in child processes) and
 records, at every tick, the estimate of the time left (``Progress.seconds_left``).
 Once the bake has ended, the true time left at each tick is known; the error of the
@@ -31,10 +31,10 @@ TICK_SECONDS = 0.1
 MARKS = (0.10, 0.25, 0.50, 0.75, 0.90)
 
 
-def timed_bake(bake_module, job_module, bpy, objects) -> dict:
+def timed_bake(bake_module, modal_module, job_module, bpy, objects) -> dict:
     """One bake driven tick by tick; the estimates and the truth."""
     progress = bake_module.Progress()
-    modal = bake_module.ModalBake(job_module.BakeJob(bpy.context, objects, progress=progress), progress)
+    modal = modal_module.ModalBake(job_module.BakeJob(bpy.context, objects, progress=progress), progress)
     started = time.perf_counter()
     samples = []
     trace = []
@@ -75,14 +75,15 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "eta.json"))
     args = parser.parse_args(argv)
 
-    from tools.visibake import load_extension
     from benchmarks.run import machine
+    from tools.visibake import load_extension
 
     extension = load_extension()
     import bpy
 
     demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
     bake = importlib.import_module(f"{extension.__name__}.operators.bake")
+    modal = importlib.import_module(f"{extension.__name__}.operators.adapter.modal")
     job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
 
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -93,19 +94,19 @@ def main(argv=None) -> int:
     runs = {}
     with tempfile.TemporaryDirectory(prefix="visibake-eta-") as cache:
         props.cache_dir = cache
-        runs["cold"] = timed_bake(bake, job, bpy, objects)
+        runs["cold"] = timed_bake(bake, modal, job, bpy, objects)
         print("cold", json.dumps(runs["cold"]), flush=True)
         if os.environ.get("ETA_COLD_ONLY"):
             return 0
-        runs["warm"] = timed_bake(bake, job, bpy, objects)
+        runs["warm"] = timed_bake(bake, modal, job, bpy, objects)
         print("warm", json.dumps(runs["warm"]), flush=True)
         lamp = next(o for o in bpy.context.scene.objects if o.type == "LIGHT" and o.data.type == "POINT")
         lamp.data.energy *= 2.0
-        runs["lamp_changed"] = timed_bake(bake, job, bpy, objects)
+        runs["lamp_changed"] = timed_bake(bake, modal, job, bpy, objects)
         print("lamp_changed", json.dumps(runs["lamp_changed"]), flush=True)
         torus = bpy.data.objects["Torus"]
         torus.location.x += 0.3
-        runs["moved"] = timed_bake(bake, job, bpy, objects)
+        runs["moved"] = timed_bake(bake, modal, job, bpy, objects)
         print("moved", json.dumps(runs["moved"]), flush=True)
     result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
               "settings": {"directions": args.directions, "resolution": args.resolution, "bounces": args.bounces,

@@ -167,7 +167,9 @@ def main(argv=None) -> int:
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
     gpu_runtime = importlib.import_module(f"{extension.__name__}.gpu_shaders.runtime")
-    gpu_gather = importlib.import_module(f"{extension.__name__}.gpu_shaders.gather")
+    cpu_backend = importlib.import_module(f"{extension.__name__}.core.transport.cpu").CPU_BACKEND
+    gpu_backend = importlib.import_module(f"{extension.__name__}.gpu_shaders.backend").GPUBackend
+    contract = importlib.import_module(f"{extension.__name__}.core.transport.contract")
     names = args.scenes or profile["scenes"] or scenes.SCENE_NAMES
     unknown = [n for n in names if n not in scenes.SCENES]
     if unknown:
@@ -284,7 +286,8 @@ def main(argv=None) -> int:
                            "visibake_warm_prepare_seconds": warm_prepare_seconds}
             del warm
         prepared.cache = None  # relights below measure transport, not the lighting cache
-        limit_rows[-1].update(compare_gather_paths(prepared, gpu_runtime, gpu_gather))
+        limit_rows[-1].update(compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend(1 << 30),
+                                                     contract.GatherSource))
         base_lights = extracted.scene.lights
         for count in profile["relight_setups"]:
             setups = []
@@ -357,7 +360,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def compare_gather_paths(prepared, gpu_runtime, gpu_gather) -> dict:
+def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather_source) -> dict:
     """One bounce gather on the same table in numpy and on the GPU: time, lookups/s, agreement.
 
     The radiance is the scene's albedo lit uniformly (any atlas will do: the cost of
@@ -365,11 +368,11 @@ def compare_gather_paths(prepared, gpu_runtime, gpu_gather) -> dict:
     horizon, what either path walks.
     """
     table = prepared.table
-    radiance = prepared.to_atlas(prepared.albedo)
-    scale = prepared.gather_scale()
+    geometry = prepared.gather_geometry()
+    source = gather_source(prepared.to_atlas(prepared.albedo, cpu_backend.dilate), np.zeros(3))
     lookups = int(table.rays_cast)
     started = time.perf_counter()
-    numpy_result = prepared.gather(table, prepared.normal, scale, prepared.layout, radiance, np.zeros(3))
+    numpy_result = cpu_backend.gather(geometry, source)
     numpy_seconds = time.perf_counter() - started
     row = {"gather_lookups": lookups, "numpy_gather_seconds": numpy_seconds,
            "numpy_gather_lookups_per_second": lookups / numpy_seconds}
@@ -380,10 +383,10 @@ def compare_gather_paths(prepared, gpu_runtime, gpu_gather) -> dict:
         return row
     # The first call compiles the shader and creates the textures' pools: timed apart.
     started = time.perf_counter()
-    gpu_result = gpu_gather.gather(table, prepared.normal, scale, prepared.layout, radiance, np.zeros(3))
+    gpu_result = gpu_backend.gather(geometry, source)
     first_seconds = time.perf_counter() - started
     started = time.perf_counter()
-    gpu_result = gpu_gather.gather(table, prepared.normal, scale, prepared.layout, radiance, np.zeros(3))
+    gpu_result = gpu_backend.gather(geometry, source)
     gpu_seconds = time.perf_counter() - started
     reference = max(float(np.abs(numpy_result).max()), 1e-30)
     row.update({"gpu_device": f"{info.backend} {info.renderer}", "gpu_gather_seconds": gpu_seconds,

@@ -52,8 +52,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-import bpy
 import bmesh  # importable only once bpy is
+import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 

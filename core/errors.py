@@ -13,3 +13,25 @@ class Cancelled(Exception):
 
 class BakeRefused(ValueError):
     """The bake cannot run with these inputs; the message says why and what to change."""
+
+
+class LayoutError(BakeRefused):
+    """An object cannot get a bake layout (UV map, atlas size); the message says why."""
+
+
+class UnwrapFailed(LayoutError):
+    """xatlas could not unwrap the object, or refused its mesh (mode auto then falls back
+    to vertex tables)."""
+
+
+class OutputRefused(BakeRefused):
+    """A result cannot be written without harm: a name VisiBake does not own, or values
+    no output may hold."""
+
+
+class DeviceError(BakeRefused):
+    """The requested device cannot run this bake; the message says why and what to use."""
+
+
+class SetupError(BakeRefused):
+    """A lighting setup file or sun sweep that cannot be used; the message names the place."""

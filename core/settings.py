@@ -1,13 +1,23 @@
-"""Every setting of a bake, its choices, defaults and limits, validated in one place.
+"""Every setting of a bake and of its layout: choices, defaults, limits, help, validation.
 
-The command line, the Blender properties and the panel take their choices, defaults,
-ranges and help text from here (:data:`SETTINGS`), and
-:func:`BakeSettings.validate` is the one check of a complete set of values.
+The one description of each setting is its :class:`Setting` in :data:`SETTINGS` (the
+scene's settings, and the few only the core sets), :data:`OBJECT_SETTINGS` (an
+object's own) or :data:`PREFERENCE_SETTINGS` (the machine's). The Blender properties
+(panels/properties.py, panels/preferences.py) and the command line
+(operators/cli.py) take their names, defaults, ranges, choices and help text from
+these tables, and the dataclasses below take their defaults from them.
+
+:class:`BakeSettings` holds what changes the result of a bake (it goes into the
+report and, in part, into the visibility cache's key), :class:`LayoutSettings` what
+decides where the samples lie. ``validate()`` on each is the one check of a complete
+set of values; :meth:`Setting.check` is the same rule for one value, for a front end
+that must refuse a value before storing it.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
+from .errors import BakeRefused
 
 LIGHTING_PASSES = ("lighting", "direct", "indirect", "irradiance")
 
@@ -24,62 +34,262 @@ SAMPLE_MODES = ("atlas", "vertex")
 VERTEX_LOOKUPS = ("interpolate", "nearest")
 
 
-@dataclass
-class BakeSettings:
-    """Everything that changes the result of a bake.
+# 'auto' chooses one of SAMPLE_MODES per object (core.sampling.layout).
+LAYOUT_MODES = ("auto",) + SAMPLE_MODES
 
-    directions : size of the global direction set D
-    bounces : diffuse bounces after the first (Cycles' ``diffuse_bounces``)
-    shadows : 'fractions' (the paper: no ray at lighting time) or 'exact'
-    shadow_regions : number of regions c_j for the fractions
-    rotate : randomly rotate D (seeded) to turn ray effects into noise
-    passes : output passes, a subset of PASSES
-    margin : gutter width in texels that results are dilated into
-    area_light_samples : grid points per side used to integrate an area light
-    emitter_samples : points per emissive object for direct sampling of small emitters
-    threads : worker threads for ray tracing (0: all cores)
-    light_groups : also write every lighting pass per light group, so lights can be
-        re-mixed without another bake (the groups sum to the combined pass)
-    vertex_lookup : how a ray landing on a vertex-mode object reads its light:
-        'interpolate' (barycentric mix of the triangle's three samples) or 'nearest'
-        (the paper's nearest vertex)
-    chunk_rays : rays traced per batch; bounds the memory of the tracing stage
+
+DEVICES = ("auto", "gpu", "cpu")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting: its type, default, limits, choices and the one help text.
+
+    name : the identifier (a dataclass field, a Blender property, a command-line option's dest)
+    type : int, float, bool, str, or tuple (a non-empty subset of ``choices``)
+    title : what the UI calls it
+    label : what a refusal calls it; the name with spaces when empty
+    minimum, maximum : hard limits (refused outside them); None: none
+    soft_min, soft_max : the range a slider offers; None: the hard limits
+    choices : (value, title, help) of each allowed value; empty: any value of ``type``
+    refusal : how a value below ``minimum`` is refused (``{label}``, ``{minimum}``, ``{value}``)
+    on_scene : a property of the scene's settings (scene.visibake) has this name; False for
+        the settings only the core (and its callers) set
     """
 
-    directions: int = 128
-    bounces: int = 2
-    shadows: str = "exact"
-    shadow_regions: int = 32
-    rotate: bool = False
-    seed: int = 0
-    passes: tuple[str, ...] = ("lighting",)
-    margin: int = 4
-    area_light_samples: int = 8
-    emitter_samples: int = 16
-    threads: int = 0
-    chunk_rays: int = 1 << 20
-    light_groups: bool = False
-    vertex_lookup: str = "interpolate"
+    name: str
+    type: type
+    default: object
+    title: str
+    help: str
+    label: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    soft_min: float | None = None
+    soft_max: float | None = None
+    choices: tuple[tuple[str, str, str], ...] = ()
+    refusal: str = "{label} must be >= {minimum}, got {value}"
+    on_scene: bool = True
+
+    @property
+    def values(self) -> tuple[str, ...]:
+        """The allowed values of a setting with choices."""
+        return tuple(value for value, _, _ in self.choices)
+
+    def check(self, value, label: str | None = None) -> str | None:
+        """Why ``value`` cannot be used, in one line naming it ``label``; None if it can."""
+        label = label or self.label or self.name.replace("_", " ")
+        if self.type is tuple:
+            unknown = [v for v in value if v not in self.values]
+            if unknown or not value:
+                return (f"{label}: choose at least one of {', '.join(self.values)}"
+                        + (f" (unknown: {', '.join(unknown)})" if unknown else ""))
+            return None
+        if self.choices and value not in self.values:
+            return f"{label} must be one of {', '.join(self.values)}, got {value!r}"
+        # Written as 'not >=' so that NaN is refused too.
+        if self.minimum is not None and not value >= self.minimum:
+            return self.refusal.format(label=label, minimum=self.minimum, value=value)
+        if self.maximum is not None and not value <= self.maximum:
+            return f"{label} must be <= {self.maximum}, got {value}"
+        return None
+
+
+def _table(*settings: Setting) -> dict[str, Setting]:
+    return {setting.name: setting for setting in settings}
+
+
+_WITHOUT_VALUE = "{label} must be >= {minimum}"
+
+
+# What each preset sets; any later change to one of these makes the preset Custom.
+PRESETS = {
+    "DRAFT": {"directions": 64, "bounces": 1, "resolution": 128, "shadows": "exact", "rotate": False},
+    "PRODUCTION": {"directions": 256, "bounces": 3, "resolution": 512, "shadows": "exact", "rotate": True},
+}
+
+
+def _preset_help(values: dict, purpose: str) -> str:
+    bounces = values["bounces"]
+    return (f"{values['directions']} directions, {bounces} bounce{'' if bounces == 1 else 's'}, "
+            f"{values['resolution']} texels, {values['shadows']} shadows"
+            + (", rotated direction set" if values.get("rotate") else "") + f": {purpose}")
+
+
+_MODE_CHOICES = (("atlas", "Atlas", "Texture atlas (UV map), results as images"),
+                 ("vertex", "Vertex", "Per-vertex tables, results as colour attributes VB_<pass>"))
+
+
+SETTINGS = _table(
+    # What changes the result: BakeSettings.
+    Setting("directions", int, 128, "Directions", minimum=1, soft_min=16, soft_max=1024,
+            help="Size of the global direction set: rays per texel for visibility (more: less noise, slower)"),
+    Setting("bounces", int, 2, "Bounces", minimum=0, soft_max=8,
+            help="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)"),
+    Setting("shadows", str, "exact", "Shadows", help="How direct light is shadowed",
+            choices=(("fractions", "Fractions", "Shadows from the precomputed visibility (no ray at lighting time, "
+                                                "soft)"),
+                     ("exact", "Exact", "One shadow ray per texel and light (sharp, traced at every bake)"))),
+    Setting("shadow_regions", int, 32, "Shadow Regions", minimum=1, on_scene=False,
+            help="Number of regions of the shadow fractions"),
+    Setting("rotate", bool, False, "Rotate Directions",
+            help="Randomly rotate the direction set (seeded): structured artefacts become noise"),
+    Setting("seed", int, 0, "Seed", minimum=0, help="Seed of the direction rotation"),
+    Setting("passes", tuple, ("lighting",), "Passes", help="Which passes to write",
+            choices=tuple((p, p.capitalize(), f"Write the {p} pass") for p in PASSES)),
+    Setting("margin", int, 4, "Margin", minimum=0, soft_max=32,
+            help="Texels the results are extended into the gutter so filtering never pulls in black"),
+    Setting("area_light_samples", int, 8, "Area Light Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
+            help="Grid points per side used to integrate an area light"),
+    Setting("emitter_samples", int, 16, "Emitter Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
+            help="Points per emissive object for direct sampling of small emitters"),
+    # A preference (the machine's), not the scene's.
+    Setting("threads", int, 0, "Threads", minimum=0, soft_max=64, on_scene=False,
+            help="Worker threads for ray tracing and gathers (0: all cores)"),
+    Setting("chunk_rays", int, 1 << 20, "Rays per Batch", minimum=1, on_scene=False,
+            help="Rays traced per batch; bounds the memory of the tracing stage"),
+    Setting("light_groups", bool, False, "Light Groups",
+            help="Also write every lighting pass per light group (a lamp's Light Group, else each lamp; the world; "
+                 "each emitting object), so lights can be re-mixed without another bake"),
+    Setting("vertex_lookup", str, "interpolate", "Vertex Lookup",
+            help="How light is read where a ray lands on a vertex-mode object",
+            choices=(("interpolate", "Interpolate", "Mix the three vertices of the triangle a ray lands on"),
+                     ("nearest", "Nearest", "The paper's variant: the nearest vertex of that triangle"))),
+    # Where the samples lie: LayoutSettings.
+    Setting("resolution", int, 256, "Resolution", minimum=1, soft_min=16, soft_max=4096,
+            help="Atlas width and height in texels for objects without their own resolution"),
+    Setting("texel_density", float, 0.0, "Texels per Unit", minimum=0.0, soft_max=1024.0,
+            help="If above zero, size each atlas from the object's surface area instead of Resolution"),
+    Setting("mode", str, "auto", "Mode", help="Where samples live",
+            choices=(("auto", "Auto", "Texture atlas; vertex tables for meshes too dense or too big to unwrap, "
+                                      "or where unwrapping fails"),) + _MODE_CHOICES),
+    # How and where a bake runs, without changing its result.
+    Setting("preset", str, "CUSTOM", "Preset", help="Set directions, bounces, resolution and shadows together",
+            choices=(("DRAFT", "Draft", _preset_help(PRESETS["DRAFT"], "a quick look")),
+                     ("PRODUCTION", "Production", _preset_help(PRESETS["PRODUCTION"], "final quality")),
+                     ("CUSTOM", "Custom", "The settings below as they are"))),
+    Setting("bake_all", bool, False, "All Objects",
+            help="Bake every visible mesh object instead of the selected ones"),
+    Setting("use_cache", bool, True, "Cache Visibility",
+            help="Keep the visibility tables on disk, so bakes after changes to lights, materials or the world "
+                 "(and Relight) skip the visibility stage"),
+    Setting("cache_dir", str, "", "Cache Folder",
+            help="Where the visibility cache lives; empty: a visibake_cache folder beside the saved .blend, "
+                 "else VisiBake's folder in your user profile"),
+    Setting("refine_vertex_objects", bool, False, "Refine Coarse Vertex Objects",
+            help="Where a vertex-mode object's triangles are too large for its light (a shadow edge inside "
+                 "them), bake a copy with those faces subdivided in its place and hide the original; your mesh "
+                 "is never changed"),
+    Setting("output_dir", str, "", "Output Folder",
+            help="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only"),
+)
+
+
+# An object's own settings; each overrides the scene's setting of the same name.
+OBJECT_SETTINGS = _table(
+    Setting("role", str, "INCLUDE", "Role",
+            help="Whether this object gets results or only takes part in the light transport",
+            choices=(("INCLUDE", "Bake", "Bake this object when it is selected, or with All Objects"),
+                     ("OCCLUDE", "Occlude Only", "Never bake this object: it only casts shadows and reflects "
+                                                 "light"))),
+    Setting("resolution", int, 0, "Resolution", minimum=0, soft_max=4096,
+            help="Atlas size of this object in texels (0: the scene's setting)"),
+    Setting("texel_density", float, 0.0, "Texels per Unit", minimum=0.0, soft_max=1024.0,
+            help="If above zero (and Resolution is 0), size this object's atlas from its surface area"),
+    Setting("mode", str, "SCENE", "Mode", help="Where this object's samples live",
+            choices=(("SCENE", "Scene", "The scene's mode"),
+                     ("auto", "Auto", "Texture atlas, or vertex tables where the mesh is too dense or too big to "
+                                      "unwrap")) + _MODE_CHOICES),
+)
+
+
+# The machine's settings (VisiBake's add-on preferences), used where an argument and the
+# scene set nothing.
+PREFERENCE_SETTINGS = _table(
+    Setting("device", str, "auto", "Device", help="Where the transport passes (the gathers) run",
+            choices=(("auto", "Auto", "The GPU passes on a real GPU; numpy on a software renderer or without a GPU"),
+                     ("gpu", "GPU", "Always run the transport passes on the GPU (Blender's gpu module)"),
+                     ("cpu", "CPU", "Always run the transport passes in numpy"))),
+    Setting("cache_dir", str, "", "Cache Folder",
+            help="Where visibility caches go when a scene sets no folder of its own (e.g. a fast disk); "
+                 "empty: beside the saved .blend, else VisiBake's user folder"),
+    Setting("default_preset", str, "NONE", "Default Preset",
+            help="The preset a scene gets when VisiBake first sees it with no settings of its own (a new "
+                 "file or scene, or a file saved without VisiBake); scenes with settings are never changed",
+            choices=(("NONE", "None", f"New scenes start with VisiBake's built-in settings "
+                                      f"({SETTINGS['directions'].default} directions, "
+                                      f"{SETTINGS['bounces'].default} bounces, "
+                                      f"{SETTINGS['resolution'].default} texels)"),
+                     ("DRAFT", "Draft", "New scenes start with the Draft preset"),
+                     ("PRODUCTION", "Production", "New scenes start with the Production preset"))),
+    SETTINGS["threads"],
+    Setting("gpu_memory_mib", int, 1024, "GPU Memory (MiB)", minimum=64, soft_max=16384,
+            help="GPU memory the transport passes may use; the table is streamed in batches of directions "
+                 "that fit"),
+)
+
+
+def _default(name: str):
+    return SETTINGS[name].default
+
+
+def _validate(values) -> None:
+    """Refuse (:class:`BakeRefused`) the first field of dataclass ``values`` that its Setting refuses."""
+    for field in fields(values):
+        reason = SETTINGS[field.name].check(getattr(values, field.name))
+        if reason is not None:
+            raise BakeRefused(reason)
+
+
+@dataclass
+class BakeSettings:
+    """Everything that changes the result of a bake; each field is described by
+    ``SETTINGS[name]``.
+
+    shadows : 'fractions' (the paper: no ray at lighting time) or 'exact'
+    shadow_regions : number of regions c_j for the fractions
+    passes : output passes, a subset of PASSES
+    light_groups : the groups sum to the combined pass
+    vertex_lookup : 'interpolate' (barycentric mix of the triangle's three samples) or
+        'nearest' (the paper's nearest vertex)
+    """
+
+    directions: int = _default("directions")
+    bounces: int = _default("bounces")
+    shadows: str = _default("shadows")
+    shadow_regions: int = _default("shadow_regions")
+    rotate: bool = _default("rotate")
+    seed: int = _default("seed")
+    passes: tuple[str, ...] = _default("passes")
+    margin: int = _default("margin")
+    area_light_samples: int = _default("area_light_samples")
+    emitter_samples: int = _default("emitter_samples")
+    threads: int = _default("threads")
+    chunk_rays: int = _default("chunk_rays")
+    light_groups: bool = _default("light_groups")
+    vertex_lookup: str = _default("vertex_lookup")
 
     def validate(self) -> None:
-        """Raise ValueError with a one-line reason for settings that cannot work."""
-        if self.directions < 1:
-            raise ValueError(f"directions must be >= 1, got {self.directions}")
-        if self.bounces < 0:
-            raise ValueError(f"bounces must be >= 0, got {self.bounces}")
-        if self.shadows not in SHADOW_MODES:
-            raise ValueError(f"shadows must be one of {', '.join(SHADOW_MODES)}, got {self.shadows!r}")
-        if self.shadow_regions < 1:
-            raise ValueError(f"shadow regions must be >= 1, got {self.shadow_regions}")
-        unknown = [p for p in self.passes if p not in PASSES]
-        if unknown or not self.passes:
-            raise ValueError(f"passes: choose at least one of {', '.join(PASSES)}"
-                             + (f" (unknown: {', '.join(unknown)})" if unknown else ""))
-        if self.margin < 0:
-            raise ValueError(f"margin must be >= 0, got {self.margin}")
-        if self.area_light_samples < 1:
-            raise ValueError("area light samples must be >= 1")
-        if self.emitter_samples < 1:
-            raise ValueError("emitter samples must be >= 1")
-        if self.vertex_lookup not in VERTEX_LOOKUPS:
-            raise ValueError(f"vertex lookup must be one of {', '.join(VERTEX_LOOKUPS)}, got {self.vertex_lookup!r}")
+        """Raise :class:`BakeRefused` (a ValueError) with a one-line reason for settings
+        that cannot work."""
+        _validate(self)
+
+
+@dataclass
+class LayoutSettings:
+    """The scene's settings that decide where samples lie; an object's own
+    (:data:`OBJECT_SETTINGS`) override them. Each field is described by ``SETTINGS[name]``.
+
+    resolution : atlas width and height in texels
+    texel_density : texels per unit of surface; above zero it sizes atlases instead of ``resolution``
+    mode : one of LAYOUT_MODES
+    """
+
+    resolution: int = _default("resolution")
+    texel_density: float = _default("texel_density")
+    mode: str = _default("mode")
+
+    def validate(self) -> None:
+        """Raise :class:`BakeRefused` (a ValueError) with a one-line reason for settings
+        that cannot work."""
+        _validate(self)

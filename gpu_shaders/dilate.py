@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.errors import DeviceError
 from ..core.outputs.dilation import check_dilate_arguments
 from . import runtime
 
@@ -73,8 +74,8 @@ def dilate(image: np.ndarray, coverage: np.ndarray, margin: int,
     flat_channels = image.ndim == 2
     height, width = coverage.shape
     if width > runtime.MAX_TEXTURE_SIZE or height > runtime.MAX_TEXTURE_SIZE:
-        raise ValueError(f"dilate: a {width}x{height} image exceeds the GPU texture limit of "
-                         f"{runtime.MAX_TEXTURE_SIZE} texels a side; use core.outputs.dilation.dilate")
+        raise DeviceError(f"dilate: a {width}x{height} image exceeds the GPU texture limit of "
+                          f"{runtime.MAX_TEXTURE_SIZE} texels a side; use core.outputs.dilation.dilate")
     channels = 1 if flat_channels else image.shape[2]
     values = np.zeros((height, width, channels), np.float32)
     values[coverage] = image.reshape(height, width, channels)[coverage]

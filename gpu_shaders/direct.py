@@ -17,7 +17,6 @@ import numpy as np
 
 from ..core import tolerances as tol
 from ..core.lights.lamps import area_light_points, light_contributions
-from ..core.visibility.shadows import shadow_fractions
 from . import runtime
 
 GROUP_SIZE = 16  # local work group: 16 x 16 samples
@@ -82,29 +81,29 @@ def lamp_rows(light, origin: np.ndarray, area_light_samples: int) -> np.ndarray:
     return rows
 
 
-def _blocked_bits(p, light) -> tuple[np.ndarray, int]:
+def _blocked_bits(sample_set, shadowing, light) -> tuple[np.ndarray, int]:
     """Which shadow rays of ``light`` are blocked, traced as numpy traces them.
 
     Returns (K, layers, 4) float32 exact integer bit masks (bit i of a channel: virtual
     point 16 * channel + 64 * layer + i) and the number of rays traced.
     """
-    parts = light_contributions(light, p.position, p.normal, p.settings.area_light_samples)
+    parts = light_contributions(light, sample_set.position, sample_set.normal, shadowing.area_light_samples)
     layers = -(-len(parts) // POINTS_PER_LAYER)
-    bits = np.zeros((len(p.position), 4 * layers), np.uint32)
+    bits = np.zeros((len(sample_set.position), 4 * layers), np.uint32)
     rays_traced = 0
     for index in range(len(parts)):
         part, parts[index] = parts[index], None  # free each point's arrays once traced
-        above = np.einsum("kd,kd->k", part.to_light, p.geometric) > 0.0
+        above = np.einsum("kd,kd->k", part.to_light, sample_set.geometric) > 0.0
         lit = above & np.any(part.irradiance > 0, axis=1)
         rays = np.nonzero(lit)[0]
         if not len(rays):
             continue
         distance = part.distance[rays]
         limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
-        blocked = p.ray_scene.occluded(p.origins[rays], part.to_light[rays], limit.astype(np.float32))
+        blocked = shadowing.ray_scene.occluded(sample_set.origins[rays], part.to_light[rays], limit.astype(np.float32))
         bits[rays[blocked], index // 16] |= np.uint32(1 << (index % 16))
         rays_traced += len(rays)
-    return bits.astype(np.float32).reshape(len(p.position), layers, 4), rays_traced
+    return bits.astype(np.float32).reshape(len(sample_set.position), layers, 4), rays_traced
 
 
 def _fraction_layers(fractions) -> np.ndarray:
@@ -130,21 +129,21 @@ def chunk_samples(samples: int, per_sample_bytes: int, fixed_bytes: int, budget_
     return max(1, int(chunk))
 
 
-def lamp_irradiance(p, lights, report=None, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> tuple[np.ndarray, int]:
+def lamp_irradiance(sample_set, shadowing, lights, report=None,
+                    budget_bytes: int = DEFAULT_BUDGET_BYTES) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` and the shadow rays traced (int).
 
-    Same contract as :func:`core.transport.direct.lamp_irradiance`: ``p`` is a prepared scene,
-    shadows as ``p.settings.shadows`` says, ``report(fraction)`` after each lamp.
+    Same contract as :func:`core.transport.direct.lamp_irradiance`: ``sample_set`` a
+    SampleSet, shadows as ``shadowing`` (a Shadowing) says, ``report(fraction)`` after each lamp.
     """
-    samples = len(p.position)
+    samples = len(sample_set.position)
     irradiance = np.zeros((samples, 3))
-    settings = p.settings
     if not lights:
         return irradiance, 0
     # Positions relative to the samples' centre: float32 then keeps its digits for the
     # offsets to lamps in scenes far from the world origin.
-    origin = p.position.mean(axis=0) if samples else np.zeros(3)
-    rows = [lamp_rows(light, origin, settings.area_light_samples) for light in lights]  # raises as numpy would
+    origin = sample_set.position.mean(axis=0) if samples else np.zeros(3)
+    rows = [lamp_rows(light, origin, shadowing.area_light_samples) for light in lights]  # raises as numpy would
     if samples == 0:
         for index in range(len(lights)):
             if report is not None:
@@ -153,8 +152,8 @@ def lamp_irradiance(p, lights, report=None, budget_bytes: int = DEFAULT_BUDGET_B
     runtime.ensure_context()
     import gpu
 
-    mode = SHADOW_FRACTIONS if settings.shadows == "fractions" else SHADOW_EXACT
-    regions = p.shadow_regions() if mode == SHADOW_FRACTIONS else None
+    mode = SHADOW_FRACTIONS if shadowing.mode == "fractions" else SHADOW_EXACT
+    regions = shadowing.regions() if mode == SHADOW_FRACTIONS else None
     region_count = regions.count if regions is not None else 0
     region_layers = -(-region_count // 4)
     max_points = max(len(r) for r in rows)
@@ -202,31 +201,32 @@ def lamp_irradiance(p, lights, report=None, budget_bytes: int = DEFAULT_BUDGET_B
         if regions is not None:
             centres[0, :, :3] = regions.centres
         regions_texture = upload(centres, key="regions")
-        relative = p.position - origin
+        relative = sample_set.position - origin
         for light_index, (light, lamp) in enumerate(zip(lights, rows)):
             shadow_key = None
             if mode == SHADOW_FRACTIONS:
                 if light.kind == "SUN":
                     if sun_layers is None:
-                        sun_layers = _fraction_layers(p.distant_fractions())
+                        sun_layers = _fraction_layers(shadowing.distant_fractions())
                     shadow_values, shadow_key = sun_layers, "sun"
                 else:
-                    light_distance = np.linalg.norm(p.position - np.asarray(light.position, np.float64), axis=1)
-                    shadow_values = _fraction_layers(shadow_fractions(p.table, regions, light_distance))
+                    offsets = sample_set.position - np.asarray(light.position, np.float64)
+                    light_distance = np.linalg.norm(offsets, axis=1)
+                    shadow_values = _fraction_layers(shadowing.local_fractions(light_distance))
             else:
-                shadow_values, rays = _blocked_bits(p, light)
+                shadow_values, rays = _blocked_bits(sample_set, shadowing, light)
                 shadow_rays += rays
             lamp_texture = upload(lamp.astype(np.float32))
             for start, stop in chunks:
                 width, height = runtime.sample_grid(stop - start)
                 positions = upload(geometry_grid(relative, start, stop, width, height), key="positions")
-                normals = upload(geometry_grid(p.normal, start, stop, width, height), key="normals")
-                geometric = upload(geometry_grid(p.geometric, start, stop, width, height), key="geometric")
+                normals = upload(geometry_grid(sample_set.normal, start, stop, width, height), key="normals")
+                geometric = upload(geometry_grid(sample_set.geometric, start, stop, width, height), key="geometric")
                 accumulated = lasting.get("accumulated") or (runtime.empty_texture(width, height), None)
                 if resident:
                     lasting["accumulated"] = accumulated
-                shadow = upload(lambda: grid_layers(shadow_values, start, stop, width, height), True,
-                                key=shadow_key)
+                shadow = upload(lambda values=shadow_values, start=start, stop=stop, width=width, height=height:
+                                grid_layers(values, start, stop, width, height), True, key=shadow_key)
                 program.bind()
                 program.image("accumulated", accumulated[0])
                 program.uniform_sampler("positions", positions[0])

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.errors import DeviceError
 from . import runtime
 
 # Channel layers (4 channels each) one dispatch accumulates: 12 x 4 = 48 channels,
@@ -79,8 +80,8 @@ def _corner_texture(layout) -> tuple[np.ndarray, int]:
     width = max(1, min(CORNER_WIDTH, len(texels)))
     height = max(1, -(-len(texels) // width))
     if height > runtime.MAX_TEXTURE_SIZE:
-        raise ValueError(f"{len(corners)} vertex-mode triangles exceed the GPU gather's corner table "
-                         f"({CORNER_WIDTH * runtime.MAX_TEXTURE_SIZE // 2} triangles)")
+        raise DeviceError(f"{len(corners)} vertex-mode triangles exceed the GPU gather's corner table "
+                          f"({CORNER_WIDTH * runtime.MAX_TEXTURE_SIZE // 2} triangles); use the CPU device")
     image = np.zeros((height * width, 4), np.float32)
     image[:len(texels)] = texels
     return image.reshape(height, width, 4), width
@@ -114,22 +115,28 @@ def batch_directions(samples: int, budget_bytes: int, fixed_bytes: int, vertex: 
     return int(min(runtime.MAX_LAYERS, available // per_direction))
 
 
-def gather(table, normals: np.ndarray, scale: np.ndarray, layout, radiance: np.ndarray, world: np.ndarray,
-           progress=None, exclude: np.ndarray | None = None, threads: int = 0,
-           samples: np.ndarray | None = None, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> np.ndarray:
-    """E(p) = sum_i w_i(p) L(S_i[p]) on the GPU. Parameters as :func:`core.transport.gather.gather`.
+def gather(geometry, source, progress=None, samples: np.ndarray | None = None, directions: range | None = None,
+           budget_bytes: int = DEFAULT_BUDGET_BYTES) -> np.ndarray:
+    """E(p) = sum_i w_i(p) L(S_i[p]) on the GPU. Parameters as :func:`core.transport.gather.gather`
+    (``geometry`` a GatherGeometry, ``source`` a GatherSource).
 
-    ``threads`` is unused; ``samples`` only zeroes the others (the GPU computes all).
+    ``geometry.threads`` is unused; ``samples`` only zeroes the others (the GPU computes all).
     Returns (K, C) float64.
     """
+    table, normals, scale, layout = geometry.table, geometry.normals, geometry.scale, geometry.layout
+    radiance, world, exclude = source.radiance, source.world, source.exclude
+    chosen = range(len(table.directions)) if directions is None else directions
+    if chosen.step != 1 or chosen.start < 0 or chosen.stop > len(table.directions):
+        raise ValueError(f"gather: directions must be a contiguous range within 0..{len(table.directions)}, "
+                         f"got {directions!r}")
     radiance = np.asarray(radiance, np.float32)
     count = len(table.directions)
     if _has_vertex(layout):
         if table.hit_triangle is None:
             raise ValueError("the layout has vertex-mode objects but the table has no hit triangles")
         if table.hit_triangle.size and int(np.max(table.hit_triangle)) >= EXACT_INTEGERS:
-            raise ValueError(f"hit triangle indices reach {int(np.max(table.hit_triangle))}; the GPU gather "
-                             f"takes them below 2^24 (use the CPU device)")
+            raise DeviceError(f"hit triangle indices reach {int(np.max(table.hit_triangle))}; the GPU gather "
+                              f"takes them below 2^24 (use the CPU device)")
     total_samples = len(normals)
     channels = radiance.shape[1]
     result = np.zeros((total_samples, channels))
@@ -139,7 +146,7 @@ def gather(table, normals: np.ndarray, scale: np.ndarray, layout, radiance: np.n
         part = slice(first, min(channels, first + 4 * MAX_CHANNEL_LAYERS))
         world_part = np.broadcast_to(np.asarray(world, np.float64), (count, channels))[:, part]
         result[:, part] = _gather_channels(table, normals, scale, layout, radiance[:, part], world_part, progress,
-                                           exclude, budget_bytes)
+                                           exclude, budget_bytes, chosen)
     if samples is not None:
         keep = np.zeros(total_samples, bool)
         keep[samples] = True
@@ -147,7 +154,7 @@ def gather(table, normals: np.ndarray, scale: np.ndarray, layout, radiance: np.n
     return result
 
 
-def _gather_channels(table, normals, scale, layout, radiance, world, progress, exclude, budget_bytes):
+def _gather_channels(table, normals, scale, layout, radiance, world, progress, exclude, budget_bytes, chosen):
     runtime.ensure_context()
     import gpu
 
@@ -167,8 +174,8 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
         radiance_height = -(-len(padded) // radiance_width)
         flat = np.zeros((radiance_height * radiance_width, 4 * layers), np.float32)
         flat[:len(padded)] = padded
-        radiance_texture = resident.upload(flat.reshape(radiance_height, radiance_width, layers, 4).transpose(2, 0, 1, 3),
-                                   layers=True)
+        radiance_layers = flat.reshape(radiance_height, radiance_width, layers, 4).transpose(2, 0, 1, 3)
+        radiance_texture = resident.upload(radiance_layers, layers=True)
         objects_texture = resident.upload(_object_texture(layout))
         has_vertex = _has_vertex(layout)
         if has_vertex:
@@ -199,8 +206,8 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
 
         program = runtime.shader("gather", _build_gather)
         groups = (-(-width // GROUP_SIZE), -(-height // GROUP_SIZE), 1)
-        for start in range(0, count, batch):
-            stop = min(count, start + batch)
+        for start in range(chosen.start, chosen.stop, batch):
+            stop = min(chosen.stop, start + batch)
             codes = np.full((stop - start, height * width), -2.0, np.float32)
             codes[:, :total_samples] = table.hit_object[start:stop]
             uvs = np.zeros((stop - start, height * width, 2), np.float32)
@@ -235,7 +242,7 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             gpu.compute.dispatch(program, *groups)
             del codes_texture, uvs_texture, codes_data, uvs_data, triangles_texture, triangles_data
             if progress is not None:
-                progress(stop / count)
+                progress((stop - chosen.start) / max(len(chosen), 1))
         out = np.zeros((total_samples, 4 * layers))
         for layer in range(layers):
             values = runtime.read_layer(resident, accumulated, layer, width, height)

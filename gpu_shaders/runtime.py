@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.errors import DeviceError
+
 SHADER_FOLDER = os.path.dirname(os.path.abspath(__file__))
 # Renderers that draw on the CPU: there the numpy twin of every pass is faster
 # (DESIGN.md: a 1024^2 x 64 gather took ~1.9 s on llvmpipe against ~1.1 s in numpy).
@@ -218,11 +220,11 @@ def float_texture(array: np.ndarray, layers: bool = False):
     fmt = {1: "R32F", 2: "RG32F", 4: "RGBA32F"}[channels]
     height, width = data.shape[-3], data.shape[-2]
     if width > MAX_TEXTURE_SIZE or height > MAX_TEXTURE_SIZE:
-        raise ValueError(f"texture {width}x{height} exceeds the GPU limit of {MAX_TEXTURE_SIZE}")
+        raise DeviceError(f"texture {width}x{height} exceeds the GPU limit of {MAX_TEXTURE_SIZE}; use the CPU device")
     buffer = gpu.types.Buffer("FLOAT", data.size, data.ravel())
     if layers:
         if data.shape[0] > MAX_LAYERS:
-            raise ValueError(f"{data.shape[0]} layers exceed the GPU limit of {MAX_LAYERS}")
+            raise DeviceError(f"{data.shape[0]} layers exceed the GPU limit of {MAX_LAYERS}; use the CPU device")
         texture = gpu.types.GPUTexture((width, height), layers=data.shape[0], format=fmt, data=buffer)
     else:
         texture = gpu.types.GPUTexture((width, height), format=fmt, data=buffer)
@@ -317,7 +319,7 @@ def sample_grid(count: int, width: int = 2048) -> tuple[int, int]:
     width = max(1, min(width, count))
     height = max(1, -(-count // width))
     if height > MAX_TEXTURE_SIZE:
-        raise ValueError(f"{count} samples do not fit a {MAX_TEXTURE_SIZE}^2 texture")
+        raise DeviceError(f"{count} samples do not fit a {MAX_TEXTURE_SIZE}^2 texture; use the CPU device")
     return width, height
 
 

@@ -1,6 +1,7 @@
-"""Blender operators and the Blender side of the data flow (extraction, write-back)."""
-from . import bake
-from .adapter import cache_status, preview_nodes
+"""What the user runs: the operators (Bake, Relight, the preview buttons, Clear Cache)
+and the headless command (``cli``). They stay thin: the Blender side of the data flow
+is in ``adapter``, everything else in ``core``."""
 from ..panels import properties
+from . import bake, cache, preview
 
-classes = properties.classes + bake.classes + cache_status.classes + preview_nodes.classes
+classes = properties.classes + bake.classes + cache.classes + preview.classes

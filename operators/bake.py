@@ -1,101 +1,25 @@
 """Bake and Relight: run :func:`job.run_bake` on the selected (or all) meshes."""
 import json
-import threading
 
 import bpy
 
-from ..core.errors import Cancelled
+from ..core.errors import BakeRefused, Cancelled
+from ..core.outputs import summary as report_texts
 from ..core.pipeline.progress import Progress
 from .adapter import cache_status, job
+from .adapter.modal import ModalBake
 
 
 def summary(report: dict) -> str:
-    objects = [o for o in report["objects"] if o["output"]]
-    texels = sum(o["texels"] for o in objects)
-    verb = "relit" if report.get("relight_only") else "baked"
-    cache = report.get("cache", {}).get("state", "off")
-    visibility = {"hit": "visibility from the cache", "updated": "visibility updated for changed objects",
-                  "unused": "no visibility needed"}.get(cache, f"{report['rays']['visibility_cast']} visibility rays")
-    return (f"VisiBake: {verb} {len(objects)} object(s), {texels} texels, {visibility}, "
-            f"in {report['total_seconds']:.1f} s")
-
-
-class ModalBake:
-    """The panel's bake as :class:`job.BakeJob`'s steps, advanced one timer tick at a time.
-
-    Main-thread steps run inside :meth:`tick`; each long step runs on a worker thread
-    that ``tick`` looks at without waiting, so Blender's UI stays live. Unwraps run in
-    child processes, because xatlas keeps the GIL for the whole unwrap. A cancel is
-    honoured between steps, and inside a worker step through the progress callback
-    (every batch of rays or directions; a child unwrap is killed at once).
-    """
-
-    def __init__(self, bake_job: "job.BakeJob", progress: Progress):
-        self.job, self.progress = bake_job, progress
-        self.steps = [("plan", bake_job.plan, False),
-                      ("unwrap", lambda: bake_job.unwrap(in_child=True), True),
-                      ("extract", bake_job.extract, False),
-                      ("visibility", bake_job.compute_visibility, True),
-                      ("lighting", bake_job.compute_lighting, None),  # None: a worker unless the GPU needs main
-                      ("finish", bake_job.finish, False)]
-        self.next_step = 0
-        self.outcome = None
-        self.error = None
-        self.done = False
-        self._thread = None
-        self._thread_error = None
-
-    def tick(self) -> bool:
-        """Advance the bake as far as it can go without waiting; True once it has ended.
-
-        Then either :attr:`outcome` (a :class:`job.JobResult`) or :attr:`error` is set,
-        and after an error the scene is as it was before the bake.
-        """
-        while not self.done:
-            if self._thread is not None:
-                if self._thread.is_alive():
-                    return False
-                self._thread = None
-                if self._thread_error is not None:
-                    return self._end(self._thread_error)
-            if self.progress.cancelled:
-                return self._end(Cancelled())
-            name, step, on_worker = self.steps[self.next_step]
-            self.next_step += 1
-            if on_worker is None:
-                on_worker = not self.job.needs_main_thread
-            if on_worker:
-                self._thread = threading.Thread(target=self._run_on_worker, args=(step,),
-                                                name=f"VisiBake {name}", daemon=True)
-                self._thread.start()
-                continue
-            try:
-                result = step()
-            except BaseException as error:  # noqa: BLE001  (reported by the operator)
-                return self._end(error)
-            if name == "plan":
-                self.progress.plan(self.job.expected_work())
-            if name == "finish":
-                self.outcome, self.done = result, True
-        return True
-
-    def _run_on_worker(self, step) -> None:
-        try:
-            step()
-        except BaseException as error:  # noqa: BLE001  (handed to the main thread in tick())
-            self._thread_error = error
-
-    def _end(self, error: BaseException) -> bool:
-        self.error, self.done = error, True
-        self.job.abort()
-        return True
+    """The operator's one-line report of a bake (core.outputs.summary.summary_line)."""
+    return report_texts.summary_line(report)
 
 
 def failure_message(error: BaseException) -> tuple[str, str]:
     """(report level, plain words) for a bake that ended with ``error``."""
     if isinstance(error, Cancelled):
         return "WARNING", "VisiBake: bake cancelled; nothing was changed"
-    if isinstance(error, job.BakeInputError):
+    if isinstance(error, BakeRefused):
         return "ERROR", str(error)
     if isinstance(error, (KeyError, ReferenceError)):
         # An object deleted or renamed under the bake (by a script: the UI is held).
@@ -159,7 +83,7 @@ class _BakeOperator:
 
         try:
             outcome = self._job(context, report_progress).run()
-        except (job.BakeInputError, Cancelled) as error:
+        except (BakeRefused, Cancelled) as error:
             return self._failed(error)
         finally:
             window_manager.progress_end()

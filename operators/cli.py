@@ -17,9 +17,10 @@ import traceback
 
 import bpy
 
+from ..core.errors import BakeRefused, Cancelled
 from ..core.lights import setups as lighting_setups
-from ..core.errors import Cancelled
-from ..core.settings import PASSES
+from ..core.outputs import summary as report_texts
+from ..core.settings import PREFERENCE_SETTINGS, PRESETS, SETTINGS, Setting
 from .adapter import job
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
@@ -48,6 +49,29 @@ PREFERENCE_OPTIONS = {
 }
 
 
+def _help(spec: Setting, default: bool = False, note: str = "") -> str:
+    """An option's help: the setting's one help text, with its default or a note."""
+    text = spec.help[:1].lower() + spec.help[1:]
+    if default:
+        shown = ",".join(spec.default) if spec.type is tuple else spec.default
+        note = f"default {shown}" + (f"; {note}" if note else "")
+    return text + (f" ({note})" if note else "")
+
+
+def _setting_option(parser, option: str, spec: Setting, metavar: str | None = None, **help_options) -> None:
+    """An option that sets ``spec``: its type or choices and its help come from core."""
+    keywords = {"help": _help(spec, **help_options)}
+    if spec.type is bool:
+        keywords.update(action="store_true", default=None)
+    elif spec.choices:
+        keywords["choices"] = spec.values
+    elif spec.type in (int, float):
+        keywords["type"] = spec.type
+    if metavar is not None:
+        keywords["metavar"] = metavar
+    parser.add_argument(option, **keywords)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="visibake", description="Bake lighting from precomputed visibility (VisiBake).")
@@ -66,45 +90,44 @@ def build_parser() -> argparse.ArgumentParser:
     preview.add_argument("--objects", metavar="A,B", help="objects to preview (default: all visible meshes)")
     clear = commands.add_parser("clear-cache", help="delete the cached visibility of a .blend's scene")
     clear.add_argument("input", help="the .blend whose cache to delete")
-    clear.add_argument("--cache-dir", metavar="DIR", help="the cache folder, if not the default")
+    _setting_option(clear, "--cache-dir", SETTINGS["cache_dir"], "DIR")
     for sub in (bake, relight):
         sub.add_argument("--setups", metavar="SETUPS.json",
                          help="lighting setups (lights and world) to write one set of outputs each, into OUT/<setup>/")
         sub.add_argument("--sun-sweep", metavar="START:END:STEPS",
                          help="one setup per time of day, e.g. 6:18:7; the scene's sun (or a new one) follows the sky")
-        sub.add_argument("--latitude", type=float, default=45.0, help="latitude of the sun sweep in degrees (default 45)")
+        sub.add_argument("--latitude", type=float, default=45.0,
+                         help="latitude of the sun sweep in degrees (default 45)")
         sub.add_argument("--day", type=int, default=172, help="day of the year of the sun sweep (default 172, June 21)")
         sub.add_argument("--sun", metavar="NAME", help="the sun lamp the sweep moves (default: the scene's first sun)")
     for sub in (bake, relight, demo):
         sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
-        sub.add_argument("--objects", metavar="A,B", help="comma-separated objects to bake (default: all visible meshes)")
-        sub.add_argument("--preset", choices=("draft", "production"),
-                         help="set directions, bounces, resolution and shadows together (options below override it)")
-        sub.add_argument("--directions", type=int, metavar="N", help="size of the direction set (default 128)")
-        sub.add_argument("--bounces", type=int, metavar="K", help="diffuse bounces (default 2)")
-        sub.add_argument("--resolution", type=int, metavar="PX", help="atlas size in texels (default 256)")
-        sub.add_argument("--texel-density", type=float, metavar="T", help="texels per unit instead of a fixed size")
-        sub.add_argument("--mode", choices=("auto", "atlas", "vertex"), help="sample layout (default auto)")
-        sub.add_argument("--shadows", choices=("fractions", "exact"), help="shadow method (default exact)")
-        sub.add_argument("--passes", metavar="P,Q", help=f"comma-separated subset of {','.join(PASSES)} (default lighting)")
-        sub.add_argument("--rotate", action="store_true", default=None, help="randomly rotate the direction set")
-        sub.add_argument("--seed", type=int, help="seed of the rotation")
-        sub.add_argument("--margin", type=int, metavar="PX", help="gutter dilation in texels (default 4)")
+        sub.add_argument("--objects", metavar="A,B",
+                         help="comma-separated objects to bake (default: all visible meshes)")
+        sub.add_argument("--preset", choices=tuple(name.lower() for name in PRESETS),
+                         help=_help(SETTINGS["preset"], note="options below override it"))
+        _setting_option(sub, "--directions", SETTINGS["directions"], "N", default=True)
+        _setting_option(sub, "--bounces", SETTINGS["bounces"], "K", default=True)
+        _setting_option(sub, "--resolution", SETTINGS["resolution"], "PX", default=True)
+        _setting_option(sub, "--texel-density", SETTINGS["texel_density"], "T")
+        _setting_option(sub, "--mode", SETTINGS["mode"], default=True)
+        _setting_option(sub, "--shadows", SETTINGS["shadows"], default=True)
+        # Parsed by _apply_settings, so that an unknown pass is refused with the choices.
+        subset = f"a comma-separated subset of {','.join(SETTINGS['passes'].values)}"
+        sub.add_argument("--passes", metavar="P,Q", help=_help(SETTINGS["passes"], default=True, note=subset))
+        _setting_option(sub, "--rotate", SETTINGS["rotate"])
+        _setting_option(sub, "--seed", SETTINGS["seed"])
+        _setting_option(sub, "--margin", SETTINGS["margin"], "PX", default=True)
         sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
         sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
         sub.add_argument("--previews", action="store_true", default=None, help="also write tone-mapped PNGs")
-        sub.add_argument("--light-groups", action="store_true", default=None,
-                         help="also write every lighting pass per light group")
-        sub.add_argument("--cache-dir", metavar="DIR", help="visibility cache folder (default: beside the .blend)")
+        _setting_option(sub, "--light-groups", SETTINGS["light_groups"])
+        _setting_option(sub, "--cache-dir", SETTINGS["cache_dir"], "DIR")
         sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
-        sub.add_argument("--refine", action="store_true", default=None,
-                         help="bake subdivided copies of vertex-mode objects too coarse for their light")
-        sub.add_argument("--vertex-lookup", choices=("interpolate", "nearest"),
-                         help="how light is read where a ray lands on a vertex-mode object (default interpolate)")
-        sub.add_argument("--device", choices=("auto", "gpu", "cpu"),
-                         help="where the transport passes run (default: the preference, else auto)")
-        sub.add_argument("--threads", type=int, metavar="N",
-                         help="worker threads for ray tracing and gathers, 0: all cores (default: the preference)")
+        _setting_option(sub, "--refine", SETTINGS["refine_vertex_objects"])
+        _setting_option(sub, "--vertex-lookup", SETTINGS["vertex_lookup"], default=True)
+        _setting_option(sub, "--device", PREFERENCE_SETTINGS["device"], note="default: the preference, else auto")
+        _setting_option(sub, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
@@ -115,15 +138,20 @@ def build_parser() -> argparse.ArgumentParser:
 def _apply_settings(args, props) -> None:
     """Check, then copy command-line settings onto scene.visibake (the one settings model).
 
-    Checked first: Blender clamps out-of-range values silently on assignment.
+    Each value is checked first, by core's rule for it (core.settings.Setting.check):
+    Blender clamps out-of-range values silently on assignment.
     """
-    for name in ("directions", "bounces", "resolution", "margin", "threads", "seed"):
-        value = getattr(args, name)
-        minimum = 1 if name in ("directions", "resolution") else 0
-        if value is not None and value < minimum:
-            raise job.BakeInputError(f"--{name} must be at least {minimum}, got {value}")
-    if args.texel_density is not None and not args.texel_density >= 0:
-        raise job.BakeInputError(f"--texel-density must be zero or more, got {args.texel_density}")
+    passes = None
+    if args.passes is not None:
+        passes = tuple(p.strip() for p in args.passes.split(",") if p.strip())
+    given = {"directions": args.directions, "bounces": args.bounces, "resolution": args.resolution,
+             "margin": args.margin, "threads": args.threads, "seed": args.seed,
+             "texel_density": args.texel_density, "passes": passes}
+    for name, value in given.items():
+        reason = None if value is None else SETTINGS[name].check(
+            value, SCENE_SETTING_OPTIONS.get(name) or PREFERENCE_OPTIONS[name])
+        if reason is not None:
+            raise BakeRefused(reason)
     if args.preset is not None:
         props.preset = args.preset.upper()
     for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate",
@@ -139,11 +167,7 @@ def _apply_settings(args, props) -> None:
         props.use_cache = False
     if args.texel_density is not None:
         props.texel_density = args.texel_density
-    if args.passes is not None:
-        passes = [p.strip() for p in args.passes.split(",") if p.strip()]
-        unknown = [p for p in passes if p not in PASSES]
-        if unknown or not passes:
-            raise job.BakeInputError(f"--passes: unknown pass {', '.join(unknown) or '(none)'}; choose from {', '.join(PASSES)}")
+    if passes is not None:
         props.passes = set(passes)
 
 
@@ -157,7 +181,7 @@ def _select_objects(args, scene) -> list:
     by_name = {o.name: o for o in meshes}
     missing = [n for n in names if n not in by_name]
     if missing:
-        raise job.BakeInputError(f"--objects: no visible mesh object named {', '.join(missing)} in the scene")
+        raise BakeRefused(f"--objects: no visible mesh object named {', '.join(missing)} in the scene")
     return [by_name[n] for n in names]
 
 
@@ -198,9 +222,9 @@ def _load_input(args) -> None:
     if getattr(args, "input", None):
         path = os.path.abspath(args.input)
         if not os.path.isfile(path):
-            raise job.BakeInputError(f"input file not found: {args.input}")
+            raise BakeRefused(f"input file not found: {args.input}")
         if not path.lower().endswith(".blend"):
-            raise job.BakeInputError(f"input must be a .blend file: {args.input}")
+            raise BakeRefused(f"input must be a .blend file: {args.input}")
         bpy.ops.wm.open_mainfile(filepath=path)
     else:
         from .adapter import demo_scene
@@ -215,26 +239,19 @@ def _setups(args):
     """A callable making the lighting setups from the scene's lights and world, or None."""
     setups_file, sweep = getattr(args, "setups", None), getattr(args, "sun_sweep", None)
     if setups_file and sweep:
-        raise job.BakeInputError("give either --setups or --sun-sweep, not both")
+        raise BakeRefused("give either --setups or --sun-sweep, not both")
     if not setups_file and not sweep:
         return None
     if not args.out:
-        raise job.BakeInputError("--setups and --sun-sweep write one folder per setup: give --out DIR")
+        raise BakeRefused("--setups and --sun-sweep write one folder per setup: give --out DIR")
     if sweep:
-        start, end, steps = _checked(lighting_setups.parse_sweep, sweep)
-        return lambda lights, world: _checked(lighting_setups.sun_sweep, start, end, steps, args.latitude, args.day,
-                                              lights, world, args.sun)
+        start, end, steps = lighting_setups.parse_sweep(sweep)
+        return lambda lights, world: lighting_setups.sun_sweep(start, end, steps, args.latitude, args.day,
+                                                               lights, world, args.sun)
     path = os.path.abspath(setups_file)
     if not os.path.isfile(path):
-        raise job.BakeInputError(f"--setups: file not found: {setups_file}")
-    return lambda lights, world: _checked(lighting_setups.load_setups, path, lights, world)
-
-
-def _checked(function, *arguments):
-    try:
-        return function(*arguments)
-    except lighting_setups.SetupError as error:
-        raise job.BakeInputError(str(error)) from None
+        raise BakeRefused(f"--setups: file not found: {setups_file}")
+    return lambda lights, world: lighting_setups.load_setups(path, lights, world)
 
 
 def run_preview(args) -> int:
@@ -246,10 +263,7 @@ def run_preview(args) -> int:
         changed = preview_nodes.remove_preview()
         print(f"visibake: preview removed from {changed} material(s)", flush=True)
     else:
-        try:
-            wired, warnings = preview_nodes.add_preview(_select_objects(args, bpy.context.scene))
-        except ValueError as error:
-            raise job.BakeInputError(str(error)) from None
+        wired, warnings = preview_nodes.add_preview(_select_objects(args, bpy.context.scene))
         for warning in warnings:
             print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
         print(f"visibake: baked lighting shown in {wired} material(s)", flush=True)
@@ -275,7 +289,7 @@ def run(args) -> int:
     if args.command == "clear-cache":
         return run_clear_cache(args)
     if getattr(args, "preview_nodes", False) and not args.save:
-        raise job.BakeInputError("--preview-nodes changes the materials: give --save OUT.blend to keep them")
+        raise BakeRefused("--preview-nodes changes the materials: give --save OUT.blend to keep them")
     _load_input(args)
     scene = bpy.context.scene
     props = scene.visibake
@@ -301,11 +315,8 @@ def run(args) -> int:
     if getattr(args, "preview_nodes", False):
         from .adapter import preview_nodes
 
-        try:
-            _, warnings = preview_nodes.add_preview(
-                [bpy.data.objects[entry["name"]] for entry in report["objects"] if entry["output"]])
-        except ValueError as error:
-            raise job.BakeInputError(str(error)) from None
+        _, warnings = preview_nodes.add_preview(
+            [bpy.data.objects[entry["name"]] for entry in report["objects"] if entry["output"]])
         report["warnings"] += warnings
     if args.save:
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
@@ -329,43 +340,8 @@ def run(args) -> int:
 
 
 def format_summary(report: dict) -> str:
-    lines = ["VisiBake relight finished" if report.get("relight_only") else "VisiBake bake finished"]
-    settings = report["settings"]
-    lines.append(f"  settings: {settings['directions']} directions, {settings['bounces']} bounces, "
-                 f"shadows {settings['shadows']}, passes {','.join(settings['passes'])}")
-    for entry in report["objects"]:
-        role = "baked" if entry["output"] else "occluder"
-        if entry.get("mode") == "vertex":
-            lines.append(f"  {entry['name']:<16} {role:<8} vertex   {entry['texels']:>8} samples ({entry['layout_reason']})")
-        else:
-            lines.append(f"  {entry['name']:<16} {role:<8} {entry['resolution'][0]}x{entry['resolution'][1]} "
-                         f"{entry['texels']:>8} texels  UV map {entry['uv_map']}")
-    rays = report["rays"]
-    lines.append(f"  rays: {rays['visibility_cast']} traced, {rays['visibility_skipped_below_horizon']} skipped "
-                 f"below the horizon, {rays['shadow_rays']} shadow rays")
-    used = report.get("device", {})
-    if used:
-        lines.append(f"  device: {used['used']} ({used['reason']})"
-                     + (f"; {used['backend']}, {used['renderer']}" if used.get("renderer") else ""))
-    for entry in report.get("passes", []):
-        lines.append(f"  pass: {entry['pass']} on {entry['device']}: {entry['seconds']:.3f} s")
-    cache = report.get("cache", {})
-    if cache.get("state", "off") != "off":
-        lines.append(f"  visibility cache: {cache['state']}"
-                     + (f" ({cache['message']})" if cache.get("message") else "")
-                     + (f", {cache['bytes_on_disk'] / 2**20:.1f} MiB at {cache['path']}" if cache.get("path") else ""))
-    for setup in report.get("setups", []):
-        lines.append(f"  setup {setup['name']}: {len(setup['lights'])} lights, {setup['gathers']} gathers"
-                     + (f", reused {', '.join(setup['lighting_reused'])}" if setup["lighting_reused"] else ""))
-    lines.append("  seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in report["stage_seconds"].items())
-                 + f"; total {report['total_seconds']:.2f}")
-    lines.append(f"  peak memory: {report['peak_memory_bytes'] / 2**20:.0f} MiB")
-    for item in report["skipped"]:
-        lines.append(f"  skipped: {item}")
-    for item in report["warnings"]:
-        lines.append(f"  warning: {item}")
-    lines.append(f"  files: {len(report['files'])} written")
-    return "\n".join(lines)
+    """The summary printed after a bake (core.outputs.summary.summary_lines)."""
+    return "\n".join(report_texts.summary_lines(report))
 
 
 def main(argv) -> int:
@@ -377,13 +353,15 @@ def main(argv) -> int:
         return int(exit_request.code or 0)
     try:
         return run(args)
-    except job.BakeInputError as error:
+    except BakeRefused as error:
         print(f"visibake: error: {error}", file=sys.stderr, flush=True)
         return EXIT_BAD_INPUT
     except (Cancelled, KeyboardInterrupt):
         print("visibake: cancelled; nothing was written", file=sys.stderr, flush=True)
         return EXIT_FAILURE
     except Exception:
+        # Not the user's input (that is a BakeRefused): a bug in VisiBake, said as such.
         traceback.print_exc()
-        print("visibake: failed (see the traceback above)", file=sys.stderr, flush=True)
+        print("visibake: failed: this is a bug in VisiBake, not a problem with your input; please report it "
+              "with the traceback above", file=sys.stderr, flush=True)
         return EXIT_FAILURE

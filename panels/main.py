@@ -1,8 +1,14 @@
-"""The VisiBake tab of the 3D viewport sidebar (N-panel)."""
+"""The VisiBake tab of the 3D viewport sidebar (N-panel).
+
+Draw code reads state computed elsewhere and never touches the disk or hashes a mesh:
+the cache's status comes from ``cache_status.shown`` (computed after bakes, changes and
+on a timer), the last report from the scene, where the bake stored it.
+"""
 import json
 
 import bpy
 
+from ..core.outputs import summary as report_texts
 from ..operators.adapter import cache_status, device
 from . import properties
 from .preferences import apply_default_preset_to_new_scenes
@@ -62,24 +68,34 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         row.operator("visibake.preview_add", icon="SHADING_RENDERED")
         row.operator("visibake.preview_remove", icon="X")
         if props.use_cache:
-            box = layout.box()
-            state = cache_status.status(context.scene)
-            size = f"{state['table_bytes'] / 2**20:.0f} MiB"
-            if not state["has_table"]:
-                box.label(text="Cache: no table for these settings yet", icon="INFO")
-            elif state["validity"] == "valid":
-                box.label(text=f"Cache: valid for the scene as it is, {size}", icon="CHECKMARK")
-            elif state["validity"] == "stale":
-                box.label(text=f"Cache: stale, {size}; the next bake re-traces what changed", icon="ERROR")
-                for reason in state["reasons"]:
-                    box.label(text=reason, icon="BLANK1")
-            else:
-                box.label(text=f"Cache: table for these settings, {size} (checked at the next bake)", icon="FILE_CACHE")
-            box.label(text=f"{state['slots']} setting(s), {state['bytes'] / 2**20:.0f} MiB in {state['folder']}")
-            box.operator("visibake.clear_cache", icon="TRASH")
+            _draw_cache(layout.box(), context.scene)
         last = context.scene.get("visibake_last_report")
         if last:
             layout.label(text=last)
+
+
+def _draw_cache(box, scene) -> None:
+    """The cache's status as last computed (cache_status.shown), and Clear Cache."""
+    state = cache_status.shown(scene)
+    if state is None or not state["enabled"]:
+        # Not computed yet (a scene new to this session): a timer does it right after this draw.
+        cache_status.request_refresh(scene)
+        box.label(text="Cache: looking at the cache folder...", icon="TIME")
+        box.operator("visibake.clear_cache", icon="TRASH")
+        return
+    size = f"{state['table_bytes'] / 2**20:.0f} MiB"
+    if not state["has_table"]:
+        box.label(text="Cache: no table for these settings yet", icon="INFO")
+    elif state["validity"] == "valid":
+        box.label(text=f"Cache: valid for the scene as it is, {size}", icon="CHECKMARK")
+    elif state["validity"] == "stale":
+        box.label(text=f"Cache: stale, {size}; the next bake re-traces what changed", icon="ERROR")
+        for reason in state["reasons"]:
+            box.label(text=reason, icon="BLANK1")
+    else:
+        box.label(text=f"Cache: table for these settings, {size} (checked at the next bake)", icon="FILE_CACHE")
+    box.label(text=f"{state['slots']} setting(s), {state['bytes'] / 2**20:.0f} MiB in {state['folder']}")
+    box.operator("visibake.clear_cache", icon="TRASH")
 
 
 def _offer_default_preset(props) -> None:
@@ -95,23 +111,8 @@ def _offer_default_preset(props) -> None:
 
 
 def report_lines(report: dict) -> list[tuple[str, str]]:
-    """(text, icon) lines of a bake report for the panel: stage times, rays, skips, warnings."""
-    lines = [(f"{report.get('total_seconds', 0):.1f} s in total", "TIME")]
-    for stage, seconds in report.get("stage_seconds", {}).items():
-        lines.append((f"{stage}: {seconds:.2f} s", "BLANK1"))
-    rays = report.get("rays", {})
-    lines.append((f"rays: {rays.get('visibility_cast', 0):,} traced, "
-                  f"{rays.get('visibility_skipped_below_horizon', 0):,} below the horizon skipped", "LIGHT_SUN"))
-    cache = report.get("cache", {})
-    if cache.get("state", "off") != "off":
-        lines.append((f"cache: {cache['state']}" + (f" ({cache['message']})" if cache.get("message") else ""),
-                      "FILE_CACHE"))
-    device = report.get("device", {})
-    if device:
-        lines.append((f"device: {device.get('used')} ({device.get('renderer', 'numpy')})", "MEMORY"))
-    lines += [(f"skipped: {item}", "FORWARD") for item in report.get("skipped", [])]
-    lines += [(item, "ERROR") for item in report.get("warnings", [])]
-    return lines
+    """(text, icon) lines of a bake report for the panel (core.outputs.summary.panel_lines)."""
+    return report_texts.panel_lines(report)
 
 
 class VISIBAKE_UL_objects(bpy.types.UIList):
@@ -161,11 +162,11 @@ class VIEW3D_PT_visibake_report(bpy.types.Panel):
     def draw(self, context):
         column = self.layout.column(align=True)
         try:
-            report = json.loads(context.scene["visibake_report"])
-        except (TypeError, ValueError):
+            lines = report_lines(json.loads(context.scene["visibake_report"]))
+        except (TypeError, ValueError, KeyError, AttributeError):  # not JSON, or not a report of this version
             column.label(text="The last report cannot be read")
             return
-        for text, icon in report_lines(report):
+        for text, icon in lines:
             column.label(text=text, icon=icon)
 
 

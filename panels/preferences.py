@@ -1,39 +1,21 @@
 """VisiBake's add-on preferences: machine settings that are not part of a scene."""
 import bpy
 
+from ..core.settings import PREFERENCE_SETTINGS
 from ..operators.adapter import device
 from . import properties
+from .properties import setting_property
 
 
 class VisiBakePreferences(bpy.types.AddonPreferences):
     bl_idname = device.ADDON_PACKAGE
 
-    device: bpy.props.EnumProperty(
-        name="Device", default="auto",
-        items=[("auto", "Auto", "The GPU passes on a real GPU; numpy on a software renderer or without a GPU"),
-               ("gpu", "GPU", "Always run the transport passes on the GPU (Blender's gpu module)"),
-               ("cpu", "CPU", "Always run the transport passes in numpy")],
-        description="Where the transport passes (the gathers) run")
-    gpu_memory_mib: bpy.props.IntProperty(
-        name="GPU Memory (MiB)", default=device.DEFAULT_GPU_MEMORY_MIB, min=64, soft_max=16384,
-        description="GPU memory the transport passes may use; the table is streamed in batches of directions "
-                    "that fit")
+    device: setting_property(PREFERENCE_SETTINGS["device"])
+    gpu_memory_mib: setting_property(PREFERENCE_SETTINGS["gpu_memory_mib"])
 
-    cache_dir: bpy.props.StringProperty(
-        name="Cache Folder", subtype="DIR_PATH", default="",
-        description="Where visibility caches go when a scene sets no folder of its own (e.g. a fast disk); "
-                    "empty: beside the saved .blend, else VisiBake's user folder")
-    default_preset: bpy.props.EnumProperty(
-        name="Default Preset", default="NONE",
-        items=[("NONE", "None", "New scenes start with VisiBake's built-in settings (128 directions, 2 bounces, "
-                                "256 texels)"),
-               ("DRAFT", "Draft", "New scenes start with the Draft preset"),
-               ("PRODUCTION", "Production", "New scenes start with the Production preset")],
-        description="The preset a scene gets when VisiBake first sees it with no settings of its own (a new "
-                    "file or scene, or a file saved without VisiBake); scenes with settings are never changed")
-    threads: bpy.props.IntProperty(
-        name="Threads", default=0, min=0, soft_max=64,
-        description="Worker threads for ray tracing and gathers (0: all cores)")
+    cache_dir: setting_property(PREFERENCE_SETTINGS["cache_dir"], subtype="DIR_PATH")
+    default_preset: setting_property(PREFERENCE_SETTINGS["default_preset"])
+    threads: setting_property(PREFERENCE_SETTINGS["threads"])
 
     def draw(self, context):
         layout = self.layout

@@ -1,15 +1,38 @@
-"""The settings model: scene settings (scene.visibake) and per-object settings."""
+"""The settings model: scene settings (scene.visibake) and per-object settings.
+
+Each property's title, default, limits, choices and tooltip come from its
+core.settings.Setting (SETTINGS, OBJECT_SETTINGS); only its name, its update
+function and how the UI shows it are chosen here. The names are what saved .blend
+files store: never rename one.
+"""
 import bpy
 
-from ..core.settings import BakeSettings, PASSES
+from ..core.settings import OBJECT_SETTINGS, PRESETS, SETTINGS, BakeSettings, Setting
+from ..operators.adapter import settings as adapter_settings
 
-_PASS_ITEMS = [(p, p.capitalize(), f"Write the {p} pass") for p in PASSES]
 
-# What each preset sets; any later change to one of these makes the preset Custom.
-PRESETS = {
-    "DRAFT": {"directions": 64, "bounces": 1, "resolution": 128, "shadows": "exact", "rotate": False},
-    "PRODUCTION": {"directions": 256, "bounces": 3, "resolution": 512, "shadows": "exact", "rotate": True},
-}
+def setting_property(spec: Setting, **options):
+    """The Blender property of ``spec``; ``options`` adds to or overrides its keywords."""
+    keywords = {"name": spec.title, "description": spec.help}
+    if spec.type is tuple:
+        keywords.update(items=list(spec.choices), default=set(spec.default), options={"ENUM_FLAG"})
+        return bpy.props.EnumProperty(**{**keywords, **options})
+    if spec.choices:
+        keywords.update(items=list(spec.choices), default=spec.default)
+        return bpy.props.EnumProperty(**{**keywords, **options})
+    keywords["default"] = spec.default
+    if spec.type is bool:
+        return bpy.props.BoolProperty(**{**keywords, **options})
+    if spec.type is str:
+        return bpy.props.StringProperty(**{**keywords, **options})
+    for key, value in (("min", spec.minimum), ("max", spec.maximum), ("soft_min", spec.soft_min),
+                       ("soft_max", spec.soft_max)):
+        if value is not None:
+            keywords[key] = value
+    prop = {int: bpy.props.IntProperty, float: bpy.props.FloatProperty}[spec.type]
+    return prop(**{**keywords, **options})
+
+
 _applying_preset = False
 
 
@@ -53,105 +76,38 @@ def apply_default_preset(scene, preset: str) -> bool:
 
 
 class VisiBakeSceneSettings(bpy.types.PropertyGroup):
-    preset: bpy.props.EnumProperty(
-        name="Preset", default="CUSTOM", update=_apply_preset,
-        items=[("DRAFT", "Draft", "64 directions, 1 bounce, 128 texels, exact shadows: a quick look"),
-               ("PRODUCTION", "Production", "256 directions, 3 bounces, 512 texels, exact shadows, rotated "
-                                            "direction set: final quality"),
-               ("CUSTOM", "Custom", "The settings below as they are")],
-        description="Set directions, bounces, resolution and shadows together")
-    directions: bpy.props.IntProperty(
-        name="Directions", default=128, min=1, soft_min=16, soft_max=1024, update=_mark_custom,
-        description="Size of the global direction set: rays per texel for visibility (more: less noise, slower)")
-    bounces: bpy.props.IntProperty(
-        name="Bounces", default=2, min=0, soft_max=8, update=_mark_custom,
-        description="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)")
-    shadows: bpy.props.EnumProperty(
-        name="Shadows", default="exact", update=_mark_custom,
-        items=[("fractions", "Fractions", "Shadows from the precomputed visibility (no ray at lighting time, soft)"),
-               ("exact", "Exact", "One shadow ray per texel and light (sharp, traced at every bake)")],
-        description="How direct light is shadowed")
-    passes: bpy.props.EnumProperty(
-        name="Passes", options={"ENUM_FLAG"}, items=_PASS_ITEMS, default={"lighting"},
-        description="Which passes to write")
-    resolution: bpy.props.IntProperty(
-        name="Resolution", default=256, min=1, soft_min=16, soft_max=4096, update=_mark_custom,
-        description="Atlas width and height in texels for objects without their own resolution")
-    texel_density: bpy.props.FloatProperty(
-        name="Texels per Unit", default=0.0, min=0.0, soft_max=1024.0,
-        description="If above zero, size each atlas from the object's surface area instead of Resolution")
-    mode: bpy.props.EnumProperty(
-        name="Mode", default="auto",
-        items=[("auto", "Auto", "Texture atlas; vertex tables for meshes too dense or too big to unwrap, "
-                "or where unwrapping fails"),
-               ("atlas", "Atlas", "Texture atlas (UV map), results as images"),
-               ("vertex", "Vertex", "Per-vertex tables, results as colour attributes VB_<pass>")],
-        description="Where samples live")
-    bake_all: bpy.props.BoolProperty(
-        name="All Objects", default=False,
-        description="Bake every visible mesh object instead of the selected ones")
-    rotate: bpy.props.BoolProperty(
-        name="Rotate Directions", default=False, update=_mark_custom,
-        description="Randomly rotate the direction set (seeded): structured artefacts become noise")
-    seed: bpy.props.IntProperty(name="Seed", default=0, min=0, description="Seed of the direction rotation")
-    margin: bpy.props.IntProperty(
-        name="Margin", default=4, min=0, soft_max=32,
-        description="Texels the results are extended into the gutter so filtering never pulls in black")
-    use_cache: bpy.props.BoolProperty(
-        name="Cache Visibility", default=True,
-        description="Keep the visibility tables on disk, so bakes after changes to lights, materials or the world "
-                    "(and Relight) skip the visibility stage")
-    cache_dir: bpy.props.StringProperty(
-        name="Cache Folder", subtype="DIR_PATH", default="",
-        description="Where the visibility cache lives; empty: a visibake_cache folder beside the saved .blend, "
-                    "else VisiBake's folder in your user profile")
-    light_groups: bpy.props.BoolProperty(
-        name="Light Groups", default=False,
-        description="Also write every lighting pass per light group (a lamp's Light Group, else each lamp; the world; "
-                    "each emitting object), so lights can be re-mixed without another bake")
-    vertex_lookup: bpy.props.EnumProperty(
-        name="Vertex Lookup", default="interpolate",
-        items=[("interpolate", "Interpolate", "Mix the three vertices of the triangle a ray lands on"),
-               ("nearest", "Nearest", "The paper's variant: the nearest vertex of that triangle")],
-        description="How light is read where a ray lands on a vertex-mode object")
-    refine_vertex_objects: bpy.props.BoolProperty(
-        name="Refine Coarse Vertex Objects", default=False,
-        description="Where a vertex-mode object's triangles are too large for its light (a shadow edge inside "
-                    "them), bake a copy with those faces subdivided in its place and hide the original; your mesh "
-                    "is never changed")
+    preset: setting_property(SETTINGS["preset"], update=_apply_preset)
+    directions: setting_property(SETTINGS["directions"], update=_mark_custom)
+    bounces: setting_property(SETTINGS["bounces"], update=_mark_custom)
+    shadows: setting_property(SETTINGS["shadows"], update=_mark_custom)
+    passes: setting_property(SETTINGS["passes"])
+    resolution: setting_property(SETTINGS["resolution"], update=_mark_custom)
+    texel_density: setting_property(SETTINGS["texel_density"])
+    mode: setting_property(SETTINGS["mode"])
+    bake_all: setting_property(SETTINGS["bake_all"])
+    rotate: setting_property(SETTINGS["rotate"], update=_mark_custom)
+    seed: setting_property(SETTINGS["seed"])
+    margin: setting_property(SETTINGS["margin"])
+    use_cache: setting_property(SETTINGS["use_cache"])
+    cache_dir: setting_property(SETTINGS["cache_dir"], subtype="DIR_PATH")
+    light_groups: setting_property(SETTINGS["light_groups"])
+    vertex_lookup: setting_property(SETTINGS["vertex_lookup"])
+    refine_vertex_objects: setting_property(SETTINGS["refine_vertex_objects"])
+    # The row of the objects list that is selected: the list's state, not a setting.
     active_object_index: bpy.props.IntProperty(
         name="Active Object", default=0, min=0,
         description="The row of the objects list that is selected (the list's own state)")
-    output_dir: bpy.props.StringProperty(
-        name="Output Folder", subtype="DIR_PATH", default="",
-        description="Folder for the EXR files (<folder>/<object>/<pass>.exr); empty: images in the .blend only")
+    output_dir: setting_property(SETTINGS["output_dir"], subtype="DIR_PATH")
 
     def to_bake_settings(self, threads: int = 0) -> BakeSettings:
-        return BakeSettings(directions=self.directions, bounces=self.bounces, shadows=self.shadows,
-                            rotate=self.rotate, seed=self.seed, margin=self.margin,
-                            passes=tuple(p for p in PASSES if p in self.passes), light_groups=self.light_groups,
-                            vertex_lookup=self.vertex_lookup, threads=threads)
+        return adapter_settings.bake_settings(self, threads)
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):
-    role: bpy.props.EnumProperty(
-        name="Role", default="INCLUDE",
-        items=[("INCLUDE", "Bake", "Bake this object when it is selected, or with All Objects"),
-               ("OCCLUDE", "Occlude Only", "Never bake this object: it only casts shadows and reflects light")],
-        description="Whether this object gets results or only takes part in the light transport")
-    resolution: bpy.props.IntProperty(
-        name="Resolution", default=0, min=0, soft_max=4096,
-        description="Atlas size of this object in texels (0: the scene's setting)")
-    texel_density: bpy.props.FloatProperty(
-        name="Texels per Unit", default=0.0, min=0.0, soft_max=1024.0,
-        description="If above zero (and Resolution is 0), size this object's atlas from its surface area")
-    mode: bpy.props.EnumProperty(
-        name="Mode", default="SCENE",
-        items=[("SCENE", "Scene", "The scene's mode"),
-               ("auto", "Auto", "Texture atlas, or vertex tables where the mesh is too dense or too big to unwrap"),
-               ("atlas", "Atlas", "Texture atlas (UV map), results as images"),
-               ("vertex", "Vertex", "Per-vertex tables, results as colour attributes VB_<pass>")],
-        description="Where this object's samples live")
+    role: setting_property(OBJECT_SETTINGS["role"])
+    resolution: setting_property(OBJECT_SETTINGS["resolution"])
+    texel_density: setting_property(OBJECT_SETTINGS["texel_density"])
+    mode: setting_property(OBJECT_SETTINGS["mode"])
 
     def effective_mode(self, scene_settings) -> str:
         return scene_settings.mode if self.mode == "SCENE" else self.mode

@@ -102,16 +102,16 @@ def _raise(ex: BaseException) -> None:
 
 
 def is_enabled(module_name: str | None = None) -> bool:
-    import bpy  # noqa: F401  (puts Blender's script modules, e.g. addon_utils, on sys.path)
     import addon_utils
+    import bpy  # noqa: F401  (puts Blender's script modules, e.g. addon_utils, on sys.path)
 
     return addon_utils.check(module_name or extension_module_name())[1]
 
 
 def enable_extension():
     """Enable the installed extension if it is not (e.g. after read_factory_settings)."""
-    import bpy  # noqa: F401
     import addon_utils
+    import bpy  # noqa: F401
 
     name = extension_module_name()
     if not is_enabled(name):
@@ -138,8 +138,8 @@ def visibake():
     Returns the imported module ``bl_ext.user_default.visibake``.
     """
     zip_path = ensure_built_zip()
-    import bpy
     import addon_utils  # importable only once bpy is
+    import bpy
 
     _check_user_profile_isolated()
     name = extension_module_name()

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import tolerances as tol
-from .lamps import surface_to_point
-from ..geometry import face_normals
+from ..geometry import face_normals, triangle_areas
 from ..scene import Mesh
+from .lamps import surface_to_point
 
 GOLDEN_RATIO_FRACTION = (np.sqrt(5.0) - 1.0) / 2.0
 
@@ -54,7 +54,7 @@ def find_emitters(meshes: list[Mesh], points_per_emitter: int) -> list[Emitter]:
             continue
         triangles = np.nonzero(emissive)[0]
         corners = mesh.positions[mesh.triangles[triangles]].astype(np.float64)
-        areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        areas = triangle_areas(corners)
         total = float(areas.sum())
         if not np.isfinite(total) or total <= 0:
             continue

@@ -33,11 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import SetupError
 from ..scene import AREA_SHAPES, LIGHT_KINDS, Light, World
-
-
-class SetupError(ValueError):
-    """A setup file or sweep that cannot be used; the message names the place."""
 
 
 @dataclass
@@ -211,7 +208,8 @@ def sun_position(hour: float, latitude_degrees: float, day_of_year: int) -> np.n
     hour_angle = math.radians(15.0 * (hour - 12.0))
     latitude = math.radians(latitude_degrees)
     east = -math.cos(declination) * math.sin(hour_angle)
-    north = math.cos(latitude) * math.sin(declination) - math.sin(latitude) * math.cos(declination) * math.cos(hour_angle)
+    north = (math.cos(latitude) * math.sin(declination)
+             - math.sin(latitude) * math.cos(declination) * math.cos(hour_angle))
     up = math.sin(latitude) * math.sin(declination) + math.cos(latitude) * math.cos(declination) * math.cos(hour_angle)
     vector = np.array([east, north, up])
     return vector / np.linalg.norm(vector)

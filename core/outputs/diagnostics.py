@@ -9,15 +9,14 @@ as an atlas.
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
 from .. import tolerances as tol
-from ..visibility.rays import offset_ray_origins
-from ..geometry import face_normals
+from ..geometry import face_normals, triangle_areas
+from ..transport.contract import SampleSet, Shadowing
+from ..transport.direct import lamp_irradiance
 
 
 @dataclass
@@ -37,46 +36,47 @@ class TessellationCheck:
     flagged_triangles: np.ndarray = None  # (flagged,) int64 indices into the mesh's triangles
 
 
-def _direct_light(p, lights, position, normal) -> np.ndarray:
-    """Lamp irradiance (K, 3) at ``position`` with exact shadows, through ``p.lamp_irradiance``'s numpy twin."""
-    from ..transport.direct import lamp_irradiance
-
-    shim = SimpleNamespace(position=position, normal=normal, geometric=normal,
-                           origins=offset_ray_origins(position, normal), ray_scene=p.ray_scene, table=None,
-                           settings=dataclasses.replace(p.settings, shadows="exact"))
-    irradiance, _ = lamp_irradiance(shim, lights, None)
+def _direct_light(shadowing: Shadowing, lights, samples: SampleSet) -> np.ndarray:
+    """Lamp irradiance (K, 3) at ``samples`` with exact shadows, through the CPU backend's direct light."""
+    irradiance, _ = lamp_irradiance(samples, shadowing, lights)
     return irradiance
 
 
-def check_vertex_objects(p, lights) -> dict[int, TessellationCheck]:
-    """Check every vertex-mode object with outputs of prepared scene ``p`` under ``lights``.
+def check_vertex_objects(meshes, object_samples, sample_offset: np.ndarray, samples: SampleSet,
+                         shadowing: Shadowing, lights) -> dict[int, TessellationCheck]:
+    """Check every vertex-mode object with outputs under ``lights``.
+
+    meshes : the bake's core.scene.Mesh objects; object_samples : their
+    core.sampling.samples.ObjectSamples; sample_offset : (objects + 1,) int64 first
+    sample of each; samples : all samples; shadowing : exact shadows (its ray scene).
 
     Returns object index -> TessellationCheck (no entry without lamps or such objects).
     """
     checks = {}
     if not lights:
         return checks
-    for index, mesh in enumerate(p.meshes):
+    for index, mesh in enumerate(meshes):
         if mesh.mode != "vertex" or not mesh.output:
             continue
-        samples = p.object_samples[index]
-        a = p.sample_offset[index]
+        object_sample = object_samples[index]
+        a = sample_offset[index]
         normals, valid = face_normals(mesh.positions, mesh.triangles)
-        used = np.nonzero(valid & np.all(samples.corner_sample >= 0, axis=1))[0]
+        used = np.nonzero(valid & np.all(object_sample.corner_sample >= 0, axis=1))[0]
         if len(used) == 0:
             continue
         corners = mesh.positions[mesh.triangles[used]].astype(np.float64)
         middle = corners.mean(axis=1)
-        at_middle = _direct_light(p, lights, middle, normals[used]).sum(axis=1)
-        rows = a + samples.corner_sample[used]
-        at_vertices = _direct_light(p, lights, p.position[a:a + len(samples)],
-                                    p.normal[a:a + len(samples)]).sum(axis=1)
+        at_middle = _direct_light(shadowing, lights, SampleSet.on_surface(middle, normals[used])).sum(axis=1)
+        rows = a + object_sample.corner_sample[used]
+        own = slice(a, a + len(object_sample))
+        at_vertices = _direct_light(shadowing, lights,
+                                    SampleSet.on_surface(samples.position[own], samples.normal[own])).sum(axis=1)
         interpolated = at_vertices[rows - a].mean(axis=1)
         larger = np.maximum(at_middle, interpolated)
         floor = tol.TESSELLATION_FLOOR * max(float(larger.max()), 1e-30)
         difference = np.abs(at_middle - interpolated) / np.maximum(larger, floor)
         flagged = (difference > tol.TESSELLATION_DIFFERENCE) & (larger > floor)
-        areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        areas = triangle_areas(corners)
         checks[index] = TessellationCheck(flagged=int(np.count_nonzero(flagged)), triangles=len(used),
                                           area_share=float(areas[flagged].sum() / max(areas.sum(), 1e-30)),
                                           worst=float(difference[larger > floor].max(initial=0.0)),

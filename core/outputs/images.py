@@ -9,6 +9,7 @@ import os
 
 import numpy as np
 
+from ..errors import OutputRefused
 from .dilation import dilate
 
 
@@ -74,7 +75,7 @@ def write_exr(path: str, image: np.ndarray) -> None:
     import OpenEXR
 
     if not np.all(np.isfinite(image)):
-        raise ValueError(f"refusing to write non-finite values to {path}")
+        raise OutputRefused(f"refusing to write non-finite values to {path}")
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     top_down = np.ascontiguousarray(image[::-1], dtype=np.float32)

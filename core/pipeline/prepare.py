@@ -3,30 +3,25 @@ cache or updated for the objects that changed). Everything here depends on geome
 and settings alone, so a :class:`Prepared` serves every later relight."""
 from __future__ import annotations
 
-
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..visibility.directions import ShadowRegions, direction_set
-from ..visibility.shadows import ShadowFractions, shadow_fractions
-from ..lights.environment import has_light
-from ..transport.groups import (LightGroup, light_key_parts)
-from ..transport.passes import accumulate_passes
-from ..transport.direct import lamp_irradiance
-from ..outputs.dilation import dilate
-from ..visibility.rays import RayScene, offset_ray_origins
-from ..sampling.samples import ObjectSamples, build_samples, build_vertex_samples
-from ..geometry import face_normals
-from ..settings import BakeSettings
-from ..scene import Scene
-from ..transport.gather import AtlasLayout, gather, gather_normalisation
-from ..visibility.table import DeferredTable, table_from_arrays, trace_table, update_table
-from ..visibility.cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
 from ..errors import BakeRefused
+from ..geometry import face_normals
+from ..lights.environment import has_light
+from ..sampling.samples import ObjectSamples, build_samples, build_vertex_samples
+from ..scene import Scene
+from ..settings import BakeSettings
+from ..transport.contract import GatherGeometry, SampleSet, Shadowing
+from ..transport.gather import AtlasLayout, gather_normalisation
+from ..transport.groups import LightGroup, light_key_parts
+from ..visibility.cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
+from ..visibility.directions import direction_set
+from ..visibility.rays import RayScene, offset_ray_origins
+from ..visibility.table import DeferredTable, HitGeometry, TraceRequest, table_from_arrays, trace_table, update_table
 from .budget import check_budget
 from .progress import Stages
 
@@ -60,32 +55,28 @@ class Prepared:
     visibility_rays: int = 0  # rays this preparation traced for the table (0 on a cache hit)
     cache: VisibilityCache | None = None
     cache_status: CacheStatus | None = None
-    # The gather implementation: core.transport.gather.gather, or a twin with the same
-    # contract (gpu_shaders.gather.gather) chosen by the Blender side.
-    gather: Callable = gather
-    gather_device: str = "cpu"
-    lamp_irradiance: Callable = lamp_irradiance  # core.transport.direct.lamp_irradiance or a twin
-    direct_device: str = "cpu"
-    accumulate_passes: Callable = accumulate_passes  # core.transport.passes.accumulate_passes or a twin
-    accumulate_device: str = "cpu"
-    dilate: Callable = dilate  # core.outputs.dilation.dilate or a twin
-    dilate_device: str = "cpu"
-    dilation_seconds: float = 0.0
-    dilation_calls: int = 0
     _gather_scale: np.ndarray | None = None
-    _shadow_regions: ShadowRegions | None = None
-    _distant_fractions: ShadowFractions | None = None
+    _sample_set: SampleSet | None = None
+    _shadowing: Shadowing | None = None
 
-    def shadow_regions(self) -> ShadowRegions:
-        if self._shadow_regions is None:
-            self._shadow_regions = ShadowRegions(self.directions, self.settings.shadow_regions)
-        return self._shadow_regions
+    def sample_set(self) -> SampleSet:
+        """All samples as the transport contract's :class:`SampleSet`."""
+        if self._sample_set is None:
+            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins)
+        return self._sample_set
 
-    def distant_fractions(self) -> ShadowFractions:
-        """The paper's shadow fractions for distant lights: computed once, shared by every sun."""
-        if self._distant_fractions is None:
-            self._distant_fractions = shadow_fractions(self.table, self.shadow_regions())
-        return self._distant_fractions
+    def shadowing(self) -> Shadowing:
+        """How direct light is shadowed, as the settings say; one object per preparation, so
+        the distant lights' shadow fractions are computed once for every relight."""
+        if self._shadowing is None:
+            s = self.settings
+            self._shadowing = Shadowing(s.shadows, self.ray_scene, s.area_light_samples, self.table,
+                                        self.directions, s.shadow_regions)
+        return self._shadowing
+
+    def gather_geometry(self) -> GatherGeometry:
+        """The light-independent half of every gather over this preparation."""
+        return GatherGeometry(self.table, self.normal, self.gather_scale(), self.layout, self.settings.threads)
 
     def gather_scale(self) -> np.ndarray:
         """Per-sample gather normalisation (K,), computed once per preparation."""
@@ -119,8 +110,11 @@ class Prepared:
             parts += light_key_parts(light)
         return arrays_key(*parts)
 
-    def to_atlas(self, values: np.ndarray) -> np.ndarray:
-        """Per-sample values (K, C) as the packed, gutter-dilated radiance atlas (size, C)."""
+    def to_atlas(self, values: np.ndarray, dilate) -> np.ndarray:
+        """Per-sample values (K, C) as the packed, gutter-dilated radiance atlas (size, C).
+
+        ``dilate`` is a backend's dilation, (image, coverage, margin) -> (image, coverage).
+        """
         margin = max(self.settings.margin, 2)
         images = []
         for samples, a, b in zip(self.object_samples, self.sample_offset[:-1], self.sample_offset[1:]):
@@ -128,17 +122,9 @@ class Prepared:
             image[samples.pixel] = values[a:b]
             image = image.reshape(samples.height, samples.width, values.shape[1])
             if not samples.coverage.all():  # a vertex-mode object covers its whole one-row "atlas"
-                image, _ = self.timed_dilate(image, samples.coverage, margin)
+                image, _ = dilate(image, samples.coverage, margin)
             images.append(image)
         return self.layout.pack(images)
-
-    def timed_dilate(self, image, coverage, margin):
-        """``self.dilate`` with its calls and time counted for the report's passes."""
-        started = time.perf_counter()
-        result = self.dilate(image, coverage, margin)
-        self.dilation_seconds += time.perf_counter() - started
-        self.dilation_calls += 1
-        return result
 
 
 def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None,
@@ -203,9 +189,10 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     visibility_rays = 0
     if table_needed:
         stages.start("cache" if cache is not None else "visibility")
-        table, status, visibility_rays = _cached_or_traced_table(
-            meshes, object_keys, key, settings, directions, position, geometric, sample_offset, ray_scene, cache,
-            require_cached_table, stages, skipped, warnings)
+        request = TraceRequest(directions, position, geometric, scene_hit_geometry(meshes), settings.chunk_rays)
+        table, status, visibility_rays = _cached_or_traced_table(TableJob(
+            meshes, object_keys, key, settings, request, sample_offset, ray_scene, cache, require_cached_table,
+            stages, skipped, warnings))
     else:
         stages.expect("visibility", 0.0)
         stages.expect("cache", 0.0)
@@ -226,26 +213,53 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         visibility_rays=visibility_rays, cache=cache, cache_status=status)
 
 
-def _cached_or_traced_table(meshes, object_keys, key, settings, directions, position, geometric, sample_offset,
-                            ray_scene, cache, require_cached_table, stages, skipped, warnings):
-    """The table from the cache if it is valid, updated if only some objects changed, else traced.
-
-    Returns (table, CacheStatus, rays traced against the scene).
-    """
-    names = [m.name for m in meshes]
-    status = CacheStatus()
-    meta = None
+def scene_hit_geometry(meshes) -> HitGeometry:
+    """Where a ray's hit on any of ``meshes`` lands in the table: bake-UV corners (zeros
+    for vertex-mode objects, whose hits keep barycentrics instead), face normals and
+    which objects are in vertex mode."""
     triangle_counts = np.array([len(m.triangles) for m in meshes], np.int64)
     triangle_offset = np.concatenate([[0], np.cumsum(triangle_counts)[:-1]]).astype(np.int64)
-    # Vertex-mode objects have no bake UV map: their hits keep barycentrics instead.
     corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] if m.mode == "atlas" else np.zeros((len(m.triangles), 3, 2))
                                 for m in meshes]).astype(np.float32)
     vertex_object = np.array([m.mode == "vertex" for m in meshes], bool)
     all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
+    return HitGeometry(corner_uv, triangle_offset, all_face_normals, vertex_object)
+
+
+@dataclass
+class TableJob:
+    """What finding a preparation's table needs: the scene's keys, what to trace, the
+    cache, and where to report (stages, skipped work, warnings)."""
+
+    meshes: list
+    object_keys: list[str]
+    key: str
+    settings: BakeSettings
+    request: TraceRequest
+    sample_offset: np.ndarray  # (objects + 1,) int64
+    ray_scene: RayScene
+    cache: VisibilityCache | None
+    require_cached_table: bool
+    stages: Stages
+    skipped: list
+    warnings: list
+
+
+def _cached_or_traced_table(job: TableJob):
+    """The table from the cache if it is valid, updated if only some objects changed, else traced.
+
+    Returns (table, CacheStatus, rays traced against the scene).
+    """
+    meshes, object_keys, key, settings, cache = job.meshes, job.object_keys, job.key, job.settings, job.cache
+    sample_offset, ray_scene, stages, skipped, warnings = (job.sample_offset, job.ray_scene, job.stages, job.skipped,
+                                                           job.warnings)
+    require_cached_table = job.require_cached_table
+    names = [m.name for m in meshes]
+    status = CacheStatus()
+    meta = None
 
     def trace(report):
-        return trace_table(ray_scene, directions, position, geometric, corner_uv, triangle_offset,
-                           all_face_normals, settings.chunk_rays, report, vertex_object)
+        return trace_table(ray_scene, job.request, report)
 
     def save(table):
         try:
@@ -277,7 +291,7 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
                     raise CorruptCache("its layout does not match its key")
                 # Read when a pass needs it: a bake whose lighting is cached never does.
                 table = cache.deferred_table(settings, meta, damaged)
-                if not np.array_equal(table.directions, directions):
+                if not np.array_equal(table.directions, job.request.directions):
                     raise CorruptCache("its directions do not match its key")
                 status.state, status.message = "hit", "the cached visibility is valid"
                 status.bytes_on_disk = os.path.getsize(status.path)
@@ -318,9 +332,8 @@ def _cached_or_traced_table(meshes, object_keys, key, settings, directions, posi
             stages.report(0.5)  # read; writing the updated table is the other half
             stages.start("visibility")
             changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
-            table, counts = update_table(old_table, old.sample_offset, ray_scene, changed_scene, changed, directions,
-                                         position, geometric, sample_offset, corner_uv, triangle_offset,
-                                         all_face_normals, settings.chunk_rays, stages.report, vertex_object)
+            table, counts = update_table(old_table, old.sample_offset, sample_offset, ray_scene, changed_scene,
+                                         changed, job.request, stages.report)
             del old, old_table
             rays = counts.full + counts.changed_only
             status.state = "updated"

@@ -1,29 +1,31 @@
-"""The bake: samples -> visibility table -> shadow fractions -> transport -> pass images.
+"""Relighting: lights -> direct light and gathers on a backend -> pass images.
 
-:func:`bake` is the one entry point the operators, the command line, the tests and
-the benchmarks share. It reports progress through a callback that may raise
-:class:`Cancelled` to stop between batches.
+:func:`relight_many` carries any number of lightings over one :class:`Prepared` scene
+(their light groups share the gathers); :func:`bake` is prepare then relight, the one
+entry point the tests and the benchmarks share. Progress goes through a callback that
+may raise :class:`core.errors.Cancelled` to stop between batches.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import BakeRefused
+from ..lights.environment import world_radiance
 from ..lights.lamps import usable_lights
+from ..outputs.images import sample_image
+from ..outputs.report import lighting_report, report_tessellation
+from ..scene import Scene
+from ..settings import LIGHTING_PASSES, BakeSettings
+from ..transport.contract import TransportBackend
+from ..transport.cpu import CPU_BACKEND
+from ..transport.gather import ambient_occlusion
+from ..transport.groups import MAX_GROUPS_PER_GATHER, Transported, light_groups
 from .prepare import Prepared, prepare, read_deferred_table
 from .progress import Stages
-
-from ..lights.environment import world_radiance
-from ..settings import LIGHTING_PASSES
-from ..transport.groups import (MAX_GROUPS_PER_GATHER, Transported, light_groups, transport_groups)
-from ..outputs.diagnostics import check_vertex_objects
-from ..settings import BakeSettings
-from ..scene import Scene
-from ..outputs.images import sample_image
-from ..transport.gather import ambient_occlusion
+from .transport import transport_groups
 
 
 @dataclass
@@ -54,21 +56,38 @@ def element_colors(values: np.ndarray, element_sample: np.ndarray) -> np.ndarray
     return colors
 
 
+class TimedDilation:
+    """A backend's dilation with its calls and time counted, for the report's passes."""
+
+    def __init__(self, backend: TransportBackend):
+        self.backend = backend
+        self.calls = 0
+        self.seconds = 0.0
+
+    def __call__(self, image, coverage, margin):
+        started = time.perf_counter()
+        result = self.backend.dilate(image, coverage, margin)
+        self.seconds += time.perf_counter() - started
+        self.calls += 1
+        return result
+
+
 @dataclass
 class BakeResult:
     objects: list[ObjectResult]
     report: dict
 
 
-def relight(prepared: Prepared, lights, world, progress=None) -> BakeResult:
+def relight(prepared: Prepared, lights, world, progress=None, backend: TransportBackend = CPU_BACKEND) -> BakeResult:
     """Direct light, gathers and pass images for ``lights`` and ``world`` over a prepared scene.
 
     Traces only shadow rays (exact shadows, sampled emitters); never the table again.
     """
-    return relight_many(prepared, [(lights, world)], progress)[0]
+    return relight_many(prepared, [(lights, world)], progress, backend)[0]
 
 
-def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResult]:
+def relight_many(prepared: Prepared, lightings, progress=None,
+                 backend: TransportBackend = CPU_BACKEND) -> list[BakeResult]:
     """:func:`relight` for several lightings at once: their light groups share the gathers.
 
     Parameters
@@ -108,11 +127,13 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
             occluder_samples = len(p.position) - len(p.output_samples())
             skipped.append(f"last gather of {occluder_samples} texels of objects that only occlude and reflect: "
                            "nothing reads it")
-        groups = light_groups(p, lights, radiance, world_group, settings.light_groups) if lighting_wanted else []
+        groups = light_groups(p.meshes, p.emission, p.sample_offset, lights, radiance, world_group,
+                              settings.light_groups) if lighting_wanted else []
         if not lighting_wanted:
             skipped.append("direct light and gathers: no lighting pass was asked for")
         plans.append({"lights": lights, "warnings": warnings, "skipped": skipped, "groups": groups})
 
+    dilation = TimedDilation(backend)
     stages.start("transport")
     # Every group of every lighting: read back if cached, else transported in batches.
     transported: dict[tuple[int, str], Transported] = {}
@@ -135,7 +156,7 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
     batches = [pending[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(pending), MAX_GROUPS_PER_GATHER)]
     shared_skips: list[str] = []
     for number, batch in enumerate(batches):
-        results, count = transport_groups(p, [group for _, group, _ in batch], stages, shared_skips,
+        results, count = transport_groups(p, backend, [group for _, group, _ in batch], stages, shared_skips, dilation,
                                           (number / len(batches), (number + 1) / len(batches)))
         gathers += count
         for (index, group, key), result in zip(batch, results):
@@ -154,9 +175,9 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
     for index, plan in enumerate(plans):
         parts = {name: transported[i, name] for i, name in transported if i == index}
         started = time.perf_counter()
-        per_pass = p.accumulate_passes(p.albedo, wants, parts, settings.light_groups)
+        per_pass = backend.accumulate_passes(p.albedo, wants, parts, settings.light_groups)
         if parts:
-            stages.record_pass(f"accumulation of passes ({len(parts)} groups)", p.accumulate_device,
+            stages.record_pass(f"accumulation of passes ({len(parts)} groups)", backend.name,
                                time.perf_counter() - started)
         if "ao" in wants:
             per_pass["ao"] = np.repeat(ambient_occlusion(p.table, p.normal, p.gather_scale())[:, None], 3, axis=1)
@@ -177,99 +198,24 @@ def relight_many(prepared: Prepared, lightings, progress=None) -> list[BakeResul
             else:
                 for name, values in per_pass.items():
                     result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage,
-                                                       settings.margin, p.timed_dilate)
+                                                       settings.margin, dilation)
             objects.append(result)
         images.append(objects)
         stages.report(len(images) / len(per_lighting))
     stages.stop()
 
-    if p.dilation_calls:
-        stages.record_pass(f"gutter dilation ({p.dilation_calls} images)", p.dilate_device, p.dilation_seconds)
-        p.dilation_seconds, p.dilation_calls = 0.0, 0
-    results = [BakeResult(objects=objects, report=_report(p, plan, parts, stages.times, gathers, shared_skips,
-                                                          len(lightings)))
-               for objects, plan, (_, parts) in zip(images, plans, per_lighting)]
-    for result, plan in zip(results, plans):
-        result.report["passes"] = list(stages.passes)
-        _report_tessellation(p, plan["lights"], result)
+    if dilation.calls:
+        stages.record_pass(f"gutter dilation ({dilation.calls} images)", backend.name, dilation.seconds)
+    results = []
+    for objects, plan, (_, parts) in zip(images, plans, per_lighting):
+        report = lighting_report(p, plan, parts, stages.times, list(stages.passes), gathers, shared_skips,
+                                 len(lightings))
+        report_tessellation(p, plan["lights"], objects, report)
+        results.append(BakeResult(objects=objects, report=report.to_dict()))
     return results
 
 
-def _report_tessellation(p: Prepared, lights, result: BakeResult) -> None:
-    """Per vertex-mode object: triangles whose light varies inside them (a warning if any)."""
-    report = result.report
-    by_name = {o.name: o for o in result.objects}
-    for index, check in check_vertex_objects(p, lights).items():
-        entry = report["objects"][index]
-        if entry["name"] in by_name:
-            by_name[entry["name"]].coarse_triangles = check.flagged_triangles
-        entry["under_tessellated_triangles"] = check.flagged
-        entry["under_tessellated_area_share"] = round(check.area_share, 4)
-        if check.flagged:
-            report["warnings"].append(
-                f"object {entry['name']!r}: {check.flagged} of {check.triangles} triangles "
-                f"({check.area_share:.0%} of its area) have direct light varying inside them by up to "
-                f"{check.worst:.0%}, which its vertices cannot show; subdivide it or bake it as an atlas")
-
-
-def _report(p: Prepared, plan: dict, parts: dict, times: dict, gathers: int, shared_skips: list,
-            lightings: int) -> dict:
-    """The bake report of one lighting (times and gathers are those of the whole call)."""
-    table = p.table
-    skipped, warnings = plan["skipped"] + shared_skips, plan["warnings"]
-    # A cached table found damaged when it was read (after the plan was made).
-    warnings += [w for w in p.warnings if w not in warnings]
-    if plan["reused"]:
-        names = "all lights" if plan["reused"] == ["all"] else ", ".join(repr(n) for n in plan["reused"])
-        skipped.append(f"transport of {names}: lighting, materials and settings unchanged since a cached bake")
-    counts = np.diff(p.sample_offset)
-    empty = sum(s.width * s.height for s in p.object_samples) - int(counts.sum())
-    skipped.append(f"{empty} atlas texels outside every UV island: not sampled, filled by dilation only")
-    if table is not None:
-        skipped.append(f"{table.rays_below_horizon} directions below a texel's horizon: not traced")
-    occluders = [m.name for m in p.meshes if not m.output]
-    if occluders:
-        skipped.append(f"outputs of {len(occluders)} objects that only occlude and reflect: {', '.join(occluders)}")
-    cache = asdict(p.cache_status) if p.cache_status is not None else {"state": "off"}
-    cache["lighting_reused"] = list(plan["reused"])
-    report = {
-        "settings": asdict(p.settings),
-        "objects": [
-            {"name": m.name, "output": m.output, "uv_map": m.bake_uv_map, "resolution": list(m.resolution),
-             "texels": int(counts[i]), "triangles": int(len(m.triangles))}
-            for i, m in enumerate(p.meshes)
-        ],
-        "stage_seconds": {k: round(v, 4) for k, v in {**p.stage_seconds, **times}.items()},
-        "lightings_transported_together": lightings,
-        "rays": {
-            "visibility_cast": int(p.visibility_rays),
-            "visibility_in_table": int(table.rays_cast) if table else 0,
-            "visibility_skipped_below_horizon": int(table.rays_below_horizon) if table else 0,
-            "backface_hits": int(table.backface_hits) if table else 0,
-            "shadow_rays": int(sum(t.shadow_rays for t in parts.values())),
-            "emitter_rays": int(sum(t.emitter_rays for t in parts.values())),
-        },
-        "light_groups": [g.name for g in plan["groups"]] if p.settings.light_groups else [],
-        "emitters_sampled": sorted({n for t in parts.values() for n in t.emitters_sampled}),
-        "gathers": int(gathers),
-        "table_bytes": int(table.nbytes) if table else 0,
-        "cache": cache,
-        "skipped": skipped,
-        "warnings": warnings,
-    }
-    if table is not None and table.backface_hits:
-        buried = table.buried()
-        for entry, a, b in zip(report["objects"], p.sample_offset[:-1], p.sample_offset[1:]):
-            entry["buried_texels"] = int(np.count_nonzero(buried[a:b]))
-        visible = ~buried
-        share = table.backface_per_sample[visible].sum() / max(int(table.traced_per_sample[visible].sum()), 1)
-        if share > 0.01:
-            warnings.append(f"{share:.1%} of the rays from visible texels hit the back of a face; backs reflect "
-                            "no light (single-sided geometry or flipped normals)")
-    return report
-
-
-def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
+def bake(scene: Scene, settings: BakeSettings, progress=None, backend: TransportBackend = CPU_BACKEND) -> BakeResult:
     """Bake every output object of ``scene``: :func:`prepare`, then :func:`relight`.
 
     Parameters
@@ -280,4 +226,4 @@ def bake(scene: Scene, settings: BakeSettings, progress=None) -> BakeResult:
     progress : callable(stage: str, fraction: float) or None
         Called often; raise :class:`Cancelled` in it to stop.
     """
-    return relight(prepare(scene, settings, progress), scene.lights, scene.world, progress)
+    return relight(prepare(scene, settings, progress), scene.lights, scene.world, progress, backend)

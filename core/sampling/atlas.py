@@ -10,10 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import tolerances as tol
-
+from ..errors import UnwrapFailed
+from ..geometry import edge_cross, triangle_areas
 from .raster import degenerate_uv_triangles, rasterize
-
-
 
 # xatlas (0.0.11 and upstream, jpcy/xatlas#146) grows "planar" regions across any
 # two neighbouring faces whose normals' dot product is within 1e-4 of 1 (0.81
@@ -181,22 +180,22 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     positions = np.asarray(positions)
     triangles = np.asarray(triangles)
     if positions.ndim != 2 or positions.shape[1] != 3:
-        raise ValueError(f"unwrap: positions must have shape (n, 3), got {positions.shape}")
+        raise UnwrapFailed(f"unwrap: positions must have shape (n, 3), got {positions.shape}")
     if triangles.ndim != 2 or triangles.shape[1] != 3:
-        raise ValueError(f"unwrap: triangles must have shape (m, 3), got {triangles.shape}")
+        raise UnwrapFailed(f"unwrap: triangles must have shape (m, 3), got {triangles.shape}")
     if triangles.shape[0] == 0:
-        raise ValueError("unwrap: the mesh has no triangles")
+        raise UnwrapFailed("unwrap: the mesh has no triangles")
     if not np.issubdtype(triangles.dtype, np.integer):
-        raise ValueError(f"unwrap: triangles must be integer indices, got {triangles.dtype}")
+        raise UnwrapFailed(f"unwrap: triangles must be integer indices, got {triangles.dtype}")
     if triangles.min() < 0 or triangles.max() >= positions.shape[0]:
-        raise ValueError(f"unwrap: triangle indices must lie in [0, {positions.shape[0]})")
+        raise UnwrapFailed(f"unwrap: triangle indices must lie in [0, {positions.shape[0]})")
     if int(resolution) != resolution or int(padding_texels) != padding_texels:
-        raise ValueError("unwrap: resolution and padding_texels must be integers")
+        raise UnwrapFailed("unwrap: resolution and padding_texels must be integers")
     resolution, padding = int(resolution), int(padding_texels)
     if padding < 0 or resolution < 2 * padding + 2:
-        raise ValueError(f"unwrap: resolution {resolution} is too small for {padding} texels of padding")
+        raise UnwrapFailed(f"unwrap: resolution {resolution} is too small for {padding} texels of padding")
     if texels_per_unit is not None and not (np.isfinite(texels_per_unit) and texels_per_unit > 0):
-        raise ValueError(f"unwrap: texels_per_unit must be positive, got {texels_per_unit!r}")
+        raise UnwrapFailed(f"unwrap: texels_per_unit must be positive, got {texels_per_unit!r}")
 
     m = triangles.shape[0]
     tri = triangles.astype(np.int64)
@@ -214,10 +213,10 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
             scale = 1.0 / float(np.median(positive)) if positive.size else 1.0
             # Measure area on the float32 coordinates xatlas will see.
             xc = (corners * scale).astype(np.float32).astype(np.float64)
-            doubled = np.linalg.norm(np.cross(xc[:, 1] - xc[:, 0], xc[:, 2] - xc[:, 0]), axis=1)
+            doubled = np.linalg.norm(edge_cross(xc), axis=1)
             usable[usable] = np.isfinite(doubled) & (doubled > tol.UNWRAP_MIN_DOUBLED_AREA)
     if not usable.any():
-        raise ValueError(f"unwrap: none of the {m} triangles has a finite, non-zero area")
+        raise UnwrapFailed(f"unwrap: none of the {m} triangles has a finite, non-zero area")
 
     kept = np.flatnonzero(usable)
     vertices, local = np.unique(tri[kept], return_inverse=True)
@@ -236,7 +235,7 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     atlas.generate(xatlas.ChartOptions(), pack)
     chart_count = int(atlas.chart_count)
     if atlas.width == 0 or atlas.height == 0:
-        raise ValueError(f"unwrap: xatlas found no usable face among the {kept.size} triangles")
+        raise UnwrapFailed(f"unwrap: xatlas found no usable face among the {kept.size} triangles")
     _, faces, uv = atlas[0]
     if faces.shape[0] != kept.size:
         raise RuntimeError(f"xatlas returned {faces.shape[0]} faces for {kept.size} input triangles")
@@ -246,7 +245,7 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
 
     if texels_per_unit is not None:
         if atlas.atlas_count != 1:
-            raise ValueError(f"unwrap: at {texels_per_unit} texels per unit the charts need {atlas.atlas_count} "
+            raise UnwrapFailed(f"unwrap: at {texels_per_unit} texels per unit the charts need {atlas.atlas_count} "
                              f"atlases of {resolution}x{resolution}; lower texels_per_unit or raise the resolution")
     elif max(atlas.width, atlas.height) > resolution:
         # Given only a resolution, xatlas sizes charts assuming 75 % packing
@@ -337,7 +336,7 @@ def _break_planar_chains(xpos: np.ndarray, faces: np.ndarray) -> np.ndarray:
         if not hazard.any():
             return xpos
         corners = xpos[faces[hazard]].astype(np.float64)
-        face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        face_normal = edge_cross(corners)
         vertex_normal = np.zeros((weld.max() + 1, 3))
         for k in range(3):
             np.add.at(vertex_normal, welded[hazard, k], face_normal)
@@ -367,7 +366,7 @@ def _curved_planar_regions(xpos: np.ndarray, faces: np.ndarray, welded: np.ndarr
     hazard : (f,) bool
     """
     corners = xpos[faces].astype(np.float64)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal = edge_cross(corners)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     f = faces.shape[0]
     # Faces sharing an edge are adjacent in the sorted edge list.
@@ -461,7 +460,7 @@ def loop_uvs(positions, triangles, loops, corner_uv, loop_count):
                     parent[rb] = ra
     roots = np.array([find(t) for t in range(len(triangles))])
     bad_roots = np.unique(roots[disagree])
-    uv_area = 0.5 * np.abs(np.cross(corner_uv[:, 1] - corner_uv[:, 0], corner_uv[:, 2] - corner_uv[:, 0]))
+    uv_area = triangle_areas(corner_uv)
     for root in bad_roots:
         members = np.nonzero(roots == root)[0]
         reference = members[np.argmax(uv_area[members])]

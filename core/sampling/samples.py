@@ -5,12 +5,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import face_normals
-
 from .. import tolerances as tol
+from ..geometry import face_normals
 from ..outputs.images import bilinear_wrap
-from .raster import rasterize
 from ..scene import Mesh
+from .raster import rasterize
 
 
 @dataclass

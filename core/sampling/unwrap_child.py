@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from ..errors import Cancelled
+from ..errors import Cancelled, UnwrapFailed
 from .atlas import UnwrapResult, unwrap
 
 _CHILD_PACKAGE = "_visibake_core_child"
@@ -104,7 +104,7 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
             raise RuntimeError(f"the unwrap process failed: {last}")
         with np.load(answer) as data:
             if "error" in data:
-                raise ValueError(str(data["error"]))
+                raise UnwrapFailed(str(data["error"]))
             return UnwrapResult(corner_uv=data["corner_uv"], width=int(data["width"]), height=int(data["height"]),
                                 degenerate=data["degenerate"], texels_per_unit=float(data["texels_per_unit"]),
                                 chart_count=int(data["chart_count"]))

@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import tolerances as tol
 from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable
+from .contract import GatherGeometry, GatherSource
 
 
 @dataclass
@@ -131,30 +132,33 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndar
     return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
 
 
-def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layout: AtlasLayout,
-           radiance: np.ndarray, world: np.ndarray, progress=None, exclude: np.ndarray | None = None,
-           threads: int = 0, samples: np.ndarray | None = None) -> np.ndarray:
+def gather(geometry: GatherGeometry, source: GatherSource, progress=None, samples: np.ndarray | None = None,
+           directions: range | None = None) -> np.ndarray:
     """E(p) = sum_i w_i(p) L(S_i[p]): irradiance from the radiance atlases and the world.
 
     Parameters
     ----------
-    normals : (K, 3) float64 shading normals
-    scale : (K,) from :func:`gather_normalisation`
-    radiance : (layout.size, C) float32 packed outgoing radiance of every object; C is
-        3 per light group gathered together
-    world : (N, C) float radiance of rays that leave the scene along each direction
-        (:func:`core.lights.environment.world_radiance`), or (C,) for a uniform world
+    geometry : the table, shading normals (K, 3), normalisation (K,) from
+        :func:`gather_normalisation`, atlas layout and worker threads (0: all cores;
+        each sums its own share of directions)
+    source : radiance (layout.size, C) float32 packed outgoing radiance of every object
+        (C is 3 per light group gathered together); world (N, C) or (C,) radiance of rays
+        that leave the scene (:func:`core.lights.environment.world_radiance`); exclude
+        (K, O) bool or None, True where sample k must not gather object o
     progress : callable(fraction) or None, called from the calling thread only
-    exclude : (K, O) bool or None; True where sample k must not gather object o
-        (its light reaches k by another route, e.g. sampled emitters)
-    threads : worker threads (0: all cores); each sums its own share of directions
     samples : (k,) int64 or None; gather only these samples (the others get 0), e.g.
         the last bounce, which only objects with outputs need
+    directions : a contiguous range of direction indices, or None for all; gathers over
+        disjoint ranges covering the set add up to the whole gather
 
     Returns
     -------
     irradiance : (K, C) float64
     """
+    table, normals, scale, layout = geometry.table, geometry.normals, geometry.scale, geometry.layout
+    radiance, world, exclude = source.radiance, source.world, source.exclude
+    threads = geometry.threads
+    chosen_directions = range(len(table.directions)) if directions is None else directions
     count = len(table.directions)
     channels = radiance.shape[1]
     world = np.broadcast_to(np.asarray(world, np.float64), (count, channels))
@@ -198,13 +202,16 @@ def gather(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, layou
             if has_world and np.any(world[i] != 0):
                 irradiance += (weight * (row == MISS))[:, None] * world32[i]
 
+    first, stop = chosen_directions.start, chosen_directions.stop
+    if chosen_directions.step != 1 or first < 0 or stop > count:
+        raise ValueError(f"gather: directions must be a contiguous range within 0..{count}, got {directions!r}")
     block = 8 * workers
     with ThreadPoolExecutor(workers) as pool:
-        for start in range(0, count, block):
-            shares = [range(start + w, min(count, start + block), workers) for w in range(workers)]
+        for start in range(first, stop, block):
+            shares = [range(start + w, min(stop, start + block), workers) for w in range(workers)]
             list(pool.map(accumulate, range(workers), shares))
             if progress is not None:
-                progress(min(count, start + block) / count)
+                progress((min(stop, start + block) - first) / max(stop - first, 1))
     total = np.zeros((len(chosen_normals), channels))
     for part in sums:
         total += part

@@ -1,5 +1,5 @@
-"""Light groups and their transport: direct light per group, then every group's
-bounces in the same gathers.
+"""Light groups: the lamps, world light and emitting objects whose light is carried
+together (core.pipeline.transport carries them through a backend).
 
 Transport is linear in the emitted light, so each light group (a set of lamps, the
 world, emitting objects) can be carried separately and the groups sum to the whole.
@@ -9,14 +9,9 @@ gathered together as one radiance atlas with 3G channels.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
-
-from .direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
-
-from ..lights.emitters import emitter_irradiance, find_emitters, sampled_directly
 
 # Groups gathered together at most: the per-sample accumulators hold 3 channels per
 # group in float64 per worker thread (403k samples x 48 channels ~ 155 MB each).
@@ -48,15 +43,19 @@ class Transported:
     emitters_sampled: tuple = ()
 
 
-def light_groups(prepared, lights, world: np.ndarray, world_group: str, split: bool) -> list[LightGroup]:
+def light_groups(meshes, emission: np.ndarray, sample_offset: np.ndarray, lights, world: np.ndarray,
+                 world_group: str, split: bool) -> list[LightGroup]:
     """The groups of one lighting: one with everything, or one per light group.
+
+    meshes : the bake's core.scene.Mesh objects; emission : (K, 3) per-sample emitted
+    radiance; sample_offset : (objects + 1,) first sample of each object.
 
     A lamp's group is its ``group`` or its own name; the world's is ``world_group`` or
     "world"; an emitting object's is its ``light_group`` or its own name.
     """
-    objects = len(prepared.meshes)
-    emits = np.array([bool(np.any(prepared.emission[a:b] > 0))
-                      for a, b in zip(prepared.sample_offset[:-1], prepared.sample_offset[1:])], bool)
+    objects = len(meshes)
+    emits = np.array([bool(np.any(emission[a:b] > 0)) for a, b in zip(sample_offset[:-1], sample_offset[1:])],
+                     bool)
     if not split:
         return [LightGroup("all", list(lights), world, emits)]
     groups: dict[str, LightGroup] = {}
@@ -71,7 +70,7 @@ def light_groups(prepared, lights, world: np.ndarray, world_group: str, split: b
     if np.any(world > 0):
         group(world_group or "world").world = world
     for index in np.nonzero(emits)[0]:
-        mesh = prepared.meshes[index]
+        mesh = meshes[index]
         group(mesh.light_group or mesh.name).emitting[index] = True
     return list(groups.values())
 
@@ -85,127 +84,5 @@ def light_key_parts(light) -> list:
         parts.append(name)
         parts.append(np.asarray(value, np.float64) if isinstance(value, np.ndarray) else value)
     return parts
-
-
-def _direct_share(p, lamp_rays: float, emitter_rays: float) -> float:
-    """The direct light's share of a transport's time, from its shadow rays and the
-    gathers' lookups: the progress bar then moves at an even pace through both."""
-    lamp_cost = lamp_rays * (SHADOW_RAY_IN_LOOKUPS if p.settings.shadows == "exact" else 0.2)
-    shadow = lamp_cost + emitter_rays * SHADOW_RAY_IN_LOOKUPS
-    lookups = (len(p.directions) * len(p.position) / 2 if p.table is not None else 0.0) * (p.bounces_needed() + 1)
-    if shadow + lookups <= 0:
-        return 0.5
-    return float(np.clip(shadow / (shadow + lookups), 0.02, 0.98))
-
-
-def transport_groups(p, groups: list[LightGroup], stages, skipped: list,
-                     share=(0.0, 1.0)) -> tuple[list[Transported], int]:
-    """Direct light of every group, then all groups' gathers at once.
-
-    ``p`` is a prepared scene (core.pipeline.prepare.Prepared); ``stages`` times the direct
-    part as "direct" inside the running stage; ``share`` is this call's slice of the
-    stage's progress bar. Returns the groups' irradiance and the gathers run.
-    """
-    low, high = share
-
-    def report(fraction):
-        stages.report(low + (high - low) * fraction)
-
-    direct_started = time.perf_counter()
-    count = len(groups)
-    emitting_any = np.zeros(len(p.meshes), bool)
-    for group in groups:
-        emitting_any |= group.emitting
-
-    # Small emitters are integrated directly where the fixed directions would alias,
-    # and left out of the gather there. Whether a sample samples an emitter depends on
-    # the emitter alone, so one exclusion mask serves every group: an emitter's light
-    # is only in its own group's atlas.
-    exclude = None
-    sampled = []  # (owning group, emitter, samples that sample it directly)
-    if bool(np.any(emitting_any)) and bool(np.any(p.emission > 0)):
-        for emitter in find_emitters(p.meshes, p.settings.emitter_samples):
-            owner = next((i for i, g in enumerate(groups) if g.emitting[emitter.object_index]), None)
-            if owner is None:
-                continue
-            direct = sampled_directly(emitter, p.position, p.settings.directions)
-            if not np.any(direct):
-                continue
-            if exclude is None:
-                exclude = np.zeros((len(p.position), len(p.meshes)), bool)
-            exclude[:, emitter.object_index] = direct
-            sampled.append((owner, emitter, np.nonzero(direct)[0]))
-
-    lamp_rays = len(p.position) * sum(shadow_rays_per_sample(light.kind, p.settings)
-                                      for group in groups for light in group.lights)
-    emitter_rays = sum(len(chosen) for _, _, chosen in sampled) * p.settings.emitter_samples
-    direct_share = _direct_share(p, lamp_rays, emitter_rays)
-    lamp_share = direct_share * lamp_rays / max(lamp_rays + emitter_rays, 1)
-    results = []
-    for index, group in enumerate(groups):
-        irradiance, rays = p.lamp_irradiance(
-            p, group.lights, lambda f, i=index: report(lamp_share * (i + f) / count))
-        results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
-    for number, (owner, emitter, chosen) in enumerate(sampled):
-        irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen],
-                                              p.geometric[chosen], p.origins[chosen], p.ray_scene)
-        results[owner].direct[chosen] += irradiance
-        results[owner].emitter_rays += rays
-        results[owner].emitters_sampled += (p.meshes[emitter.object_index].name,)
-        report(lamp_share + (direct_share - lamp_share) * (number + 1) / len(sampled))
-    stages.book("direct", time.perf_counter() - direct_started)
-    stages.record_pass(f"direct light ({count} groups)", p.direct_device, time.perf_counter() - direct_started)
-
-    per_sample_emitting = np.stack([np.repeat(g.emitting, np.diff(p.sample_offset)) for g in groups])
-    emissions = [np.where(per_sample_emitting[i][:, None], p.emission, 0.0) for i in range(count)]
-    worlds = [g.world for g in groups]
-    gathers_emission = any(np.any(e > 0) for e in emissions) or any(np.any(w > 0) for w in worlds)
-    bounces = p.bounces_needed()
-    if not (bounces > 0 or gathers_emission):
-        return results, 0
-    scale = p.gather_scale()
-    # Only objects with outputs need the last gather's result; the others' radiance
-    # would only feed a bounce that is never gathered.
-    outputs = p.output_samples()
-    steps = bounces + 1
-
-    def step_progress(step):
-        return lambda fraction: report(direct_share + (1.0 - direct_share) * (step + fraction) / steps)
-
-    def wide(arrays):
-        return np.concatenate(arrays, axis=1)
-
-    def narrow(array):
-        return [array[:, 3 * i:3 * i + 3] for i in range(count)]
-
-    gathers = 0
-    def timed_gather(name, *arguments, **keywords):
-        started = time.perf_counter()
-        result = p.gather(*arguments, **keywords)
-        stages.record_pass(f"{name} ({3 * count} channels)", p.gather_device, time.perf_counter() - started)
-        return result
-
-    if gathers_emission:
-        emitted = timed_gather("gather of emitted and world light", p.table, p.normal, scale, p.layout,
-                               p.to_atlas(wide(emissions)), wide(worlds), step_progress(0), exclude,
-                               p.settings.threads, samples=outputs if bounces == 0 else None)
-        gathers += 1
-        for result, part in zip(results, narrow(emitted)):
-            result.direct += part
-    gathered = np.zeros((len(p.position), 3 * count))
-    direct = wide([r.direct for r in results])
-    albedo = np.tile(p.albedo, count)
-    for bounce in range(1, bounces + 1):
-        if not np.any(direct + gathered > 0):
-            skipped.append(f"bounce {bounce} and later: no light left to reflect")
-            break
-        reflected = albedo / np.pi * (direct + gathered)
-        gathered = timed_gather(f"gather of bounce {bounce}", p.table, p.normal, scale, p.layout,
-                                p.to_atlas(reflected), np.zeros(3 * count), step_progress(bounce),
-                                threads=p.settings.threads, samples=outputs if bounce == bounces else None)
-        gathers += 1
-    for result, part in zip(results, narrow(gathered)):
-        result.gathered = part
-    return results, gathers
 
 

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import tolerances as tol
-from ..settings import BakeSettings
 from ..scene import Mesh
+from ..settings import BakeSettings
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
 FORMAT_VERSION = 3  # 3: one checksum per array, backface counts stored

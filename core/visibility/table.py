@@ -110,17 +110,41 @@ def table_bytes(directions: int, samples: int, vertex_objects: bool = False) -> 
     return directions * samples * (2 + 8 + 4 + (4 if vertex_objects else 0))
 
 
-@dataclass
-class _Geometry:
-    """What the table writer needs to turn a hit into a table entry (all objects)."""
+@dataclass(frozen=True)
+class HitGeometry:
+    """What turns a ray's hit into a table entry, for every object of the scene.
 
-    corner_uv: np.ndarray  # (T, 3, 2) float32
-    triangle_offset: np.ndarray  # (objects,) int64
-    face_normals: np.ndarray  # (T, 3) float64
-    vertex_object: np.ndarray | None = None  # (objects,) bool, objects in vertex mode
+    corner_uv : (T, 3, 2) float32 bake-UV corners of all objects' triangles, concatenated
+    triangle_offset : (objects,) int64 index of each object's first triangle in corner_uv
+    face_normals : (T, 3) float64 unit face normals, concatenated like corner_uv
+    vertex_object : (objects,) bool or None, objects whose hits keep triangle and
+        barycentrics (``hit_triangle``) instead of an atlas coordinate
+    """
+
+    corner_uv: np.ndarray
+    triangle_offset: np.ndarray
+    face_normals: np.ndarray
+    vertex_object: np.ndarray | None = None
 
 
-def _record(table: dict, geometry: _Geometry, directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+@dataclass(frozen=True)
+class TraceRequest:
+    """One table to trace: the direction set, the samples, and where their hits land.
+
+    directions : (N, 3) float64
+    positions, geometric_normals : (K, 3) float64 of all samples, objects concatenated
+    hits : HitGeometry of the scene's objects
+    chunk_rays : rays per batch (bounds memory)
+    """
+
+    directions: np.ndarray
+    positions: np.ndarray
+    geometric_normals: np.ndarray
+    hits: HitGeometry
+    chunk_rays: int = 1 << 20
+
+
+def _record(table: dict, geometry: HitGeometry, directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
             hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
             where: np.ndarray | None = None) -> None:
     """Write traced rays into the table arrays: hits, backfaces, and (unless ``where``) misses.
@@ -192,34 +216,26 @@ def _empty_arrays(count: int, samples: int, vertex_objects: bool = False) -> dic
     return arrays
 
 
-def trace_table(ray_scene: RayScene, directions: np.ndarray, positions: np.ndarray,
-                geometric_normals: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
-                face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None,
-                vertex_object: np.ndarray | None = None) -> VisibilityTable:
+def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> VisibilityTable:
     """Trace every (sample, direction) pair above the sample's horizon.
 
     Parameters
     ----------
     ray_scene : RayScene with one geometry per object, in object order
-    directions : (N, 3) float64
-    positions, geometric_normals : (K, 3) float64 of all samples, objects concatenated
-    corner_uv : (T, 3, 2) float32 bake-UV corners of all objects' triangles, concatenated
-    triangle_offset : (objects,) int64 index of each object's first triangle in corner_uv
-    face_normals : (T, 3) float64 unit face normals, concatenated like corner_uv
-    chunk_rays : rays per batch (bounds memory)
+    request : the directions, the samples and the scene's hit geometry
     progress : callable(fraction) or None; may raise to cancel
-    vertex_object : (objects,) bool or None, objects whose hits keep triangle and
-        barycentrics (``hit_triangle``) instead of an atlas coordinate
 
     Returns
     -------
     VisibilityTable
     """
+    directions, positions, geometric_normals = request.directions, request.positions, request.geometric_normals
+    chunk_rays = request.chunk_rays
     count = len(directions)
     samples = len(positions)
-    vertex_object = _vertex_mask(vertex_object)
-    arrays = _empty_arrays(count, samples, vertex_object is not None)
-    geometry = _Geometry(corner_uv, triangle_offset, face_normals, vertex_object)
+    hits = request.hits
+    geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
+    arrays = _empty_arrays(count, samples, geometry.vertex_object is not None)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     chunk = max(1, chunk_rays // max(count, 1))
@@ -277,11 +293,8 @@ def _may_hit_spheres(origins: np.ndarray, directions: np.ndarray, spheres) -> np
     return near
 
 
-def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RayScene, changed_scene: RayScene,
-                 changed: list[int], directions: np.ndarray, positions: np.ndarray, geometric_normals: np.ndarray,
-                 sample_offset: np.ndarray, corner_uv: np.ndarray, triangle_offset: np.ndarray,
-                 face_normals: np.ndarray, chunk_rays: int = 1 << 20, progress=None,
-                 vertex_object: np.ndarray | None = None):
+def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np.ndarray, ray_scene: RayScene,
+                 changed_scene: RayScene, changed: list[int], request: TraceRequest, progress=None):
     """The table after some objects changed, reusing every entry that cannot have changed.
 
     ``old``'s arrays are updated in place when the sample layout is unchanged.
@@ -299,17 +312,20 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
     old_offset, sample_offset : (objects + 1,) int64 first sample of each object, old and new
     changed_scene : RayScene with the new geometry of the ``changed`` objects only, in that order
     changed : indices of the objects whose geometry, UVs or resolution changed
-    other parameters : as :func:`trace_table`, for the new scene
+    request, progress : as :func:`trace_table`, for the new scene
 
     Returns
     -------
     table : VisibilityTable
     counts : UpdateCounts
     """
+    directions, positions, geometric_normals = request.directions, request.positions, request.geometric_normals
+    chunk_rays = request.chunk_rays
     count = len(directions)
     samples = len(positions)
     objects = len(sample_offset) - 1
-    vertex_object = _vertex_mask(vertex_object)
+    hits = request.hits
+    vertex_object = _vertex_mask(hits.vertex_object)
     in_place = np.array_equal(old_offset, sample_offset)
     if in_place:
         # Same layout (a moved object keeps its samples): update the old arrays where they are.
@@ -318,7 +334,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, ray_scene: RaySce
             arrays["hit_triangle"] = old.hit_triangle
     else:
         arrays = _empty_arrays(count, samples, vertex_object is not None)
-    geometry = _Geometry(corner_uv, triangle_offset, face_normals, vertex_object)
+    geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, vertex_object)
     origins_all = offset_ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)

@@ -6,7 +6,8 @@ objects; ``job`` runs a bake in steps (plan, unwrap, extract, compute, finish) a
 undoes what it created on failure; ``writeback`` writes images, colour attributes and
 files; ``device`` chooses the transport backend; ``cache_status`` tracks whether the
 cached table is still valid; ``preview_nodes`` and ``preview_render`` show the
-results; ``demo_scene`` builds the demo.
+results; ``demo_scene`` builds the demo; ``settings`` turns arguments, the scene's
+properties and the preferences into a bake's core settings.
 """
 
 # The extension's own package (``bl_ext.<repository>.visibake``), never hard-coded.

@@ -6,6 +6,12 @@ remembers a fingerprint of every mesh the table was made from (world matrix, eva
 positions, triangles and bake UVs) and of the layout settings; a depsgraph handler
 notes which meshes changed since, and only those are fingerprinted again. After a file
 is opened, the state is unknown until the next bake.
+
+The panel never computes any of this while it draws (folder listings, file sizes and
+hashes would run on every redraw): it shows :func:`shown`, the status :func:`refresh`
+last computed, which runs after a bake, after Clear Cache, on every depsgraph update
+(the handler below; settings changes arrive there too), when a file is saved or
+opened, and every few seconds for what other processes write to the folder.
 """
 from __future__ import annotations
 
@@ -20,8 +26,16 @@ from ...core.visibility.cache import TABLE_FILE, folder_size
 from . import extract, job
 
 # scene.session_uid -> what the last bake of this session left in the cache:
-# {"table": path, "layout": layout settings, "fingerprints": {object: hash}, "suspects": set}
+# {"table": path, "layout": layout settings, "uv_maps": {object: UV map}, "fingerprints": {object: hash},
+#  "suspects": objects updated since they were last fingerprinted, "changed": those found changed}
 _baked: dict[int, dict] = {}
+# scene.session_uid -> the status the panel shows (:func:`status`'s dict, with the table path).
+_shown: dict[int, dict] = {}
+# Scenes whose panel found no status to show; a timer computes theirs.
+_requested: set[int] = set()
+# Seconds between two looks at the cache folders of the scenes the panel shows.
+FOLDER_CHECK_SECONDS = 2.0
+_FILE_FACTS = ("has_table", "table_bytes", "slots", "bytes")
 
 
 def scene_slots(scene) -> list[str]:
@@ -34,20 +48,84 @@ def scene_slots(scene) -> list[str]:
                   if name.startswith(prefix) and os.path.isdir(os.path.join(cache.folder, name)))
 
 
-def status(scene, depsgraph=None) -> dict:
+def status(scene, depsgraph=None, known: dict | None = None) -> dict:
     """What the panel shows: whether the current settings have a cached table, whether it
-    is still valid ('valid', 'stale' with the reasons, or 'unknown'), and sizes."""
+    is still valid ('valid', 'stale' with the reasons, 'unknown', or 'none' without a
+    table), and sizes.
+
+    ``known``: an earlier status whose file facts (table, sizes, slots) are taken as they
+    are, without reading the folder, if it was made for the same folder and table path.
+    """
     cache = job.visibility_cache(scene)
     if cache is None:
         return {"enabled": False}
     settings = scene.visibake.to_bake_settings()
     table = cache.table_path(settings)
-    slots = scene_slots(scene)
-    has_table = os.path.exists(table)
-    validity, reasons = validity_of(scene, table, depsgraph) if has_table else ("none", [])
-    return {"enabled": True, "folder": cache.folder, "has_table": has_table,
-            "table_bytes": os.path.getsize(table) if has_table else 0, "validity": validity, "reasons": reasons,
-            "slots": len(slots), "bytes": sum(folder_size(slot) for slot in slots)}
+    if known is not None and known.get("enabled") and (known["folder"], known["table"]) == (cache.folder, table):
+        files = {name: known[name] for name in _FILE_FACTS}
+    else:
+        slots = scene_slots(scene)
+        has_table = os.path.exists(table)
+        files = {"has_table": has_table, "table_bytes": os.path.getsize(table) if has_table else 0,
+                 "slots": len(slots), "bytes": sum(folder_size(slot) for slot in slots)}
+    validity, reasons = validity_of(scene, table, depsgraph) if files["has_table"] else ("none", [])
+    return {"enabled": True, "folder": cache.folder, "table": table, **files, "validity": validity,
+            "reasons": reasons}
+
+
+def shown(scene) -> dict | None:
+    """The status :func:`refresh` last computed for ``scene`` (None: none yet): all that
+    draw code reads."""
+    return _shown.get(scene.session_uid)
+
+
+def refresh(scene, depsgraph=None, files: bool = True) -> dict:
+    """Compute ``scene``'s :func:`status` and keep it for :func:`shown`.
+
+    ``files`` False: read the folder only if the cache folder or table path changed
+    since the last status (the depsgraph handler, which runs on every change).
+    """
+    known = None if files else _shown.get(scene.session_uid)
+    _shown[scene.session_uid] = state = status(scene, depsgraph, known)
+    return state
+
+
+def request_refresh(scene) -> None:
+    """For draw code that found no status: a timer computes it right after the draw."""
+    _requested.add(scene.session_uid)
+    if not bpy.app.timers.is_registered(refresh_requested):
+        bpy.app.timers.register(refresh_requested, first_interval=0.0)
+
+
+def refresh_requested() -> None:
+    """The timer of :func:`request_refresh`: the statuses asked for, then a redraw."""
+    requested = set(_requested)
+    _requested.clear()
+    for scene in bpy.data.scenes:
+        if scene.session_uid in requested:
+            refresh(scene)
+    _redraw_panels()
+    return None
+
+
+def _refresh_shown_folders() -> float:
+    """Timer: read the folders of the statuses shown again (another process may bake or clear)."""
+    changed = False
+    for scene in bpy.data.scenes:
+        before = _shown.get(scene.session_uid)
+        if before is not None:
+            changed |= refresh(scene) != before
+    if changed:
+        _redraw_panels()
+    return FOLDER_CHECK_SECONDS
+
+
+def _redraw_panels() -> None:
+    window_manager = getattr(bpy.context, "window_manager", None)
+    for window in window_manager.windows if window_manager is not None else []:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
 
 
 def _layout_settings(scene) -> tuple:
@@ -86,6 +164,7 @@ def remember_bake(scene, depsgraph, report: dict) -> None:
     # rebuilt); bytes_on_disk is 0 where writing it failed.
     if cache_state.get("state") in ("off", "unused", None) or not cache_state.get("bytes_on_disk"):
         _baked.pop(scene.session_uid, None)
+        refresh(scene, depsgraph)
         return
     uv_maps = {entry["name"]: entry.get("uv_map", "") for entry in report["objects"]}
     try:
@@ -93,9 +172,11 @@ def remember_bake(scene, depsgraph, report: dict) -> None:
                         for name, uv_map in uv_maps.items()}
     except (KeyError, ReferenceError):  # an object renamed or removed since: the state is unknown
         _baked.pop(scene.session_uid, None)
+        refresh(scene, depsgraph)
         return
     _baked[scene.session_uid] = {"table": cache_state["path"], "layout": _layout_settings(scene), "uv_maps": uv_maps,
-                                 "fingerprints": fingerprints, "suspects": set()}
+                                 "fingerprints": fingerprints, "suspects": set(), "changed": set()}
+    refresh(scene, depsgraph)
 
 
 def note_changes(scene, depsgraph) -> None:
@@ -129,43 +210,67 @@ def validity_of(scene, table: str, depsgraph=None) -> tuple[str, list[str]]:
     suspects = sorted(baked["suspects"] & names & set(known))
     if suspects:
         depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
-        changed = [name for name in suspects
-                   if fingerprint(bpy.data.objects[name], depsgraph, baked["uv_maps"][name]) != known[name]]
-        baked["suspects"] -= set(suspects) - set(changed)  # checked: unchanged after all
-        if changed:
-            reasons.append(f"changed: {', '.join(changed)}")
+        for name in suspects:
+            if fingerprint(bpy.data.objects[name], depsgraph, baked["uv_maps"][name]) == known[name]:
+                baked["changed"].discard(name)  # as it was baked (moved back, or not changed after all)
+            else:
+                baked["changed"].add(name)
+        # Hashed once per update: the next update of an object makes it a suspect again.
+        baked["suspects"] -= set(suspects)
+    changed = sorted(baked["changed"] & names)
+    if changed:
+        reasons.append(f"changed: {', '.join(changed)}")
     return ("stale" if reasons else "valid"), reasons
 
 
 @bpy.app.handlers.persistent
 def _on_depsgraph_update(scene, depsgraph) -> None:
     note_changes(scene, depsgraph)
+    refresh(scene, depsgraph, files=False)
+
+
+@bpy.app.handlers.persistent
+def _on_save(*_args) -> None:
+    # Saving names the cache after the file (and may move it beside the file).
+    for scene in bpy.data.scenes:
+        if scene.session_uid in _shown:
+            refresh(scene)
+
+
+@bpy.app.handlers.persistent
+def _on_load(*_args) -> None:
+    _shown.clear()
+    _requested.clear()
+    if bpy.context.scene is not None:
+        refresh(bpy.context.scene)
+
+
+_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("save_post", _on_save), ("load_post", _on_load))
 
 
 def register_handlers() -> None:
-    bpy.app.handlers.depsgraph_update_post.append(_on_depsgraph_update)
+    for name, handler in _HANDLERS:
+        getattr(bpy.app.handlers, name).append(handler)
+    if not bpy.app.timers.is_registered(_refresh_shown_folders):
+        bpy.app.timers.register(_refresh_shown_folders, first_interval=FOLDER_CHECK_SECONDS, persistent=True)
+    try:
+        scenes = list(bpy.data.scenes)
+    except AttributeError:  # Blender starting up: data is not readable yet; the handlers see the file load
+        scenes = []
+    for scene in scenes:
+        refresh(scene)
 
 
 def unregister_handlers() -> None:
-    if _on_depsgraph_update in bpy.app.handlers.depsgraph_update_post:
-        bpy.app.handlers.depsgraph_update_post.remove(_on_depsgraph_update)
+    for name, handler in _HANDLERS:
+        if handler in getattr(bpy.app.handlers, name):
+            getattr(bpy.app.handlers, name).remove(handler)
+    for timer in (_refresh_shown_folders, refresh_requested):
+        if bpy.app.timers.is_registered(timer):
+            bpy.app.timers.unregister(timer)
     _baked.clear()
-
-
-class VISIBAKE_OT_clear_cache(bpy.types.Operator):
-    """Delete this scene's cached visibility (every direction setting); the next bake traces it again"""
-
-    bl_idname = "visibake.clear_cache"
-    bl_label = "Clear Cache"
-    bl_options = {"REGISTER"}
-
-    def invoke(self, context, event):
-        return context.window_manager.invoke_confirm(self, event)
-
-    def execute(self, context):
-        slots, freed = clear(context.scene)
-        self.report({"INFO"}, f"VisiBake: cleared {slots} cached table(s), {freed / 2**20:.1f} MiB")
-        return {"FINISHED"}
+    _shown.clear()
+    _requested.clear()
 
 
 def clear(scene) -> tuple[int, int]:
@@ -183,7 +288,7 @@ def clear(scene) -> tuple[int, int]:
         if not os.listdir(slot):
             shutil.rmtree(slot, ignore_errors=True)
     _baked.pop(scene.session_uid, None)
+    refresh(scene)
     return len(slots), freed
 
 
-classes = (VISIBAKE_OT_clear_cache,)

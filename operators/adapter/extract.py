@@ -5,6 +5,7 @@ import bpy
 import numpy as np
 
 from ...core.lights import environment
+from ...core.lights.lamps import cycles_strength
 from ...core.outputs.images import srgb_to_linear
 from ...core.scene import Light, Material, Mesh, World
 
@@ -179,23 +180,18 @@ def read_light(obj: bpy.types.Object) -> Light:
     scale = np.linalg.norm(axes, axis=0)
     safe = np.where(scale > 0, scale, 1.0)
     axis_x, axis_y, axis_z = (axes[:, i] / safe[i] for i in range(3))
-    strength = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
+    extent = {}
+    if light.type == "AREA":
+        size_y = light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size
+        extent = {"area_shape": light.shape, "size": float(light.size), "size_y": float(size_y),
+                  "scale": (scale[0], scale[1])}
+    elif light.type == "SUN":
+        extent = {"sun_angle": float(light.angle)}
+    strength = cycles_strength(light.type, float(light.energy), float(getattr(light, "exposure", 0.0)),
+                               getattr(light, "normalize", True), **extent)
     color = np.array(light.color[:3], np.float64)
     if getattr(light, "use_temperature", False):
         color = color * np.array(light.temperature_color[:3], np.float64)
-    if not getattr(light, "normalize", True):
-        # Unnormalised lamps (Blender 5), as measured against Cycles: a point emits
-        # four times its normalised intensity, an area light radiance P/pi whatever
-        # its size; a sun's strength is only the same at angle 0.
-        if light.type in {"POINT", "SPOT"}:
-            strength *= 4.0
-        elif light.type == "AREA":
-            area = float(light.size) * float(light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size)
-            area *= float(scale[0] * scale[1]) * (np.pi / 4 if light.shape in {"DISK", "ELLIPSE"} else 1.0)
-            strength *= area
-        elif light.type == "SUN":
-            half = float(light.angle) / 2.0
-            strength *= 2.0 * np.pi * (1.0 - np.cos(half)) if half > 0 else 1.0
     result = Light(name=obj.name, kind=light.type, color=color,
                    strength=strength, position=matrix[:3, 3].copy(), direction=-axis_z,
                    group=getattr(obj, "lightgroup", ""))
@@ -205,7 +201,6 @@ def read_light(obj: bpy.types.Object) -> Light:
     if light.type == "AREA":
         result.area_shape = light.shape
         result.size_x = float(light.size) * scale[0]
-        size_y = light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size
         result.size_y = float(size_y) * scale[1]
         result.axis_x, result.axis_y = axis_x, axis_y
     return result

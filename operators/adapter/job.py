@@ -13,27 +13,21 @@ import time
 from dataclasses import dataclass, field
 
 import bpy
-
 import numpy as np
 
-from ...core.visibility.cache import VisibilityCache
-from ...core.transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
-from ...core.pipeline.relight import BakeResult, relight_many
-from ...core.errors import Cancelled
+from ...core.errors import BakeRefused, Cancelled
+from ...core.geometry import face_normals
+from ...core.outputs.report import DeviceReport, RefinedReport, Report, SetupReport
 from ...core.pipeline.budget import check_budget, peak_memory_bytes
 from ...core.pipeline.prepare import prepare
-from ...core.geometry import face_normals
+from ...core.pipeline.relight import BakeResult, relight_many
+from ...core.sampling import layout as layout_policy
 from ...core.scene import Scene
-from . import EXTENSION_PACKAGE, device, extract, layout, refine, writeback
-
-CACHE_FOLDER_NAME = "visibake_cache"
-# Bytes per sample and direction of a cached table (hit object, hit uv, distance, and
-# the hit triangle when a vertex-mode object exists); sizes the cache's I/O in estimates.
-TABLE_BYTES_PER_ENTRY = 18
-
-
-class BakeInputError(ValueError):
-    """Bad input (objects, settings, names): the message is meant for the user."""
+from ...core.transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
+from ...core.visibility.cache import VisibilityCache
+from ...core.visibility.table import table_bytes
+from . import device, extract, layout, refine, writeback
+from .settings import cache_folder, layout_settings, resolve
 
 
 @dataclass
@@ -41,24 +35,6 @@ class JobResult:
     result: BakeResult
     report: dict
     files: list[str] = field(default_factory=list)
-
-
-def cache_folder(scene) -> str:
-    """The cache folder: the scene's setting, the preference, beside the saved .blend, the user folder."""
-    props = scene.visibake
-    if props.cache_dir:
-        return bpy.path.abspath(props.cache_dir)
-    prefs = device.preferences()
-    if prefs is not None and prefs.cache_dir:
-        return bpy.path.abspath(prefs.cache_dir)
-    if bpy.data.filepath:
-        return os.path.join(os.path.dirname(bpy.data.filepath), CACHE_FOLDER_NAME)
-    package = EXTENSION_PACKAGE
-    try:
-        return bpy.utils.extension_path_user(package, path="cache", create=True)
-    except ValueError:
-        # Not installed as an extension (run from a source checkout by tools/visibake.py).
-        return os.path.join(bpy.utils.user_resource("CONFIG"), "visibake", "cache")
 
 
 def visibility_cache(scene) -> VisibilityCache | None:
@@ -128,10 +104,7 @@ def plan_extraction(context, objects, progress=None) -> Planned:
         if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
             warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
             continue
-        try:
-            planned.plans[obj.name] = _plan(obj, mesh, props, planned.budget, props.directions)
-        except ValueError as error:
-            raise BakeInputError(str(error)) from None
+        planned.plans[obj.name] = _plan(obj, mesh, layout_settings(props), planned.budget, props.directions)
         planned.objects.append(obj)
         planned.meshes.append(mesh)
         if progress:
@@ -146,7 +119,7 @@ def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None
     started = time.perf_counter()
     unwraps = planned.unwraps
     # Progress by expected time: one large mesh takes longer than many small ones.
-    costs = np.cumsum([0.0] + [layout.unwrap_seconds(len(p.triangles)) for p in unwraps])
+    costs = np.cumsum([0.0] + [layout_policy.unwrap_seconds(len(p.triangles)) for p in unwraps])
     for index, pending in enumerate(unwraps):
         fraction = costs[index] / costs[-1]
 
@@ -183,10 +156,7 @@ def complete_extraction(context, planned: Planned) -> Extracted:
             plan = planned.plans[obj.name]
             if plan.pending is None:
                 continue
-            try:
-                plan = _complete_plan(obj, mesh, plan, planned.budget, props)
-            except ValueError as error:
-                raise BakeInputError(str(error)) from None
+            plan = _complete_plan(obj, mesh, plan, planned.budget, props)
             planned.plans[obj.name] = plan
             if plan.created:
                 created.append((obj.data, plan.uv_map))
@@ -211,7 +181,7 @@ def complete_extraction(context, planned: Planned) -> Extracted:
                            world=world)
         times["extract"] = time.perf_counter() - t
         if not any(m.output for m in meshes):
-            raise BakeInputError("none of the objects to bake has faces")
+            raise BakeRefused("none of the objects to bake has faces")
     except BaseException:
         layout.remove_created_uv_maps(created)
         raise
@@ -290,10 +260,12 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
         for copy in copies.values():
             refine.undo_refinement(copy)
         raise
-    outcome.report["refined"] = [
-        {"object": name, "copy": copy.name, "coarse_triangles": int(len(triangles)),
-         "vertices": [len(bpy.data.objects[name].data.vertices), len(copy.data.vertices)]}
+    report = Report.from_dict(outcome.report)
+    report.refined = [
+        RefinedReport(object=name, copy=copy.name, coarse_triangles=int(len(triangles)),
+                      vertices=[len(bpy.data.objects[name].data.vertices), len(copy.data.vertices)])
         for (obj, triangles), (name, copy) in zip(coarse, copies.items())]
+    outcome.result.report = outcome.report = report.to_dict()
     return outcome
 
 
@@ -303,7 +275,7 @@ def _vertex_topology_kept(obj, mesh) -> bool:
 
 def _check_vertex_topology(obj, mesh) -> None:
     if mesh.output and not _vertex_topology_kept(obj, mesh):
-        raise BakeInputError(
+        raise BakeRefused(
             f"object {obj.name!r}: vertex mode writes colour attributes on the mesh, but its modifiers change "
             f"its vertices ({len(obj.data.vertices)} -> {mesh.vertex_count}) or corners; apply the modifiers "
             "or use mode atlas")
@@ -315,7 +287,7 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
-    output. Raises :class:`BakeInputError` for bad input, ``core.errors.Cancelled``
+    output. Raises :class:`BakeRefused` for bad input, ``core.errors.Cancelled``
     if ``progress`` cancels; in both cases the scene is left unchanged.
 
     Parameters
@@ -383,27 +355,15 @@ class BakeJob:
         Changes nothing in the scene (main thread).
         """
         context, objects, setups = self.context, self.objects, self.setups
-        props = context.scene.visibake
         if not objects:
-            raise BakeInputError("no mesh objects to bake: select some, or enable All Objects")
+            raise BakeRefused("no mesh objects to bake: select some, or enable All Objects")
         if setups is not None and not self.out_dir:
-            raise BakeInputError("lighting setups are written as files: give an output folder")
-        prefs = device.preferences(context)
-        threads = self.threads if self.threads is not None else (prefs.threads if prefs is not None else 0)
-        self.settings = settings = props.to_bake_settings(threads=threads)
-        try:
-            settings.validate()
-        except ValueError as error:
-            raise BakeInputError(str(error)) from None
+            raise BakeRefused("lighting setups are written as files: give an output folder")
+        self.resolved = resolve(context, self.threads, self.device_name, self.refine)
+        self.settings = settings = self.resolved.bake
         if setups is None:
-            try:
-                writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
-            except ValueError as error:
-                raise BakeInputError(str(error)) from None
-        try:
-            self.chosen_device = device.choose(context, self.device_name)
-        except device.DeviceError as error:
-            raise BakeInputError(str(error)) from None
+            writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
+        self.chosen_device = device.choose(context, self.resolved.device)
         self.started = time.perf_counter()
         self.shadow_rays_per_sample = sum(shadow_rays_per_sample(lamp.data.type, settings)
                                           for lamp in extract.scene_lights(context.scene))
@@ -420,17 +380,14 @@ class BakeJob:
         self.extracted = extracted = complete_extraction(context, self.planned)
         self.cache = visibility_cache(context.scene)
         try:
-            try:
-                if setups is None:
-                    writeback.check_attribute_names(
-                        [o for o in objects if o.name in extracted.plans and extracted.plans[o.name].mode == "vertex"],
-                        settings.passes)
-                self.lightings = [(None, extracted.scene.lights, extracted.scene.world)]
-                if setups is not None:
-                    self.lightings = [(s.name, s.lights, s.world)
-                                      for s in setups(extracted.scene.lights, extracted.scene.world)]
-            except ValueError as error:
-                raise BakeInputError(str(error)) from None
+            if setups is None:
+                writeback.check_attribute_names(
+                    [o for o in objects if o.name in extracted.plans and extracted.plans[o.name].mode == "vertex"],
+                    settings.passes)
+            self.lightings = [(None, extracted.scene.lights, extracted.scene.world)]
+            if setups is not None:
+                self.lightings = [(s.name, s.lights, s.world)
+                                  for s in setups(extracted.scene.lights, extracted.scene.world)]
         except BaseException:
             extracted.undo()
             self.extracted = None
@@ -451,7 +408,7 @@ class BakeJob:
             if plan.mode == "vertex":
                 samples += mesh.vertex_count or len(mesh.positions)
             else:
-                samples += layout.TYPICAL_PACKED_UV_AREA * plan.resolution[0] * plan.resolution[1]
+                samples += layout_policy.TYPICAL_PACKED_UV_AREA * plan.resolution[0] * plan.resolution[1]
         rays = samples * self.settings.directions / 2
         gathers = self.settings.bounces + 1
         shadow_rays = samples * self.shadow_rays_per_sample if self.settings.shadows == "exact" else 0.0
@@ -459,10 +416,11 @@ class BakeJob:
                 "transport": rays * gathers + SHADOW_RAY_IN_LOOKUPS * shadow_rays, "outputs": samples}
         if self.context.scene.visibake.use_cache:
             # The table is written after a trace or read on a hit: one pass over its bytes.
-            work["cache"] = rays * 2 * TABLE_BYTES_PER_ENTRY
+            vertex = any(self.planned.plans[m.name].mode == "vertex" for m in self.planned.meshes)
+            work["cache"] = 2 * table_bytes(1, int(rays), vertex_objects=vertex)
         if self.planned.unwraps:
             # In seconds of the measured machine: xatlas grows faster than linearly.
-            work["unwrap"] = sum(layout.unwrap_seconds(len(p.triangles)) for p in self.planned.unwraps)
+            work["unwrap"] = sum(layout_policy.unwrap_seconds(len(p.triangles)) for p in self.planned.unwraps)
         return work
 
     def compute(self) -> None:
@@ -472,24 +430,18 @@ class BakeJob:
 
     def compute_visibility(self) -> None:
         """The visibility table, traced or from the cache (no bpy: any thread)."""
-        try:
-            # Relighting with a setup may need the table although the scene's own lights do not.
-            self.prepared = prepare(self.extracted.scene, self.settings, self.progress,
-                                    table_needed=True if self.setups else None, cache=self.cache,
-                                    require_cached_table=self.relight_only)
-        except ValueError as error:
-            raise BakeInputError(str(error)) from None
+        # Relighting with a setup may need the table although the scene's own lights do not.
+        # A user's error is a BakeRefused from the core; anything else is a bug and says so.
+        self.prepared = prepare(self.extracted.scene, self.settings, self.progress,
+                                table_needed=True if self.setups else None, cache=self.cache,
+                                require_cached_table=self.relight_only)
 
     def compute_lighting(self) -> None:
         """Direct and indirect light from the table (any thread for numpy; the main
         thread when :attr:`needs_main_thread`)."""
-        try:
-            self.chosen_device.apply(self.prepared)
-            # All setups' light groups share the gathers: one table walk serves them all.
-            relit = relight_many(self.prepared, [(lights, world) for _, lights, world in self.lightings],
-                                 self.progress)
-        except ValueError as error:
-            raise BakeInputError(str(error)) from None
+        # All setups' light groups share the gathers: one table walk serves them all.
+        relit = relight_many(self.prepared, [(lights, world) for _, lights, world in self.lightings],
+                             self.progress, self.chosen_device.backend)
         self.results = [(name, result) for (name, _, _), result in zip(self.lightings, relit)]
 
     def abort(self) -> None:
@@ -504,17 +456,12 @@ class BakeJob:
         try:
             if setups is None:
                 first = results[0][1].objects
-                try:
-                    writeback.check_image_names(writeback.image_name(o.name, p)
-                                                for o in first if o.domain is None for p in o.images)
-                    writeback.check_attribute_names(
-                        [bpy.data.objects[o.name] for o in first if o.domain is not None],
-                        {p for o in first if o.domain is not None for p in o.images})
-                except ValueError as error:
-                    raise BakeInputError(str(error)) from None
-            props = self.context.scene.visibake
-            refine = props.refine_vertex_objects if self.refine is None else self.refine
-            if refine and setups is None and not self.relight_only:
+                writeback.check_image_names(writeback.image_name(o.name, p)
+                                            for o in first if o.domain is None for p in o.images)
+                writeback.check_attribute_names(
+                    [bpy.data.objects[o.name] for o in first if o.domain is not None],
+                    {p for o in first if o.domain is not None for p in o.images})
+            if self.resolved.refine and setups is None and not self.relight_only:
                 coarse = [(bpy.data.objects[r.name], r.coarse_triangles) for r in results[0][1].objects
                           if r.domain is not None and r.coarse_triangles is not None and len(r.coarse_triangles)]
                 if coarse:
@@ -540,30 +487,31 @@ class BakeJob:
         times["write"] = time.perf_counter() - t
 
         result = results[-1][1]
-        report = result.report
-        report["stage_seconds"] = {**{k: round(v, 4) for k, v in times.items() if k != "write"},
-                                   **report["stage_seconds"], "write": round(times["write"], 4)}
-        report["total_seconds"] = round(time.perf_counter() - self.started, 4)
-        report["peak_memory_bytes"] = peak_memory_bytes()
-        report["files"] = files
-        report["warnings"] = warnings + report["warnings"]
-        for entry in report["objects"]:
-            plan = plans.get(entry["name"])
+        reports = [Report.from_dict(r.report) for _, r in results]
+        report = reports[-1]
+        report.stage_seconds = {**{k: round(v, 4) for k, v in times.items() if k != "write"},
+                                **report.stage_seconds, "write": round(times["write"], 4)}
+        report.total_seconds = round(time.perf_counter() - self.started, 4)
+        report.peak_memory_bytes = peak_memory_bytes()
+        report.files = files
+        report.warnings = warnings + report.warnings
+        for entry in report.objects:
+            plan = plans.get(entry.name)
             if plan is not None:
-                entry["mode"] = plan.mode
-                entry["layout_reason"] = plan.reason
-                entry["uv_map_created"] = plan.created
-        report["blender_version"] = bpy.app.version_string
-        report["lights"] = [light.name for light in lightings[-1][1]]
-        report["relight_only"] = self.relight_only
-        report["device"] = self.chosen_device.report
+                entry.mode, entry.layout_reason, entry.uv_map_created = plan.mode, plan.reason, plan.created
+        report.blender_version = bpy.app.version_string
+        report.lights = [light.name for light in lightings[-1][1]]
+        report.relight_only = self.relight_only
+        report.device = DeviceReport.from_dict(self.chosen_device.report)
         if setups is not None:
-            report["setups"] = [{"name": name, "lights": [light.name for light in lights],
-                                 "stage_seconds": r.report["stage_seconds"], "gathers": r.report["gathers"],
-                                 "shadow_rays": r.report["rays"]["shadow_rays"],
-                                 "lighting_reused": r.report["cache"].get("lighting_reused", [])}
-                                for (name, lights, _), (_, r) in zip(lightings, results)]
-        return JobResult(result=result, report=report, files=files)
+            # The last setup's times are the whole bake's, as in the report itself.
+            report.setups = [SetupReport(name=name, lights=[light.name for light in lights],
+                                         stage_seconds=r.stage_seconds, gathers=r.gathers,
+                                         shadow_rays=r.rays.shadow_rays,
+                                         lighting_reused=r.cache.lighting_reused if r.cache is not None else [])
+                             for (name, lights, _), r in zip(lightings, reports)]
+        result.report = report.to_dict()
+        return JobResult(result=result, report=result.report, files=files)
 
 
 def write_report(path: str, report: dict) -> None:

@@ -12,41 +12,18 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
+from ...core.errors import LayoutError, UnwrapFailed
+from ...core.geometry import triangle_areas
+from ...core.sampling import layout as policy
 from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_problems
+
+# Kept importable from here for the tests that name the policy's limits through the adapter.
+from ...core.sampling.layout import DENSE_MIN_VERTICES, TYPICAL_PACKED_UV_AREA, UNWRAP_TRIANGLE_BUDGET  # noqa: F401
 from ...core.sampling.unwrap_child import ChildUnavailable, unwrap_in_child
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
 OWNED_UV_KEY = "visibake_uv_map"
-# Share of the UV square xatlas typically fills; sizes a texel-density atlas before unwrapping.
-TYPICAL_PACKED_UV_AREA = 0.7
-
-
-class LayoutError(ValueError):
-    """An object cannot get a bake layout; the message says why."""
-
-
-class UnwrapFailed(LayoutError):
-    """xatlas could not unwrap the object (mode auto then falls back to vertex tables)."""
-
-
-# Mode auto leaves the unwrap to vertex tables above this many triangles: xatlas took
-# ~2 s at 20k and ~140 s at 180k triangles (growing faster than linearly) on a 2-core
-# machine, so 100k triangles keeps an unwrap under about a minute.
-UNWRAP_TRIANGLE_BUDGET = 100_000
-
-# "Dense" needs many vertices as well as close ones: a low-poly object at a draft
-# resolution (a quad at 1 x 1 texels) has vertices farther apart than a texel's size
-# too, but an artist still expects an image for it.
-DENSE_MIN_VERTICES = 1024
-
-
-def unwrap_seconds(triangles: int) -> float:
-    """Rough time of one unwrap on the machine of UNWRAP_TRIANGLE_BUDGET's measurements,
-    for the time-left estimate: a power law through them (exponent ln 70 / ln 9 = 1.93;
-    it predicts 19 s at 65k triangles, where 18-21 s was measured), plus starting the
-    child process."""
-    return 2.0 * (triangles / 20_000) ** 1.93 + 0.2
 
 
 @dataclass
@@ -97,7 +74,8 @@ def vertex_plan(reason: str) -> LayoutPlan:
 
 def auto_vertex_reason(obj, evaluated_positions, evaluated_triangles, evaluated_loop_count: int,
                        settings) -> str | None:
-    """Why mode auto should bake ``obj`` with vertex tables before trying an atlas, or None.
+    """Why mode auto should bake ``obj`` with vertex tables before trying an atlas, or None
+    (core.sampling.layout.auto_vertex_reason).
 
     Only where the results can be written to the mesh: vertex colours live on the base
     mesh, so its modifiers must keep the vertices and corners as they are.
@@ -105,62 +83,29 @@ def auto_vertex_reason(obj, evaluated_positions, evaluated_triangles, evaluated_
     mesh = obj.data
     if len(evaluated_positions) != len(mesh.vertices) or evaluated_loop_count != len(mesh.loops):
         return None
-    triangles = len(evaluated_triangles)
-    if triangles > UNWRAP_TRIANGLE_BUDGET:
-        return (f"{triangles} triangles: unwrapping would take over a minute (the budget is "
-                f"{UNWRAP_TRIANGLE_BUDGET} triangles)")
-    corners = evaluated_positions[evaluated_triangles]
-    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
-    edges = edges[np.isfinite(edges) & (edges > 0)]
-    area = float(np.sum(_triangle_areas(corners)))
-    resolution = object_resolution(obj, settings, area, TYPICAL_PACKED_UV_AREA)
-    if len(edges) == 0 or area <= 0:
-        return None
-    texel = np.sqrt(area / (TYPICAL_PACKED_UV_AREA * resolution[0] * resolution[1]))
-    spacing = float(np.median(edges))
-    if spacing < texel and len(evaluated_positions) >= DENSE_MIN_VERTICES:
-        return (f"its vertices are {spacing:.3g} apart, finer than a texel ({texel:.3g}) at "
-                f"{resolution[0]}x{resolution[1]}")
-    return None
+    return policy.auto_vertex_reason(evaluated_positions, evaluated_triangles, *_own_size(obj), settings)
 
 
 def owns_uv_map(mesh: bpy.types.Mesh, name: str) -> bool:
     return mesh.get(OWNED_UV_KEY) == name and name in mesh.uv_layers
 
 
+def _own_size(obj) -> tuple[int, float]:
+    """The object's own resolution and texel density (0: none of its own)."""
+    if not hasattr(obj, "visibake"):
+        return 0, 0.0
+    return obj.visibake.resolution, obj.visibake.texel_density
+
+
 def object_resolution(obj, settings, world_area: float, uv_area: float) -> tuple[int, int]:
-    """Atlas size: the object's own resolution or texel density, else the scene's texel
-    density, else the scene's resolution."""
-    own = obj.visibake.resolution if hasattr(obj, "visibake") else 0
-    if own > 0:
-        return own, own
-    density = obj.visibake.texel_density if hasattr(obj, "visibake") else 0.0
-    density = density if density > 0 else settings.texel_density
-    if density > 0 and world_area > 0:
-        size = int(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * density))
-        size = int(np.clip(size, 8, 8192))
-        return size, size
-    return settings.resolution, settings.resolution
+    """Atlas size of ``obj`` (core.sampling.layout.object_resolution)."""
+    return policy.object_resolution(*_own_size(obj), settings, world_area, uv_area)
 
 
 def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarray) -> tuple[int, int]:
-    """The atlas size ``obj`` will get, known before its UV map is looked at.
-
-    With a texel density the real size depends on how much of the UV square the
-    layout fills; the typical packed share stands in for it here.
-    """
-    world_area = float(np.sum(_triangle_areas(positions[triangles]))) if len(triangles) else 0.0
-    return object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
-
-
-def _triangle_areas(corners: np.ndarray) -> np.ndarray:
-    """Areas of (m, 3, 2 or 3) triangles; 0 where a corner is not finite."""
-    corners = np.where(np.isfinite(corners), corners, 0.0)
-    if corners.shape[-1] == 2:
-        a = corners[:, 1] - corners[:, 0]
-        b = corners[:, 2] - corners[:, 0]
-        return 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
-    return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    """The atlas size ``obj`` will get, known before its UV map is looked at
+    (core.sampling.layout.planned_resolution)."""
+    return policy.planned_resolution(*_own_size(obj), settings, positions, triangles)
 
 
 def _base_triangles(mesh: bpy.types.Mesh):
@@ -217,7 +162,7 @@ def existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
 
 def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings):
     mesh = obj.data
-    world_area = float(np.sum(_triangle_areas(evaluated_positions[evaluated_triangles]))) if len(evaluated_triangles) else 0.0
+    world_area = policy.surface_area(evaluated_positions, evaluated_triangles)
     candidates = []
     if owns_uv_map(mesh, UV_MAP_NAME):
         candidates.append(UV_MAP_NAME)
@@ -229,7 +174,7 @@ def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles
         corner_uv = evaluated_uv.get(name)
         if corner_uv is None:
             continue
-        uv_area = float(np.sum(_triangle_areas(corner_uv.astype(np.float64))))
+        uv_area = float(np.sum(triangle_areas(corner_uv.astype(np.float64))))
         resolution = object_resolution(obj, settings, world_area, uv_area)
         problems = uv_layout_problems(corner_uv, *resolution)
         if not problems:

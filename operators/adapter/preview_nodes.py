@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import bpy
 
+from ...core.errors import OutputRefused
 from . import layout, writeback
 
 NODE_TAG = "visibake_preview"  # on every node VisiBake adds to a material
@@ -34,7 +35,7 @@ def _lighting_group(obj) -> bpy.types.ShaderNodeTree | None:
     name = f"{GROUP_PREFIX}{obj.name}"
     group = bpy.data.node_groups.get(name)
     if group is not None and not group.get(NODE_TAG):
-        raise ValueError(f"a node group named {name!r} exists that VisiBake did not create; rename it")
+        raise OutputRefused(f"a node group named {name!r} exists that VisiBake did not create; rename it")
     if group is None:
         group = bpy.data.node_groups.new(name, "ShaderNodeTree")
         group[NODE_TAG] = True
@@ -128,40 +129,3 @@ def remove_preview() -> int:
     return changed
 
 
-class VISIBAKE_OT_preview_add(bpy.types.Operator):
-    """Show the baked lighting in the viewport and in renders: each baked object's materials get a node group \
-emitting it, as their active output; your nodes stay as they are"""
-
-    bl_idname = "visibake.preview_add"
-    bl_label = "Show Baked Lighting"
-    bl_options = {"REGISTER", "UNDO"}
-
-    def execute(self, context):
-        from .job import output_objects
-
-        objects = output_objects(context, context.scene.visibake)
-        try:
-            wired, warnings = add_preview(objects)
-        except ValueError as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        for warning in warnings:
-            self.report({"WARNING"}, warning)
-        self.report({"INFO"}, f"VisiBake: baked lighting shown in {wired} material(s)")
-        return {"FINISHED"}
-
-
-class VISIBAKE_OT_preview_remove(bpy.types.Operator):
-    """Remove the baked-lighting preview from every material and make their own outputs active again"""
-
-    bl_idname = "visibake.preview_remove"
-    bl_label = "Remove Preview"
-    bl_options = {"REGISTER", "UNDO"}
-
-    def execute(self, context):
-        changed = remove_preview()
-        self.report({"INFO"}, f"VisiBake: preview removed from {changed} material(s)")
-        return {"FINISHED"}
-
-
-classes = (VISIBAKE_OT_preview_add, VISIBAKE_OT_preview_remove)

@@ -1,8 +1,9 @@
 """A render of the scene lit only by its baked textures (the demo's visual check).
 
 Each baked object is shown through an emission shader that reads its ``lighting``
-image (or, in vertex mode, its ``VB_lighting`` colour attribute), lamps are switched off, and Cycles renders with no bounces: what the camera
-sees is exactly what the bake stored. Everything is restored afterwards.
+image (or, in vertex mode, its ``VB_lighting`` colour attribute), lamps are switched
+off, and Cycles renders with no bounces: what the camera sees is exactly what the bake
+stored. Everything is restored afterwards.
 """
 from __future__ import annotations
 

@@ -7,6 +7,7 @@ import re
 import bpy
 import numpy as np
 
+from ...core.errors import OutputRefused
 from ...core.outputs.images import tonemap, write_exr
 
 OWNED_IMAGE_KEY = "visibake_image"
@@ -31,7 +32,8 @@ def owned_image(name: str):
     if image is None:
         return None
     if not image.get(OWNED_IMAGE_KEY):
-        raise ValueError(f"image {name!r} exists and was not created by VisiBake; rename it to let VisiBake write its pass")
+        raise OutputRefused(f"image {name!r} exists and was not created by VisiBake; rename it to let VisiBake "
+                            "write its pass")
     return image
 
 
@@ -93,7 +95,7 @@ def owned_attribute(mesh: bpy.types.Mesh, name: str):
     if attribute is None:
         return None
     if name not in list(mesh.get(OWNED_ATTRIBUTES_KEY, [])):
-        raise ValueError(f"mesh {mesh.name!r} has an attribute {name!r} that VisiBake did not create; rename it "
+        raise OutputRefused(f"mesh {mesh.name!r} has an attribute {name!r} that VisiBake did not create; rename it "
                          "to let VisiBake write its pass")
     return attribute
 

@@ -7,9 +7,22 @@ import bpy
 import numpy as np
 import pytest
 
+from bpy_scenes import (
+    bake_uv_map,
+    black_world,
+    cube,
+    grid,
+    image_pixels,
+    material,
+    mesh_object,
+    open_box,
+    point,
+    relative_rmse,
+    select_only,
+    sun,
+    uv_sphere,
+)
 from tools.cycles_bake import bake_diffuse
-from bpy_scenes import (bake_uv_map, black_world, cube, grid, image_pixels, material, mesh_object, open_box,
-                    point, relative_rmse, select_only, sun, uv_sphere)
 
 
 def _settings(directions=128, bounces=1, shadows="exact", resolution=64):

@@ -8,8 +8,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, sun
 from blender_support import REPO_ROOT
+from bpy_scenes import black_world, cube, grid, material, mesh_object, sun
 
 
 @pytest.fixture
@@ -86,8 +86,79 @@ def test_tools_script_runs_the_same_command_with_the_bpy_module(small_blend, tmp
     assert result.returncode == 0, result.stderr[-2000:]
     assert (out / "Ground" / "lighting.exr").is_file()
     assert "VisiBake bake finished" in result.stdout
-    bad = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "visibake.py"), "bake", str(tmp_path / "missing.blend")],
+    bad = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "visibake.py"), "bake",
+                          str(tmp_path / "missing.blend")],
                          capture_output=True, text=True, timeout=600,
                          env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
     assert bad.returncode == 2
     assert "not found" in bad.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("failure", [RuntimeError("a failure no input explains"),
+                                     ValueError("operands could not be broadcast together")],
+                         ids=["RuntimeError", "ValueError-from-numpy"])
+def test_an_unexpected_failure_is_a_bug_exit_1_where_bad_input_is_exit_2(visibake, small_blend, tmp_path, capfd,
+                                                                          monkeypatch, failure):
+    out = tmp_path / "out"
+    options = ["--out", str(out), "--directions", "16", "--resolution", "8", "--no-progress", "--no-cache"]
+
+    def broken_prepare(*args, **kwargs):
+        raise failure
+
+    # A failure inside the bake, where the visibility is computed. A plain ValueError
+    # there is a bug too (numpy raises them), not the user's error.
+    monkeypatch.setattr(visibake.operators.adapter.job, "prepare", broken_prepare)
+    assert visibake.cli.main(["bake", str(small_blend), *options]) == 1
+    err = capfd.readouterr().err
+    lines = err.strip().splitlines()
+    assert "Traceback (most recent call last)" in err and f"{type(failure).__name__}: {failure}" in err
+    assert lines[-1].startswith("visibake: failed") and "error:" not in lines[-1]
+    assert "a bug in VisiBake" in lines[-1]
+    assert not list(out.rglob("*.exr"))
+    monkeypatch.undo()
+    # The user's error: exit 2 and one line that says what to change, no traceback.
+    assert visibake.cli.main(["bake", str(small_blend), *options, "--directions", "0"]) == 2
+    err = capfd.readouterr().err
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err and len(lines) == 1
+    assert lines[0].startswith("visibake: error: ") and "directions" in lines[0]
+    assert not list(out.rglob("*.exr"))
+
+
+def test_blender_s_command_route_runs_the_command(visibake, small_blend, tmp_path, capfd, monkeypatch):
+    import addon_utils
+
+    from blender_support import enable_extension, extension_module_name
+
+    # Blender's own command table holds "visibake": registering the id again is reported
+    # as a duplicate (an unused id is not), and unregistering the probe makes it usable again.
+    capfd.readouterr()
+    for probe_id, duplicate in (("visibake", True), ("visibake_unused_probe", False)):
+        probe = bpy.utils.register_cli_command(probe_id, lambda argv: 0)
+        bpy.utils.unregister_cli_command(probe)
+        assert (f'registered duplicate command "{probe_id}"' in capfd.readouterr().err) is duplicate, probe_id
+    # What `blender -c visibake ARGS` calls: the callable the extension registers, seen
+    # as it registers again (the real registration still happens).
+    registered = []
+    register = bpy.utils.register_cli_command
+
+    def recording_register(command_id, execute):
+        registered.append((command_id, execute))
+        return register(command_id, execute)
+
+    monkeypatch.setattr(bpy.utils, "register_cli_command", recording_register)
+    addon_utils.disable(extension_module_name(), default_set=True)
+    assert enable_extension() is visibake
+    monkeypatch.undo()
+    assert [command_id for command_id, _ in registered] == ["visibake"]
+    assert repr(visibake._cli_handle).startswith('<capsule object "bpy_cli_command"')
+    execute = registered[0][1]
+    # As Blender calls it: the arguments after the command id; an int is the exit status.
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    status = execute(["bake", str(small_blend), "--out", str(out), "--directions", "16", "--resolution", "8",
+                      "--cache-dir", str(cache), "--no-progress"])
+    assert type(status) is int and status == 0
+    assert (out / "Ground" / "lighting.exr").is_file() and any(p.is_file() for p in cache.rglob("*"))
+    assert execute(["clear-cache", str(small_blend), "--cache-dir", str(cache)]) == 0
+    assert not any(p.is_file() for p in cache.rglob("*"))
+    assert execute(["bake", str(tmp_path / "missing.blend")]) == 2

@@ -8,8 +8,8 @@ import math
 import sys
 from pathlib import Path
 
-import bpy
 import bmesh  # importable only once bpy is
+import bpy
 import numpy as np
 import pytest
 
@@ -17,13 +17,14 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 if str(REPO_ROOT) not in sys.path:
     sys.path.insert(0, str(REPO_ROOT))
 
-from tools.cycles_bake import bake_diffuse, bake_diffuse_vertex_colors  # noqa: E402
 from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun  # noqa: E402
+from tools.cycles_bake import bake_diffuse, bake_diffuse_vertex_colors  # noqa: E402
 
 
 def _load_demo_scene():
     # By file path: operators/adapter/__init__.py belongs to the extension and imports far more.
-    spec = importlib.util.spec_from_file_location("visibake_demo_scene", REPO_ROOT / "operators" / "adapter" / "demo_scene.py")
+    path = REPO_ROOT / "operators" / "adapter" / "demo_scene.py"
+    spec = importlib.util.spec_from_file_location("visibake_demo_scene", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

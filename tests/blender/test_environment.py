@@ -5,15 +5,14 @@ gradient, a dim ground and a warm patch at one azimuth above the horizon), so a
 flipped u, v or a wrong Mapping rotation would light the wrong side of the sphere
 and move the cube's shadow. Each test prints the errors it measured (``-s``).
 """
-import math
-
 import importlib
+import math
 
 import bpy
 import numpy as np
 
-from tools.cycles_bake import bake_diffuse
 from bpy_scenes import cube, grid, image_pixels, material, mesh_object, relative_rmse, select_only, uv_sphere
+from tools.cycles_bake import bake_diffuse
 
 WIDTH, HEIGHT = 128, 64
 RESOLUTION = 48

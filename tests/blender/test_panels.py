@@ -109,12 +109,14 @@ def scene(clean_scene):
 def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, scene, tmp_path):
     main = visibake.panels.main
     bpy.context.scene.visibake.cache_dir = str(tmp_path / "cache")
+    bpy.context.view_layer.update()  # as the UI does after a change: the cache status follows outside draw
     drawn = _draw(main.VIEW3D_PT_visibake)
     settings = set(bpy.context.scene.visibake.bl_rna.properties.keys()) - {"rna_type", "name", "active_object_index"}
     assert settings <= set(_props(drawn))  # every scene setting is on the panel
     active_object = {options["property"] for name, options in drawn
                      if name == "prop" and options["owner"] == "VisiBakeObjectSettings"}
-    device = [options["property"] for name, options in drawn if name == "prop" and options["owner"] == "VisiBakePreferences"]
+    device = [options["property"] for name, options in drawn
+              if name == "prop" and options["owner"] == "VisiBakePreferences"]
     assert device == ["device"]  # a preference, shown where the bake is set up
     assert active_object == {"role", "resolution", "mode", "texel_density"}  # and the active object's own
     assert {"visibake.bake", "visibake.relight", "visibake.preview_add", "visibake.preview_remove",

@@ -71,7 +71,13 @@ def test_occlude_only_objects_shadow_but_get_no_results(visibake, clean_scene):
     assert {o["name"]: o["output"] for o in report["objects"]} == {"Ground": True, "Block": False}
     lit = image_pixels("VB_Ground_lighting")[..., 0]
     assert lit.min() < 0.5 * lit.max()  # the block's shadow is on the ground
-    assert bpy.types.VISIBAKE_UL_objects is not None
+    # Where: the lamp straight above projects the block's top (|x|, |y| < 0.2 at 0.6 m)
+    # to |x|, |y| < 0.33 on the ground, texels 5 to 10 of 16; only bounced light gets there.
+    assert lit[5:11, 5:11].max() < 0.1 * lit.max()
+    assert min(lit[4, 5:11].min(), lit[11, 5:11].min(), lit[5:11, 4].min(), lit[5:11, 11].min()) > 0.5 * lit.max()
+    # No pass of the occluder is written, and the report says why.
+    assert not [name for name in bpy.data.images.keys() if name.startswith("VB_Block")]
+    assert "outputs of 1 objects that only occlude and reflect: Block" in report["skipped"]
 
 
 def test_an_object_s_own_texel_density_sizes_its_atlas(visibake, clean_scene):
@@ -91,9 +97,11 @@ def test_every_setting_of_the_panel_and_the_preferences_has_a_command_line_optio
     cli = visibake.cli
     options = {option for action in cli.build_parser()._subparsers._group_actions[0].choices["bake"]._actions
                for option in action.option_strings}
-    scene_settings = set(bpy.types.Scene.bl_rna.properties["visibake"].fixed_type.properties.keys()) - {"rna_type", "name"}
+    scene_settings = (set(bpy.types.Scene.bl_rna.properties["visibake"].fixed_type.properties.keys())
+                      - {"rna_type", "name"})
     assert scene_settings == set(cli.SCENE_SETTING_OPTIONS), "a scene setting without a command-line option"
-    preferences = set(visibake.operators.adapter.device.preferences().bl_rna.properties.keys()) - {"rna_type", "bl_idname"}
+    preferences = (set(visibake.operators.adapter.device.preferences().bl_rna.properties.keys())
+                   - {"rna_type", "bl_idname"})
     assert preferences == set(cli.PREFERENCE_OPTIONS), "a preference without a command-line option"
     for option in [*cli.SCENE_SETTING_OPTIONS.values(), *cli.PREFERENCE_OPTIONS.values()]:
         assert option is None or option in options, option

@@ -29,7 +29,7 @@ def baked(clean_scene):
     return ground, block
 
 
-def test_preview_is_added_beside_the_user_nodes_and_removed_without_a_trace(baked):
+def test_preview_is_added_beside_the_user_nodes_and_removed_without_a_trace(visibake, baked):
     ground, block = baked
     materials = [ground.material_slots[0].material, block.material_slots[0].material]
     before = {m.name: _tree_state(m) for m in materials}
@@ -39,9 +39,27 @@ def test_preview_is_added_beside_the_user_nodes_and_removed_without_a_trace(bake
         old_nodes, old_links, old_active = before[mat.name]
         assert set(old_nodes) <= set(nodes) and set(old_links) <= set(links)  # nothing deleted or rewired
         assert active != old_active and len(nodes) == len(old_nodes) + 2
+    tag = visibake.operators.adapter.preview_nodes.NODE_TAG
+    for mat, obj in zip(materials, (ground, block)):
+        tree = mat.node_tree
+        group_node = next(n for n in tree.nodes if n.get(tag) and n.bl_idname == "ShaderNodeGroup")
+        output = next(n for n in tree.nodes if n.get(tag) and n.bl_idname == "ShaderNodeOutputMaterial")
+        # The object's own group feeds the new output's surface, which is the active one.
+        assert group_node.node_tree.name == f"VisiBake Lighting {obj.name}"
+        assert output.is_active_output and active == [output.name]
+        new_links = set(_tree_state(mat)[1]) - set(before[mat.name][1])
+        assert new_links == {(group_node.name, group_node.outputs[0].identifier, output.name, "Surface")}
     ground_group = bpy.data.node_groups["VisiBake Lighting Ground"]
     image_node = next(n for n in ground_group.nodes if n.bl_idname == "ShaderNodeTexImage")
     assert image_node.image.name == "VB_Ground_lighting"
+    # Inside the group: the image, read through the bake UV map, is what it emits.
+    inner = {(l.from_node.bl_idname, l.from_socket.identifier, l.to_node.bl_idname, l.to_socket.identifier)
+             for l in ground_group.links}
+    group_output = next(n for n in ground_group.nodes if n.bl_idname == "NodeGroupOutput")
+    assert inner == {("ShaderNodeUVMap", "UV", "ShaderNodeTexImage", "Vector"),
+                     ("ShaderNodeTexImage", "Color", "ShaderNodeEmission", "Color"),
+                     ("ShaderNodeEmission", "Emission", "NodeGroupOutput", group_output.inputs[0].identifier)}
+    assert next(n for n in ground_group.nodes if n.bl_idname == "ShaderNodeUVMap").uv_map == "UVMap"
     block_group = bpy.data.node_groups["VisiBake Lighting Block"]
     assert next(n for n in block_group.nodes if n.bl_idname == "ShaderNodeVertexColor").layer_name == "VB_lighting"
     # Adding again replaces, it does not stack.
@@ -53,7 +71,7 @@ def test_preview_is_added_beside_the_user_nodes_and_removed_without_a_trace(bake
     assert not any(g.name.startswith("VisiBake Lighting") for g in bpy.data.node_groups)
 
 
-def test_a_shared_material_is_left_alone_with_a_warning(clean_scene):
+def test_a_shared_material_is_left_alone_with_a_warning(visibake, clean_scene):
     black_world()
     shared = material("Shared", (0.8, 0.8, 0.8))
     a = mesh_object("A", grid(1.0), shared)
@@ -65,6 +83,10 @@ def test_a_shared_material_is_left_alone_with_a_warning(clean_scene):
     before = _tree_state(shared)
     assert bpy.ops.visibake.preview_add() == {"FINISHED"}
     assert _tree_state(shared) == before
+    # The warning the operator reports, once per object that uses the material.
+    wired, warnings = visibake.operators.adapter.preview_nodes.add_preview([a, b])
+    assert wired == 0 and _tree_state(shared) == before
+    assert warnings == ["material 'Shared' is shared by A, B, whose baked lighting differs; it was left as it is"] * 2
 
 
 

@@ -87,6 +87,24 @@ def test_broken_geometry_gives_finite_outputs(clean_scene):
     for name in ("Ground", "Bad"):
         for pass_name in props.passes:
             assert np.isfinite(image_pixels(f"VB_{name}_{pass_name}")).all()
+    rho, sun_alone = 0.8, 0.8 * 3.0 / np.pi
+    passes = {name: image_pixels(f"VB_Ground_{name}")[..., :3] for name in props.passes}
+    # Exact shadows of a sun straight above: each ground texel sees it or not, and every
+    # texel outside the cube's footprint (|x|, |y| < 0.2: texels 6 to 9 of 16 on the
+    # 2 m plane) sees it. The faces the broken vertices leave still cast a shadow.
+    footprint = np.zeros((16, 16), bool)
+    footprint[6:10, 6:10] = True
+    direct = passes["direct"]
+    np.testing.assert_allclose(direct[~footprint], sun_alone, rtol=1e-6)
+    lit = np.isclose(direct, sun_alone, rtol=1e-6)
+    assert np.all(lit | (direct == 0.0)) and not lit[footprint].all()
+    # The passes add up as they are defined (core.transport.passes), bounces included.
+    np.testing.assert_allclose(passes["lighting"], passes["direct"] + passes["indirect"], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(passes["lighting"], rho * passes["irradiance"], rtol=1e-6)
+    assert passes["indirect"].min() >= 0.0 and passes["indirect"].max() > 0.0
+    assert passes["ao"].min() >= 0.0 and passes["ao"].max() <= 1.0
+    # The broken cube: no face gets more than the sun from straight above.
+    assert image_pixels("VB_Bad_direct")[..., :3].max() <= sun_alone * (1 + 1e-6)
 
 
 def test_baking_again_at_another_resolution_resizes_visibakes_image(clean_scene):

@@ -2,8 +2,8 @@
 within a stated tolerance, or in a clear refusal. Never NaN/Inf, never a half-changed scene."""
 import math
 
-import bpy
 import bmesh  # only importable once bpy is
+import bpy
 import numpy as np
 import pytest
 
@@ -145,8 +145,8 @@ def test_zero_area_and_overlapping_user_uvs_are_replaced(clean_scene):
     ground.data.uv_layers["UVMap"].uv.foreach_get("vector", after)
     np.testing.assert_array_equal(after, before)  # the user's map is untouched
     assert "VisiBake" in ground.data.uv_layers
-    np.testing.assert_allclose(image_pixels("VB_Ground_lighting")[..., 0][image_pixels("VB_Ground_lighting")[..., 3] > 0],
-                               RHO * 3.0 / math.pi, rtol=1e-5)
+    lighting = image_pixels("VB_Ground_lighting")
+    np.testing.assert_allclose(lighting[..., 0][lighting[..., 3] > 0], RHO * 3.0 / math.pi, rtol=1e-5)
 
 
 # --- bad scale ----------------------------------------------------------------------
@@ -198,6 +198,10 @@ def test_coplanar_overlapping_faces_stay_finite(clean_scene):
     _settings(bounces=2)
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     _all_finite()
+    # Neither plane is above the other's horizon: no shadow, no bounce, so both are the
+    # open plane under a sun from straight above, rho * S / pi, to float32.
+    for name in ("A", "B"):
+        np.testing.assert_allclose(image_pixels(f"VB_{name}_lighting")[..., :3], RHO * 3.0 / math.pi, rtol=1e-6)
 
 
 # --- bad settings ---------------------------------------------------------------------
@@ -227,14 +231,34 @@ def test_absurd_light_strength_is_refused(clean_scene):
     assert [layer.name for layer in ground.data.uv_layers] == ["UVMap"]
 
 
-def test_one_direction_works(clean_scene):
+@pytest.mark.parametrize("shadows", ["exact", "fractions"])
+def test_one_direction_works(clean_scene, shadows):
     black_world()
     _plane()
     mesh_object("Block", cube(0.4), material("Grey", (0.5, 0.5, 0.5)), uv_map=None, location=(0, 0, 0.3))
     sun(3.0)
-    _settings(directions=1, bounces=2, shadows="fractions", passes={"lighting", "ao"})
+    _settings(directions=1, bounces=2, shadows=shadows, passes={"lighting", "ao"})
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     _all_finite()
+    # The one spherical Fibonacci direction is (1, 0, 0), on the horizon of the ground and
+    # of the block's top: only the block's +x side traces it, and it escapes. No gather
+    # reaches any lit surface, so the lighting is the sun's direct light alone.
+    ground, block = image_pixels("VB_Ground_lighting")[..., :3], image_pixels("VB_Block_lighting")[..., :3]
+    np.testing.assert_array_equal(image_pixels("VB_Ground_ao")[..., :3], 0.0)
+    assert image_pixels("VB_Block_ao")[..., :3].max() == 1.0
+    if shadows == "fractions":
+        # No region around the sun holds a traced direction: the estimate has nothing to
+        # go on and reads 0 (shadows.ShadowFractions.visibility), so no texel is lit.
+        np.testing.assert_array_equal(ground, 0.0)
+        np.testing.assert_array_equal(block, 0.0)
+        return
+    # Exact shadow rays: the plane is lit but for the block's footprint (|x|, |y| < 0.2,
+    # texels 13 to 18 of 32 on the 2 m plane), the block's top fully and nothing else of it.
+    footprint = np.zeros((32, 32), bool)
+    footprint[13:19, 13:19] = True
+    np.testing.assert_array_equal(ground[footprint], 0.0)
+    np.testing.assert_allclose(ground[~footprint], RHO * 3.0 / math.pi, rtol=1e-6)
+    np.testing.assert_allclose(block.max(), 0.5 * 3.0 / math.pi, rtol=1e-6)
 
 
 def test_resolution_one_works(clean_scene):
@@ -245,6 +269,8 @@ def test_resolution_one_works(clean_scene):
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     values = image_pixels("VB_Ground_lighting")
     assert values.shape == (1, 1, 4) and values[0, 0, 3] == 1.0
+    # One texel at the plane's centre: the open plane's rho * S / pi.
+    np.testing.assert_allclose(values[0, 0, :3], RHO * 3.0 / math.pi, rtol=1e-6)
 
 
 @pytest.mark.parametrize("setting", [{"directions": 100000, "resolution": 4096}, {"resolution": 60000}],

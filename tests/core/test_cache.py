@@ -5,13 +5,13 @@ import os
 import numpy as np
 import pytest
 
+from core.errors import BakeRefused
+from core.pipeline.prepare import prepare
+from core.pipeline.relight import bake, relight
+from core.scene import Light, Material, Scene, World
+from core.settings import BakeSettings
 from core.visibility.cache import VisibilityCache
 from core.visibility.table import DeferredTable
-from core.errors import BakeRefused
-from core.pipeline.relight import bake, relight
-from core.pipeline.prepare import prepare
-from core.settings import BakeSettings
-from core.scene import Light, Material, Scene, World
 from core_scenes import quad_mesh
 
 SUN = Light("Sun", "SUN", np.ones(3), 3.0, direction=np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, 1.0]))

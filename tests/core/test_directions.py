@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from core.visibility.directions import ShadowRegions, direction_set, random_rotation, spherical_fibonacci
 
@@ -22,7 +23,8 @@ def test_fibonacci_integrates_cosine_over_hemisphere():
     errors = []
     for count in (32, 128, 512):
         d = spherical_fibonacci(count)
-        n = np.array([0.3, -0.5, 0.81]); n /= np.linalg.norm(n)
+        n = np.array([0.3, -0.5, 0.81])
+        n /= np.linalg.norm(n)
         errors.append(abs(np.clip(d @ n, 0, None).sum() * 4 * np.pi / count - np.pi) / np.pi)
     assert errors[0] < 0.05 and errors[2] < errors[0]
 

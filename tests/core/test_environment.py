@@ -6,12 +6,21 @@ real bakes in tests/blender/test_environment.py; these tests need no Blender.
 import numpy as np
 import pytest
 
-from core.visibility.directions import direction_set, random_rotation, spherical_fibonacci
+from core.lights.environment import (
+    _box_downsample,
+    _row_z_edges,
+    constant_lookup,
+    direction_to_equirectangular,
+    equirectangular_to_direction,
+    euler_xyz_matrix,
+    mirror_ball_mean,
+    world_radiance,
+)
 from core.outputs.images import bilinear_wrap as bilinear_lookup
-from core.lights.environment import (_box_downsample, _row_z_edges, constant_lookup, direction_to_equirectangular, equirectangular_to_direction, euler_xyz_matrix, mirror_ball_mean, world_radiance)
 from core.pipeline.relight import bake
-from core.settings import BakeSettings
 from core.scene import Material, Scene, World
+from core.settings import BakeSettings
+from core.visibility.directions import direction_set, random_rotation, spherical_fibonacci
 from core_scenes import quad_mesh
 
 # Largest deviation of a spherical Fibonacci cell's area from 4*pi/N, measured on a

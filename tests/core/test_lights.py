@@ -7,7 +7,8 @@ from core.scene import Light
 UP = np.array([[0.0, 0.0, 1.0]])
 
 
-def _single(light, position=np.zeros((1, 3)), normal=UP, samples=8):
+def _single(light, position=None, normal=UP, samples=8):
+    position = np.zeros((1, 3)) if position is None else position
     parts = light_contributions(light, position, normal, samples)
     return sum(p.irradiance for p in parts)[0]
 

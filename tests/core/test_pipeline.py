@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 
 from core.errors import BakeRefused
-from core.pipeline.relight import bake, relight
 from core.pipeline.prepare import prepare
-from core.settings import BakeSettings
+from core.pipeline.relight import bake, relight
 from core.scene import Light, Material, Scene, World
+from core.settings import BakeSettings
 from core_scenes import box_interior, quad_mesh
 
 
@@ -25,22 +25,40 @@ LAMP = Light("Lamp", "POINT", np.array([1.0, 0.8, 0.6]), 150.0, position=np.arra
 def test_relight_equals_a_fresh_bake_exactly(shadows):
     settings = BakeSettings(directions=48, bounces=2, shadows=shadows, passes=("lighting", "direct", "indirect"))
     prepared = prepare(_scene([]), settings, table_needed=True)
+    table, traced = prepared.table, prepared.visibility_rays
+    assert table is not None and traced > 0
     for lights in ([SUN], [LAMP], [SUN, LAMP]):
         fresh = bake(_scene(lights), settings)
-        again = relight(prepared, lights, World())
+        stages = []
+        again = relight(prepared, lights, World(), progress=lambda stage, fraction: stages.append(stage))
         for a, b in zip(fresh.objects, again.objects):
             for name in settings.passes:
                 np.testing.assert_array_equal(a.images[name], b.images[name])
-        # Relighting traced no visibility ray of its own: it reports the prepared table.
-        assert again.report["rays"]["visibility_cast"] == fresh.report["rays"]["visibility_cast"]
-        assert "visibility" not in {k for k in again.report["stage_seconds"] if k not in prepared.stage_seconds}
+        # Relighting never traces the table: no visibility stage ran, the prepared table
+        # is the one it read, and the report carries the preparation's rays and time.
+        assert "transport" in stages and "visibility" not in stages and "samples" not in stages
+        assert prepared.table is table and prepared.visibility_rays == traced
+        assert again.report["rays"]["visibility_cast"] == traced == fresh.report["rays"]["visibility_cast"]
+        assert again.report["stage_seconds"]["visibility"] == round(prepared.stage_seconds["visibility"], 4)
 
 
 def test_relight_without_a_table_says_what_to_do():
     settings = BakeSettings(directions=16, bounces=0)
     prepared = prepare(_scene([SUN]), settings)
     assert prepared.table is None
-    relight(prepared, [SUN], World())  # exact shadows, no bounces: no table needed
+    # Exact shadows, no bounces: no table needed, and the result is a fresh bake's.
+    lit = relight(prepared, [SUN], World())
+    fresh = bake(_scene([SUN]), settings)
+    for a, b in zip(fresh.objects, lit.objects):
+        np.testing.assert_array_equal(a.images["lighting"], b.images["lighting"])
+    assert lit.report["rays"]["visibility_cast"] == 0 and lit.report["table_bytes"] == 0
+    assert lit.report["rays"]["shadow_rays"] > 0
+    # The ground outside the roof's shadow: rho * S * cos(theta) / pi, theta the sun's angle.
+    ground = lit.objects[0].images["lighting"]
+    open_sky = 0.7 * 3.0 * (1.0 / np.hypot(0.3, 1.0)) / np.pi
+    covered = ground[..., 3] > 0
+    np.testing.assert_allclose(ground[..., :3][covered].max(axis=0), open_sky, rtol=1e-6)
+    assert ground[..., 0][covered].min() < 0.5 * open_sky  # and the roof's shadow is on it
     with pytest.raises(BakeRefused, match="prepare it again"):
         relight(prepared, [SUN], World(np.full(3, 0.5)))
 

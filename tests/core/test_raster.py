@@ -5,8 +5,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from core import tolerances as tol
-from core.sampling.raster import TexelSamples, degenerate_uv_triangles, rasterize, texel_centres
 from core.outputs.dilation import dilate
+from core.sampling.raster import TexelSamples, degenerate_uv_triangles, rasterize, texel_centres
 
 UNIT_SQUARE = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
 

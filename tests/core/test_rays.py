@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from core.visibility.rays import RayScene, offset_ray_origins
 
@@ -12,7 +13,8 @@ def _plane(z, size, centre=(0.0, 0.0)):
     return positions, np.array([[0, 1, 2], [0, 2, 3]], np.int32)
 
 
-@given(st.floats(min_value=-1e5, max_value=1e5, allow_nan=False), st.floats(min_value=-1e5, max_value=1e5, allow_nan=False),
+@given(st.floats(min_value=-1e5, max_value=1e5, allow_nan=False),
+       st.floats(min_value=-1e5, max_value=1e5, allow_nan=False),
        st.floats(min_value=-1e5, max_value=1e5, allow_nan=False))
 @settings(max_examples=200, deadline=None)
 def test_offset_moves_to_the_normal_side(x, y, z):
@@ -62,5 +64,6 @@ def test_empty_and_degenerate_meshes_are_never_hit():
     degenerate = (np.array([[0, 0, 1.0], [1, 0, 1.0], [2, 0, 1.0]]), np.array([[0, 1, 2]], np.int32))
     nan = (np.array([[np.nan, 0, 1.0], [1, 0, 1.0], [0, 1, 1.0]]), np.array([[0, 1, 2]], np.int32))
     scene = RayScene([empty, degenerate, nan])
-    geometry, _, _, _ = scene.intersect(np.array([[0.5, 0.0, 0.0], [0.2, 0.2, 0.0]]), np.array([[0, 0, 1.0], [0, 0, 1.0]]))
+    geometry, _, _, _ = scene.intersect(np.array([[0.5, 0.0, 0.0], [0.2, 0.2, 0.0]]),
+                                        np.array([[0, 0, 1.0], [0, 0, 1.0]]))
     assert list(geometry) == [-1, -1]

@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from core.scene import Light, World
 from core.lights.setups import SetupError, direction_from_angles, parse_setups, parse_sweep, sun_position, sun_sweep
+from core.scene import Light, World
 
 SUN = Light("Sun", "SUN", np.ones(3), 3.0, direction=np.array([0.0, 0.0, -1.0]))
 LAMP = Light("Lamp", "POINT", np.array([1.0, 0.9, 0.8]), 100.0, position=np.array([1.0, 2.0, 3.0]))

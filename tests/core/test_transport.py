@@ -1,10 +1,12 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from core.transport.contract import GatherGeometry, GatherSource, direction_chunks
+from core.transport.gather import AtlasLayout, ambient_occlusion, gather, gather_normalisation
 from core.visibility.directions import ShadowRegions, spherical_fibonacci
 from core.visibility.shadows import shadow_fractions
-from core.transport.gather import AtlasLayout, ambient_occlusion, gather, gather_normalisation
 from core.visibility.table import BELOW_HORIZON, MISS, VisibilityTable
 
 
@@ -28,7 +30,7 @@ def test_white_furnace_is_exact_for_any_direction_count(count):
     scale = gather_normalisation(table, normals)
     layout = AtlasLayout.from_sizes([(2, 2)])
     radiance = np.zeros((layout.size, 3), np.float32)
-    irradiance = gather(table, normals, scale, layout, radiance, np.ones(3))
+    irradiance = gather(GatherGeometry(table, normals, scale, layout), GatherSource(radiance, np.ones(3)))
     open_samples = scale > 0
     # Exact up to the gather's float32 sums (a few ULPs of pi).
     np.testing.assert_allclose(irradiance[open_samples], np.pi, rtol=1e-6)
@@ -44,7 +46,8 @@ def test_gather_of_uniform_atlas_equals_pi_times_radiance():
     table = _table(d, normals, hit, uv)
     layout = AtlasLayout.from_sizes([(8, 4)])
     flat = layout.pack([np.full((4, 8, 3), 0.25, np.float32)])
-    irradiance = gather(table, normals, gather_normalisation(table, normals), layout, flat, np.zeros(3))
+    irradiance = gather(GatherGeometry(table, normals, gather_normalisation(table, normals), layout),
+                        GatherSource(flat, np.zeros(3)))
     np.testing.assert_allclose(irradiance, np.pi * 0.25, rtol=1e-6)
 
 
@@ -114,7 +117,38 @@ def test_gather_of_uniform_radiance_is_pi_times_it_for_any_table(count, seed, le
     layout = AtlasLayout.from_sizes([(5, 3), (1, 1), (7, 9)])
     flat = layout.pack([np.full((h, w, 3), level, np.float32) for w, h in [(5, 3), (1, 1), (7, 9)]])
     scale = gather_normalisation(table, normals)
-    irradiance = gather(table, normals, scale, layout, flat, np.full(3, level), threads=2)
+    irradiance = gather(GatherGeometry(table, normals, scale, layout, threads=2), GatherSource(flat, np.full(3, level)))
     open_samples = scale > 0
     np.testing.assert_allclose(irradiance[open_samples], np.pi * level, rtol=2e-6, atol=1e-12)
     assert np.all(irradiance[~open_samples] == 0)
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3, 7])
+def test_gathers_over_direction_subsets_add_up_to_the_whole(parts):
+    """The scale-out contract: disjoint direction ranges covering the set sum to the full gather."""
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(40, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    d = spherical_fibonacci(61)
+    above = (normals @ d.T).T > 0
+    hit = np.where(above, rng.integers(-1, 2, size=above.shape), BELOW_HORIZON).astype(np.int16)
+    table = _table(d, normals, hit, rng.uniform(0, 1, size=(61, 40, 2)).astype(np.float32))
+    layout = AtlasLayout.from_sizes([(4, 4), (3, 5)])
+    flat = layout.pack([rng.uniform(0, 2, (4, 4, 6)).astype(np.float32),
+                        rng.uniform(0, 2, (5, 3, 6)).astype(np.float32)])
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals), layout, threads=1)
+    source = GatherSource(flat, rng.uniform(0, 1, (61, 6)))
+    whole = gather(geometry, source)
+    chunks = direction_chunks(len(d), parts)
+    assert [i for chunk in chunks for i in chunk] == list(range(len(d)))
+    summed = sum(gather(geometry, source, directions=chunk) for chunk in chunks)
+    np.testing.assert_allclose(summed, whole, rtol=1e-5, atol=1e-9)
+    assert np.any(whole > 0)
+
+
+def test_a_direction_range_outside_the_set_is_refused():
+    normals = np.array([[0.0, 0.0, 1.0]])
+    table = _open_table(8, normals)
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals), AtlasLayout.from_sizes([(1, 1)]))
+    with pytest.raises(ValueError, match="contiguous range"):
+        gather(geometry, GatherSource(np.zeros((4, 3), np.float32), np.ones(3)), directions=range(4, 9))

@@ -1,13 +1,15 @@
 """The unwrap in a child process: the same result as in this process, and a cancel that stops it."""
+import signal
+import subprocess
 import sys
-import threading
-import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from core.sampling.atlas import unwrap
 from core.errors import Cancelled
+from core.sampling import unwrap_child
+from core.sampling.atlas import unwrap
 from core.sampling.unwrap_child import ChildUnavailable, unwrap_in_child
 
 
@@ -64,12 +66,29 @@ def test_without_a_usable_interpreter_the_child_says_so(tmp_path):
         unwrap_in_child(positions, triangles, 64, python=str(without_xatlas))
 
 
-def test_a_cancel_kills_the_child_within_a_second():
+def test_a_cancel_kills_the_child_mid_unwrap_and_leaves_nothing(monkeypatch, tmp_path):
     positions, triangles = _sphere(256, 128)  # ~65k triangles: about 12 s of xatlas on 2 cores
-    asked = threading.Event()
-    started = time.perf_counter()
-    timer = threading.Timer(0.5, asked.set)
-    timer.start()
+    children = []
+
+    def recording_popen(*args, **kwargs):
+        children.append(subprocess.Popen(*args, **kwargs))
+        return children[-1]
+
+    # The unwrap module's Popen keeps its child for the checks; its folder goes in tmp_path.
+    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL))
+    monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
+    asked = []
+
+    def cancelled():
+        # Asked only while the child runs; cancel once it has had a few polls to get going.
+        assert children and children[0].poll() is None
+        asked.append(True)
+        return len(asked) >= 3
+
     with pytest.raises(Cancelled):
-        unwrap_in_child(positions, triangles, 1024, cancelled=asked.is_set)
-    assert time.perf_counter() - started < 1.5
+        unwrap_in_child(positions, triangles, 1024, cancelled=cancelled, poll_seconds=0.05)
+    assert len(asked) == 3 and len(children) == 1
+    # Killed (not finished, not left running): SIGKILL is its exit status, and the
+    # folder with its request (and any answer) is gone.
+    assert children[0].returncode == -signal.SIGKILL
+    assert list(tmp_path.iterdir()) == []

@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
-from core.sampling.atlas import loop_uvs, uv_layout_problems
 from core.lights.emitters import emitter_irradiance, find_emitters, sampled_directly
 from core.pipeline.relight import bake
-from core.visibility.rays import RayScene, offset_ray_origins
-from core.settings import BakeSettings
+from core.sampling.atlas import loop_uvs, uv_layout_problems
 from core.scene import Material, Scene
+from core.settings import BakeSettings
+from core.visibility.rays import RayScene, offset_ray_origins
 from core_scenes import box_interior, quad_mesh
 
 

@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from core.visibility.cache import VisibilityCache
-from core.pipeline.relight import bake, relight
 from core.pipeline.prepare import prepare
-from core.settings import BakeSettings
-from core.scene import Light, Material, Mesh, Scene, World
+from core.pipeline.relight import bake, relight
 from core.sampling.samples import build_vertex_samples
+from core.scene import Light, Material, Mesh, Scene, World
+from core.settings import BakeSettings
+from core.visibility.cache import VisibilityCache
 from core_scenes import quad_mesh
 
 

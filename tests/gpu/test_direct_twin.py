@@ -18,7 +18,6 @@ import pytest
 RTOL, ATOL_OF_MAX = 1e-4, 1e-5
 CORE_SCENES = Path(__file__).resolve().parents[1] / "core" / "core_scenes.py"
 KINDS = ("sun", "point", "spot", "area_square", "area_rectangle", "area_disk", "area_ellipse")
-measured = {}
 
 
 def _scene_builders(core):
@@ -79,29 +78,33 @@ SCENES = {
 }
 
 
+def prepare_scene(core, scene, shadows):
+    """One of SCENES prepared with its table (benchmarks/gpu_direct_twin.py measures the same)."""
+    builders = _scene_builders(core)
+    spec = SCENES[scene]
+    if scene == "open":
+        Material = core.scene.Material
+        meshes = [builders.quad_mesh("Ground", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)],
+                                     material=Material(base_color=np.full(3, 0.7)), resolution=40),
+                  builders.quad_mesh("Roof", [(-0.4, -0.4, 0.6), (-0.4, 0.4, 0.6), (0.4, 0.4, 0.6),
+                                              (0.4, -0.4, 0.6)], resolution=12)]
+    else:
+        meshes = [builders.box_interior(size=1.0, resolution=36),
+                  builders.quad_mesh("Tile", [(-0.15, -0.15, -0.2), (0.15, -0.15, -0.2), (0.15, 0.15, -0.2),
+                                              (-0.15, 0.15, -0.2)], resolution=8)]
+    settings = core.settings.BakeSettings(directions=64, bounces=0, shadows=shadows,
+                                          shadow_regions=spec["shadow_regions"],
+                                          area_light_samples=spec["area_light_samples"])
+    return core.pipeline.prepare.prepare(core.scene.Scene(meshes, []), settings, table_needed=True)
+
+
 @pytest.fixture(scope="module")
 def prepared(visibake):
-    core = visibake.core
-    builders = _scene_builders(core)
     made = {}
 
     def get(scene, shadows):
         if (scene, shadows) not in made:
-            spec = SCENES[scene]
-            if scene == "open":
-                Material = core.scene.Material
-                meshes = [builders.quad_mesh("Ground", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)],
-                                             material=Material(base_color=np.full(3, 0.7)), resolution=40),
-                          builders.quad_mesh("Roof", [(-0.4, -0.4, 0.6), (-0.4, 0.4, 0.6), (0.4, 0.4, 0.6),
-                                                      (0.4, -0.4, 0.6)], resolution=12)]
-            else:
-                meshes = [builders.box_interior(size=1.0, resolution=36),
-                          builders.quad_mesh("Tile", [(-0.15, -0.15, -0.2), (0.15, -0.15, -0.2), (0.15, 0.15, -0.2),
-                                                      (-0.15, 0.15, -0.2)], resolution=8)]
-            settings = core.settings.BakeSettings(directions=64, bounces=0, shadows=shadows,
-                                               shadow_regions=spec["shadow_regions"],
-                                               area_light_samples=spec["area_light_samples"])
-            made[scene, shadows] = core.pipeline.prepare.prepare(core.scene.Scene(meshes, []), settings, table_needed=True)
+            made[scene, shadows] = prepare_scene(visibake.core, scene, shadows)
         return made[scene, shadows]
 
     return get
@@ -112,19 +115,22 @@ def direct(gpu_shaders, visibake):
     return importlib.import_module(f"{visibake.__name__}.gpu_shaders.direct")
 
 
+def evaluate(visibake, direct, p, lights, **keywords):
+    """(GPU irradiance, its shadow rays, numpy irradiance, its shadow rays) of ``lights`` over ``p``."""
+    ours, our_rays = direct.lamp_irradiance(p.sample_set(), p.shadowing(), lights, lambda f: None, **keywords)
+    twin, twin_rays = visibake.core.transport.direct.lamp_irradiance(p.sample_set(), p.shadowing(), lights,
+                                                                     lambda f: None)
+    return ours, our_rays, twin, twin_rays
+
+
 def _compare(visibake, direct, p, lights, label, **keywords):
-    ours, our_rays = direct.lamp_irradiance(p, lights, lambda f: None, **keywords)
-    twin, twin_rays = visibake.core.transport.direct.lamp_irradiance(p, lights, lambda f: None)
+    ours, our_rays, twin, twin_rays = evaluate(visibake, direct, p, lights, **keywords)
     assert ours.shape == twin.shape == (len(p.position), 3)
     assert ours.dtype == np.float64
     assert our_rays == twin_rays
     peak = np.abs(twin).max()
     assert peak > 1e-3  # the case is not trivially zero
-    difference = np.abs(ours - twin)
-    measured[label] = (difference.max() / peak, (difference / np.maximum(np.abs(twin), 1e-30))[twin > 1e-3 * peak].max())
-    print(f"\n{label}: {len(p.position)} samples, max |diff| / max = {measured[label][0]:.2e}, "
-          f"max relative diff (values > 1e-3 max) = {measured[label][1]:.2e}, shadow rays {twin_rays}")
-    np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL_OF_MAX * peak)
+    np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL_OF_MAX * peak, err_msg=label)
     return ours, twin
 
 
@@ -149,7 +155,7 @@ def test_many_lamps_in_chunks_match_numpy_and_report_each_lamp(visibake, direct,
     lights.append(_light(visibake.core, "sun", 1.2))
     lights[-1].direction = _unit([-0.4, 0.1, -1.0])  # a second sun shares the distant fractions
     reported = []
-    whole, rays = direct.lamp_irradiance(p, lights, reported.append)
+    whole, rays = direct.lamp_irradiance(p.sample_set(), p.shadowing(), lights, reported.append)
     assert reported == pytest.approx([(i + 1) / len(lights) for i in range(len(lights))])
     # A budget holding about 700 samples: three chunks, nothing resident between lamps.
     per_sample = 16 * (4 + (4 * 8 if shadows == "fractions" else 1))
@@ -162,20 +168,14 @@ def test_many_lamps_in_chunks_match_numpy_and_report_each_lamp(visibake, direct,
 def test_a_budget_too_small_for_one_sample_is_refused(visibake, direct, prepared):
     p = prepared("open", "fractions")
     with pytest.raises(MemoryError, match="GPU budget"):
-        direct.lamp_irradiance(p, [_light(visibake.core, "point", 1.2)], budget_bytes=600)
+        direct.lamp_irradiance(p.sample_set(), p.shadowing(), [_light(visibake.core, "point", 1.2)], budget_bytes=600)
 
 
 def test_no_lamps_and_bad_lamps_behave_as_numpy(visibake, direct, prepared):
     p = prepared("open", "exact")
-    irradiance, rays = direct.lamp_irradiance(p, [])
+    irradiance, rays = direct.lamp_irradiance(p.sample_set(), p.shadowing(), [])
     assert irradiance.shape == (len(p.position), 3) and not np.any(irradiance) and rays == 0
     bad = _light(visibake.core, "point", 1.2)
     bad.strength = float("inf")
     with pytest.raises(ValueError, match="non-finite"):
-        direct.lamp_irradiance(p, [bad])
-
-
-def test_print_measured_differences():
-    """Not a check: the largest differences seen above, for the record (-s shows them)."""
-    for label, (of_max, relative) in sorted(measured.items()):
-        print(f"{label:40s} |diff|/max {of_max:.2e}  relative {relative:.2e}")
+        direct.lamp_irradiance(p.sample_set(), p.shadowing(), [bad])

@@ -82,6 +82,15 @@ def _vertex_case(core, samples=3000, directions=96, objects=6, channels=3, neare
     return _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles)
 
 
+
+def _gather(function, visibake, table, normals, scale, layout, radiance, world, exclude=None, samples=None,
+            **keywords):
+    """A gather (GPU or CPU twin) through the transport contract's structures."""
+    contract = visibake.core.transport.contract
+    return function(contract.GatherGeometry(table, normals, scale, layout),
+                    contract.GatherSource(radiance, world, exclude), samples=samples, **keywords)
+
+
 def _report(name, ours, twin):
     difference = np.abs(ours - twin)
     relative = difference / np.maximum(np.abs(twin), 1e-30)
@@ -93,8 +102,8 @@ def _report(name, ours, twin):
 def test_gather_matches_numpy(visibake, gpu_shaders, channels):
     core = visibake.core
     table, normals, scale, layout, radiance, world = _random_case(core, channels=channels, seed=channels)
-    ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
-    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world)
+    ours = _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world)
+    twin = _gather(core.transport.gather.gather, visibake, table, normals, scale, layout, radiance, world)
     assert ours.shape == twin.shape == (len(normals), channels)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
     assert np.abs(twin).max() > 0.1  # the case is not trivially zero
@@ -108,9 +117,10 @@ def test_exclusions_samples_and_small_batches_match_numpy(visibake, gpu_shaders)
     chosen = np.sort(rng.choice(len(normals), 900, replace=False))
     # A budget that holds the fixed textures and only a few directions: many batches.
     fixed = 4 * (2500 * 4 * 3) + layout.size * 16 + 200_000
-    ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude,
-                                     samples=chosen, budget_bytes=fixed + 5 * 2048 * 2 * 12)
-    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
+    case = (table, normals, scale, layout, radiance, world)
+    ours = _gather(gpu_shaders.gather.gather, visibake, *case, exclude=exclude, samples=chosen,
+                   budget_bytes=fixed + 5 * 2048 * 2 * 12)
+    twin = _gather(core.transport.gather.gather, visibake, *case, exclude=exclude, samples=chosen)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
     assert np.all(ours[np.setdiff1d(np.arange(len(normals)), chosen)] == 0)
 
@@ -122,8 +132,8 @@ def test_vertex_objects_match_numpy(visibake, gpu_shaders, channels, nearest):
     table, normals, scale, layout, radiance, world = _vertex_case(core, channels=channels, nearest=nearest,
                                                                   seed=100 + channels + nearest)
     assert layout.is_vertex is not None and layout.is_vertex.any() and not layout.is_vertex.all()
-    ours = gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
-    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world)
+    ours = _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world)
+    twin = _gather(core.transport.gather.gather, visibake, table, normals, scale, layout, radiance, world)
     _report(f"vertex objects, {channels} channels, nearest={nearest}", ours, twin)
     assert ours.shape == twin.shape == (len(normals), channels)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
@@ -134,7 +144,7 @@ def test_vertex_objects_match_numpy(visibake, gpu_shaders, channels, nearest):
         start = layout.offsets[index]
         vertex_rows[start:start + (layout.widths[index] + 1) * 2] = True
     dark = np.where(vertex_rows[:, None], 0, radiance).astype(np.float32)
-    without = gpu_shaders.gather.gather(table, normals, scale, layout, dark, world)
+    without = _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, dark, world)
     assert np.abs(without - ours).max() > 0.1
 
 
@@ -156,9 +166,10 @@ def test_vertex_objects_with_exclusions_samples_and_small_batches_match_numpy(vi
     corner_rows = -(-2 * len(layout.corner_flat) // 4096)
     fixed = 5 * 16 * texels + 32 * 4096 * rows + 16 * 4096 * corner_rows + 10_000
     progress = []
-    ours = gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen,
-                         budget_bytes=fixed + 5 * per_direction, progress=progress.append)
-    twin = core.transport.gather.gather(table, normals, scale, layout, radiance, world, exclude=exclude, samples=chosen)
+    case = (table, normals, scale, layout, radiance, world)
+    ours = _gather(gather.gather, visibake, *case, exclude=exclude, samples=chosen,
+                   budget_bytes=fixed + 5 * per_direction, progress=progress.append)
+    twin = _gather(core.transport.gather.gather, visibake, *case, exclude=exclude, samples=chosen)
     _report(f"vertex objects, exclusions, {len(progress)} batches, nearest={nearest}", ours, twin)
     assert len(progress) >= 12  # many batches (the budget holds a few directions)
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
@@ -171,7 +182,7 @@ def test_triangle_indices_beyond_exact_floats_are_refused(visibake, gpu_shaders)
     table, normals, scale, layout, radiance, world = _vertex_case(core, samples=300, directions=8)
     table.hit_triangle[0, 0] = 1 << 24
     with pytest.raises(ValueError, match="2\\^24"):
-        gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world)
+        _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world)
 
 
 def test_vertex_objects_add_the_hit_triangle_to_each_batch(visibake):
@@ -189,7 +200,7 @@ def test_a_budget_too_small_for_one_direction_is_refused(visibake, gpu_shaders):
     core = visibake.core
     table, normals, scale, layout, radiance, world = _random_case(core, samples=500, directions=8)
     with pytest.raises(MemoryError, match="GPU budget"):
-        gpu_shaders.gather.gather(table, normals, scale, layout, radiance, world, budget_bytes=1000)
+        _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world, budget_bytes=1000)
 
 
 def test_a_1024_atlas_with_256_directions_fits_the_default_budget(visibake):
@@ -208,3 +219,20 @@ def test_a_1024_atlas_with_256_directions_fits_the_default_budget(visibake):
     batches = -(-256 // batch)
     print(f"\n1024^2 atlas, 256 directions, 1 GiB: {batch} directions per batch, {batches} batches")
     assert batches <= 8
+
+
+def test_direction_subsets_match_numpy_and_add_up(visibake, gpu_shaders):
+    """The scale-out contract on the GPU: each direction range matches the CPU twin's, and
+    the ranges together give the whole gather."""
+    core = visibake.core
+    table, normals, scale, layout, radiance, world = _random_case(core, channels=6, seed=21)
+    chunks = core.transport.contract.direction_chunks(len(table.directions), 3)
+    parts = [_gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world,
+                     directions=chunk) for chunk in chunks]
+    for chunk, part in zip(chunks, parts):
+        twin = _gather(core.transport.gather.gather, visibake, table, normals, scale, layout, radiance, world,
+                       directions=chunk)
+        np.testing.assert_allclose(part, twin, rtol=RTOL, atol=ATOL)
+    whole = _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world)
+    np.testing.assert_allclose(sum(parts), whole, rtol=RTOL, atol=ATOL)
+    assert np.abs(whole).max() > 0.1

@@ -1,0 +1,137 @@
+"""Carrying a prepared scene's light groups through a transport backend: direct light
+(lamps, then directly sampled emitters), then the emitted and world light and every
+bounce in shared gathers, all groups side by side in one radiance atlas."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..lights.emitters import emitter_irradiance, find_emitters, sampled_directly
+from ..transport.contract import GatherSource, TransportBackend
+from ..transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
+from ..transport.groups import LightGroup, Transported
+from .prepare import Prepared
+from .progress import Stages
+
+
+def _direct_share(p, lamp_rays: float, emitter_rays: float) -> float:
+    """The direct light's share of a transport's time, from its shadow rays and the
+    gathers' lookups: the progress bar then moves at an even pace through both."""
+    lamp_cost = lamp_rays * (SHADOW_RAY_IN_LOOKUPS if p.settings.shadows == "exact" else 0.2)
+    shadow = lamp_cost + emitter_rays * SHADOW_RAY_IN_LOOKUPS
+    lookups = (len(p.directions) * len(p.position) / 2 if p.table is not None else 0.0) * (p.bounces_needed() + 1)
+    if shadow + lookups <= 0:
+        return 0.5
+    return float(np.clip(shadow / (shadow + lookups), 0.02, 0.98))
+
+
+def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,
+                     skipped: list, dilate, share=(0.0, 1.0)) -> tuple[list[Transported], int]:
+    """Direct light of every group, then all groups' gathers at once, on ``backend``.
+
+    ``stages`` times the direct part as "direct" inside the running stage; ``dilate``
+    is the (timed) dilation radiance atlases are made with; ``share`` is this call's
+    slice of the stage's progress bar. Returns the groups' irradiance and the gathers run.
+    """
+    low, high = share
+
+    def report(fraction):
+        stages.report(low + (high - low) * fraction)
+
+    direct_started = time.perf_counter()
+    count = len(groups)
+    emitting_any = np.zeros(len(p.meshes), bool)
+    for group in groups:
+        emitting_any |= group.emitting
+
+    # Small emitters are integrated directly where the fixed directions would alias,
+    # and left out of the gather there. Whether a sample samples an emitter depends on
+    # the emitter alone, so one exclusion mask serves every group: an emitter's light
+    # is only in its own group's atlas.
+    exclude = None
+    sampled = []  # (owning group, emitter, samples that sample it directly)
+    if bool(np.any(emitting_any)) and bool(np.any(p.emission > 0)):
+        for emitter in find_emitters(p.meshes, p.settings.emitter_samples):
+            owner = next((i for i, g in enumerate(groups) if g.emitting[emitter.object_index]), None)
+            if owner is None:
+                continue
+            direct = sampled_directly(emitter, p.position, p.settings.directions)
+            if not np.any(direct):
+                continue
+            if exclude is None:
+                exclude = np.zeros((len(p.position), len(p.meshes)), bool)
+            exclude[:, emitter.object_index] = direct
+            sampled.append((owner, emitter, np.nonzero(direct)[0]))
+
+    lamp_rays = len(p.position) * sum(shadow_rays_per_sample(light.kind, p.settings)
+                                      for group in groups for light in group.lights)
+    emitter_rays = sum(len(chosen) for _, _, chosen in sampled) * p.settings.emitter_samples
+    direct_share = _direct_share(p, lamp_rays, emitter_rays)
+    lamp_share = direct_share * lamp_rays / max(lamp_rays + emitter_rays, 1)
+    results = []
+    for index, group in enumerate(groups):
+        irradiance, rays = backend.lamp_irradiance(
+            p.sample_set(), p.shadowing(), group.lights, lambda f, i=index: report(lamp_share * (i + f) / count))
+        results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
+    for number, (owner, emitter, chosen) in enumerate(sampled):
+        irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen],
+                                              p.geometric[chosen], p.origins[chosen], p.ray_scene)
+        results[owner].direct[chosen] += irradiance
+        results[owner].emitter_rays += rays
+        results[owner].emitters_sampled += (p.meshes[emitter.object_index].name,)
+        report(lamp_share + (direct_share - lamp_share) * (number + 1) / len(sampled))
+    stages.book("direct", time.perf_counter() - direct_started)
+    stages.record_pass(f"direct light ({count} groups)", backend.name, time.perf_counter() - direct_started)
+
+    per_sample_emitting = np.stack([np.repeat(g.emitting, np.diff(p.sample_offset)) for g in groups])
+    emissions = [np.where(per_sample_emitting[i][:, None], p.emission, 0.0) for i in range(count)]
+    worlds = [g.world for g in groups]
+    gathers_emission = any(np.any(e > 0) for e in emissions) or any(np.any(w > 0) for w in worlds)
+    bounces = p.bounces_needed()
+    if not (bounces > 0 or gathers_emission):
+        return results, 0
+    geometry = p.gather_geometry()
+    # Only objects with outputs need the last gather's result; the others' radiance
+    # would only feed a bounce that is never gathered.
+    outputs = p.output_samples()
+    steps = bounces + 1
+
+    def step_progress(step):
+        return lambda fraction: report(direct_share + (1.0 - direct_share) * (step + fraction) / steps)
+
+    def wide(arrays):
+        return np.concatenate(arrays, axis=1)
+
+    def narrow(array):
+        return [array[:, 3 * i:3 * i + 3] for i in range(count)]
+
+    gathers = 0
+    def timed_gather(name, source, progress, samples):
+        started = time.perf_counter()
+        result = backend.gather(geometry, source, progress, samples=samples)
+        stages.record_pass(f"{name} ({3 * count} channels)", backend.name, time.perf_counter() - started)
+        return result
+
+    if gathers_emission:
+        emitted = timed_gather("gather of emitted and world light",
+                               GatherSource(p.to_atlas(wide(emissions), dilate), wide(worlds), exclude),
+                               step_progress(0), outputs if bounces == 0 else None)
+        gathers += 1
+        for result, part in zip(results, narrow(emitted)):
+            result.direct += part
+    gathered = np.zeros((len(p.position), 3 * count))
+    direct = wide([r.direct for r in results])
+    albedo = np.tile(p.albedo, count)
+    for bounce in range(1, bounces + 1):
+        if not np.any(direct + gathered > 0):
+            skipped.append(f"bounce {bounce} and later: no light left to reflect")
+            break
+        reflected = albedo / np.pi * (direct + gathered)
+        gathered = timed_gather(f"gather of bounce {bounce}",
+                                GatherSource(p.to_atlas(reflected, dilate), np.zeros(3 * count)),
+                                step_progress(bounce), outputs if bounce == bounces else None)
+        gathers += 1
+    for result, part in zip(results, narrow(gathered)):
+        result.gathered = part
+    return results, gathers

@@ -1,0 +1,92 @@
+"""Arguments, scene properties and preferences turned into core settings, in one place.
+
+Each value is the argument where one is given (the command line's options, the job's
+parameters), else the scene's property (``scene.visibake``), else VisiBake's
+preference, else core's default (core.settings); :func:`resolve` validates the
+complete set once. (The command line writes its scene options onto ``scene.visibake``
+first, so that a saved file keeps them.)
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, fields
+
+import bpy
+
+from ...core.errors import BakeRefused
+from ...core.settings import PASSES, PREFERENCE_SETTINGS, SETTINGS, BakeSettings, LayoutSettings
+from . import EXTENSION_PACKAGE
+from .device import preferences
+
+CACHE_FOLDER_NAME = "visibake_cache"
+
+# The BakeSettings fields the scene's settings hold; the others keep core's defaults.
+_SCENE_BAKE_FIELDS = tuple(f.name for f in fields(BakeSettings) if SETTINGS[f.name].on_scene)
+
+
+@dataclass
+class Resolved:
+    """The settings of one bake."""
+
+    bake: BakeSettings
+    layout: LayoutSettings
+    device: str  # one of core.settings.DEVICES, as asked for ('auto' is decided when the bake starts)
+    refine: bool  # bake refined copies of coarse vertex-mode objects (operators.adapter.refine)
+
+
+def bake_settings(props, threads: int = SETTINGS["threads"].default) -> BakeSettings:
+    """The BakeSettings of ``props`` (scene.visibake), not validated yet."""
+    values = {name: getattr(props, name) for name in _SCENE_BAKE_FIELDS}
+    values["passes"] = tuple(p for p in PASSES if p in values["passes"])
+    return BakeSettings(**values, threads=threads)
+
+
+def layout_settings(props) -> LayoutSettings:
+    """The LayoutSettings of ``props`` (scene.visibake), not validated yet."""
+    return LayoutSettings(**{f.name: getattr(props, f.name) for f in fields(LayoutSettings)})
+
+
+def _preference(context, name: str):
+    prefs = preferences(context)
+    return getattr(prefs, name) if prefs is not None else PREFERENCE_SETTINGS[name].default
+
+
+def resolve(context, threads: int | None = None, device: str | None = None,
+            refine: bool | None = None) -> Resolved:
+    """The settings of a bake of ``context.scene``; an argument given (not None) wins.
+
+    threads : worker threads (0: all cores); None: the preference
+    device : 'auto', 'gpu' or 'cpu'; None: the preference
+    refine : None: the scene's Refine Coarse Vertex Objects
+
+    Raises core.errors.BakeRefused (a ValueError) for values that cannot work.
+    """
+    props = context.scene.visibake
+    resolved = Resolved(
+        bake=bake_settings(props, _preference(context, "threads") if threads is None else threads),
+        layout=layout_settings(props),
+        device=device or _preference(context, "device"),
+        refine=props.refine_vertex_objects if refine is None else refine)
+    resolved.bake.validate()
+    resolved.layout.validate()
+    reason = PREFERENCE_SETTINGS["device"].check(resolved.device)
+    if reason is not None:
+        raise BakeRefused(reason)
+    return resolved
+
+
+def cache_folder(scene) -> str:
+    """The cache folder: the scene's setting, the preference, beside the saved .blend, the user folder."""
+    props = scene.visibake
+    if props.cache_dir:
+        return bpy.path.abspath(props.cache_dir)
+    prefs = preferences()
+    if prefs is not None and prefs.cache_dir:
+        return bpy.path.abspath(prefs.cache_dir)
+    if bpy.data.filepath:
+        return os.path.join(os.path.dirname(bpy.data.filepath), CACHE_FOLDER_NAME)
+    try:
+        return bpy.utils.extension_path_user(EXTENSION_PACKAGE, path="cache", create=True)
+    except ValueError:
+        # Not installed as an extension (run from a source checkout by tools/visibake.py).
+        return os.path.join(bpy.utils.user_resource("CONFIG"), "visibake", "cache")
