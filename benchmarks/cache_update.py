@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     import bpy
 
     demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
-    job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
+    extraction = importlib.import_module(f"{extension.__name__}.operators.adapter.extraction")
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
 
@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     props.directions, props.resolution, props.bounces = args.directions, args.resolution, args.bounces
     props.passes = {"lighting"}
     settings = props.to_bake_settings()
-    extracted = job.extract_scene(bpy.context, objects)
+    extracted = extraction.extract_scene(bpy.context, objects)
     scene = extracted.scene
     results = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
                "blender": bpy.app.version_string, "settings": dataclasses.asdict(settings), "moved": args.move}
@@ -87,7 +87,7 @@ def main(argv=None) -> int:
         moved = next(o for o in objects if o.name == args.move)
         moved.location.x += 0.15
         bpy.context.view_layer.update()
-        scene_moved = job.extract_scene(bpy.context, objects).scene
+        scene_moved = extraction.extract_scene(bpy.context, objects).scene
         updated, seconds = timed(lambda: pipeline.prepare(scene_moved, settings, table_needed=True, cache=cache))
         results["update"] = {"seconds": seconds, "state": updated.cache_status.state,
                              "visibility_seconds": updated.stage_seconds.get("visibility", 0.0),

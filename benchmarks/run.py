@@ -164,6 +164,7 @@ def main(argv=None) -> int:
     from tools.cycles_bake import bake_diffuse
 
     job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
+    extraction = importlib.import_module(f"{extension.__name__}.operators.adapter.extraction")
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
     gpu_runtime = importlib.import_module(f"{extension.__name__}.gpu_shaders.runtime")
@@ -240,7 +241,7 @@ def main(argv=None) -> int:
                     print(f"  Cycles {samples} spp: {seconds:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
 
         # The libraries underneath, on this scene's geometry and table sizes.
-        extracted = job.extract_scene(bpy.context, objects)
+        extracted = extraction.extract_scene(bpy.context, objects)
         embree_rate = limits.embree_rays_per_second(extracted.scene.meshes,
                                                     count=200_000 if profile["size"] == "smoke" else 4_000_000)
         texels = max(r["texels"] for r in rows if r["method"] == "visibake")
@@ -267,7 +268,7 @@ def main(argv=None) -> int:
         cycles_seconds = interpolate_time_at_error(cycles_rows, matched["relative_rmse"])
         props.resolution, props.bounces, props.directions = resolution, bounces, matched["directions"]
         props.shadows, props.rotate = "exact", False
-        extracted = job.extract_scene(bpy.context, objects)
+        extracted = extraction.extract_scene(bpy.context, objects)
         settings = props.to_bake_settings()
         # The relighting workflow as a user runs it: the first bake traces the table and
         # writes the cache; later sessions read it back. Both are timed.

@@ -13,21 +13,19 @@ import time
 from dataclasses import dataclass, field
 
 import bpy
-import numpy as np
 
-from ...core.errors import BakeRefused, Cancelled
-from ...core.geometry import face_normals
+from ...core.errors import BakeRefused
 from ...core.outputs.report import DeviceReport, RefinedReport, Report, SetupReport
-from ...core.pipeline.budget import check_budget, peak_memory_bytes
+from ...core.pipeline.budget import peak_memory_bytes
 from ...core.pipeline.prepare import prepare
 from ...core.pipeline.relight import BakeResult, relight_many
 from ...core.sampling import layout as layout_policy
-from ...core.scene import Scene
 from ...core.transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
 from ...core.visibility.cache import VisibilityCache
 from ...core.visibility.table import table_bytes
-from . import device, extract, layout, refine, writeback
-from .settings import cache_folder, layout_settings, resolve
+from . import device, extract, refine, writeback
+from .extraction import complete_extraction, plan_extraction, run_unwraps
+from .settings import cache_folder, resolve
 
 
 @dataclass
@@ -54,196 +52,6 @@ def output_objects(context, props) -> list[bpy.types.Object]:
     return [o for o in meshes if o.select_get()]
 
 
-@dataclass
-class Extracted:
-    """The core scene of a bake, and what the Blender side did to produce it."""
-
-    scene: Scene
-    plans: dict  # object name -> layout.LayoutPlan
-    created: list  # (mesh, UV map name) created for this bake
-    warnings: list
-    seconds: dict
-
-    def undo(self) -> None:
-        """Remove the UV maps this extraction created (a bake that did not finish)."""
-        layout.remove_created_uv_maps(self.created)
-
-
-@dataclass
-class Planned:
-    """The first step of an extraction: every mesh read and its layout chosen.
-
-    Nothing in the scene has changed yet; the unwraps the plans need are still to run
-    (:func:`run_unwraps`, anywhere), and :func:`complete_extraction` writes their UV maps.
-    """
-
-    objects: list  # the bpy objects that take part, in the order of ``meshes``
-    meshes: list  # core.scene.Mesh as read, without their layout yet
-    plans: dict  # object name -> layout.LayoutPlan
-    budget: dict  # object name -> planned samples (width, height), for check_budget
-    warnings: list
-    seconds: dict
-
-    @property
-    def unwraps(self) -> list:
-        return [plan.pending for plan in self.plans.values() if plan.pending is not None]
-
-
-def plan_extraction(context, objects, progress=None) -> Planned:
-    """Read every visible mesh (``objects`` get outputs) and choose its layout (main thread)."""
-    scene = context.scene
-    props = scene.visibake
-    started = time.perf_counter()
-    outputs = set(o.name for o in objects)
-    all_meshes = extract.scene_meshes(scene)
-    warnings: list[str] = []
-    depsgraph = context.evaluated_depsgraph_get()
-    planned = Planned([], [], {}, {}, warnings, {})
-    for index, obj in enumerate(all_meshes):
-        mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
-        if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
-            warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
-            continue
-        planned.plans[obj.name] = _plan(obj, mesh, layout_settings(props), planned.budget, props.directions)
-        planned.objects.append(obj)
-        planned.meshes.append(mesh)
-        if progress:
-            progress("layout", (index + 1) / len(all_meshes))
-    planned.seconds["layout"] = time.perf_counter() - started
-    return planned
-
-
-def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None:
-    """Run the plans' unwraps (no bpy: any thread). ``in_child``: each in a child
-    process, which a cancel through ``progress`` kills at once."""
-    started = time.perf_counter()
-    unwraps = planned.unwraps
-    # Progress by expected time: one large mesh takes longer than many small ones.
-    costs = np.cumsum([0.0] + [layout_policy.unwrap_seconds(len(p.triangles)) for p in unwraps])
-    for index, pending in enumerate(unwraps):
-        fraction = costs[index] / costs[-1]
-
-        def cancelled() -> bool:
-            try:
-                if progress:
-                    progress("unwrap", fraction)
-            except Cancelled:
-                return True
-            return False
-
-        if cancelled():
-            raise Cancelled()
-        pending.run(in_child, cancelled)
-        if in_child and cancelled():
-            raise Cancelled()
-    if unwraps and progress:
-        progress("unwrap", 1.0)
-    planned.seconds["unwrap"] = time.perf_counter() - started
-
-
-def complete_extraction(context, planned: Planned) -> Extracted:
-    """Write the unwrapped UV maps and read the scene as the core needs it (main thread).
-
-    On an error the UV maps written here are removed again before this raises.
-    """
-    scene = context.scene
-    props = scene.visibake
-    warnings, times = planned.warnings, planned.seconds
-    created: list[tuple[bpy.types.Mesh, str]] = []
-    t = time.perf_counter()
-    try:
-        for obj, mesh in zip(planned.objects, planned.meshes):
-            plan = planned.plans[obj.name]
-            if plan.pending is None:
-                continue
-            plan = _complete_plan(obj, mesh, plan, planned.budget, props)
-            planned.plans[obj.name] = plan
-            if plan.created:
-                created.append((obj.data, plan.uv_map))
-        meshes = planned.meshes
-        rewritten = [obj for obj in planned.objects if planned.plans[obj.name].written]
-        if rewritten:
-            # The new UV maps live on the base meshes; evaluate again so modifiers carry them.
-            depsgraph = context.evaluated_depsgraph_get()
-            depsgraph.update()
-            outputs = {mesh.name for mesh in meshes if mesh.output}
-            again = {obj.name: extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, [])
-                     for obj in rewritten}
-            meshes = [again.get(mesh.name, mesh) for mesh in meshes]
-        for mesh in meshes:
-            plan = planned.plans[mesh.name]
-            mesh.bake_uv_map, mesh.resolution, mesh.mode = plan.uv_map, plan.resolution, plan.mode
-            if plan.internal_uv is not None:
-                mesh.uv_maps[plan.uv_map] = plan.internal_uv
-        world = extract.read_world(scene, warnings)
-        world.light_group = getattr(scene.world, "lightgroup", "") if scene.world else ""
-        core_scene = Scene(meshes=meshes, lights=[extract.read_light(o) for o in extract.scene_lights(scene)],
-                           world=world)
-        times["extract"] = time.perf_counter() - t
-        if not any(m.output for m in meshes):
-            raise BakeRefused("none of the objects to bake has faces")
-    except BaseException:
-        layout.remove_created_uv_maps(created)
-        raise
-    return Extracted(core_scene, planned.plans, created, warnings, times)
-
-
-def extract_scene(context, objects, progress=None) -> Extracted:
-    """Lay out and read every visible mesh (``objects`` get outputs), lamps and world.
-
-    Creates ``VisiBake`` UV maps where needed; on an error they are removed again
-    before this raises. The three steps in one, on this thread.
-    """
-    planned = plan_extraction(context, objects, progress)
-    run_unwraps(planned, progress)
-    return complete_extraction(context, planned)
-
-
-def _complete_plan(obj, mesh, plan, budget: dict, props) -> layout.LayoutPlan:
-    """Apply a plan's unwrap; mode auto takes vertex tables where it failed."""
-    try:
-        return layout.complete_layout(obj, plan)
-    except layout.UnwrapFailed as error:
-        if obj.visibake.effective_mode(props) != "auto" or not _vertex_topology_kept(obj, mesh):
-            raise
-        budget[obj.name] = (3 * len(mesh.triangles), 1)
-        check_budget(list(budget.values()), props.directions)
-        return layout.vertex_plan(f"vertex tables: {error}")
-
-
-def _plan(obj, mesh, props, budget: dict, directions: int) -> layout.LayoutPlan:
-    """The layout of one object: an atlas (its UV map, or one to unwrap) or vertex tables.
-
-    Mode vertex always takes vertex tables; mode auto takes them where the mesh is too
-    dense or too big to unwrap (or, later, where unwrapping fails); mode atlas never does.
-    """
-    mode = obj.visibake.effective_mode(props)
-    if mode == "vertex":
-        _check_vertex_topology(obj, mesh)
-        budget[obj.name] = (3 * len(mesh.triangles), 1)
-        check_budget(list(budget.values()), directions)
-        return layout.vertex_plan("vertex mode was asked for")
-    # Checked before any work at the planned size: validating a UV map rasterises it
-    # at the bake resolution.
-    budget[obj.name] = layout.planned_resolution(obj, props, mesh.positions, mesh.triangles)
-    check_budget(list(budget.values()), directions)
-    existing = None
-    if mode == "auto":
-        # A valid UV map of the user's is a request for textures; only a mesh that would
-        # have to be unwrapped is considered for vertex tables.
-        existing = layout.existing_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props)
-        reason = None if existing is not None else layout.auto_vertex_reason(
-            obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
-        if reason is not None:
-            budget[obj.name] = (3 * len(mesh.triangles), 1)
-            check_budget(list(budget.values()), directions)
-            return layout.vertex_plan(f"vertex tables: {reason}")
-    plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
-    budget[obj.name] = plan.resolution
-    check_budget(list(budget.values()), directions)
-    return plan
-
-
 def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name) -> JobResult:
     """Bake again with refined copies of the ``coarse`` [(object, triangles)] in their place.
 
@@ -267,18 +75,6 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
         for (obj, triangles), (name, copy) in zip(coarse, copies.items())]
     outcome.result.report = outcome.report = report.to_dict()
     return outcome
-
-
-def _vertex_topology_kept(obj, mesh) -> bool:
-    return mesh.vertex_count == len(obj.data.vertices) and mesh.loop_count == len(obj.data.loops)
-
-
-def _check_vertex_topology(obj, mesh) -> None:
-    if mesh.output and not _vertex_topology_kept(obj, mesh):
-        raise BakeRefused(
-            f"object {obj.name!r}: vertex mode writes colour attributes on the mesh, but its modifiers change "
-            f"its vertices ({len(obj.data.vertices)} -> {mesh.vertex_count}) or corners; apply the modifiers "
-            "or use mode atlas")
 
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
