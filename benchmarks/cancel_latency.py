@@ -12,11 +12,9 @@ Writes ``benchmarks/results/cancel_latency.json`` with the machine and the date.
 """
 import argparse
 import importlib.util
-import json
 import os
 import sys
 import time
-from datetime import datetime, timezone
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
@@ -38,7 +36,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "cancel_latency.json"))
     args = parser.parse_args(argv)
 
-    from benchmarks.run import machine
+    from benchmarks.run import write_results
     from core.errors import Cancelled
     from core.sampling.unwrap_child import unwrap_in_child
 
@@ -55,15 +53,11 @@ def main(argv=None) -> int:
             print("the unwrap finished before the cancel: raise the sphere's size or lower --after", file=sys.stderr)
             return 1
         print(f"cancel to Cancelled: {latencies[-1]:.3f} s", flush=True)
-    result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
-              "settings": {"triangles": int(len(triangles)), "resolution": 1024, "after_seconds": args.after,
-                           "poll_seconds": args.poll, "runs": args.runs},
-              "latency_seconds": [round(value, 4) for value in latencies],
-              "worst_seconds": round(max(latencies), 4)}
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w", encoding="utf-8") as handle:
-        json.dump(result, handle, indent=2)
-    print(f"wrote {args.out}")
+    write_results(args.out, {
+        "settings": {"triangles": int(len(triangles)), "resolution": 1024, "after_seconds": args.after,
+                     "poll_seconds": args.poll, "runs": args.runs},
+        "latency_seconds": [round(value, 4) for value in latencies],
+        "worst_seconds": round(max(latencies), 4)})
     return 0
 
 

@@ -22,7 +22,6 @@ import os
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
@@ -75,7 +74,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "eta.json"))
     args = parser.parse_args(argv)
 
-    from benchmarks.run import machine
+    from benchmarks.run import write_results
     from tools.visibake import load_extension
 
     extension = load_extension()
@@ -108,14 +107,10 @@ def main(argv=None) -> int:
         torus.location.x += 0.3
         runs["moved"] = timed_bake(bake, modal, job, bpy, objects)
         print("moved", json.dumps(runs["moved"]), flush=True)
-    result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
-              "settings": {"directions": args.directions, "resolution": args.resolution, "bounces": args.bounces,
-                           "tick_seconds": TICK_SECONDS, "scene": "demo"},
-              "runs": runs}
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    with open(args.out, "w", encoding="utf-8") as handle:
-        json.dump(result, handle, indent=2)
-    print(f"wrote {args.out}")
+    write_results(args.out, {
+        "settings": {"directions": args.directions, "resolution": args.resolution, "bounces": args.bounces,
+                     "tick_seconds": TICK_SECONDS, "scene": "demo"},
+        "runs": runs})
     return 0
 
 

@@ -16,11 +16,9 @@ Writes the JSON with the machine, the GPU and the date, and prints a table.
 import argparse
 import importlib
 import importlib.util
-import json
 import os
 import sys
 import time
-from datetime import datetime, timezone
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
@@ -55,7 +53,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "gpu_direct_twin.json"))
     args = parser.parse_args(argv)
 
-    from benchmarks.run import machine
+    from benchmarks.run import write_results
     from tools.visibake import load_extension
 
     extension = load_extension()
@@ -89,14 +87,9 @@ def main(argv=None) -> int:
     for label, row in sorted(results.items()):
         print(f"{label:32s} |diff|/max {row['max_diff_of_max']:.2e}  relative {row['max_relative_diff']:.2e}  "
               f"{row['samples']} samples, {row['shadow_rays']} shadow rays, {row['seconds_both_passes']:.3f} s")
-    result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
-              "gpu": {"backend": info.backend, "renderer": info.renderer, "vendor": info.vendor,
-                      "version": info.version},
-              "tolerance": {"rtol": cases.RTOL, "atol_of_max": cases.ATOL_OF_MAX}, "cases": results}
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w", encoding="utf-8") as handle:
-        json.dump(result, handle, indent=2)
-    print(f"wrote {args.out}")
+    write_results(args.out, {
+        "gpu": {"backend": info.backend, "renderer": info.renderer, "vendor": info.vendor, "version": info.version},
+        "tolerance": {"rtol": cases.RTOL, "atol_of_max": cases.ATOL_OF_MAX}, "cases": results})
     return 0
 
 

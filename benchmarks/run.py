@@ -69,6 +69,15 @@ def machine() -> dict:
             "cpus": os.cpu_count(), "python": platform.python_version()}
 
 
+def write_results(path: str, fields: dict) -> None:
+    """A standalone benchmark's JSON: the date and the machine, then ``fields``."""
+    result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(), **fields}
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w", encoding="utf-8") as handle:
+        json.dump(result, handle, indent=2)
+    print(f"wrote {path}")
+
+
 def pareto(points):
     """Indices of the points no other point beats in both time and error."""
     order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))

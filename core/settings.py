@@ -233,16 +233,20 @@ def _default(name: str):
     return SETTINGS[name].default
 
 
-def _validate(values) -> None:
-    """Refuse (:class:`BakeRefused`) the first field of dataclass ``values`` that its Setting refuses."""
-    for field in fields(values):
-        reason = SETTINGS[field.name].check(getattr(values, field.name))
-        if reason is not None:
-            raise BakeRefused(reason)
+class _Validated:
+    """A dataclass of settings described in :data:`SETTINGS`, checked against it."""
+
+    def validate(self) -> None:
+        """Raise :class:`BakeRefused` (a ValueError) with a one-line reason for the first
+        field that cannot work."""
+        for field in fields(self):
+            reason = SETTINGS[field.name].check(getattr(self, field.name))
+            if reason is not None:
+                raise BakeRefused(reason)
 
 
 @dataclass
-class BakeSettings:
+class BakeSettings(_Validated):
     """Everything that changes the result of a bake; each field is described by
     ``SETTINGS[name]``.
 
@@ -269,14 +273,10 @@ class BakeSettings:
     light_groups: bool = _default("light_groups")
     vertex_lookup: str = _default("vertex_lookup")
 
-    def validate(self) -> None:
-        """Raise :class:`BakeRefused` (a ValueError) with a one-line reason for settings
-        that cannot work."""
-        _validate(self)
 
 
 @dataclass
-class LayoutSettings:
+class LayoutSettings(_Validated):
     """The scene's settings that decide where samples lie; an object's own
     (:data:`OBJECT_SETTINGS`) override them. Each field is described by ``SETTINGS[name]``.
 
@@ -289,7 +289,3 @@ class LayoutSettings:
     texel_density: float = _default("texel_density")
     mode: str = _default("mode")
 
-    def validate(self) -> None:
-        """Raise :class:`BakeRefused` (a ValueError) with a one-line reason for settings
-        that cannot work."""
-        _validate(self)

@@ -142,3 +142,17 @@ def area(power, location, rotation, shape, size, size_y=None, scale=(1.0, 1.0, 1
     obj.scale = scale
     bpy.context.scene.collection.objects.link(obj)
     return obj
+
+
+def ground_block_lamp():
+    """The panel tests' small scene: a white ground, a red block without a UV map (so it
+    is unwrapped) and a point lamp, both meshes selected, at 16 directions, 32 texels and
+    1 bounce. Returns (ground, block)."""
+    black_world()
+    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4), uv_map=None)
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    props = bpy.context.scene.visibake
+    props.directions, props.resolution, props.bounces = 16, 32, 1
+    select_only([ground, block])
+    return ground, block

@@ -12,7 +12,7 @@ import json
 import bpy
 import pytest
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only
+from bpy_scenes import ground_block_lamp
 
 _LAYOUT_RNA = bpy.types.UILayout.bl_rna
 _ICONS = set(_LAYOUT_RNA.functions["prop"].parameters["icon"].enum_items.keys())
@@ -95,13 +95,7 @@ def _labels(drawn):
 
 @pytest.fixture
 def scene(clean_scene):
-    black_world()
-    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
-    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4), uv_map=None)
-    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
-    props = bpy.context.scene.visibake
-    props.directions, props.resolution, props.bounces = 16, 32, 1
-    select_only([ground, block])
+    ground, block = ground_block_lamp()
     bpy.context.view_layer.objects.active = block
     return ground, block
 

@@ -4,18 +4,12 @@ import json
 
 import bpy
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only
+from bpy_scenes import ground_block_lamp
 
 
 def _scene(tmp_path):
-    black_world()
-    ground = mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
-    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0, 0, 0.4), uv_map=None)
-    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
-    props = bpy.context.scene.visibake
-    props.directions, props.resolution, props.bounces = 16, 32, 1
-    props.cache_dir = str(tmp_path / "cache")
-    select_only([ground, block])
+    ground_block_lamp()
+    bpy.context.scene.visibake.cache_dir = str(tmp_path / "cache")
 
 
 def test_the_operator_s_report_reads_back_exactly_and_prints_through_the_formatter(visibake, clean_scene, tmp_path):
