@@ -1,9 +1,11 @@
 # VisiBake: bootstrap, build, test.
 #
-#   make venv     .venv with Python 3.11 + requirements.txt (reinstalls only when it changes)
+#   make venv     .venv with Python 3.11, bpy 5.0.1 + requirements.txt (reinstalls only when they change)
+#                 BPY=X.Y.Z: .venv-bpyX.Y.Z with that bpy and its Python (3.11 up to 5.0, 3.13 from 5.1)
 #   make wheels   registry wheels bundled in the extension -> ./wheels/
 #   make build    dist/<id>-<version>.zip with Blender's own extension tool, then validate it
-#   make test     pytest (tests/core, tests/blender, tests/gpu)
+#   make test     pytest (tests/core, tests/blender, tests/gpu); BPY=X.Y.Z against that Blender
+#   make test-all the tests against every Blender of BPY_VERSIONS (what CI runs); test-others: all but the default
 #   make test-core  tests/core only (no bpy, no extension build): seconds
 #   make lint     ruff (pinned in requirements.txt; config in ruff.toml)
 #   make demo     tools/visibake.py demo --out out/demo
@@ -15,16 +17,27 @@ SHELL := /bin/bash
 .DEFAULT_GOAL := test
 .DELETE_ON_ERROR:
 
-PYTHON311 ?= python3.11
-VENV      := .venv
+# The Blender the tests run against, as the bpy module: `make test BPY=5.3.0`. Each version
+# gets a venv of its own; its Python follows from it (bpy 5.1 and later are built for
+# Python 3.13, earlier ones for 3.11), and each Python has its own pinned requirements.
+BPY_DEFAULT  := 5.0.1
+BPY          ?= $(BPY_DEFAULT)
+# What CI tests: the LTS lines, the default, and the newest bpy on the registry (raised deliberately).
+BPY_VERSIONS := 4.2.23 4.5.15 5.0.1 5.3.0
+PYVER        := $(shell echo '$(BPY)' | awk -F. '{ print ($$1 > 5 || ($$1 == 5 && $$2 >= 1)) ? "3.13" : "3.11" }')
+# pythonX.Y on the PATH, else pyenv's X.Y (installed but not selected on these machines).
+PYTHON       ?= $(shell tools/find_python.sh $(PYVER))
+VENV         := $(if $(filter $(BPY_DEFAULT),$(BPY)),.venv,.venv-bpy$(BPY))
+REQUIREMENTS := $(if $(filter 3.11,$(PYVER)),requirements.txt,requirements-py$(subst .,,$(PYVER)).txt)
+SITE         := $(VENV)/lib/python$(PYVER)/site-packages
 PY        := $(VENV)/bin/python
 PIP       := $(PY) -m pip --disable-pip-version-check --no-input
 PIP_PROGRESS := $(if $(CI),--progress-bar off,)
 PYTEST_FLAGS ?= -q -ra
 
-# Reinstall only when the *content* of requirements.txt changes (not its mtime).
-REQ_KEY    := $(firstword $(shell cksum requirements.txt 2>/dev/null))
-VENV_STAMP := $(VENV)/.installed-$(REQ_KEY)
+# Reinstall only when the *content* of the requirements or the bpy version changes (not an mtime).
+REQ_KEY    := $(firstword $(shell cksum $(REQUIREMENTS) 2>/dev/null))
+VENV_STAMP := $(VENV)/.installed-$(REQ_KEY)-bpy$(BPY)
 
 # Single source of truth for the extension: blender_manifest.toml.
 EXT_ID      := $(shell sed -n 's/^id *= *"\([^"]*\)".*/\1/p' blender_manifest.toml)
@@ -40,9 +53,12 @@ TAGS_windows-x64 := win_amd64
 TAGS_macos-arm64 := macosx_13_0_arm64
 
 # Blender's extension tool ships inside the bpy wheel (recursive: resolved after `venv`).
-BPY_DIR      = $(firstword $(wildcard $(VENV)/lib/python3.11/site-packages/bpy/[0-9]*.[0-9]*))
-BLENDER_EXT  = $(BPY_DIR)/scripts/addons_core/bl_pkg/cli/blender_ext.py
-VALID_TAGS   = $(BPY_DIR)/scripts/modules/_bpy_internal/extensions/tags.py
+# The zip is built with the default Blender's tool and validated by each tested Blender's.
+bpy_dir      = $(firstword $(wildcard $(1)/bpy/[0-9]*.[0-9]*))
+BUILD_DIR    = $(call bpy_dir,.venv/lib/python3.11/site-packages)
+BLENDER_EXT  = $(BUILD_DIR)/scripts/addons_core/bl_pkg/cli/blender_ext.py
+VALID_TAGS   = $(BUILD_DIR)/scripts/modules/_bpy_internal/extensions/tags.py
+TEST_DIR     = $(call bpy_dir,$(SITE))
 
 # Shared libraries bpy links against, and the Debian packages providing them
 # (only installed when something is missing; a stock desktop/CI image has them).
@@ -59,27 +75,31 @@ if command -v apt-get >/dev/null 2>&1; then \
 else echo "missing system packages ($(1)) and no apt-get to install them" >&2; exit 1; fi
 endef
 
-.PHONY: venv wheels build test test-core lint demo bench clean distclean
+.PHONY: venv default-venv wheels build build-platforms test test-others test-all test-core lint demo bench clean distclean
 
 venv: $(VENV_STAMP)
 
+PYVER_CHECK := import sys; sys.exit(sys.version_info[:2] != tuple(map(int, "$(PYVER)".split("."))))
+
 $(VENV_STAMP):
-	@command -v $(PYTHON311) >/dev/null 2>&1 && $(PYTHON311) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null \
-	  || { echo "Python 3.11 is required (bpy 5.0.1 is built for it): install python3.11 and re-run" >&2; exit 1; }
-	@if ! $(PY) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then \
-	  rm -rf $(VENV); echo "creating $(VENV) with $$(command -v $(PYTHON311))"; \
-	  if ! $(PYTHON311) -m venv $(VENV); then \
-	    rm -rf $(VENV); $(call apt_install,python3.11-venv); $(PYTHON311) -m venv $(VENV); \
+	@[ -n "$(PYTHON)" ] || { echo "Python $(PYVER) is required (bpy $(BPY) is built for it): install python$(PYVER) and re-run" >&2; exit 1; }
+	@if ! $(PY) -c '$(PYVER_CHECK)' 2>/dev/null; then \
+	  rm -rf $(VENV); echo "creating $(VENV) with $(PYTHON)"; \
+	  if ! $(PYTHON) -m venv $(VENV); then \
+	    rm -rf $(VENV); $(call apt_install,python$(PYVER)-venv); $(PYTHON) -m venv $(VENV); \
 	  fi; \
 	fi
 	rm -f $(VENV)/.installed-*
-	$(PIP) install $(PIP_PROGRESS) -r requirements.txt
-	@missing=$$(ldd $(VENV)/lib/python3.11/site-packages/bpy/__init__.so 2>/dev/null | grep 'not found' || true); \
+	$(PIP) install $(PIP_PROGRESS) -r $(REQUIREMENTS) bpy==$(BPY)
+	@missing=$$(ldd $(SITE)/bpy/__init__.so 2>/dev/null | grep 'not found' || true); \
 	if [ -n "$$missing" ]; then echo "bpy needs:"; echo "$$missing"; $(call apt_install,$(BPY_APT_PACKAGES)); fi
 	$(PY) -c 'import bpy; print("bpy", bpy.app.version_string, "OK")'
 	@touch $@
 
-wheels: venv
+# The Pythons of the supported Blenders: 3.11 (4.2 to 5.0) and 3.13 (5.1 and later).
+WHEEL_PYTHONS := 3.11 3.13
+
+wheels: default-venv
 	@mkdir -p wheels
 	@for f in wheels/*.whl; do [ -e "$$f" ] || continue; \
 	  case " $(WHEEL_FILES) " in *" $$f "*) ;; *) echo "removing stale $$f (not in blender_manifest.toml)"; rm -f "$$f";; esac; \
@@ -90,24 +110,52 @@ wheels: venv
 	    case $$plat in \
 	      linux-x64) tags="$(TAGS_linux-x64)";; windows-x64) tags="$(TAGS_windows-x64)";; macos-arm64) tags="$(TAGS_macos-arm64)";; \
 	    esac; \
-	    echo "pip download wheels for $$plat ($$tags)"; \
-	    $(PIP) download -q --no-deps --only-binary=:all: --python-version 3.11 --implementation cp --abi cp311 \
-	      $$(printf -- '--platform %s ' $$tags) --require-hashes -r requirements-wheels.txt -d wheels; \
+	    for py in $(WHEEL_PYTHONS); do \
+	      echo "pip download wheels for $$plat, Python $$py ($$tags)"; \
+	      $(BUILD_PIP) download -q --no-deps --only-binary=:all: --python-version $$py --implementation cp \
+	        --abi cp$${py/./} $$(printf -- '--platform %s ' $$tags) --require-hashes -r requirements-wheels.txt -d wheels; \
+	    done; \
 	  done; \
 	fi
 	@status=0; for f in $(WHEEL_FILES); do \
 	  [ -f "$$f" ] || { echo "missing $$f: listed in blender_manifest.toml but not downloaded (check requirements-wheels.txt and the TAGS_* platforms)" >&2; status=1; }; \
 	done; [ $$status = 0 ] && echo "wheels: $(words $(WHEEL_FILES)) files present"
 
-build: venv wheels
-	@test -f "$(BLENDER_EXT)" || { echo "blender_ext.py not found in the bpy wheel ($(BPY_DIR))" >&2; exit 1; }
+# The build always uses the default Blender's venv and extension tool.
+BUILD_PY  := .venv/bin/python
+BUILD_PIP := $(BUILD_PY) -m pip --disable-pip-version-check --no-input
+
+default-venv:
+	@$(MAKE) --no-print-directory venv BPY=$(BPY_DEFAULT)
+
+build: default-venv wheels
+	@test -f "$(BLENDER_EXT)" || { echo "blender_ext.py not found in the bpy wheel ($(BUILD_DIR))" >&2; exit 1; }
 	@mkdir -p dist
 	@rm -f $(ZIP)
-	$(PY) $(BLENDER_EXT) build --source-dir . --output-dir dist --valid-tags $(VALID_TAGS)
-	$(PY) $(BLENDER_EXT) validate --valid-tags $(VALID_TAGS) $(ZIP)
+	$(BUILD_PY) $(BLENDER_EXT) build --source-dir . --output-dir dist --valid-tags $(VALID_TAGS)
+	$(BUILD_PY) $(BLENDER_EXT) validate --valid-tags $(VALID_TAGS) $(ZIP)
+
+# One zip per platform (each with only its own wheels), for a smaller download.
+build-platforms: build
+	$(BUILD_PY) $(BLENDER_EXT) build --source-dir . --output-dir dist --valid-tags $(VALID_TAGS) --split-platforms
+	@ls -l dist/*.zip
 
 test: venv build
+	@if [ "$(VENV)" != .venv ]; then \
+	  echo "validating $(ZIP) with bpy $(BPY)'s extension tool"; \
+	  $(PY) $(TEST_DIR)/scripts/addons_core/bl_pkg/cli/blender_ext.py validate $(ZIP); \
+	fi
 	$(PY) -m pytest tests $(PYTEST_FLAGS)
+
+# The other Blenders of BPY_VERSIONS (CI runs `make test` first, then these).
+test-others:
+	@for version in $(filter-out $(BPY_DEFAULT),$(BPY_VERSIONS)); do \
+	  echo "== tests against bpy $$version"; started=$$(date +%s); \
+	  $(MAKE) --no-print-directory test BPY=$$version || exit 1; \
+	  echo "== bpy $$version: $$(( $$(date +%s) - started )) s"; \
+	done
+
+test-all: test test-others
 
 # The core tests need no extension zip and never import bpy (tests/core/test_layering.py).
 test-core: venv
@@ -129,4 +177,4 @@ clean:
 	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
 
 distclean: clean
-	rm -rf $(VENV) wheels
+	rm -rf .venv .venv-bpy* wheels

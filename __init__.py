@@ -7,7 +7,7 @@ import bpy
 
 from . import operators, panels
 from .operators import cli
-from .operators.adapter import cache_status
+from .operators.adapter import cache_status, compat
 from .panels import preferences, properties
 
 _classes = operators.classes + panels.classes
@@ -25,7 +25,7 @@ def register():
     properties.register_properties()
     preferences.register_handlers()
     cache_status.register_handlers()
-    if hasattr(bpy.utils, "register_cli_command"):
+    if compat.cli_commands_supported():
         _cli_handle = bpy.utils.register_cli_command("visibake", _cli_command)
 
 

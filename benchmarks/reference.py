@@ -27,8 +27,10 @@ import time
 from dataclasses import dataclass
 
 import bpy
+
 import numpy as np
 
+from tools.blender_compat import compat
 from tools.cycles_bake import bake_diffuse
 
 __all__ = ["FORMAT_VERSION", "Reference", "scene_key", "cached_reference", "relative_errors"]
@@ -44,7 +46,7 @@ _VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_t
                "visible_volume_scatter", "visible_shadow", "is_holdout", "is_shadow_catcher")
 _LIGHT_ATTRS = ("type", "energy", "color", "exposure", "normalize", "use_temperature", "temperature",
                 "shadow_soft_size", "angle", "spot_size", "spot_blend", "shape", "size", "size_y", "spread",
-                "use_shadow", "use_nodes")
+                "use_shadow")
 _LIGHT_CYCLES_ATTRS = ("max_bounces", "use_multiple_importance_sampling", "is_portal", "is_caustics_light")
 # Node properties that describe the editor, not the shading.
 _UI_NODE_PROPS = frozenset(p.identifier for p in bpy.types.ShaderNode.bl_rna.properties) | {"rna_type"}
@@ -247,13 +249,16 @@ def _light(h: _Hasher, obj, evaluated, seen: dict) -> None:
     for attr in _LIGHT_ATTRS:
         h.tag(attr)
         h.value(getattr(light, attr, None))
+    # Hashed as its own attribute was (False without a node tree), without the 5.x deprecation.
+    h.tag("use_nodes")
+    h.value(compat.uses_nodes(light))
     for attr in _LIGHT_CYCLES_ATTRS:
         h.tag(attr)
         h.value(getattr(light.cycles, attr, None))
     for attr in _VISIBILITY:
         h.value(getattr(obj, attr, None))
     h.array(np.array(evaluated.matrix_world, np.float64))
-    if getattr(light, "use_nodes", False):
+    if compat.uses_nodes(light):
         _shader_tree(h, light.node_tree, seen)
 
 

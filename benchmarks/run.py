@@ -513,4 +513,7 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    status = main()
+    from tools.blender_compat import compat  # bpy is loaded by now
+
+    compat.end_module_process(status)

@@ -52,10 +52,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-import bmesh  # importable only once bpy is
 import bpy
+
+import bmesh  # importable only once bpy is
 import numpy as np
 from mathutils import Matrix, Vector
+
+from tools.blender_compat import compat
 
 __all__ = ["SCENES", "SCENE_NAMES", "SIZES", "MAX_ALBEDO", "reset"]
 
@@ -96,9 +99,7 @@ def _material(name: str, color: Sequence[float]) -> bpy.types.Material:
     if max(color) > MAX_ALBEDO or min(color) < 0.0:
         raise ValueError(f"albedo {color} outside [0, {MAX_ALBEDO}]")
     mat = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):  # node-based by default from 5.0 on
-        mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf = compat.ensure_node_tree(mat).nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*color, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
     bsdf.inputs["Specular IOR Level"].default_value = 0.0
@@ -108,8 +109,7 @@ def _material(name: str, color: Sequence[float]) -> bpy.types.Material:
 
 def _black_world() -> None:
     world = bpy.data.worlds.new("Black")
-    if bpy.app.version < (5, 0, 0):
-        world.use_nodes = True
+    compat.ensure_node_tree(world)
     world.color = (0.0, 0.0, 0.0)
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     bpy.context.scene.world = world

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import time
 
-import bmesh
 import bpy
+
+import bmesh
 import numpy as np
+
+from tools.blender_compat import compat
 
 SEGMENTS = {"smoke": 8, "full": 48}
 
@@ -21,7 +24,7 @@ def build(size: str) -> list:
     """The vertex scene in the current (empty) scene; returns its mesh objects."""
     def material(name, color):
         mat = bpy.data.materials.new(name)
-        bsdf = mat.node_tree.nodes["Principled BSDF"]
+        bsdf = compat.ensure_node_tree(mat).nodes["Principled BSDF"]
         bsdf.inputs["Base Color"].default_value = (*color, 1.0)
         bsdf.inputs["Roughness"].default_value = 1.0
         bsdf.inputs["Specular IOR Level"].default_value = 0.0
@@ -44,7 +47,7 @@ def build(size: str) -> list:
 
     segments = SEGMENTS[size]
     world = bpy.data.worlds.new("Black")
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    compat.ensure_node_tree(world).nodes["Background"].inputs["Strength"].default_value = 0.0
     bpy.context.scene.world = world
     objects = [
         obj("Floor", lambda bm: bmesh.ops.create_grid(bm, x_segments=segments, y_segments=segments, size=1.0),

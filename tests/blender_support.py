@@ -10,7 +10,7 @@ bpy is imported lazily (inside fixtures/helpers), never at import time, so that
 Facts this relies on (checked with bpy 5.0.1 in module mode):
 
 - ``extensions.package_install_files`` returns {'CANCELLED'} (no exception) on failure.
-- The installed wheels go to ``<user>/extensions/.local/lib/python3.11/site-packages``,
+- The installed wheels go to ``<user>/extensions/.local/lib/python3.X/site-packages``,
   which Blender *appends* to sys.path: a copy in the venv wins for in-process imports.
 - ``wm.read_factory_settings`` calls the extension's ``unregister()`` and removes it from
   the enabled add-ons; the module stays in sys.modules. ``addon_utils.enable`` registers
@@ -94,7 +94,8 @@ def extension_site_packages() -> Path:
     """Where Blender installs the wheels of extensions (appended to sys.path by Blender)."""
     import bpy
 
-    return Path(bpy.utils.user_resource("EXTENSIONS")) / ".local" / "lib" / "python3.11" / "site-packages"
+    python = f"python{sys.version_info.major}.{sys.version_info.minor}"
+    return Path(bpy.utils.user_resource("EXTENSIONS")) / ".local" / "lib" / python / "site-packages"
 
 
 def _raise(ex: BaseException) -> None:
@@ -102,16 +103,18 @@ def _raise(ex: BaseException) -> None:
 
 
 def is_enabled(module_name: str | None = None) -> bool:
-    import addon_utils
     import bpy  # noqa: F401  (puts Blender's script modules, e.g. addon_utils, on sys.path)
+
+    import addon_utils
 
     return addon_utils.check(module_name or extension_module_name())[1]
 
 
 def enable_extension():
     """Enable the installed extension if it is not (e.g. after read_factory_settings)."""
-    import addon_utils
     import bpy  # noqa: F401
+
+    import addon_utils
 
     name = extension_module_name()
     if not is_enabled(name):
@@ -138,8 +141,9 @@ def visibake():
     Returns the imported module ``bl_ext.user_default.visibake``.
     """
     zip_path = ensure_built_zip()
-    import addon_utils  # importable only once bpy is
     import bpy
+
+    import addon_utils  # importable only once bpy is
 
     _check_user_profile_isolated()
     name = extension_module_name()

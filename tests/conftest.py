@@ -14,6 +14,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import pytest
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TESTS_DIR = Path(__file__).resolve().parent
 
@@ -42,3 +44,24 @@ try:
     _hyp_settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci" if os.environ.get("CI") else "dev"))
 except ImportError:  # pragma: no cover
     pass
+
+
+# The bpy module of Blender 4.2 crashes, and 4.5 hangs, when its process exits after a
+# property with a Python callback was registered (operators/adapter/compat.py): end the
+# test process after pytest has finished everything, with pytest's own exit status.
+_session_status = []
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _session_status.append(int(exitstatus))
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    if "bpy" in sys.modules and _session_status:
+        from tools.blender_compat import compat
+
+        if not compat.MODULE_EXIT_IS_SAFE:
+            shutil.rmtree(_USER_RESOURCES, ignore_errors=True)  # atexit does not run after this
+            compat.end_module_process(_session_status[-1])
+

@@ -101,7 +101,10 @@ import contextlib
 from collections.abc import Callable, Iterable, Iterator, Sequence
 
 import bpy
+
 import numpy as np
+
+from tools.blender_compat import compat
 
 __all__ = ["bake_diffuse", "bake_diffuse_vertex_colors", "reference_settings"]
 
@@ -127,6 +130,12 @@ class _Restorer:
             old = tuple(old)
         self._undo.append((owner, attr, old))
         setattr(owner, attr, value)
+
+    def set_where_present(self, owner: object, attr: str, value: object) -> None:
+        """:meth:`set`, for a setting that not every supported Blender has (a newer
+        Cycles option): where it is missing there is nothing to switch off."""
+        if hasattr(owner, attr):
+            self.set(owner, attr, value)
 
     def restore(self) -> None:
         while self._undo:
@@ -164,7 +173,7 @@ def reference_settings(
         r.set(cy, "seed", int(seed))
         r.set(cy, "use_animated_seed", False)
         r.set(cy, "sample_offset", 0)
-        r.set(cy, "use_sample_subset", False)
+        r.set_where_present(cy, "use_sample_subset", False)
         r.set(cy, "use_denoising", False)
         r.set(cy, "sample_clamp_direct", 0.0)
         r.set(cy, "sample_clamp_indirect", 0.0)
@@ -257,12 +266,14 @@ def _fallback_materials(objects: Sequence[bpy.types.Object]) -> Iterator[None]:
             mesh = ob.data
             if not ob.material_slots:
                 mat = bpy.data.materials.new(".visibake_ref_default")
+                compat.ensure_node_tree(mat)
                 fallback.append(mat)
                 mesh.materials.append(mat)
                 appended_meshes.append(mesh)
             for slot in ob.material_slots:
                 if slot.material is None:
                     mat = bpy.data.materials.new(".visibake_ref_default")
+                    compat.ensure_node_tree(mat)
                     fallback.append(mat)
                     slot.material = mat
                     emptied_slots.append(slot)

@@ -30,4 +30,8 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    status = main()
+    sys.path.insert(0, ROOT)
+    from tools.blender_compat import compat
+
+    compat.end_module_process(status)

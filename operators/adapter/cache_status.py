@@ -20,6 +20,7 @@ import os
 import shutil
 
 import bpy
+
 import numpy as np
 
 from ...core.visibility.cache import TABLE_FILE, folder_size

@@ -32,10 +32,13 @@ from __future__ import annotations
 
 import math
 
-import bmesh
 import bpy
+
+import bmesh
 import numpy as np
 from mathutils import Matrix, Vector
+
+from . import compat
 
 __all__ = ["build_demo_scene", "ROOM_HALF", "ROOM_HEIGHT", "WALL"]
 
@@ -55,7 +58,7 @@ def _linear_to_srgb(c: np.ndarray) -> np.ndarray:
 
 def _material(name: str, color, emission=None, strength: float = 0.0) -> bpy.types.Material:
     mat = bpy.data.materials.new(name)
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf = compat.ensure_node_tree(mat).nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*color, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
     bsdf.inputs["Specular IOR Level"].default_value = 0.0
@@ -280,7 +283,7 @@ def build_demo_scene(scene: bpy.types.Scene) -> list[bpy.types.Object]:
 
     world = bpy.data.worlds.new("VisiBake Demo World")
     world.color = (0.0, 0.0, 0.0)
-    background = world.node_tree.nodes.get("Background") if world.node_tree else None
+    background = compat.ensure_node_tree(world).nodes.get("Background")
     if background is not None:
         background.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
         background.inputs["Strength"].default_value = 0.0

@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import bpy
+
 import numpy as np
 
 from ...core.lights import environment
 from ...core.lights.lamps import cycles_strength
 from ...core.outputs.images import srgb_to_linear
 from ...core.scene import Light, Material, Mesh, World
+from . import compat
 
 
 def _matrix(matrix) -> np.ndarray:
@@ -58,16 +60,6 @@ def _image_pixels(image: bpy.types.Image, warnings: list[str] | None = None) -> 
     return np.ascontiguousarray(rgb, np.float32)
 
 
-def _uses_nodes(datablock) -> bool:
-    """Whether a material or world renders through its node tree.
-
-    Blender 5 always does (``use_nodes`` is deprecated there); 4.x honours the flag.
-    """
-    if datablock.node_tree is None:
-        return False
-    return bpy.app.version >= (5, 0, 0) or datablock.use_nodes
-
-
 def _surface_node(material: bpy.types.Material):
     tree = material.node_tree
     if tree is None:
@@ -98,7 +90,7 @@ def read_material(material, default_uv_map: str, warnings: list[str]) -> Materia
     """Lambert albedo and emission of a Blender material (Principled, Diffuse or Emission)."""
     if material is None:
         return Material(name="none")
-    node = _surface_node(material) if _uses_nodes(material) else None
+    node = _surface_node(material) if compat.uses_nodes(material) else None
     if node is None:
         return Material(name=material.name, base_color=np.array(material.diffuse_color[:3], np.float64))
     result = Material(name=material.name)
@@ -187,10 +179,10 @@ def read_light(obj: bpy.types.Object) -> Light:
                   "scale": (scale[0], scale[1])}
     elif light.type == "SUN":
         extent = {"sun_angle": float(light.angle)}
-    strength = cycles_strength(light.type, float(light.energy), float(getattr(light, "exposure", 0.0)),
-                               getattr(light, "normalize", True), **extent)
+    strength = cycles_strength(light.type, float(light.energy), float(compat.lamp_setting(light, "exposure", 0.0)),
+                               compat.lamp_setting(light, "normalize", True), **extent)
     color = np.array(light.color[:3], np.float64)
-    if getattr(light, "use_temperature", False):
+    if compat.lamp_setting(light, "use_temperature", False):
         color = color * np.array(light.temperature_color[:3], np.float64)
     result = Light(name=obj.name, kind=light.type, color=color,
                    strength=strength, position=matrix[:3, 3].copy(), direction=-axis_z,
@@ -228,7 +220,7 @@ def read_world(scene: bpy.types.Scene, warnings: list[str]) -> World:
     world = scene.world
     if world is None:
         return World()
-    if not _uses_nodes(world):
+    if not compat.uses_nodes(world):
         return World(np.array(world.color[:3], np.float64))
     output = next((n for n in world.node_tree.nodes
                    if n.bl_idname == "ShaderNodeOutputWorld" and n.is_active_output), None)

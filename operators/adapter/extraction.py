@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass
 
 import bpy
+
 import numpy as np
 
 from ...core.errors import BakeRefused, Cancelled

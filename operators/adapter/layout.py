@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import bpy
+
 import numpy as np
 
 from ...core.errors import LayoutError, UnwrapFailed

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bpy
 
+from . import compat
 from .writeback import image_name
 
 
@@ -16,9 +17,7 @@ def _emission_material(name: str, image: bpy.types.Image | None, uv_map: str | N
                        attribute: str | None = None) -> bpy.types.Material:
     """Emission of the baked ``image`` (looked up with ``uv_map``) or colour ``attribute``."""
     material = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):
-        material.use_nodes = True
-    nodes = material.node_tree.nodes
+    nodes = compat.ensure_node_tree(material).nodes
     links = material.node_tree.links
     nodes.clear()
     output = nodes.new("ShaderNodeOutputMaterial")

@@ -9,8 +9,9 @@ refining, or the user's choice).
 """
 from __future__ import annotations
 
-import bmesh
 import bpy
+
+import bmesh
 import numpy as np
 
 REFINED_FROM_KEY = "visibake_refined_from"  # on the copy: the original object's name

@@ -5,6 +5,7 @@ import os
 import re
 
 import bpy
+
 import numpy as np
 
 from ...core.errors import OutputRefused

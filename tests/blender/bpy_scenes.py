@@ -1,16 +1,17 @@
 """Test scenes built with bmesh (no operators, no assets) for the bpy tests."""
 import math
 
-import bmesh
 import bpy
+
+import bmesh
 import numpy as np
+
+from tools.blender_compat import compat
 
 
 def material(name, color, emission=(0.0, 0.0, 0.0), strength=0.0):
     mat = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):  # always node-based from 5.0 on
-        mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf = compat.ensure_node_tree(mat).nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*color, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
     # No specular layer: Principled's diffuse lobe is then exactly Lambert, which is
@@ -84,8 +85,7 @@ def point(power, location, name="Point"):
 
 def black_world():
     world = bpy.data.worlds.new("Black")
-    if bpy.app.version < (5, 0, 0):
-        world.use_nodes = True
+    compat.ensure_node_tree(world)
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
     bpy.context.scene.world = world
 

@@ -4,6 +4,7 @@ Thresholds follow from the direction count N and the Cycles sample count S, and 
 stated with each test. The numbers each test measured are printed (``-s`` shows them).
 """
 import bpy
+
 import numpy as np
 import pytest
 

@@ -3,6 +3,7 @@
 import math
 
 import bpy
+
 import numpy as np
 import pytest
 

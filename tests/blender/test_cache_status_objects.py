@@ -1,6 +1,7 @@
 """The cache status the panel shows for a baked object that leaves the bake: hidden from
 renders or deleted, the cached table no longer matches the scene, and the reason names it."""
 import bpy
+
 import pytest
 
 from bpy_scenes import black_world, cube, grid, material, mesh_object, select_only, sun

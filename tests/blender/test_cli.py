@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import bpy
+
 import numpy as np
 import pytest
 

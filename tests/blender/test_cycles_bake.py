@@ -3,13 +3,15 @@
 The light-unit tests pin down the formulas VisiBake relies on (see DESIGN.md, "Units
 and conventions"); each tolerance is derived next to its assertion.
 """
+import importlib
 import importlib.util
 import math
 import sys
 from pathlib import Path
 
-import bmesh  # importable only once bpy is
 import bpy
+
+import bmesh  # importable only once bpy is
 import numpy as np
 import pytest
 
@@ -18,21 +20,18 @@ if str(REPO_ROOT) not in sys.path:
     sys.path.insert(0, str(REPO_ROOT))
 
 from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun  # noqa: E402
+from tools.blender_compat import compat  # noqa: E402
 from tools.cycles_bake import bake_diffuse, bake_diffuse_vertex_colors  # noqa: E402
 
 
-def _load_demo_scene():
-    # By file path: operators/adapter/__init__.py belongs to the extension and imports far more.
-    path = REPO_ROOT / "operators" / "adapter" / "demo_scene.py"
-    spec = importlib.util.spec_from_file_location("visibake_demo_scene", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def _demo_scene(visibake):
+    """The installed extension's demo scene builder (the module the demo bakes)."""
+    return importlib.import_module(f"{visibake.__name__}.operators.adapter.demo_scene")
 
 
 def _lambert_material(name, rho):
     mat = bpy.data.materials.new(name)
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf = compat.ensure_node_tree(mat).nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (rho, rho, rho, 1.0)
     bsdf.inputs["Roughness"].default_value = 1.0
     # The default specular layer would take ~1.4% off the diffuse weight.
@@ -191,8 +190,8 @@ DEMO_MESHES = {"Floor", "Ceiling", "WallRed", "WallGreen", "WallBack", "WallFron
                "Pedestal", "Suzanne", "Torus", "Dome", "GlowBall"}
 
 
-def test_demo_scene_contents(clean_scene, tmp_path):
-    demo = _load_demo_scene()
+def test_demo_scene_contents(visibake, clean_scene, tmp_path):
+    demo = _demo_scene(visibake)
     scene = bpy.context.scene
     meshes = demo.build_demo_scene(scene)
 
@@ -249,8 +248,8 @@ def test_demo_scene_contents(clean_scene, tmp_path):
     np.testing.assert_array_equal(again, pixels)
 
 
-def test_demo_checker_albedo_reaches_cycles(clean_scene):
-    _load_demo_scene().build_demo_scene(bpy.context.scene)
+def test_demo_checker_albedo_reaches_cycles(visibake, clean_scene):
+    _demo_scene(visibake).build_demo_scene(bpy.context.scene)
     pedestal = bpy.data.objects["Pedestal"]
     albedo = bake_diffuse([pedestal], "UVMap", 48, 48, bounces=0, samples=1, pass_filter=("COLOR",))["Pedestal"]
     rgb = albedo[albedo[..., 3] > 0][:, :3]

@@ -9,9 +9,11 @@ import importlib
 import math
 
 import bpy
+
 import numpy as np
 
 from bpy_scenes import cube, grid, image_pixels, material, mesh_object, relative_rmse, select_only, uv_sphere
+from tools.blender_compat import compat
 from tools.cycles_bake import bake_diffuse
 
 WIDTH, HEIGHT = 128, 64
@@ -52,9 +54,7 @@ def _environment_world(mapping_rotation=None):
     image.colorspace_settings.name = "Non-Color"
     image.pixels.foreach_set(_sky_pixels().ravel())
     world = bpy.data.worlds.new("Sky")
-    if bpy.app.version < (5, 0, 0):
-        world.use_nodes = True
-    tree = world.node_tree
+    tree = compat.ensure_node_tree(world)
     background = tree.nodes["Background"]
     background.inputs["Strength"].default_value = 1.5
     texture = tree.nodes.new("ShaderNodeTexEnvironment")

@@ -14,6 +14,7 @@ import time
 from types import SimpleNamespace
 
 import bpy
+
 import numpy as np
 import pytest
 

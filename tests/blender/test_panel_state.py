@@ -5,6 +5,7 @@ import json
 import os
 
 import bpy
+
 import pytest
 from test_panels import CheckedLayout
 

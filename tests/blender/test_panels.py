@@ -10,6 +10,7 @@ the panel looks.
 import json
 
 import bpy
+
 import pytest
 
 from bpy_scenes import ground_block_lamp

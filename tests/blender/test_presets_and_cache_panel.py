@@ -3,6 +3,7 @@ import json
 import os
 
 import bpy
+
 import pytest
 
 from bpy_scenes import black_world, grid, material, mesh_object, select_only, sun

@@ -1,5 +1,6 @@
 """The baked-lighting preview: a node group wired into materials and taken out again."""
 import bpy
+
 import pytest
 
 from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only

@@ -1,5 +1,6 @@
 """The user's data is never overwritten, and a failed or cancelled bake changes nothing."""
 import bpy
+
 import numpy as np
 import pytest
 

@@ -3,6 +3,7 @@ function turns arguments, the scene and the preferences into a bake's settings."
 import json
 
 import bpy
+
 import pytest
 
 from bpy_scenes import black_world, grid, material, mesh_object, point, select_only

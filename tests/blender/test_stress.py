@@ -2,8 +2,9 @@
 within a stated tolerance, or in a clear refusal. Never NaN/Inf, never a half-changed scene."""
 import math
 
-import bmesh  # only importable once bpy is
 import bpy
+
+import bmesh  # only importable once bpy is
 import numpy as np
 import pytest
 

@@ -2,6 +2,7 @@
 import json
 
 import bpy
+
 import numpy as np
 import OpenEXR
 import pytest
