@@ -1,9 +1,9 @@
 """What differs between the Blenders VisiBake supports (4.2 LTS to the newest 5.x), in one place.
 
 Every ``bpy.app.version`` test of the product is here; the rest of the code asks this
-module. It imports nothing but bpy, so that the reference tools and the tests can load
-it by its path as well (``tools.blender_compat``). Measured with the bpy modules of
-4.2.23, 4.5.15, 5.0.1 and 5.3.0:
+module. It needs nothing but bpy (and core's errors where it has them), so that the
+reference tools and the tests can load it by its path as well (``tools.blender_compat``).
+Measured with the bpy modules of 4.2.23, 4.5.15, 5.0.1 and 5.3.0:
 
 - Materials and worlds made with ``bpy.data.*.new`` have no node tree before 5.0
   (``use_nodes`` is off); from 5.0 on they always render through their nodes and
@@ -38,8 +38,15 @@ MAX_NAME_BYTES = 255 if VERSION >= (5, 0, 0) else 63
 MODULE_EXIT_IS_SAFE = VERSION >= (5, 0, 0)
 
 
-class FeatureMissing(RuntimeError):
-    """This Blender lacks something a feature needs; the message says which Blender has it."""
+try:
+    from ...core.errors import BakeRefused
+except ImportError:  # loaded by its path (tools.blender_compat), outside the extension's package
+    BakeRefused = ValueError
+
+
+class FeatureMissing(BakeRefused):
+    """This Blender lacks something a feature needs; the message says which Blender has it.
+    A refusal (exit status 2 on the command line), not a bug."""
 
 
 def ensure_node_tree(datablock):

@@ -58,13 +58,15 @@ def test_lamp_settings_missing_in_this_blender_read_as_neutral(compat, clean_sce
     bpy.data.lights.remove(lamp)
 
 
-def test_openvdb_is_there_or_refused_with_what_to_upgrade(compat):
+def test_openvdb_is_there_or_refused_with_what_to_upgrade(visibake, compat):
     if compat.VERSION >= (4, 5, 0):
         module = compat.openvdb()
         assert hasattr(module, "FloatGrid")
     else:
         with pytest.raises(compat.FeatureMissing, match="4.5 or later"):
             compat.openvdb()
+    # Inside the extension a missing feature is the user's refusal (exit 2), not a bug.
+    assert issubclass(compat.FeatureMissing, visibake.core.errors.BakeRefused)
 
 
 def test_the_command_line_route_is_known(compat):
