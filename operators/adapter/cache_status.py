@@ -92,7 +92,8 @@ def refresh(scene, depsgraph=None, files: bool = True) -> dict:
 
 
 def request_refresh(scene) -> None:
-    """For draw code that found no status: a timer computes it right after the draw."""
+    """For code that must not do the work itself (draw code, register): a timer computes
+    the status right after it."""
     _requested.add(scene.session_uid)
     if not bpy.app.timers.is_registered(refresh_requested):
         bpy.app.timers.register(refresh_requested, first_interval=0.0)
@@ -258,8 +259,9 @@ def register_handlers() -> None:
         scenes = list(bpy.data.scenes)
     except AttributeError:  # Blender starting up: data is not readable yet; the handlers see the file load
         scenes = []
+    # Not in register itself (folder listings, maybe mesh hashes): a timer right after it.
     for scene in scenes:
-        refresh(scene)
+        request_refresh(scene)
 
 
 def unregister_handlers() -> None:
