@@ -47,6 +47,7 @@ def main(argv=None) -> int:
 
     demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
     extraction = importlib.import_module(f"{extension.__name__}.operators.adapter.extraction")
+    adapter_settings = importlib.import_module(f"{extension.__name__}.operators.adapter.settings")
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
 
@@ -55,7 +56,7 @@ def main(argv=None) -> int:
     props = bpy.context.scene.visibake
     props.directions, props.resolution, props.bounces = args.directions, args.resolution, args.bounces
     props.passes = {"lighting"}
-    settings = props.to_bake_settings()
+    settings = adapter_settings.bake_settings(props)
     extracted = extraction.extract_scene(bpy.context, objects)
     scene = extracted.scene
     results = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),

@@ -30,9 +30,9 @@ TICK_SECONDS = 0.1
 MARKS = (0.10, 0.25, 0.50, 0.75, 0.90)
 
 
-def timed_bake(bake_module, modal_module, job_module, bpy, objects) -> dict:
+def timed_bake(progress_module, modal_module, job_module, bpy, objects) -> dict:
     """One bake driven tick by tick; the estimates and the truth."""
-    progress = bake_module.Progress()
+    progress = progress_module.Progress()
     modal = modal_module.ModalBake(job_module.BakeJob(bpy.context, objects, progress=progress), progress)
     started = time.perf_counter()
     samples = []
@@ -81,7 +81,7 @@ def main(argv=None) -> int:
     import bpy
 
     demo_scene = importlib.import_module(f"{extension.__name__}.operators.adapter.demo_scene")
-    bake = importlib.import_module(f"{extension.__name__}.operators.bake")
+    progress = importlib.import_module(f"{extension.__name__}.core.pipeline.progress")
     modal = importlib.import_module(f"{extension.__name__}.operators.adapter.modal")
     job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
 
@@ -93,19 +93,19 @@ def main(argv=None) -> int:
     runs = {}
     with tempfile.TemporaryDirectory(prefix="visibake-eta-") as cache:
         props.cache_dir = cache
-        runs["cold"] = timed_bake(bake, modal, job, bpy, objects)
+        runs["cold"] = timed_bake(progress, modal, job, bpy, objects)
         print("cold", json.dumps(runs["cold"]), flush=True)
         if os.environ.get("ETA_COLD_ONLY"):
             return 0
-        runs["warm"] = timed_bake(bake, modal, job, bpy, objects)
+        runs["warm"] = timed_bake(progress, modal, job, bpy, objects)
         print("warm", json.dumps(runs["warm"]), flush=True)
         lamp = next(o for o in bpy.context.scene.objects if o.type == "LIGHT" and o.data.type == "POINT")
         lamp.data.energy *= 2.0
-        runs["lamp_changed"] = timed_bake(bake, modal, job, bpy, objects)
+        runs["lamp_changed"] = timed_bake(progress, modal, job, bpy, objects)
         print("lamp_changed", json.dumps(runs["lamp_changed"]), flush=True)
         torus = bpy.data.objects["Torus"]
         torus.location.x += 0.3
-        runs["moved"] = timed_bake(bake, modal, job, bpy, objects)
+        runs["moved"] = timed_bake(progress, modal, job, bpy, objects)
         print("moved", json.dumps(runs["moved"]), flush=True)
     write_results(args.out, {
         "settings": {"directions": args.directions, "resolution": args.resolution, "bounces": args.bounces,

@@ -174,6 +174,7 @@ def main(argv=None) -> int:
 
     job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
     extraction = importlib.import_module(f"{extension.__name__}.operators.adapter.extraction")
+    adapter_settings = importlib.import_module(f"{extension.__name__}.operators.adapter.settings")
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
     gpu_runtime = importlib.import_module(f"{extension.__name__}.gpu_shaders.runtime")
@@ -278,7 +279,7 @@ def main(argv=None) -> int:
         props.resolution, props.bounces, props.directions = resolution, bounces, matched["directions"]
         props.shadows, props.rotate = "exact", False
         extracted = extraction.extract_scene(bpy.context, objects)
-        settings = props.to_bake_settings()
+        settings = adapter_settings.bake_settings(props)
         # The relighting workflow as a user runs it: the first bake traces the table and
         # writes the cache; later sessions read it back. Both are timed.
         with tempfile.TemporaryDirectory(prefix="visibake-bench-cache-") as cache_folder:

@@ -7,8 +7,7 @@ files store: never rename one.
 """
 import bpy
 
-from ..core.settings import OBJECT_SETTINGS, PRESETS, SETTINGS, BakeSettings, Setting
-from ..operators.adapter import settings as adapter_settings
+from ..core.settings import OBJECT_SETTINGS, PRESETS, SETTINGS, Setting
 
 
 def setting_property(spec: Setting, **options):
@@ -98,9 +97,6 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="Active Object", default=0, min=0,
         description="The row of the objects list that is selected (the list's own state)")
     output_dir: setting_property(SETTINGS["output_dir"], subtype="DIR_PATH")
-
-    def to_bake_settings(self, threads: int = 0) -> BakeSettings:
-        return adapter_settings.bake_settings(self, threads)
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

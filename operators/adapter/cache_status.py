@@ -25,6 +25,7 @@ import numpy as np
 
 from ...core.visibility.cache import TABLE_FILE, folder_size
 from . import extract, job
+from .settings import bake_settings
 
 # scene.session_uid -> what the last bake of this session left in the cache:
 # {"table": path, "layout": layout settings, "uv_maps": {object: UV map}, "fingerprints": {object: hash},
@@ -60,7 +61,7 @@ def status(scene, depsgraph=None, known: dict | None = None) -> dict:
     cache = job.visibility_cache(scene)
     if cache is None:
         return {"enabled": False}
-    settings = scene.visibake.to_bake_settings()
+    settings = bake_settings(scene.visibake)
     table = cache.table_path(settings)
     if known is not None and known.get("enabled") and (known["folder"], known["table"]) == (cache.folder, table):
         files = {name: known[name] for name in _FILE_FACTS}

@@ -19,7 +19,7 @@ from ...core.sampling import layout as policy
 from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_problems
 
 # Kept importable from here for the tests that name the policy's limits through the adapter.
-from ...core.sampling.layout import DENSE_MIN_VERTICES, TYPICAL_PACKED_UV_AREA, UNWRAP_TRIANGLE_BUDGET  # noqa: F401
+from ...core.sampling.layout import TYPICAL_PACKED_UV_AREA
 from ...core.sampling.unwrap_child import ChildUnavailable, unwrap_in_child
 
 UV_MAP_NAME = "VisiBake"

@@ -173,9 +173,8 @@ def test_auto_falls_back_to_vertex_tables_when_xatlas_cannot_unwrap(clean_scene)
 
 
 def test_auto_leaves_meshes_beyond_the_unwrap_budget_to_vertex_tables(visibake, clean_scene):
-    import importlib
 
-    budget = importlib.import_module(f"{visibake.__name__}.operators.adapter.layout").UNWRAP_TRIANGLE_BUDGET
+    budget = visibake.core.sampling.layout.UNWRAP_TRIANGLE_BUDGET
     black_world()
     segments = int(np.ceil(np.sqrt(budget / 2))) + 1  # two triangles per grid quad
     big = mesh_object("Big", grid(1.0, segments=segments), material("White", (0.6, 0.6, 0.6)), uv_map=None)
