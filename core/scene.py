@@ -49,6 +49,8 @@ class Mesh:
     corner_loops : (m, 3) int64 the base mesh's loop (face corner) of each triangle
         corner, for results on the corner domain; None where unknown
     vertex_count, loop_count : sizes of the base mesh's point and corner domains
+    casts_shadow : whether lamps' shadow rays stop at it (Blender's shadow visibility);
+        off, it still occludes and reflects light for the table
     """
 
     name: str
@@ -66,6 +68,7 @@ class Mesh:
     corner_loops: np.ndarray | None = None
     vertex_count: int = 0
     loop_count: int = 0
+    casts_shadow: bool = True
 
 
 @dataclass
@@ -81,6 +84,13 @@ class Light:
     area_shape, size_x, size_y : area light shape and extent
     axis_x, axis_y : (3,) float the area light's local X and Y axes (world space, unit)
     group : the light group it belongs to ('' : its own, named after the lamp)
+    angle : a sun's angular diameter in radians (0: a hard sun)
+    radius : a point or spot lamp's radius (0: a hard point)
+    sphere : the lamp is a sphere of ``radius`` (Blender's Soft Falloff off); else Cycles'
+        disk of ``radius`` facing each receiver
+    casts_shadows : its shadow rays are traced (Blender's ``use_shadow``)
+    receivers : names of the only meshes it lights (light linking), None: every mesh
+    blockers : names of the only meshes that shadow it (shadow linking), None: every mesh
     """
 
     name: str
@@ -97,6 +107,12 @@ class Light:
     axis_x: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
     axis_y: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
     group: str = ""
+    angle: float = 0.0
+    radius: float = 0.0
+    sphere: bool = False
+    casts_shadows: bool = True
+    receivers: tuple[str, ...] | None = None
+    blockers: tuple[str, ...] | None = None
 
 
 @dataclass
@@ -110,12 +126,15 @@ class World:
     rotation : (3, 3) float64 world-to-texture rotation applied to a direction before
         the equirectangular lookup (a Mapping node's rotation), identity if none
     light_group : the light group of world light ('' : "world")
+    suns : list of 'SUN' :class:`Light` the world's own sun discs, taken out of ``image``
+        (a Sky Texture's sun); lit as lamps in the world's light group
     """
 
     color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     image: np.ndarray | None = None
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     light_group: str = ""
+    suns: list = field(default_factory=list)
 
 
 @dataclass

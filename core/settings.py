@@ -15,9 +15,18 @@ that must refuse a value before storing it.
 """
 from __future__ import annotations
 
+import math
+import os
 from dataclasses import dataclass, fields
 
 from .errors import BakeRefused
+
+# The largest C int: Blender stores int settings in one, and refuses or wraps beyond it.
+INT_LIMIT = 2**31 - 1
+# Cycles' hard limit on bounces (max_bounces and diffuse_bounces: hard_max 1024 in bpy 4.2 to 5.3).
+MAX_BOUNCES = 1024
+# Worker threads beyond the cores only contend for them; 0 means all.
+CPU_COUNT = os.cpu_count() or 1
 
 LIGHTING_PASSES = ("lighting", "direct", "indirect", "irradiance")
 
@@ -70,6 +79,7 @@ class Setting:
     choices: tuple[tuple[str, str, str], ...] = ()
     refusal: str = "{label} must be >= {minimum}, got {value}"
     on_scene: bool = True
+    over_maximum: str = ""  # why the maximum is what it is, after "must be <= {maximum}"
 
     @property
     def values(self) -> tuple[str, ...]:
@@ -91,7 +101,12 @@ class Setting:
         if self.minimum is not None and not value >= self.minimum:
             return self.refusal.format(label=label, minimum=self.minimum, value=value)
         if self.maximum is not None and not value <= self.maximum:
-            return f"{label} must be <= {self.maximum}, got {value}"
+            return f"{label} must be <= {self.maximum}{self.over_maximum}, got {value}"
+        # Blender's int properties are C ints, and no count or size of a bake is near the limit.
+        if self.type is int and not -INT_LIMIT <= value <= INT_LIMIT:
+            return f"{label} must be <= {INT_LIMIT}, got {value}"
+        if self.type is float and not math.isfinite(value):
+            return f"{label} must be a finite number, got {value}"
         return None
 
 
@@ -124,7 +139,8 @@ SETTINGS = _table(
     # What changes the result: BakeSettings.
     Setting("directions", int, 128, "Directions", minimum=1, soft_min=16, soft_max=1024,
             help="Size of the global direction set: rays per texel for visibility (more: less noise, slower)"),
-    Setting("bounces", int, 2, "Bounces", minimum=0, soft_max=8,
+    Setting("bounces", int, 2, "Bounces", minimum=0, maximum=MAX_BOUNCES, soft_max=8,
+            over_maximum=" (Cycles' limit)",
             help="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)"),
     Setting("shadows", str, "exact", "Shadows", help="How direct light is shadowed",
             choices=(("fractions", "Fractions", "Shadows from the precomputed visibility (no ray at lighting time, "
@@ -140,11 +156,13 @@ SETTINGS = _table(
     Setting("margin", int, 4, "Margin", minimum=0, soft_max=32,
             help="Texels the results are extended into the gutter so filtering never pulls in black"),
     Setting("area_light_samples", int, 8, "Area Light Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
-            help="Grid points per side used to integrate an area light"),
+            help="Per side: a lamp with an extent (area lamp, sun with an angle, point or spot with a "
+                 "radius) is integrated with this many squared stratified points per texel"),
     Setting("emitter_samples", int, 16, "Emitter Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
             help="Points per emissive object for direct sampling of small emitters"),
     # A preference (the machine's), not the scene's.
-    Setting("threads", int, 0, "Threads", minimum=0, soft_max=64, on_scene=False,
+    Setting("threads", int, 0, "Threads", minimum=0, maximum=CPU_COUNT, on_scene=False,
+            over_maximum=" (this machine's cores)",
             help="Worker threads for ray tracing and gathers (0: all cores)"),
     Setting("chunk_rays", int, 1 << 20, "Rays per Batch", minimum=1, on_scene=False,
             help="Rays traced per batch; bounds the memory of the tracing stage"),

@@ -6,6 +6,12 @@ as numpy does it: shadow fractions of local lamps (``core.visibility.shadows.sha
 counts per sample and region) and, with exact shadows, the shadow rays themselves
 (uploaded as one bit per sample and virtual point).
 
+Lamps integrated with the direct-light sampler (area lamps, suns with an angle, points
+and spots with a radius: :func:`core.lights.lamps.lamp_points` above one) draw their
+points per sample; those go through numpy's pass, and the GPU evaluates the hard lamps
+(one point each). Light linking is applied to the GPU's result per lamp, with the same
+receiver mask numpy uses, and shadow rays go to each lamp's blocker scene.
+
 One dispatch per lamp; its virtual points are summed in float32 on the GPU and the
 lamps in float64 on the CPU, like numpy. Samples are split into chunks when one
 lamp's textures would not fit the GPU memory budget; every texture is freed when the
@@ -15,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import tolerances as tol
-from ..core.lights.lamps import area_light_points, light_contributions
+from ..core.lights.lamps import lamp_points, light_contributions
+from ..core.transport import direct as cpu_direct
 from . import runtime
 
 GROUP_SIZE = 16  # local work group: 16 x 16 samples
@@ -57,16 +63,13 @@ def lamp_rows(light, origin: np.ndarray, area_light_samples: int) -> np.ndarray:
         raise ValueError(f"light {light.name!r} has a non-finite strength")
     if light.kind not in KINDS:
         raise ValueError(f"light {light.name!r}: unsupported kind {light.kind!r}")
+    if light.kind == "AREA" or lamp_points(light, area_light_samples) > 1:
+        raise ValueError(f"light {light.name!r}: its points are drawn per sample; numpy's pass evaluates it")
     direction = np.asarray(light.direction, np.float64)
     if light.kind == "SUN":
         places, scale = -direction[None], strength * color
-    elif light.kind in ("POINT", "SPOT"):
-        places, scale = np.asarray(light.position, np.float64)[None] - origin, strength / (4.0 * np.pi) * color
     else:
-        points, cell_area = area_light_points(light, area_light_samples)
-        total_area = cell_area * len(points)
-        radiance = strength / (np.pi * total_area) if total_area > 0 else 0.0
-        places, scale = points - origin, radiance * cell_area * color
+        places, scale = np.asarray(light.position, np.float64)[None] - origin, strength / (4.0 * np.pi) * color
     rows = np.zeros((len(places), 4, 4))
     rows[:, 0, :3] = places
     rows[:, 0, 3] = KINDS[light.kind]
@@ -87,20 +90,23 @@ def _blocked_bits(sample_set, shadowing, light) -> tuple[np.ndarray, int]:
     Returns (K, layers, 4) float32 exact integer bit masks (bit i of a channel: virtual
     point 16 * channel + 64 * layer + i) and the number of rays traced.
     """
-    parts = light_contributions(light, sample_set.position, sample_set.normal, shadowing.area_light_samples)
-    layers = -(-len(parts) // POINTS_PER_LAYER)
+    count = lamp_points(light, shadowing.area_light_samples)
+    layers = -(-count // POINTS_PER_LAYER)
     bits = np.zeros((len(sample_set.position), 4 * layers), np.uint32)
     rays_traced = 0
-    for index in range(len(parts)):
-        part, parts[index] = parts[index], None  # free each point's arrays once traced
+    blockers = shadowing.blocker_scene(light)
+    receives = shadowing.receivers(light, sample_set)
+    parts = light_contributions(light, sample_set.position, sample_set.normal, shadowing.area_light_samples,
+                                np.arange(len(sample_set.position)), shadowing.seed)
+    for index, part in enumerate(parts):
         above = np.einsum("kd,kd->k", part.to_light, sample_set.geometric) > 0.0
         lit = above & np.any(part.irradiance > 0, axis=1)
+        if receives is not None:
+            lit &= receives
         rays = np.nonzero(lit)[0]
-        if not len(rays):
+        if not len(rays) or blockers is None:
             continue
-        distance = part.distance[rays]
-        limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
-        blocked = shadowing.ray_scene.occluded(sample_set.origins[rays], part.to_light[rays], limit.astype(np.float32))
+        blocked = cpu_direct.trace_shadow_rays(blockers, sample_set, part, rays)
         bits[rays[blocked], index // 16] |= np.uint32(1 << (index % 16))
         rays_traced += len(rays)
     return bits.astype(np.float32).reshape(len(sample_set.position), layers, 4), rays_traced
@@ -137,6 +143,18 @@ def lamp_irradiance(sample_set, shadowing, lights, report=None,
     SampleSet, shadows as ``shadowing`` (a Shadowing) says, ``report(fraction)`` after each lamp.
     """
     samples = len(sample_set.position)
+    sampled = [light for light in lights
+               if light.kind == "AREA" or lamp_points(light, shadowing.area_light_samples) > 1]
+    if sampled:
+        hard = [light for light in lights if not any(light is other for other in sampled)]
+        share = len(sampled) / len(lights)
+        irradiance, rays = cpu_direct.lamp_irradiance(sample_set, shadowing, sampled,
+                                                      None if report is None else lambda f: report(share * f))
+        if hard:
+            more, more_rays = lamp_irradiance(sample_set, shadowing, hard, None if report is None else
+                                              lambda f: report(share + (1.0 - share) * f), budget_bytes)
+            irradiance, rays = irradiance + more, rays + more_rays
+        return irradiance, rays
     irradiance = np.zeros((samples, 3))
     if not lights:
         return irradiance, 0
@@ -204,7 +222,11 @@ def lamp_irradiance(sample_set, shadowing, lights, report=None,
         relative = sample_set.position - origin
         for light_index, (light, lamp) in enumerate(zip(lights, rows)):
             shadow_key = None
-            if mode == SHADOW_FRACTIONS:
+            lamp_mode = mode if light.casts_shadows else 0  # 0: no shadow at all, as numpy
+            receives = shadowing.receivers(light, sample_set)
+            if lamp_mode == 0:
+                shadow_values = np.zeros((samples, 1, 4), np.float32)
+            elif mode == SHADOW_FRACTIONS:
                 if light.kind == "SUN":
                     if sun_layers is None:
                         sun_layers = _fraction_layers(shadowing.distant_fractions())
@@ -236,12 +258,13 @@ def lamp_irradiance(sample_set, shadowing, lights, report=None,
                 program.uniform_sampler("shadow_data", shadow[0])
                 program.uniform_sampler("regions", regions_texture[0])
                 for name, value in (("sample_width", width), ("sample_count", stop - start),
-                                    ("point_count", len(lamp)), ("shadow_mode", mode),
+                                    ("point_count", len(lamp)), ("shadow_mode", lamp_mode),
                                     ("region_count", region_count), ("region_layers", region_layers)):
                     program.uniform_int(name, value)
                 program.uniform_float("exponent", regions.exponent if regions is not None else 1.0)
                 gpu.compute.dispatch(program, -(-width // GROUP_SIZE), -(-height // GROUP_SIZE), 1)
-                irradiance[start:stop] += runtime.read_texture(accumulated[0]).reshape(-1, 4)[:stop - start, :3]
+                read = runtime.read_texture(accumulated[0]).reshape(-1, 4)[:stop - start, :3]
+                irradiance[start:stop] += read if receives is None else read * receives[start:stop, None]
                 # Outside one resident chunk these are the last references: the GPU memory
                 # goes before the next chunk's uploads.
                 del positions, normals, geometric, accumulated, shadow

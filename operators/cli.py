@@ -20,6 +20,7 @@ import bpy
 from ..core.errors import BakeRefused, Cancelled
 from ..core.lights import setups as lighting_setups
 from ..core.outputs import summary as report_texts
+from ..core.outputs.destinations import FILE, FOLDER, check_destinations
 from ..core.settings import PREFERENCE_SETTINGS, PRESETS, SETTINGS, Setting
 from .adapter import job
 
@@ -120,7 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
         _setting_option(sub, "--margin", SETTINGS["margin"], "PX", default=True)
         sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
         sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
-        sub.add_argument("--previews", action="store_true", default=None, help="also write tone-mapped PNGs")
+        sub.add_argument("--previews", action="store_true", default=None,
+                         help="also write tone-mapped PNGs (<pass>.preview.ply for vertex-mode objects)")
         _setting_option(sub, "--light-groups", SETTINGS["light_groups"])
         _setting_option(sub, "--cache-dir", SETTINGS["cache_dir"], "DIR")
         sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
@@ -144,6 +146,8 @@ def _apply_settings(args, props) -> None:
     passes = None
     if args.passes is not None:
         passes = tuple(p.strip() for p in args.passes.split(",") if p.strip())
+    if args.resolution is not None and args.texel_density is not None:
+        raise BakeRefused("give one of --resolution (one atlas size) or --texel-density (sized by area), not both")
     given = {"directions": args.directions, "bounces": args.bounces, "resolution": args.resolution,
              "margin": args.margin, "threads": args.threads, "seed": args.seed,
              "texel_density": args.texel_density, "passes": passes}
@@ -181,7 +185,11 @@ def _select_objects(args, scene) -> list:
     by_name = {o.name: o for o in meshes}
     missing = [n for n in names if n not in by_name]
     if missing:
-        raise BakeRefused(f"--objects: no visible mesh object named {', '.join(missing)} in the scene")
+        # A curve, text, metaball or instancer takes part in the light but has no output: say so.
+        reasons = [extract.why_not_a_target(scene.objects[n]) for n in missing if n in scene.objects]
+        reasons = [r for r in reasons if r]
+        raise BakeRefused(f"--objects: no visible mesh object named {', '.join(missing)} in the scene"
+                          + (f" ({'; '.join(reasons)})" if reasons else ""))
     return [by_name[n] for n in names]
 
 
@@ -225,7 +233,12 @@ def _load_input(args) -> None:
             raise BakeRefused(f"input file not found: {args.input}")
         if not path.lower().endswith(".blend"):
             raise BakeRefused(f"input must be a .blend file: {args.input}")
-        bpy.ops.wm.open_mainfile(filepath=path)
+        try:
+            bpy.ops.wm.open_mainfile(filepath=path)
+        except RuntimeError as error:
+            # Blender's reason is its last line ("File format is not supported", "Cannot read file ...").
+            reason = str(error).strip().splitlines()[-1] if str(error).strip() else "cannot be read"
+            raise BakeRefused(f"not a readable .blend file: {args.input} ({reason.removeprefix('Error: ')})") from None
     else:
         from .adapter import demo_scene
 
@@ -254,10 +267,20 @@ def _setups(args):
     return lambda lights, world: lighting_setups.load_setups(path, lights, world)
 
 
+def _check_destinations(args, out_dir: str | None) -> None:
+    """Refuse (exit 2) before any work if a file or folder the command writes cannot be written."""
+    report_path = getattr(args, "report", None)
+    if args.command == "demo":
+        report_path = report_path or os.path.join(out_dir, "report.json")
+    check_destinations([(out_dir, FOLDER, "--out"), (getattr(args, "save", None), FILE, "--save"),
+                        (report_path, FILE, "--report")])
+
+
 def run_preview(args) -> int:
     """``preview``: what Show Baked Lighting (or Remove Preview) does, on a saved file."""
     from .adapter import preview_nodes
 
+    _check_destinations(args, None)
     _load_input(args)
     if args.remove:
         changed = preview_nodes.remove_preview()
@@ -267,7 +290,7 @@ def run_preview(args) -> int:
         for warning in warnings:
             print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
         print(f"visibake: baked lighting shown in {wired} material(s)", flush=True)
-    bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
+    _save_blend(args.save, [])
     return EXIT_OK
 
 
@@ -290,27 +313,75 @@ def run(args) -> int:
         return run_clear_cache(args)
     if getattr(args, "preview_nodes", False) and not args.save:
         raise BakeRefused("--preview-nodes changes the materials: give --save OUT.blend to keep them")
+    out_dir = os.path.abspath(args.out) if args.out else None
+    if args.command == "demo" and out_dir is None:
+        out_dir = os.path.abspath("visibake_demo")
+    _check_destinations(args, out_dir)
     _load_input(args)
     scene = bpy.context.scene
     props = scene.visibake
     _apply_settings(args, props)
     objects = _select_objects(args, scene)
     previews = bool(args.previews) or args.command == "demo"
-    out_dir = os.path.abspath(args.out) if args.out else None
-    if args.command == "demo" and out_dir is None:
-        out_dir = os.path.abspath("visibake_demo")
     if args.command == "demo" and args.cache_dir is None:
         # The demo scene is never saved: keep its cache with its outputs, not in the
         # user's profile, so a second run shows a cache hit and one folder holds all.
         props.cache_dir = os.path.join(out_dir, "visibake_cache")
     progress = _Progress(not args.no_progress)
     setups = _setups(args)
+    existed = {os.path.abspath(p) for p in (args.save, args.report) if p and os.path.exists(p)}
     try:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
                                relight_only=args.command == "relight", setups=setups, device_name=args.device,
                                threads=args.threads)
     finally:
         progress.close()
+    written, made_folders = [], []
+    try:
+        _after_bake(args, scene, outcome, out_dir, written, made_folders)
+    except BaseException as error:
+        # As a cancel: what the bake created goes again (the scene's UV maps, images and colour
+        # attributes, what it wrote into the output folder, and the files named by options that
+        # did not exist before), so no half of it stays behind.
+        outcome.rollback()
+        for path in set(written) - existed:
+            if os.path.isfile(path):
+                os.remove(path)
+        for folder in made_folders:
+            if os.path.isdir(folder) and not os.listdir(folder):
+                os.rmdir(folder)
+        if isinstance(error, OSError):
+            raise BakeRefused(f"could not write {error.filename or 'the results'}: {error.strerror or error}; "
+                              "nothing was kept") from error
+        raise
+    print(format_summary(outcome.report), flush=True)
+    return EXIT_OK
+
+
+def _save_blend(path: str, made_folders: list) -> None:
+    """Save a copy of the open file as ``path``, making its folder (Blender does not); the
+    folders made are added to ``made_folders``, deepest first. A save Blender cannot do (a full
+    disk) is refused as the user's to fix."""
+    path = os.path.abspath(path)
+    folder = os.path.dirname(path)
+    missing = []
+    while not os.path.exists(folder):
+        missing.append(folder)
+        folder = os.path.dirname(folder)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    made_folders += missing
+    try:
+        bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+    except RuntimeError as error:
+        reason = str(error).strip().splitlines()[-1] if str(error).strip() else "Blender could not save it"
+        raise BakeRefused(f"--save {path}: {reason.removeprefix('Error: ')}") from None
+
+
+def _after_bake(args, scene, outcome, out_dir: str | None, written: list, made_folders: list) -> None:
+    """The command's steps after the bake: preview nodes, --save, the demo's render, the report.
+
+    ``written`` and ``made_folders`` are extended with the files and folders made, as they are made.
+    """
     report = outcome.report
     if getattr(args, "preview_nodes", False):
         from .adapter import preview_nodes
@@ -319,7 +390,8 @@ def run(args) -> int:
             [bpy.data.objects[entry["name"]] for entry in report["objects"] if entry["output"]])
         report["warnings"] += warnings
     if args.save:
-        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save), copy=True)
+        _save_blend(args.save, made_folders)
+        written.append(os.path.abspath(args.save))
         report["files"].append(os.path.abspath(args.save))
     if args.command == "demo":
         from .adapter import preview_render as preview
@@ -330,13 +402,12 @@ def run(args) -> int:
         uv_maps = {entry["name"]: entry["uv_map"] if entry.get("mode", "atlas") == "atlas" else None
                    for entry in report["objects"] if entry["output"]}
         if preview.render_baked_preview(scene, list(uv_maps), render_path, uv_maps):
+            written.append(render_path)
             report["files"].append(render_path)
         report["stage_seconds"]["preview_render"] = round(time.perf_counter() - started, 4)
     report_path = args.report or (os.path.join(out_dir, "report.json") if args.command == "demo" else None)
     if report_path:
         job.write_report(report_path, report)
-    print(format_summary(report), flush=True)
-    return EXIT_OK
 
 
 def format_summary(report: dict) -> str:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..outputs.images import bilinear_wrap
-from ..scene import World
+from ..scene import Light, World
 from ..tolerances import ENV_NEAREST_DOT_SLACK
 
 # The image is box-filtered down to at most this before cells are formed: a pixel of
@@ -43,6 +43,13 @@ SEARCH_BAND_CELLS = 1.5
 MAX_BLOCK_ELEMENTS = 1 << 22
 # Rows of a large image resampled at once (bounds the float64 copy of a huge HDRI).
 DOWNSAMPLE_ROW_CHUNK = 256
+# A sun disc in an environment: pixels this many times brighter than the image's mean
+# luminance (a sky stays within ~100x of its mean; Cycles' sky sun is ~1e5x), all within
+# SUN_MAX_RADIUS of their centre. Its light is taken out of the image and given to a sun
+# lamp: in a cell it would light from the cell's direction (degrees off at N = 1024) with
+# the cell's area in place of the disc's, and shadow from there too.
+SUN_HOT_FACTOR = 1000.0
+SUN_MAX_RADIUS = np.radians(5.0)
 
 
 def world_radiance(world: World, directions: np.ndarray) -> np.ndarray:
@@ -69,6 +76,8 @@ def world_radiance(world: World, directions: np.ndarray) -> np.ndarray:
 
 def has_light(world: World) -> bool:
     """Whether the world sends any light (cheap: no cells are formed)."""
+    if getattr(world, "suns", None):
+        return True
     values = world.color if world.image is None else world.image
     values = np.asarray(values, np.float64)
     return bool(np.any(np.isfinite(values) & (values > 0)))
@@ -381,3 +390,72 @@ def _nearest(points: np.ndarray, directions: np.ndarray, candidates: np.ndarray)
         index[start:start + step] = candidates[local]
         dot[start:start + step] = dots[np.arange(len(local)), local]
     return index, dot
+
+
+def split_sun(image: np.ndarray, name: str = "world sun") -> tuple[np.ndarray, Light | None]:
+    """Take a sun disc out of an equirectangular image, as a sun lamp of the same light.
+
+    The disc is the pixels above ``SUN_HOT_FACTOR`` times the mean luminance and their
+    neighbours (the partly covered pixels of its rim). Their radiance above the sky
+    around them (the median of the ring one pixel further out) goes to the lamp: its
+    irradiance at normal incidence is that excess integrated over the pixels' solid
+    angles, its direction the excess-weighted mean direction, its angle the diameter of
+    a disc of the hot pixels' solid angle. The pixels keep the sky's level. Nothing is
+    split when there is no such disc or it is not compact (a bright band, a sun cut by
+    the image's u = 0 edge is still one disc: neighbours wrap around in u).
+
+    Parameters
+    ----------
+    image : (h, w, 3) float linear RGB, row 0 at the bottom
+
+    Returns
+    -------
+    image : (h, w, 3) float32, a copy without the disc (or the cleaned input, if none)
+    sun : a 'SUN' :class:`Light` of strength 1 and colour its irradiance, or None
+    """
+    clean = _clean(image)
+    if clean is None:
+        return np.zeros((0, 0, 3), np.float32), None
+    height, width = clean.shape[:2]
+    luminance = clean @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    mean = float(luminance.mean())
+    hot = luminance > SUN_HOT_FACTOR * mean if mean > 0 else np.zeros_like(luminance, bool)
+    if not hot.any():
+        return clean, None
+    disc = _grow(hot)
+    ring = _grow(disc) & ~disc
+    z_edges = _row_z_edges(height)
+    solid_angle = np.broadcast_to(((2.0 * np.pi / width) * np.diff(z_edges))[:, None], (height, width))
+    rows, columns = np.nonzero(disc)
+    u = (columns + 0.5) / width
+    v = (rows + 0.5) / height
+    directions = equirectangular_to_direction(u, v)
+    sky = np.median(clean[ring], axis=0) if ring.any() else np.zeros(3, np.float32)
+    excess = np.clip(np.asarray(clean[disc], np.float64) - sky, 0.0, None) * solid_angle[disc][:, None]
+    weight = excess.sum(axis=1)
+    if not weight.sum() > 0:
+        return clean, None
+    axis = (directions * weight[:, None]).sum(axis=0)
+    axis /= np.linalg.norm(axis)
+    if np.min(directions[hot[disc]] @ axis) < np.cos(SUN_MAX_RADIUS):
+        return clean, None
+    hot_solid_angle = float(solid_angle[hot].sum())
+    angle = 2.0 * float(np.arccos(np.clip(1.0 - hot_solid_angle / (2.0 * np.pi), -1.0, 1.0)))
+    residual = np.array(clean, np.float32)
+    residual[disc] = np.minimum(residual[disc], sky.astype(np.float32))
+    sun = Light(name=name, kind="SUN", color=excess.sum(axis=0), strength=1.0, direction=-axis, angle=angle)
+    return residual, sun
+
+
+def _grow(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with its 8 neighbours added, wrapping in u (columns) and clamped in v (rows)."""
+    grown = mask.copy()
+    for row_shift in (-1, 0, 1):
+        shifted = np.roll(mask, row_shift, axis=0)
+        if row_shift == 1:
+            shifted[0] = False
+        elif row_shift == -1:
+            shifted[-1] = False
+        for column_shift in (-1, 0, 1):
+            grown |= np.roll(shifted, column_shift, axis=1)
+    return grown

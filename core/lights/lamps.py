@@ -1,11 +1,14 @@
 """Direct irradiance from lamps, in Cycles' units (see DESIGN.md, verified by tests).
 
-Every lamp is reduced to one or more "virtual points" per sample: the irradiance
-it would deliver unshadowed, the unit direction towards it and its distance.
-Shadowing is applied by the caller (fractions or exact rays).
+Every lamp is reduced to one or more points per sample (one for a hard lamp, the
+direct-light sampler's stratified points over a lamp's extent otherwise): the
+irradiance each would deliver unshadowed, the unit direction towards it and its
+distance. Shadowing is applied by the caller (fractions or exact rays).
 """
 from __future__ import annotations
 
+import copy
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,6 +16,15 @@ import numpy as np
 from .. import tolerances as tol
 from ..errors import BakeRefused
 from ..scene import Light
+from .sampler import (
+    DirectSampler,
+    Footprint,
+    cosine_hemisphere,
+    orthonormal_frame,
+    square_to_disk,
+    stream_of,
+    uniform_cone,
+)
 
 
 @dataclass
@@ -22,11 +34,14 @@ class LightContribution:
     irradiance : (K, 3) float64 W/m^2 (RGB)
     to_light : (K, 3) float64 unit vectors
     distance : (K,) float64 (inf for a sun)
+    position : (K, 3) float64 where in its footprint each sample received it; None: at the
+        sample itself (shadow rays then start from the sample's own origin)
     """
 
     irradiance: np.ndarray
     to_light: np.ndarray
     distance: np.ndarray
+    position: np.ndarray | None = None
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
@@ -42,43 +57,6 @@ def spot_mask(light: Light, from_light: np.ndarray) -> np.ndarray:
     if band <= 0.0:
         return (cos_angle > cos_half).astype(np.float64)
     return _smoothstep((cos_angle - cos_half) / band)
-
-
-def _unit_square_grid(n: int) -> np.ndarray:
-    """Cell centres of an n x n grid on [-0.5, 0.5]^2, (n*n, 2)."""
-    t = (np.arange(n) + 0.5) / n - 0.5
-    gx, gy = np.meshgrid(t, t)
-    return np.stack([gx.ravel(), gy.ravel()], axis=1)
-
-
-def _concentric_disk(square: np.ndarray) -> np.ndarray:
-    """Shirley-Chiu map of [-0.5,0.5]^2 to the disk of radius 0.5 (area preserving)."""
-    a = 2.0 * square[:, 0]
-    b = 2.0 * square[:, 1]
-    radius = np.where(np.abs(a) > np.abs(b), a, b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        phi = np.where(np.abs(a) > np.abs(b), (np.pi / 4) * (b / a), (np.pi / 2) - (np.pi / 4) * (a / b))
-    phi = np.nan_to_num(phi)
-    return 0.5 * np.stack([radius * np.cos(phi), radius * np.sin(phi)], axis=1)
-
-
-def area_light_points(light: Light, samples_per_side: int) -> tuple[np.ndarray, float]:
-    """Points spread evenly over an area lamp and the area each one stands for.
-
-    Returns
-    -------
-    points : (n, 3) float64 world space
-    cell_area : float
-    """
-    unit = _unit_square_grid(samples_per_side)
-    if light.area_shape in ("DISK", "ELLIPSE"):
-        unit = _concentric_disk(unit)
-        area = np.pi / 4.0 * light.size_x * light.size_y
-    else:
-        area = light.size_x * light.size_y
-    offsets = (unit[:, :1] * light.size_x * np.asarray(light.axis_x, np.float64)
-               + unit[:, 1:] * light.size_y * np.asarray(light.axis_y, np.float64))
-    return np.asarray(light.position, np.float64) + offsets, area / len(unit)
 
 
 def surface_to_point(position: np.ndarray, normal: np.ndarray, point: np.ndarray, point_normal: np.ndarray):
@@ -102,48 +80,249 @@ def surface_to_point(position: np.ndarray, normal: np.ndarray, point: np.ndarray
     return to_point, distance, transfer
 
 
-def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray,
-                        area_light_samples: int = 8) -> list[LightContribution]:
-    """Unshadowed irradiance of ``light`` at every sample, split into virtual points.
+def lamp_points(light: Light, area_light_samples: int) -> int:
+    """Sampler points per sample a lamp is integrated with: one for a hard lamp (a sun of
+    angle 0, a point or spot of radius 0), ``area_light_samples`` squared for a lamp with
+    an extent (an area lamp, a sun with an angle, a point or spot with a radius)."""
+    if light.kind == "AREA" or (light.kind == "SUN" and light.angle > 0) or (
+            light.kind in ("POINT", "SPOT") and light.radius > 0):
+        return max(1, int(area_light_samples)) ** 2
+    return 1
+
+
+def angular_radius(light: Light, position: np.ndarray) -> np.ndarray:
+    """(K,) float64 radians: about how far a lamp's extent reaches from its centre, seen from
+    each sample at ``position`` (K, 3) (pi where a sample is at or inside it)."""
+    if light.kind == "SUN":
+        return np.full(len(position), light.angle / 2.0)
+    extent = light.radius if light.kind in ("POINT", "SPOT") else 0.5 * np.hypot(light.size_x, light.size_y)
+    distance = np.linalg.norm(position - np.asarray(light.position, np.float64), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(distance > extent, extent / np.maximum(distance, 1e-300), np.inf)
+    return np.where(np.isfinite(ratio), np.arcsin(np.clip(ratio, 0.0, 1.0)), np.pi)
+
+
+def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Shadow-ray targets that tell a penumbra from full light or full shadow: the lamp's
+    centre and points on its outline, as [(to_light (K, 3) unit, distance (K,))].
+
+    An occluder edge that is straight at the lamp's scale and crosses the lamp separates
+    two of them: a rectangle's four corners always are, and eight points on a round
+    outline (a sun's cone, a point lamp's disk, a disk lamp) leave at most a 1.2% cap
+    between two of them unseen. ``rotation`` (K,) radians turns each sample's round
+    outline, so the unseen caps do not line up from sample to sample.
+    """
+    centre = np.asarray(light.position, np.float64)
+    if light.kind == "SUN":
+        axis = np.broadcast_to(-np.asarray(light.direction, np.float64), position.shape)
+        tangent, bitangent = orthonormal_frame(np.ascontiguousarray(axis))
+        half = light.angle / 2.0
+        probes = [(np.array(axis), np.full(len(position), np.inf))]
+        for k in range(8):
+            phi = (rotation + k * np.pi / 4.0)[:, None]
+            direction = np.cos(half) * axis + np.sin(half) * (np.cos(phi) * tangent + np.sin(phi) * bitangent)
+            probes.append((direction, np.full(len(position), np.inf)))
+        return probes
+    if light.kind == "AREA":
+        axis_x = 0.5 * light.size_x * np.asarray(light.axis_x, np.float64)
+        axis_y = 0.5 * light.size_y * np.asarray(light.axis_y, np.float64)
+        if light.area_shape in ("DISK", "ELLIPSE"):
+            angles = rotation[:, None] + np.arange(8) * np.pi / 4.0
+            targets = [centre + np.cos(angles[:, k:k + 1]) * axis_x + np.sin(angles[:, k:k + 1]) * axis_y
+                       for k in range(8)]
+        else:
+            targets = [centre + sx * axis_x + sy * axis_y for sx in (-1, 1) for sy in (-1, 1)]
+        targets = [centre] + targets
+    else:
+        # A point or spot lamp: the disk of its radius facing the receiver (a sphere's outline
+        # is a little smaller; outside it a probe only errs towards "penumbra").
+        towards = position - centre
+        tangent, bitangent = orthonormal_frame(towards / np.maximum(np.linalg.norm(towards, axis=1), 1e-300)[:, None])
+        targets = [np.broadcast_to(centre, position.shape)]
+        for k in range(8):
+            phi = (rotation + k * np.pi / 4.0)[:, None]
+            targets.append(centre + light.radius * (np.cos(phi) * tangent + np.sin(phi) * bitangent))
+    probes = []
+    for target in targets:
+        offset = target - position
+        distance = np.linalg.norm(offset, axis=1)
+        probes.append((offset / np.maximum(distance, 1e-12)[:, None], distance))
+    return probes
+
+
+def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
+                        sample_ids: np.ndarray | None = None, seed: int = 0, footprint: Footprint | None = None,
+                        points: int | None = None) -> Iterator[LightContribution]:
+    """Unshadowed irradiance of ``light`` at every sample, one sampler point at a time.
+
+    The lamp's extent (and the sample's footprint, if ``footprint`` is given) is integrated
+    with :class:`core.lights.sampler.DirectSampler`'s ``points`` points per sample (default
+    :func:`lamp_points`); each yielded contribution is one point's share (the sum of all
+    of them is the estimate). The lamps are sampled as Cycles samples them
+    (``kernel/light/*.h``): a sun uniformly in its cone of half-angle ``angle / 2``, a
+    sphere lamp uniformly in the cone it subtends (cosine-weighted from inside it), a
+    soft-falloff point or spot over a disk of its radius facing the receiver, an area lamp
+    uniformly over its surface.
 
     Parameters
     ----------
     position, normal : (K, 3) float64 sample positions and unit shading normals
+    sample_ids : (K,) integer, each sample's index in the bake (default 0..K-1): seeds its scramble
+    seed : the bake seed
+    footprint : see :data:`core.lights.sampler.Footprint`; None: every point at the sample itself
     """
-    color = np.asarray(light.color, np.float64)[:3]
-    strength = max(float(light.strength), 0.0)
-    if not np.isfinite(strength):
-        raise ValueError(f"light {light.name!r} has a non-finite strength")
+    lamp = LampPoints(light, position, normal, area_light_samples, sample_ids, seed, footprint, points)
+    for point in range(lamp.count):
+        yield lamp.contribution(point)
+
+
+class LampPoints:
+    """The sampler points of one lamp at every sample, any point for any subset of the samples.
+
+    :func:`light_contributions` walks all of them; the exact-shadow pass asks for the later
+    points of the samples that still need them only. Arguments as :func:`light_contributions`.
+    """
+
+    def __init__(self, light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
+                 sample_ids: np.ndarray | None = None, seed: int = 0, footprint: Footprint | None = None,
+                 points: int | None = None):
+        strength = max(float(light.strength), 0.0)
+        if not np.isfinite(strength):
+            raise ValueError(f"light {light.name!r} has a non-finite strength")
+        if light.kind not in ("SUN", "POINT", "SPOT", "AREA"):
+            raise ValueError(f"light {light.name!r}: unsupported kind {light.kind!r}")
+        self.light, self.position, self.normal, self.footprint = light, position, normal, footprint
+        self.scale = strength * np.asarray(light.color, np.float64)[:3]
+        self.count = lamp_points(light, area_light_samples) if points is None else max(1, int(points))
+        self.hard = self.count == 1 and footprint is None and light.kind != "AREA"
+        if not self.hard:
+            self.sampler = DirectSampler(self.count, seed)
+            ids = np.arange(len(position)) if sample_ids is None else np.asarray(sample_ids)
+            self.scrambles = self.sampler.scrambles(ids, stream_of(light.name))
+
+    def subset(self, rows: np.ndarray) -> LampPoints:
+        """The same lamp's points at the samples ``rows`` (an index array) only, each sample
+        keeping its own scramble; contributions then have one row per chosen sample."""
+        if self.footprint is not None:
+            # A Footprint maps uniforms of all samples; it has no subset (issue 15 may add one).
+            raise ValueError("bug: LampPoints.subset with a footprint")
+        chosen = copy.copy(self)
+        chosen.position, chosen.normal = self.position[rows], self.normal[rows]
+        if not self.hard:
+            chosen.scrambles = self.scrambles[:, rows]
+        return chosen
+
+    def contribution(self, point: int) -> LightContribution:
+        """Point ``point``'s share (weighted 1 / count) at every sample."""
+        position, normal = self.position, self.normal
+        if self.hard:
+            return _hard_contribution(self.light, position, normal, self.scale)
+        u = self.sampler.uniforms(point, scrambles=self.scrambles)
+        receiver = position if self.footprint is None else position + self.footprint(u[:, 2:4])
+        part = _sampled_contribution(self.light, receiver, normal, u[:, :2], self.scale / self.count)
+        if self.footprint is not None:
+            part.position = receiver
+        return part
+
+
+def _hard_contribution(light: Light, position: np.ndarray, normal: np.ndarray, scale: np.ndarray
+                       ) -> LightContribution:
+    """A sun of angle 0 or a point or spot of radius 0: one exact direction per sample."""
     if light.kind == "SUN":
         to_light = np.broadcast_to(-np.asarray(light.direction, np.float64), position.shape).copy()
         cosine = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
-        return [LightContribution(strength * cosine[:, None] * color, to_light, np.full(len(position), np.inf))]
+        return LightContribution(cosine[:, None] * scale, to_light, np.full(len(position), np.inf))
+    offset = np.asarray(light.position, np.float64) - position
+    distance = np.linalg.norm(offset, axis=1)
+    safe = np.maximum(distance, 1e-12)
+    to_light = offset / safe[:, None]
+    cosine = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
+    irradiance = cosine / (4.0 * np.pi * safe * safe)
+    if light.kind == "SPOT":
+        irradiance = irradiance * spot_mask(light, -to_light)
+    irradiance = np.where(distance > 1e-12, irradiance, 0.0)
+    return LightContribution(irradiance[:, None] * scale, to_light, distance)
 
-    if light.kind in ("POINT", "SPOT"):
-        offset = np.asarray(light.position, np.float64) - position
-        distance = np.linalg.norm(offset, axis=1)
-        safe = np.maximum(distance, 1e-12)
-        to_light = offset / safe[:, None]
+
+def _sampled_contribution(light: Light, position: np.ndarray, normal: np.ndarray, u: np.ndarray,
+                          scale: np.ndarray) -> LightContribution:
+    """One sampler point's irradiance; ``u`` (K, 2) in [0, 1)^2 picks the point on the lamp and
+    ``scale`` (3,) is colour x strength over the point count."""
+    k = len(position)
+    if light.kind == "SUN":
+        half = light.angle / 2.0
+        one_minus_cos = 2.0 * np.sin(half / 2.0) ** 2  # 1 - cos(half) without cancellation
+        to_light = uniform_cone(-np.asarray(light.direction, np.float64).reshape(1, 3), one_minus_cos, u)
         cosine = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
-        irradiance = strength / (4.0 * np.pi) * cosine / (safe * safe)
-        if light.kind == "SPOT":
-            irradiance = irradiance * spot_mask(light, -to_light)
-        irradiance = np.where(distance > 1e-12, irradiance, 0.0)
-        return [LightContribution(irradiance[:, None] * color, to_light, distance)]
-
+        return LightContribution(cosine[:, None] * scale, to_light, np.full(k, np.inf))
     if light.kind == "AREA":
-        points, cell_area = area_light_points(light, area_light_samples)
-        total_area = cell_area * len(points)
-        radiance = strength / (np.pi * total_area) if total_area > 0 else 0.0
-        facing = np.asarray(light.direction, np.float64)
-        contributions = []
-        for point in points:
-            to_light, distance, transfer = surface_to_point(position, normal, point, facing)
-            irradiance = radiance * cell_area * transfer
-            contributions.append(LightContribution(irradiance[:, None] * color, to_light, distance))
-        return contributions
+        return _area_point(light, position, normal, u, scale)
 
-    raise ValueError(f"light {light.name!r}: unsupported kind {light.kind!r}")
+    centre = np.asarray(light.position, np.float64)
+    offset = position - centre  # from the lamp to the receiver (Cycles' lightN times d)
+    d = np.linalg.norm(offset, axis=1)
+    safe = np.maximum(d, 1e-12)
+    light_n = offset / safe[:, None]
+    r = float(light.radius)
+    if light.sphere:
+        outside = d > r
+        ratio = np.where(outside, (r * r) / (safe * safe), 0.0)
+        one_minus_cos = ratio / (1.0 + np.sqrt(np.clip(1.0 - ratio, 0.0, None)))
+        cone = uniform_cone(-light_n, one_minus_cos, u)
+        inside = cosine_hemisphere(normal, u)
+        to_light = np.where(outside[:, None], cone, inside)
+        cos_theta = -np.einsum("kd,kd->k", to_light, light_n)
+        root = np.sqrt(np.clip(r * r - d * d + d * d * cos_theta * cos_theta, 0.0, None))
+        distance = d * cos_theta - np.where(outside, root, -root)
+        cos_receiver = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
+        # Radiance P / (4 pi * pi r^2) over the sampled solid angle 2 pi (1 - cos): the
+        # irradiance of a point of power P at d >> r; pi * radiance from inside.
+        factor = np.where(outside, 2.0 * one_minus_cos * cos_receiver, 1.0)
+        factor = factor / (4.0 * np.pi * r * r)
+        if light.kind == "SPOT":
+            factor = np.where(outside, factor * spot_mask(light, -to_light), factor)
+    else:
+        tangent, bitangent = orthonormal_frame(light_n)
+        disk = square_to_disk(u) * r
+        point = centre + disk[:, :1] * tangent + disk[:, 1:] * bitangent
+        towards = point - position
+        distance = np.linalg.norm(towards, axis=1)
+        to_light = towards / np.maximum(distance, 1e-12)[:, None]
+        cos_disk = np.clip(-np.einsum("kd,kd->k", light_n, to_light), 0.0, None)
+        cos_receiver = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
+        # pdf t^2 / (pi r^2 cos_disk) against radiance P / (4 pi * pi r^2): the disk
+        # delivers the point's irradiance far away.
+        factor = cos_disk * cos_receiver / (4.0 * np.pi * np.maximum(distance, 1e-12) ** 2)
+        factor = np.where(distance > 1e-12, factor, 0.0)
+        if light.kind == "SPOT":
+            factor = factor * spot_mask(light, -to_light)
+    factor = np.where(d > 1e-12, factor, 0.0)
+    return LightContribution(factor[:, None] * scale, to_light, distance)
+
+
+def _area_point(light: Light, position: np.ndarray, normal: np.ndarray, u: np.ndarray,
+                scale: np.ndarray) -> LightContribution:
+    """One uniformly drawn point of an area lamp: radiance P / (pi A) times A over the point count."""
+    if light.area_shape in ("DISK", "ELLIPSE"):
+        unit = 0.5 * square_to_disk(u)
+        area = np.pi / 4.0 * light.size_x * light.size_y
+    else:
+        unit = u - 0.5
+        area = light.size_x * light.size_y
+    if area <= 0:
+        return LightContribution(np.zeros((len(position), 3)), np.broadcast_to(
+            -np.asarray(light.direction, np.float64), position.shape).copy(), np.zeros(len(position)))
+    points = (np.asarray(light.position, np.float64) + unit[:, :1] * light.size_x * np.asarray(light.axis_x, np.float64)
+              + unit[:, 1:] * light.size_y * np.asarray(light.axis_y, np.float64))
+    offset = points - position
+    distance = np.linalg.norm(offset, axis=1)
+    safe = np.maximum(distance, 1e-12)
+    to_light = offset / safe[:, None]
+    cos_receiver = np.clip(np.einsum("kd,kd->k", normal, to_light), 0.0, None)
+    cos_patch = np.clip(-(to_light @ np.asarray(light.direction, np.float64)), 0.0, None)
+    transfer = np.where(distance > 1e-12, cos_receiver * cos_patch / (safe * safe), 0.0)
+    # radiance P / (pi A) times the area each point stands for, A / count (count is in scale).
+    return LightContribution((transfer / np.pi)[:, None] * scale, to_light, distance)
 
 
 def usable_lights(lights, warnings: list[str]):

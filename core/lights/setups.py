@@ -224,7 +224,13 @@ def parse_sweep(text: str) -> tuple[float, float, int]:
         raise SetupError(f"--sun-sweep: expected START:END:STEPS in hours, e.g. 6:18:7, got {text!r}") from None
     if len(parts) != 3 or steps < 1 or not (0.0 <= start <= 24.0 and 0.0 <= end <= 24.0):
         raise SetupError(f"--sun-sweep: hours in 0..24 and at least one step, got {text!r}")
+    if steps > MAX_SWEEP_STEPS:
+        # Each step is a setup with a folder of outputs: more than one a minute is never meant.
+        raise SetupError(f"--sun-sweep: at most {MAX_SWEEP_STEPS} steps (one a minute), got {steps}")
     return start, end, steps
+
+
+MAX_SWEEP_STEPS = 24 * 60
 
 
 def sun_sweep(start: float, end: float, steps: int, latitude: float, day_of_year: int, scene_lights: list[Light],

@@ -5,6 +5,7 @@ at the bottom (v = 0). EXR files are written top row first, as Blender saves the
 """
 from __future__ import annotations
 
+import errno
 import os
 
 import numpy as np
@@ -80,7 +81,12 @@ def write_exr(path: str, image: np.ndarray) -> None:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     top_down = np.ascontiguousarray(image[::-1], dtype=np.float32)
     with OpenEXR.File(header, {"RGBA": top_down}) as exr:
-        exr.write(path)
+        try:
+            exr.write(path)
+        except RuntimeError as error:
+            # OpenEXR says a file cannot be written (a full disk, a folder in its place) with a
+            # RuntimeError; it is a file system's error, and callers tell those from bugs by OSError.
+            raise OSError(errno.EIO, str(error).strip(), path) from error
 
 
 def tonemap(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:

@@ -216,6 +216,9 @@ class Report:
     device: DeviceReport | None = None
     setups: list[SetupReport] | None = None
     refined: list[RefinedReport] | None = None
+    # Outputs whose file or image is not named after their object, pass or setup (unsafe or
+    # colliding names, core.outputs.names): [{"name", "kind" (object|pass|setup|image), "path"}].
+    renamed_outputs: list | None = None
 
     def to_dict(self) -> dict:
         """The JSON form (the keys and nesting of ``report.json``)."""
@@ -243,7 +246,8 @@ class Report:
                 "relight_only": self.relight_only,
                 "device": self.device.to_dict() if self.device is not None else None,
                 "setups": [s.to_dict() for s in self.setups] if self.setups is not None else None,
-                "refined": [r.to_dict() for r in self.refined] if self.refined is not None else None}),
+                "refined": [r.to_dict() for r in self.refined] if self.refined is not None else None,
+                "renamed_outputs": self.renamed_outputs}),
         }
 
     @classmethod

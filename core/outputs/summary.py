@@ -4,6 +4,8 @@ Last Bake rows (:func:`panel_lines`), built from the same phrases so that the th
 each fact the same way."""
 from __future__ import annotations
 
+import os
+
 from ..visibility.cache import CacheStatus
 from .report import DeviceReport, Rays, Report
 
@@ -82,7 +84,10 @@ def summary_lines(report: Report | dict) -> list[str]:
         lines.append("  " + _skipped_phrase(item))
     for item in report.warnings:
         lines.append(f"  warning: {item}")
-    lines.append(f"  files: {len(report.files or [])} written")
+    # Distinct paths: a file written twice is one file on disk, and the count says what is there.
+    written = len({os.path.realpath(path) for path in report.files or []})
+    renamed = len(report.renamed_outputs or [])
+    lines.append(f"  files: {written} written" + (f", {renamed} output name(s) changed" if renamed else ""))
     return lines
 
 

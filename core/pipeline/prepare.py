@@ -20,7 +20,7 @@ from ..transport.gather import AtlasLayout, gather_normalisation
 from ..transport.groups import LightGroup, light_key_parts
 from ..visibility.cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
 from ..visibility.directions import direction_set
-from ..visibility.rays import RayScene, offset_ray_origins
+from ..visibility.rays import RayScene
 from ..visibility.table import DeferredTable, HitGeometry, TraceRequest, table_from_arrays, trace_table, update_table
 from .budget import check_budget
 from .progress import Stages
@@ -62,7 +62,8 @@ class Prepared:
     def sample_set(self) -> SampleSet:
         """All samples as the transport contract's :class:`SampleSet`."""
         if self._sample_set is None:
-            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins)
+            owner = np.repeat(np.arange(len(self.meshes)), np.diff(self.sample_offset))
+            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins, owner)
         return self._sample_set
 
     def shadowing(self) -> Shadowing:
@@ -71,7 +72,8 @@ class Prepared:
         if self._shadowing is None:
             s = self.settings
             self._shadowing = Shadowing(s.shadows, self.ray_scene, s.area_light_samples, self.table,
-                                        self.directions, s.shadow_regions)
+                                        self.directions, s.shadow_regions, tuple(m.name for m in self.meshes),
+                                        np.array([m.casts_shadow for m in self.meshes], bool), s.seed)
         return self._shadowing
 
     def gather_geometry(self) -> GatherGeometry:
@@ -104,6 +106,9 @@ class Prepared:
                  s.emitter_samples, max(s.margin, 2), s.vertex_lookup, self.albedo, self.normal,
                  np.where(emitting[:, None], self.emission, 0.0), group.world, group.emitting,
                  np.array([m.output for m in self.meshes])]
+        if group.lights:
+            # Which meshes cast lamp shadows and which a linked lamp lights or is blocked by.
+            parts += [s.seed, np.array([m.casts_shadow for m in self.meshes]), tuple(m.name for m in self.meshes)]
         for index in np.nonzero(group.emitting)[0]:
             parts += [np.asarray(m.emission, np.float64) for m in self.meshes[index].materials if m is not None]
         for light in group.lights:
@@ -159,12 +164,26 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         meshes.append(mesh)
     if not any(m.output for m in meshes):
         raise BakeRefused("there is no mesh with faces to bake; select meshes that have faces")
+    if settings.shadows == "fractions":
+        # The table counts every hit, so the fractions cannot leave an object out of one
+        # lamp's shadows; exact shadows can.
+        for mesh in meshes:
+            if not mesh.casts_shadow:
+                warnings.append(f"object {mesh.name!r}: its shadow visibility is off, which shadow fractions cannot "
+                                "honour: it still casts shadows; use exact shadows")
+        for light in scene.lights:
+            if light.blockers is not None and light.casts_shadows:
+                warnings.append(f"light {light.name!r}: shadow linking is not honoured by shadow fractions: every "
+                                "object shadows it; use exact shadows")
+    centre, precision_warning = trace_frame(meshes)
+    if precision_warning:
+        warnings.append(precision_warning)
     object_samples: list[ObjectSamples] = []
     for index, mesh in enumerate(meshes):
-        object_samples.append(build_vertex_samples(mesh) if mesh.mode == "vertex" else build_samples(mesh))
+        object_samples.append(build_vertex_samples(mesh, centre) if mesh.mode == "vertex" else build_samples(mesh))
         stages.report((index + 1) / len(meshes))
     for mesh, samples in zip(meshes, object_samples):
-        if len(samples) == 0:
+        if len(samples) == 0 and mesh.output:
             warnings.append(f"object {mesh.name!r}: no texel centre falls inside its UV layout at "
                             f"{mesh.resolution[0]}x{mesh.resolution[1]}; raise the resolution")
         if samples.uv_overlap_texels:
@@ -180,7 +199,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
                         or has_light(scene.world)
                         or (settings.shadows == "fractions" and bool(scene.lights)))
 
-    ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads)
+    ray_scene = RayScene([(m.positions, m.triangles) for m in meshes], settings.threads, centre)
     sample_offset = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     object_keys = [object_key(m) for m in meshes]
     key = table_key(object_keys, settings)
@@ -198,6 +217,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         stages.expect("cache", 0.0)
         skipped.append("visibility table: no pass needs it (no bounces, emission, world, AO or shadow fractions)")
         status = status or CacheStatus(state="unused", message="no pass needs the visibility table")
+    if cache is not None:
+        status.abandoned_writes_removed = cache.abandoned_removed
     stages.stop()
 
     return Prepared(
@@ -208,9 +229,50 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples],
                                       [getattr(s, "corner_sample", None) for s in object_samples],
                                       settings.vertex_lookup == "nearest"), directions=directions,
-        ray_scene=ray_scene, origins=offset_ray_origins(position, geometric), table=table,
+        ray_scene=ray_scene, origins=ray_scene.ray_origins(position, geometric), table=table,
         stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings, table_key=key,
         visibility_rays=visibility_rays, cache=cache, cache_status=status)
+
+
+# Float32 resolves about 1 part in 1.7e7; ray origins step a few hundred ULPs off the
+# surface. Past this ratio of the traced frame's extent to an output object's size, the
+# steps reach about 1% of the object and contact shadows start to move.
+PRECISION_EXTENT_RATIO = 1e5
+
+
+def trace_frame(meshes) -> tuple[np.ndarray, str | None]:
+    """The centre the ray scene is traced around, and a warning if float32 still limits precision.
+
+    The centre is the middle of the finite geometry's bounds, rounded to a power of two
+    at least the scene's size: a scene near the world origin keeps centre 0 (and traces
+    exactly as before), a scene far from it is traced as if it were at the origin. The
+    table holds distances and atlas coordinates only, so it does not depend on the
+    centre, and the cache key (which hashes world-space geometry) needs no part of it.
+
+    Returns
+    -------
+    centre : (3,) float64
+    warning : str or None, when the scene's own extent against its smallest output
+        object leaves float32 too coarse (the frame cannot remove that)
+    """
+    finite = [(m, m.positions[np.all(np.isfinite(m.positions), axis=1)]) for m in meshes]
+    finite = [(m, f) for m, f in finite if len(f)]
+    if not finite:
+        return np.zeros(3), None
+    low = np.min([f.min(axis=0) for _, f in finite], axis=0)
+    high = np.max([f.max(axis=0) for _, f in finite], axis=0)
+    extent = float(np.max(high - low))
+    step = 2.0 ** np.ceil(np.log2(max(extent, 1e-30)))
+    centre = np.round((low + high) / 2 / step) * step
+    reach = float(np.max(np.maximum(np.abs(high - centre), np.abs(low - centre))))
+    sizes = [float(np.max(f.max(axis=0) - f.min(axis=0))) for m, f in finite if m.output]
+    smallest = min((s for s in sizes if s > 0), default=0.0)
+    if smallest > 0 and reach / smallest > PRECISION_EXTENT_RATIO:
+        return centre, (f"precision: the scene reaches {reach:.3g} units from its centre but the smallest baked object "
+                        f"is {smallest:.3g} across (ratio {reach / smallest:.2g} > {PRECISION_EXTENT_RATIO:.0e}); "
+                        "rays are traced in float32, so its shadows and contacts may be off by about 1%; bake it "
+                        "with fewer distant objects")
+    return centre, None
 
 
 def scene_hit_geometry(meshes) -> HitGeometry:
@@ -331,7 +393,8 @@ def _cached_or_traced_table(job: TableJob):
             old_table = table_from_arrays(old.arrays, old.counters)
             stages.report(0.5)  # read; writing the updated table is the other half
             stages.start("visibility")
-            changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads)
+            changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads,
+                                     ray_scene.centre)
             table, counts = update_table(old_table, old.sample_offset, sample_offset, ray_scene, changed_scene,
                                          changed, job.request, stages.report)
             del old, old_table

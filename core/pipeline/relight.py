@@ -8,7 +8,7 @@ may raise :class:`core.errors.Cancelled` to stop between batches.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -107,8 +107,10 @@ def relight_many(prepared: Prepared, lightings, progress=None,
     for lights, world in lightings:
         warnings = list(p.warnings)
         skipped = list(p.skipped)
-        lights = usable_lights(lights, warnings)
         world_group = getattr(world, "light_group", "")
+        # The world's sun discs are lamps of the world's light group.
+        suns = [replace(sun, group=world_group or "world") for sun in getattr(world, "suns", ())]
+        lights = usable_lights(list(lights) + suns, warnings)
         radiance = world_radiance(world, p.directions)
         needs_table = (settings.bounces > 0 or has_emission or bool(np.any(radiance > 0)) or "ao" in wants
                        or (bool(lights) and settings.shadows == "fractions"))

@@ -64,7 +64,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             exclude[:, emitter.object_index] = direct
             sampled.append((owner, emitter, np.nonzero(direct)[0]))
 
-    lamp_rays = len(p.position) * sum(shadow_rays_per_sample(light.kind, p.settings)
+    lamp_rays = len(p.position) * sum(shadow_rays_per_sample(light, p.settings)
                                       for group in groups for light in group.lights)
     emitter_rays = sum(len(chosen) for _, _, chosen in sampled) * p.settings.emitter_samples
     direct_share = _direct_share(p, lamp_rays, emitter_rays)

@@ -56,9 +56,16 @@ def build_samples(mesh: Mesh) -> ObjectSamples:
     """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel."""
     width, height = mesh.resolution
     corner_uv = mesh.uv_maps[mesh.bake_uv_map]
-    normals, valid = face_normals(mesh.positions, mesh.triangles)
+    # Only triangles with UV area can hold texels: the others need no normal (an occluder
+    # whose UVs are all one point, extract's past-the-budget instances, costs nothing here).
+    uv = np.asarray(corner_uv, np.float64)
+    uv_area = (uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1]) \
+        - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0])
+    with_area = np.flatnonzero(uv_area != 0)  # NaN counts: the raster skips it
+    normals, valid = np.zeros((len(mesh.triangles), 3)), np.zeros(len(mesh.triangles), bool)
+    normals[with_area], valid[with_area] = face_normals(mesh.positions, mesh.triangles[with_area])
     # Degenerate or non-finite triangles get no samples: they have no normal to shade with.
-    raster_uv = np.where(valid[:, None, None], corner_uv, 0.0).astype(np.float64)
+    raster_uv = np.where(valid[:, None, None], uv, 0.0)
     raster = rasterize(raster_uv, width, height)
     tri = raster.triangle
     bary = np.clip(raster.barycentric.astype(np.float64), tol.SAMPLE_BARYCENTRIC_INSET, None)
@@ -93,8 +100,10 @@ def build_samples(mesh: Mesh) -> ObjectSamples:
         else:
             albedo[chosen] = material.base_color[:3]
         emission[chosen] = material.emission[:3]
-    np.clip(albedo, 0.0, 1.0, out=albedo)
-    np.nan_to_num(albedo, copy=False, nan=0.0)
+    # Cycles keeps a base colour above 1 (its diffuse closures clamp at 0 only), so such a
+    # surface reflects more than it receives there too; the adapter warns about it.
+    np.clip(albedo, 0.0, None, out=albedo)
+    np.nan_to_num(albedo, copy=False, nan=0.0, posinf=0.0)
     np.nan_to_num(emission, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     np.clip(emission, 0.0, None, out=emission)
 
@@ -150,13 +159,16 @@ def _corner_albedo_emission(mesh: Mesh, triangles: np.ndarray) -> tuple[np.ndarr
         else:
             albedo[chosen] = np.asarray(material.base_color, np.float64)[:3]
         emission[chosen] = np.asarray(material.emission, np.float64)[:3]
-    albedo = np.clip(np.nan_to_num(albedo, nan=0.0), 0.0, 1.0)
+    albedo = np.clip(np.nan_to_num(albedo, nan=0.0, posinf=0.0), 0.0, None)  # no upper bound, as in Cycles
     emission = np.clip(np.nan_to_num(emission, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
     return albedo, emission
 
 
-def build_vertex_samples(mesh: Mesh) -> VertexSamples:
+def build_vertex_samples(mesh: Mesh, centre: np.ndarray | None = None) -> VertexSamples:
     """One sample per vertex (per distinct shading normal where normals are split).
+
+    ``centre`` (3,): where the rays are traced around (core.pipeline.prepare.trace_frame);
+    the inset into the triangle scales with the float32 step there, not at the world origin.
 
     Corners of degenerate or non-finite triangles make no sample. Albedo and emission
     of a sample are the mean over its corners (a vertex between two materials gets
@@ -194,7 +206,8 @@ def build_vertex_samples(mesh: Mesh) -> VertexSamples:
     chosen_triangle = used[first // 3]
     towards = mesh.positions[mesh.triangles[chosen_triangle]].mean(axis=1) - position
     length = np.linalg.norm(towards, axis=1)
-    scale = tol.VERTEX_SAMPLE_INSET * np.maximum(1.0, np.abs(position).max(axis=1))
+    local = position if centre is None else position - np.asarray(centre, np.float64)
+    scale = tol.VERTEX_SAMPLE_INSET * np.maximum(1.0, np.abs(local).max(axis=1))
     step = np.divide(np.minimum(length, scale), length, out=np.zeros_like(length), where=length > 0)
     position = position + towards * step[:, None]
     corners_per_sample = np.bincount(sample_of_corner, minlength=count).astype(np.float64)[:, None]

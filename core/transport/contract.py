@@ -36,12 +36,15 @@ class SampleSet:
     normal : (K, 3) float64 unit shading normals
     geometric : (K, 3) float64 unit geometric normals (the side rays leave from)
     origins : (K, 3) float32 ray origins, offset off the surface along ``geometric``
+    owner : (K,) int64 index of the mesh each sample lies on (in :attr:`Shadowing.mesh_names`'
+        order), or None when unknown (then every lamp lights every sample, linked or not)
     """
 
     position: np.ndarray
     normal: np.ndarray
     geometric: np.ndarray
     origins: np.ndarray
+    owner: np.ndarray | None = None
 
     @classmethod
     def on_surface(cls, position: np.ndarray, normal: np.ndarray,
@@ -60,11 +63,14 @@ class Shadowing:
 
     mode : 'exact' (one shadow ray per sample and lamp point, through ``ray_scene``) or
         'fractions' (the paper's shadow fractions, looked up from ``table``; no ray)
-    area_light_samples : grid points per side an area lamp is integrated with
+    area_light_samples : its square is the sampler points a lamp with an extent is integrated with
     region_count : number of shadow regions c_j (fractions only)
+    mesh_names : the names of ``ray_scene``'s geometries, in order (light and shadow linking)
+    casts_shadow : (meshes,) bool or None; False where a mesh's shadow visibility is off
+    seed : the bake seed, which scrambles the direct-light sampler's points
 
     The distant lights' fractions are computed once and shared by every sun of every
-    lighting that uses this object.
+    lighting that uses this object; so is each lamp's scene of shadow blockers.
     """
 
     mode: str
@@ -73,8 +79,12 @@ class Shadowing:
     table: object = None  # VisibilityTable (or a deferred one); needed for fractions
     directions: np.ndarray | None = None  # (N, 3) float64 the table's direction set
     region_count: int = 32
+    mesh_names: tuple = ()
+    casts_shadow: np.ndarray | None = None
+    seed: int = 0
     _regions: ShadowRegions | None = field(default=None, repr=False)
     _distant: ShadowFractions | None = field(default=None, repr=False)
+    _blockers: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def exact(cls, ray_scene: RayScene, area_light_samples: int) -> Shadowing:
@@ -94,6 +104,29 @@ class Shadowing:
     def local_fractions(self, light_distance: np.ndarray) -> ShadowFractions:
         """The shadow fractions for a lamp at ``light_distance`` (K,) from each sample."""
         return shadow_fractions(self.table, self.regions(), light_distance)
+
+    def blocker_scene(self, light) -> RayScene | None:
+        """The scene ``light``'s exact shadow rays are traced against: every mesh that casts
+        shadows and, with shadow linking, is one of its blockers; None: nothing shadows it."""
+        if not light.casts_shadows:
+            return None
+        count = len(self.mesh_names)
+        casting = np.ones(count, bool) if self.casts_shadow is None else np.asarray(self.casts_shadow, bool)
+        if light.blockers is not None:
+            casting = casting & np.isin(np.array(self.mesh_names, object), list(light.blockers))
+        if not count or casting.all():
+            return self.ray_scene
+        key = tuple(np.nonzero(casting)[0])
+        if key not in self._blockers:
+            self._blockers[key] = self.ray_scene.subset(key)
+        return self._blockers[key]
+
+    def receivers(self, light, samples: SampleSet) -> np.ndarray | None:
+        """(K,) bool: the samples ``light`` lights (light linking); None: all of them."""
+        if light.receivers is None or samples.owner is None:
+            return None
+        lit = np.isin(np.array(self.mesh_names, object), list(light.receivers))
+        return lit[samples.owner]
 
 
 @dataclass(frozen=True)

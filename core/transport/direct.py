@@ -1,60 +1,186 @@
-"""Direct light from lamps: unshadowed irradiance per virtual point, then shadows
+"""Direct light from lamps: unshadowed irradiance per sampler point, then shadows
 from the paper's shadow fractions or from exact shadow rays."""
 from __future__ import annotations
 
 import numpy as np
 
 from .. import tolerances as tol
-from ..lights.lamps import light_contributions
+from ..lights.lamps import LampPoints, LightContribution, angular_radius, lamp_points, outline_probes
 from .contract import SampleSet, Shadowing
 
 
-def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None) -> tuple[np.ndarray, int]:
+def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None, footprint=None,
+                    footprint_points: int = 1) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` at ``samples``, and the shadow rays traced.
 
-    Shadows as ``shadowing`` says (exact rays, or the paper's fractions);
-    ``report(fraction)`` is called after each lamp. The CPU backend's direct-light pass.
+    Each lamp is integrated over its extent with the direct-light sampler
+    (:func:`core.lights.lamps.light_contributions`; one point for a hard lamp) and, if
+    ``footprint`` (see :data:`core.lights.sampler.Footprint`) is given, over each sample's
+    footprint with the same points (at least ``footprint_points`` per lamp, also for a hard
+    one). Shadows as ``shadowing`` says: one exact ray per point
+    against the lamp's blockers (:meth:`Shadowing.blocker_scene`), or the paper's fractions
+    looked up in each point's direction, so a soft lamp averages the fractions over its
+    extent. Light linking: a lamp lights only its receivers. ``report(fraction)`` is
+    called after each lamp. The CPU backend's direct-light pass.
     """
     fractions_mode = bool(lights) and shadowing.mode == "fractions"
     irradiance = np.zeros((len(samples.position), 3))
     shadow_rays = 0
-    # Progress by shadow rays, not by lamps: an area lamp traces several per sample.
-    costs = np.cumsum([shadow_rays_per_sample(light.kind, shadowing) for light in lights])
+    sample_ids = np.arange(len(samples.position))
+    # Progress by shadow rays, not by lamps: a soft lamp traces several per sample.
+    points = [lamp_points(light, shadowing.area_light_samples) for light in lights]
+    if footprint is not None:
+        points = [max(count, int(footprint_points)) for count in points]
+    costs = np.cumsum(points)
     for light_index, light in enumerate(lights):
         fractions = None
-        if fractions_mode:
+        if fractions_mode and light.casts_shadows:
             if light.kind == "SUN":
                 fractions = shadowing.distant_fractions()
             else:
                 light_distance = np.linalg.norm(samples.position - np.asarray(light.position, np.float64), axis=1)
                 fractions = shadowing.local_fractions(light_distance)
-        for part in light_contributions(light, samples.position, samples.normal, shadowing.area_light_samples):
-            above = np.einsum("kd,kd->k", part.to_light, samples.geometric) > 0.0
+        blockers = shadowing.blocker_scene(light) if not fractions_mode else None
+        receives = shadowing.receivers(light, samples)
+        lamp = LampPoints(light, samples.position, samples.normal, shadowing.area_light_samples, sample_ids,
+                          shadowing.seed, footprint, points[light_index])
+        # Skip what a sample does not need. Rays to the lamp's centre and outline tell each
+        # sample whether it is in a penumbra; a sample wholly lit or wholly shadowed traces no
+        # more rays, and where the lamp looks small from it (its unshadowed light is nearly
+        # constant over the lamp) the first few points stand for all. Only penumbrae trace
+        # every point. Without this, Blender's default sun (0.5 degrees) would trace
+        # points[i] rays in every texel.
+        adaptive = blockers is not None and footprint is None and lamp.count >= ADAPTIVE_MIN_POINTS
+        decided = np.zeros(len(sample_ids), bool)
+        shadowed = np.zeros(len(sample_ids), bool)
+        if adaptive:
+            decided, shadowed, probe_rays = _penumbra_probes(light, lamp, samples, blockers, receives)
+            shadow_rays += probe_rays
+        lamp_light = np.zeros_like(irradiance)
+        rows = None  # every sample; after the first points only those still needing more
+        for index in range(lamp.count):
+            if adaptive and index == SMALL_LAMP_POINTS:
+                small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION)
+                lamp_light[small] *= lamp.count / SMALL_LAMP_POINTS
+                rows = np.nonzero(~small)[0]
+                if not len(rows):
+                    break
+                lamp = lamp.subset(rows)
+            part = lamp.contribution(index)
+            geometric = samples.geometric if rows is None else samples.geometric[rows]
+            above = np.einsum("kd,kd->k", part.to_light, geometric) > 0.0
             lit = above & np.any(part.irradiance > 0, axis=1)
+            if receives is not None:
+                lit &= receives if rows is None else receives[rows]
+            visibility = lit.astype(np.float64)
             if fractions is not None:
                 visibility = np.where(lit, fractions.visibility(part.to_light), 0.0)
+            elif blockers is not None:
+                known = decided if rows is None else decided[rows]
+                visibility[shadowed if rows is None else shadowed[rows]] = 0.0
+                local = np.nonzero(lit & ~known)[0]
+                if len(local):
+                    blocked = trace_shadow_rays(blockers, samples, part, local,
+                                                local if rows is None else rows[local])
+                    visibility[local[blocked]] = 0.0
+                    shadow_rays += len(local)
+            if rows is None:
+                lamp_light += part.irradiance * visibility[:, None]
             else:
-                visibility = lit.astype(np.float64)
-                rays = np.nonzero(lit)[0]
-                if len(rays):
-                    distance = part.distance[rays]
-                    limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
-                    blocked = shadowing.ray_scene.occluded(samples.origins[rays], part.to_light[rays],
-                                                           limit.astype(np.float32))
-                    visibility[rays[blocked]] = 0.0
-                    shadow_rays += len(rays)
-            irradiance += part.irradiance * visibility[:, None]
+                lamp_light[rows] += part.irradiance * visibility[:, None]
+        irradiance += lamp_light
         if report is not None:
             report(costs[light_index] / costs[-1])
     return irradiance, shadow_rays
 
+
+def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, receives):
+    """Shadow rays to the lamp's centre and outline (:func:`core.lights.lamps.outline_probes`).
+
+    Returns (decided, shadowed, rays): (K,) bool each, a sample whose probes all agree (and
+    whether they all were blocked), and the rays traced. A sample none of whose probes is
+    above its horizon stays undecided, as does a penumbra.
+    """
+    count = len(samples.position)
+    seen_open, seen_blocked = np.zeros(count, bool), np.zeros(count, bool)
+    # Each sample turns its round outline by its own scramble, so missed caps do not align.
+    rotation = (lamp.scrambles[0] >> np.uint32(8)) * (2.0 * np.pi * 2.0 ** -24)
+    rays = 0
+    for to_light, distance in outline_probes(light, samples.position, rotation):
+        aimed = np.einsum("kd,kd->k", to_light, samples.geometric) > 0.0
+        if receives is not None:
+            aimed &= receives
+        local = np.nonzero(aimed)[0]
+        if not len(local):
+            continue
+        probe = LightContribution(np.zeros((count, 3)), to_light, distance)
+        blocked = trace_shadow_rays(blockers, samples, probe, local)
+        seen_blocked[local[blocked]] = True
+        seen_open[local[~blocked]] = True
+        rays += len(local)
+    decided = seen_open != seen_blocked
+    return decided, decided & seen_blocked, rays
+
+
+def trace_shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray,
+                      sample_rows: np.ndarray | None = None) -> np.ndarray:
+    """(len(rays),) bool: whether the shadow rays of rows ``rays`` of one sampler point
+    (a :class:`core.lights.lamps.LightContribution`) are blocked in ``blockers`` (a
+    RayScene). ``sample_rows``: those rows' samples, where the point was evaluated for a
+    subset of the samples (default: the same indices). A point moved within its footprint
+    starts from its own origin."""
+    sample_rows = rays if sample_rows is None else sample_rows
+    distance = part.distance[rays]
+    limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
+    if part.position is None:
+        origins = samples.origins[sample_rows]
+    else:
+        origins = blockers.ray_origins(part.position[rays], samples.geometric[sample_rows])
+    return blockers.occluded(origins, part.to_light[rays], limit.astype(np.float32))
+
+
+# A soft lamp with at least this many points probes for penumbrae first (_penumbra_probes).
+ADAPTIVE_MIN_POINTS = 16
+# Points of a soft lamp that every sample evaluates: outside penumbrae, where the lamp is
+# small (SMALL_LAMP_VARIATION), they stand for all of them.
+SMALL_LAMP_POINTS = 4
+# Where a lamp's unshadowed irradiance varies this little across it (see
+# unshadowed_variation), four stratified points give within about 0.3% (1% at most) of
+# what 64 give, measured for suns, spheres and area lamps.
+SMALL_LAMP_VARIATION = 0.1
+
+
+def unshadowed_variation(light, samples: SampleSet) -> np.ndarray:
+    """(K,) float64: about how much (relative) a lamp's unshadowed irradiance changes across
+    the lamp at each sample: its angular radius alpha times (1 + tan of the incidence angle),
+    from the cosine's slope and the distance's; inf where the lamp is at or below the horizon."""
+    alpha = angular_radius(light, samples.position)
+    if light.kind == "SUN":
+        towards = np.broadcast_to(-np.asarray(light.direction, np.float64), samples.normal.shape)
+    else:
+        towards = np.asarray(light.position, np.float64) - samples.position
+        towards = towards / np.maximum(np.linalg.norm(towards, axis=1), 1e-300)[:, None]
+    cosine = np.einsum("kd,kd->k", samples.normal, towards)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tangent = np.sqrt(np.clip(1.0 - cosine * cosine, 0.0, None)) / cosine
+    return np.where(cosine > 0, alpha * (1.0 + tangent), np.inf)
 
 # An exact shadow ray costs about as much as this many table lookups of a gather
 # (embree ~5 M rays/s, the numpy gather ~15 M lookups/s on 2 cores).
 SHADOW_RAY_IN_LOOKUPS = 3.0
 
 
-def shadow_rays_per_sample(kind: str, settings) -> int:
-    """Shadow rays a lamp of this kind traces per sample with exact shadows (``settings``:
-    anything with ``area_light_samples``, such as BakeSettings or a Shadowing)."""
-    return settings.area_light_samples if kind == "AREA" else 1
+# For estimates only: the share of samples in a soft lamp's penumbrae, which trace every point.
+TYPICAL_PENUMBRA_SHARE = 0.1
+
+
+def shadow_rays_per_sample(light, settings) -> float:
+    """About how many shadow rays a lamp (a core.scene.Light) traces per sample with exact
+    shadows (``settings``: anything with ``area_light_samples``, such as BakeSettings or a
+    Shadowing): its points, or for a soft lamp that probes, the probes plus its points in
+    the typical share of penumbra samples. For progress and time-left estimates."""
+    points = lamp_points(light, settings.area_light_samples)
+    if points < ADAPTIVE_MIN_POINTS:
+        return float(points)
+    probes = 5 if light.kind == "AREA" and light.area_shape not in ("DISK", "ELLIPSE") else 9
+    return probes + TYPICAL_PENUMBRA_SHARE * points

@@ -31,6 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import tolerances as tol
+
+try:
+    import fcntl
+except ImportError:  # Windows: an open file cannot be removed, which serves as its lock
+    fcntl = None
 from ..scene import Mesh
 from ..settings import BakeSettings
 
@@ -114,16 +119,72 @@ class CorruptCache(Exception):
     """A cache file that cannot be trusted; the message says why."""
 
 
+WRITING_PREFIX = ".writing-"
+
+
+def _lock(stream) -> None:
+    """Hold an exclusive lock on a file being written, so that another bake sharing the folder
+    sees it is alive (the system drops the lock when the process dies, even by SIGKILL)."""
+    if fcntl is not None:
+        fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _abandoned(path: str, before: float) -> bool:
+    """Whether the half-written ``path`` was left by a writer that is gone: older than ``before``
+    (the running bake's start) and not locked. Without flock (Windows) a file open for writing
+    cannot be removed, which is the same test: the removal fails."""
+    try:
+        if os.path.getmtime(path) >= before:
+            return False
+        if fcntl is None:
+            return True
+        with open(path, "rb") as stream:
+            fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(stream.fileno(), fcntl.LOCK_UN)
+        return True
+    except OSError:  # locked by a live writer, or gone already
+        return False
+
+
+def remove_abandoned_writes(folder: str, before: float) -> int:
+    """Remove the ``.writing-*`` files of writers killed mid-write (see :func:`_abandoned`);
+    returns how many were removed."""
+    try:
+        names = [n for n in os.listdir(folder) if n.startswith(WRITING_PREFIX)]
+    except OSError:
+        return 0
+    removed = 0
+    for name in names:
+        path = os.path.join(folder, name)
+        if _abandoned(path, before):
+            try:
+                os.remove(path)
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
+def _save_npz(stream, arrays: dict) -> None:
+    """``np.savez`` with the archive closed on every exit: numpy leaves its ZipFile open when
+    interrupted (Ctrl+C), and its finaliser then prints 'Exception ignored in ZipFile.__del__'."""
+    with zipfile.ZipFile(stream, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
+        for name, array in arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
+
+
 def _write(path: str, meta: dict, arrays: dict) -> int:
     """Write atomically (a reader never sees half a file); returns the size in bytes."""
     meta = {**meta, "format": FORMAT_VERSION, "digests": {name: _digest(name, a) for name, a in arrays.items()}}
     header = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     folder = os.path.dirname(path)
     os.makedirs(folder, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=".writing-", suffix=".npz", dir=folder)
+    handle, temporary = tempfile.mkstemp(prefix=WRITING_PREFIX, suffix=".npz", dir=folder)
     try:
         with os.fdopen(handle, "wb") as stream:
-            np.savez(stream, meta=header, **arrays)
+            _lock(stream)
+            _save_npz(stream, {"meta": header, **arrays})
         os.replace(temporary, path)
     except BaseException:
         if os.path.exists(temporary):
@@ -132,16 +193,64 @@ def _write(path: str, meta: dict, arrays: dict) -> int:
     return os.path.getsize(path)
 
 
-def _read_meta(path: str) -> dict:
+def _list_of(kind):
+    return lambda value: isinstance(value, list) and all(_is(kind, v) for v in value)
+
+
+def _is(kind, value) -> bool:
+    """``value`` has type ``kind`` (JSON's: a bool is no int), or passes ``kind`` if it is a check."""
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(kind, type):
+        return isinstance(value, kind)
+    return kind(value)
+
+
+def _record_of(kind):
+    return lambda value: isinstance(value, dict) and all(_is(kind, v) for v in value.values())
+
+
+# The header of every cache file, field by field; a file whose header does not match is
+# corrupt (a crafted or damaged header must never reach the code that trusts it).
+_HEADER_SCHEMA = {
+    "format": int, "kind": str, "key": str, "arrays": _list_of(str), "digests": _record_of(str),
+}
+_KIND_SCHEMA = {
+    "table": {"object_names": _list_of(str), "object_keys": _list_of(str), "sample_offset": _list_of(int),
+              "counters": lambda value: isinstance(value, dict) and all(
+                  _is(int, value.get(name)) and value[name] >= 0
+                  for name in ("rays_cast", "rays_below_horizon", "backface_hits")),
+              "written": str},
+    "lighting": {},
+}
+
+
+def check_header(meta, kind: str) -> None:
+    """Raise CorruptCache unless ``meta`` is a header of a ``kind`` ('table' or 'lighting') file
+    of this format version, every field present with its type."""
+    if not isinstance(meta, dict):
+        raise CorruptCache("its header is not a record")
+    if meta.get("format") != FORMAT_VERSION or not _is(int, meta.get("format")):
+        raise CorruptCache(f"format {meta.get('format')!r} is not this version's {FORMAT_VERSION}")
+    for name, field_kind in {**_HEADER_SCHEMA, **_KIND_SCHEMA[kind]}.items():
+        if name not in meta:
+            raise CorruptCache(f"its header has no {name!r}")
+        if not _is(field_kind, meta[name]):
+            raise CorruptCache(f"its header's {name!r} is malformed")
+    if meta["kind"] != kind:
+        raise CorruptCache(f"it holds a {meta['kind']!r}, not a {kind!r}")
+    if kind == "table" and len(meta["object_names"]) != len(meta["object_keys"]):
+        raise CorruptCache("its header's object names and keys differ in number")
+
+
+def _read_meta(path: str, kind: str) -> dict:
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(bytes(data["meta"]).decode())
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as error:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError,
+            RecursionError) as error:
         raise CorruptCache(f"unreadable ({type(error).__name__}: {error})") from None
-    if not isinstance(meta, dict):
-        raise CorruptCache("its header is not a record")
-    if meta.get("format") != FORMAT_VERSION:
-        raise CorruptCache(f"format {meta.get('format')} is not this version's {FORMAT_VERSION}")
+    check_header(meta, kind)
     return meta
 
 
@@ -173,6 +282,7 @@ class CacheStatus:
     load_seconds: float = 0.0
     save_seconds: float = 0.0
     lighting_reused: list = field(default_factory=list)
+    abandoned_writes_removed: int = 0  # half-written files of killed bakes removed
 
 
 @dataclass
@@ -193,9 +303,19 @@ def _safe_label(label: str) -> str:
 class VisibilityCache:
     """The cache folder of one scene; see the module docstring for what it holds."""
 
-    def __init__(self, folder: str, label: str = "untitled"):
+    def __init__(self, folder: str, label: str = "untitled", read_only: bool = False):
         self.folder = os.path.abspath(folder)
         self.label = _safe_label(label)
+        # Nothing is written or removed (a folder this process cannot write; the bake says so).
+        self.read_only = read_only
+        # A half-written file older than this cache's first use is no live bake's own.
+        self.opened = time.time()
+        # Half-written files of killed bakes removed so far (in the report).
+        self.abandoned_removed = 0
+
+    def _remove_abandoned(self, settings: BakeSettings) -> None:
+        if not self.read_only:
+            self.abandoned_removed += remove_abandoned_writes(self.slot(settings), self.opened)
 
     def slot(self, settings: BakeSettings) -> str:
         return os.path.join(self.folder, f"{self.label}-{settings_key(settings)[:12]}")
@@ -205,10 +325,11 @@ class VisibilityCache:
 
     def read_table_meta(self, settings: BakeSettings) -> dict | None:
         """The header of the slot's table, None if there is none; raises CorruptCache."""
+        self._remove_abandoned(settings)
         path = self.table_path(settings)
         if not os.path.exists(path):
             return None
-        return _read_meta(path)
+        return _read_meta(path, "table")
 
     def deferred_table(self, settings: BakeSettings, meta: dict, damaged=None):
         """The slot's table with only its small arrays read (and checked) now; the large
@@ -239,6 +360,9 @@ class VisibilityCache:
 
     def save_table(self, settings: BakeSettings, key: str, object_names: list, object_keys: list,
                    sample_offset: np.ndarray, table) -> int:
+        if self.read_only:
+            return 0
+        self._remove_abandoned(settings)
         meta = {"kind": "table", "key": key, "object_names": list(object_names), "object_keys": list(object_keys),
                 "sample_offset": [int(x) for x in sample_offset],
                 "counters": {"rays_cast": int(table.rays_cast), "rays_below_horizon": int(table.rays_below_horizon),
@@ -254,7 +378,7 @@ class VisibilityCache:
 
     def discard_table(self, settings: BakeSettings) -> None:
         path = self.table_path(settings)
-        if os.path.exists(path):
+        if not self.read_only and os.path.exists(path):
             os.remove(path)
 
     def _lighting_path(self, settings: BakeSettings, key: str) -> str:
@@ -266,17 +390,22 @@ class VisibilityCache:
         if not os.path.exists(path):
             return None
         try:
-            meta = _read_meta(path)
-            if meta.get("key") != key:
+            meta = _read_meta(path, "lighting")
+            if meta["key"] != key:
                 return None
             arrays = _read_arrays(path, meta, meta["arrays"])
-        except (CorruptCache, KeyError, TypeError):
-            os.remove(path)
+        except CorruptCache:
+            if not self.read_only:
+                os.remove(path)
             return None
-        os.utime(path)  # most recently used, kept longest
+        if not self.read_only:
+            os.utime(path)  # most recently used, kept longest
         return arrays
 
     def save_lighting(self, settings: BakeSettings, key: str, arrays: dict) -> None:
+        if self.read_only:
+            return
+        self._remove_abandoned(settings)
         _write(self._lighting_path(settings, key), {"kind": "lighting", "key": key, "arrays": sorted(arrays)}, arrays)
         entries = self._lighting_files(settings)
         entries.sort(key=os.path.getmtime)

@@ -51,17 +51,25 @@ class RayScene:
         World-space positions and triangles of each mesh.
     threads : int
         Worker threads (embree releases the GIL during a query).
+    centre : (3,) float or None
+        Embree traces in float32, which far from the world origin cannot resolve a
+        small object (1e5 units: steps of 0.008). The scene is held relative to
+        ``centre``, and every query's origins are moved into that frame in float64, so
+        precision depends on the scene's extent, not on where it lies. Queries still
+        take world-space origins; :meth:`ray_origins` makes ones that keep that precision.
     """
 
-    def __init__(self, meshes, threads: int = 0):
+    def __init__(self, meshes, threads: int = 0, centre=None):
         from embreex.mesh_construction import TriangleMesh
         from embreex.rtcore_scene import EmbreeScene
 
         self._scene = EmbreeScene()
         self._meshes = []
         self._positions = []
+        self._triangles = []
+        self.centre = np.zeros(3) if centre is None else np.asarray(centre, np.float64).reshape(3)
         for positions, triangles in meshes:
-            vertices = np.ascontiguousarray(positions, dtype=np.float32)
+            vertices = np.ascontiguousarray(self._local(positions), dtype=np.float32)
             indices = np.ascontiguousarray(triangles, dtype=np.int32)
             if len(indices) == 0:
                 # embree rejects empty buffers; a single degenerate triangle keeps
@@ -70,11 +78,43 @@ class RayScene:
                 indices = np.array([[0, 1, 2]], np.int32)
             self._meshes.append(TriangleMesh(self._scene, vertices, indices))
             self._positions.append(vertices)
+            self._triangles.append(indices)
         self.threads = threads or default_threads()
 
+    def subset(self, indices) -> RayScene | None:
+        """A scene of only the geometries ``indices`` (a lamp's shadow blockers); None if empty.
+
+        embreex exposes neither ray masks nor filter callbacks, so a lamp whose shadows only
+        some objects may cast gets a scene of its own. Geometry ids are renumbered.
+        """
+        indices = [int(i) for i in indices]
+        if not indices:
+            return None
+        # Back to world space in float64 (exact for float32 vertices) so the subset keeps this scene's frame.
+        return RayScene([(self._positions[i].astype(np.float64) + self.centre, self._triangles[i]) for i in indices],
+                        self.threads, self.centre)
+
     def positions(self, index: int) -> np.ndarray:
-        """(n, 3) float32 vertices of geometry ``index`` as embree holds them."""
+        """(n, 3) float32 vertices of geometry ``index`` as embree holds them (relative to :attr:`centre`)."""
         return self._positions[index]
+
+    def _local(self, points) -> np.ndarray:
+        """World-space ``points`` in the frame embree traces in (float64 until the caller casts)."""
+        if not self.centre.any():
+            return points
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN/Inf vertices stay so; never hit
+            return np.asarray(points, np.float64) - self.centre
+
+    def ray_origins(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """:func:`offset_ray_origins` of world-space ``points``, offset in the traced frame.
+
+        Returns (n, 3) float32 when the scene is not recentred (``centre`` zero), else
+        float64 world positions that this scene's queries turn back into the exact
+        float32 origins of its frame.
+        """
+        if not self.centre.any():
+            return offset_ray_origins(points, normals)
+        return offset_ray_origins(self._local(points), normals).astype(np.float64) + self.centre
 
     def _split(self, count: int):
         parts = min(self.threads, max(1, count // 4096))
@@ -99,7 +139,7 @@ class RayScene:
 
         def run(span):
             a, b = span
-            out = self._scene.run(np.ascontiguousarray(origins[a:b], np.float32),
+            out = self._scene.run(np.ascontiguousarray(self._local(origins[a:b]), np.float32),
                                   np.ascontiguousarray(directions[a:b], np.float32), output=1)
             geometry[a:b] = out["geomID"]
             triangle[a:b] = out["primID"]
@@ -125,7 +165,7 @@ class RayScene:
             kwargs = {}
             if distances is not None:
                 kwargs["dists"] = np.ascontiguousarray(distances[a:b], np.float32)
-            hits = self._scene.run(np.ascontiguousarray(origins[a:b], np.float32),
+            hits = self._scene.run(np.ascontiguousarray(self._local(origins[a:b]), np.float32),
                                    np.ascontiguousarray(directions[a:b], np.float32),
                                    query="OCCLUDED", **kwargs)
             result[a:b] = hits >= 0

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import tolerances as tol
-from .rays import RayScene, offset_ray_origins
+from .rays import RayScene
 
 MISS = -1
 BELOW_HORIZON = -2
@@ -236,7 +236,7 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     hits = request.hits
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
     arrays = _empty_arrays(count, samples, geometry.vertex_object is not None)
-    origins_all = offset_ray_origins(positions, geometric_normals)
+    origins_all = ray_scene.ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
@@ -335,13 +335,13 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     else:
         arrays = _empty_arrays(count, samples, vertex_object is not None)
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, vertex_object)
-    origins_all = offset_ray_origins(positions, geometric_normals)
+    origins_all = ray_scene.ray_origins(positions, geometric_normals)
     directions32 = directions.astype(np.float32)
     traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
     is_changed = np.zeros(objects, bool)
     is_changed[list(changed)] = True
     changed_map = np.asarray(changed, np.int32)
-    spheres = [_bounding_sphere(changed_scene.positions(i)) for i in range(len(changed))]
+    spheres = [_bounding_sphere(changed_scene.positions(i) + changed_scene.centre) for i in range(len(changed))]
     counts = UpdateCounts()
     chunk = max(1, chunk_rays // max(count, 1))
     spans = []

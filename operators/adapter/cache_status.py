@@ -169,7 +169,10 @@ def remember_bake(scene, depsgraph, report: dict) -> None:
         _baked.pop(scene.session_uid, None)
         refresh(scene, depsgraph)
         return
-    uv_maps = {entry["name"]: entry.get("uv_map", "") for entry in report["objects"]}
+    # Instances and curves, text or metaballs also take part (extract.scene_geometry); only
+    # mesh objects are fingerprinted, the others' changes reach the cache through its key.
+    uv_maps = {entry["name"]: entry.get("uv_map", "") for entry in report["objects"]
+               if getattr(bpy.data.objects.get(entry["name"]), "type", None) == "MESH"}
     try:
         fingerprints = {name: fingerprint(bpy.data.objects[name], depsgraph, uv_map)
                         for name, uv_map in uv_maps.items()}

@@ -36,6 +36,9 @@ MINIMUM = (4, 2, 0)
 NODES_ALWAYS = VERSION >= (5, 0, 0)
 MAX_NAME_BYTES = 255 if VERSION >= (5, 0, 0) else 63
 MODULE_EXIT_IS_SAFE = VERSION >= (5, 0, 0)
+# Lamps kept their own use_nodes switch longer than materials and worlds: Cycles 4.2 and
+# 5.0 honour it, 5.3 renders a lamp's node tree whatever it says (Cycles bakes, 2026-12).
+LAMP_NODES_ALWAYS = VERSION >= (5, 1, 0)
 
 
 try:
@@ -64,10 +67,25 @@ def uses_nodes(datablock) -> bool:
     return NODES_ALWAYS or bool(datablock.use_nodes)
 
 
+def lamp_uses_nodes(light) -> bool:
+    """Whether Cycles renders a lamp (bpy.types.Light) through its node tree."""
+    if getattr(light, "node_tree", None) is None:
+        return False
+    return LAMP_NODES_ALWAYS or bool(getattr(light, "use_nodes", False))
+
+
 def lamp_setting(light, name: str, neutral):
     """A lamp setting that not every supported Blender has (``normalize``, ``exposure``,
     ``use_temperature``, ``temperature_color``): ``neutral`` where it is missing."""
     return getattr(light, name, neutral)
+
+
+def set_equirectangular_panorama(camera) -> None:
+    """Make ``camera`` (bpy.types.Camera) Cycles' equirectangular panorama. Every supported
+    Blender has ``Camera.panorama_type``; before 4.0 it lived on ``camera.cycles``."""
+    camera.type = "PANO"
+    owner = camera if hasattr(camera, "panorama_type") else camera.cycles
+    owner.panorama_type = "EQUIRECTANGULAR"
 
 
 def fits_name(name: str) -> bool:

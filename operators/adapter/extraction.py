@@ -5,7 +5,7 @@ creates is undone by :meth:`Extracted.undo` when a later one fails or is cancell
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import bpy
 
@@ -49,10 +49,12 @@ class Planned:
     budget: dict  # object name -> planned samples (width, height), for check_budget
     warnings: list
     seconds: dict
+    geometry: list = field(default_factory=list)  # core meshes of instances and non-mesh objects (no outputs)
 
     @property
     def unwraps(self) -> list:
-        return [plan.pending for plan in self.plans.values() if plan.pending is not None]
+        # Linked duplicates share one unwrap (see _share_unwrap): each runs once.
+        return list({id(p.pending): p.pending for p in self.plans.values() if p.pending is not None}.values())
 
 
 def plan_extraction(context, objects, progress=None) -> Planned:
@@ -68,15 +70,70 @@ def plan_extraction(context, objects, progress=None) -> Planned:
     for index, obj in enumerate(all_meshes):
         mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
         if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
-            warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
+            # A scatter's points make instances (extract.scene_geometry) and no faces of their own.
+            if mesh.output or not extract.makes_instances(obj):
+                warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
             continue
         planned.plans[obj.name] = _plan(obj, mesh, layout_settings(props), planned.budget, props.directions)
+        _share_unwrap(planned, obj)
         planned.objects.append(obj)
         planned.meshes.append(mesh)
         if progress:
             progress("layout", (index + 1) / len(all_meshes))
+    check_shared_vertex_meshes(planned)
+    planned.geometry = extract.scene_geometry(depsgraph, scene, warnings).meshes
+    for obj in getattr(context, "selected_objects", None) or []:
+        reason = extract.why_not_a_target(obj) if obj.name not in outputs else None
+        if reason:
+            warnings.append(reason)
     planned.seconds["layout"] = time.perf_counter() - started
     return planned
+
+
+def _share_unwrap(planned: Planned, obj) -> None:
+    """Let ``obj`` share the unwrap of an earlier object with the same mesh (linked duplicates).
+
+    The ``VisiBake`` UV map lives on the mesh, so they all bake on one map; unwrapping it once
+    per object would write it over and over. It is packed at the smallest of their atlas sizes,
+    so that its gutters are wide enough at every size (a larger atlas only widens them).
+    """
+    plan = planned.plans[obj.name]
+    if plan.pending is None or plan.pending.loops is None:
+        return
+    for other in planned.objects:
+        first = planned.plans[other.name].pending
+        if other.data == obj.data and first is not None and first.loops is not None:
+            first.resolution = min(first.resolution, plan.pending.resolution)
+            plan.pending = first
+            return
+
+
+def check_shared_vertex_meshes(planned: Planned) -> None:
+    """Refuse a vertex-mode output object whose mesh another object also uses (linked duplicates).
+
+    Its result would be a colour attribute on that shared mesh, which every user of the mesh
+    shows (through its materials, the viewport, exporters): a second baked user would overwrite
+    it, and an unbaked one would show lighting that is not its own. Per-object attribute names
+    would not help, since the duplicates share their materials too, and a material reads one
+    name. Atlas mode gives each object its own image on the shared UV map.
+    """
+    vertex_outputs = [obj for obj, mesh in zip(planned.objects, planned.meshes)
+                      if mesh.output and planned.plans[obj.name].mode == "vertex"]
+    if not vertex_outputs:
+        return
+    users: dict = {}
+    for other in bpy.data.objects:
+        # Objects in no scene or collection (no users) show nothing and are purged on save.
+        if other.type == "MESH" and other.users:
+            users.setdefault(other.data, []).append(other.name)
+    for obj in vertex_outputs:
+        sharing = sorted(name for name in users.get(obj.data, []) if name != obj.name)
+        if sharing:
+            names = ", ".join(repr(n) for n in [obj.name, *sharing])
+            raise BakeRefused(
+                f"objects {names} share the mesh {obj.data.name!r}, and vertex mode writes {obj.name!r}'s result "
+                "onto that mesh, where the others would show it too; make them single users (Object > Relations > "
+                "Make Single User > Object & Data) or bake them with mode atlas")
 
 
 def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None:
@@ -126,6 +183,8 @@ def complete_extraction(context, planned: Planned) -> Extracted:
             planned.plans[obj.name] = plan
             if plan.created:
                 created.append((obj.data, plan.uv_map))
+        # Mode auto falls back to vertex tables where an unwrap failed: check those too.
+        check_shared_vertex_meshes(planned)
         meshes = planned.meshes
         rewritten = [obj for obj in planned.objects if planned.plans[obj.name].written]
         if rewritten:
@@ -143,8 +202,10 @@ def complete_extraction(context, planned: Planned) -> Extracted:
                 mesh.uv_maps[plan.uv_map] = plan.internal_uv
         world = extract.read_world(scene, warnings)
         world.light_group = getattr(scene.world, "lightgroup", "") if scene.world else ""
-        core_scene = Scene(meshes=meshes, lights=[extract.read_light(o) for o in extract.scene_lights(scene)],
-                           world=world)
+        names = [m.name for m in meshes + planned.geometry]
+        lights = [extract.read_light(o, warnings, names) for o in extract.scene_lights(scene)]
+        extract.emitter_linking_warnings(scene, meshes + planned.geometry, warnings)
+        core_scene = Scene(meshes=meshes + planned.geometry, lights=lights, world=world)
         times["extract"] = time.perf_counter() - t
         if not any(m.output for m in meshes):
             raise BakeRefused("none of the objects to bake has faces")

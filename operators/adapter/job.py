@@ -7,14 +7,21 @@ are removed again, and nothing is written before the core has finished.
 """
 from __future__ import annotations
 
+import errno
+import hashlib
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import bpy
 
-from ...core.errors import BakeRefused
+import numpy as np
+
+from ...core.errors import BakeRefused, OutputRefused
+from ...core.outputs import names
+from ...core.outputs.destinations import FOLDER, check_destinations, destination_problem
 from ...core.outputs.report import DeviceReport, RefinedReport, Report, SetupReport
 from ...core.pipeline.budget import peak_memory_bytes
 from ...core.pipeline.prepare import prepare
@@ -30,17 +37,136 @@ from .settings import cache_folder, resolve
 
 @dataclass
 class JobResult:
+    """A finished bake. ``rollback()`` undoes what it changed in the scene and the files it
+    wrote, for a caller whose own later step (saving, a report) fails."""
+
     result: BakeResult
     report: dict
     files: list[str] = field(default_factory=list)
+    rollback: Callable[[], None] = lambda: None
+
+
+class _WrittenResults:
+    """What writing results changes in the scene, so that a failure can put it back.
+
+    Taken before the write: for every image and colour attribute the results go to, whether it
+    existed (it can only be VisiBake's own: writeback refuses any other) and, if so, a copy of
+    its values. Restoring removes what the write created and puts the old values back into what
+    it overwrote, so a failed re-bake leaves the previous bake's results, not a mix.
+    """
+
+    def __init__(self, results, out_dir: str | None):
+        self.images, self.attributes = {}, {}
+        self.out_dir = out_dir
+        self.folders, self.files = _folder_state(out_dir)
+        self.missing = _missing_folders(out_dir)
+        for result in results:
+            if result.domain is None:
+                for pass_name in result.images:
+                    name = writeback.image_name(result.name, pass_name)
+                    image = bpy.data.images.get(name)
+                    self.images[name] = None if image is None else (
+                        tuple(image.size), _values(image.pixels, len(image.pixels)))
+            else:
+                mesh = bpy.data.objects[result.name].data
+                for pass_name in result.images:
+                    name = writeback.attribute_name(pass_name)
+                    attribute = mesh.attributes.get(name)
+                    self.attributes[(mesh.name, name)] = None if attribute is None else (
+                        attribute.domain, _values(attribute.data, 4 * len(attribute.data), "color"))
+                self.attributes.setdefault((mesh.name, None), list(mesh.get(writeback.OWNED_ATTRIBUTES_KEY, [])))
+
+    def restore(self) -> None:
+        # Every file the write made or replaced goes (a replaced one held the previous bake's
+        # result, which no copy was kept of: result files can be large), and the folders it made.
+        folders, files = _folder_state(self.out_dir)
+        for path, stamp in files.items():
+            if self.files.get(path) != stamp:
+                os.remove(path)
+        for folder in sorted(set(folders) - set(self.folders), key=len, reverse=True) + self.missing:
+            if os.path.isdir(folder) and not os.listdir(folder):
+                os.rmdir(folder)
+        for name, old in self.images.items():
+            image = bpy.data.images.get(name)
+            if image is None:
+                continue
+            if old is None:
+                bpy.data.images.remove(image)
+                continue
+            size, pixels = old
+            if tuple(image.size) != size:
+                image.scale(*size)
+            image.pixels.foreach_set(pixels)
+            image.update()
+            image.pack()
+        for (mesh_name, name), old in self.attributes.items():
+            mesh = bpy.data.meshes.get(mesh_name)
+            if mesh is None or name is None:
+                continue
+            attribute = mesh.attributes.get(name)
+            if attribute is not None and (old is None or attribute.domain != old[0]):
+                mesh.attributes.remove(attribute)
+                attribute = None
+            if old is not None:
+                if attribute is None:
+                    attribute = mesh.color_attributes.new(name, "FLOAT_COLOR", old[0])
+                attribute.data.foreach_set("color", old[1])
+            mesh[writeback.OWNED_ATTRIBUTES_KEY] = self.attributes[(mesh_name, None)]
+            mesh.update()
+
+
+def _folder_state(folder: str | None) -> tuple[list[str], dict[str, tuple[int, int]]]:
+    """The folders under ``folder`` (itself included, if it exists) and {file: (mtime_ns, size)}."""
+    folders, files = [], {}
+    if folder and os.path.isdir(folder):
+        for root, _, file_names in os.walk(folder):
+            folders.append(root)
+            for name in file_names:
+                path = os.path.join(root, name)
+                try:
+                    info = os.stat(path)
+                except OSError:
+                    continue
+                files[path] = (info.st_mtime_ns, info.st_size)
+    return folders, files
+
+
+def _missing_folders(folder: str | None) -> list[str]:
+    """``folder`` and its ancestors that do not exist yet, deepest first (a write would make them)."""
+    missing = []
+    current = os.path.abspath(folder) if folder else None
+    while current and not os.path.exists(current) and os.path.dirname(current) != current:
+        missing.append(current)
+        current = os.path.dirname(current)
+    return missing
+
+
+def _values(collection, count: int, attribute: str | None = None) -> np.ndarray:
+    """(count,) float32 copy of a bpy collection's values (image pixels, attribute colours)."""
+    values = np.empty(count, np.float32)
+    if attribute is None:
+        collection.foreach_get(values)
+    else:
+        collection.foreach_get(attribute, values)
+    return values
+
+
+def cache_label(scene) -> str:
+    """The cache slot's label: the .blend's and the scene's names, readable but cut short, and a
+    hash of the file's full path and the scene's whole name, so that two files of one name in
+    different folders (or two long names cut alike) never share a slot and evict each other."""
+    path = os.path.normcase(os.path.realpath(bpy.data.filepath)) if bpy.data.filepath else ""
+    base = os.path.splitext(os.path.basename(path))[0] if path else "untitled"
+    digest = hashlib.blake2b(f"{path}\0{scene.name}".encode("utf-8", "surrogatepass"), digest_size=4).hexdigest()
+    # VisibilityCache keeps 48 characters of a label: the hash must survive the cut.
+    return f"{base[:20]}-{scene.name[:14]}-{digest}"
 
 
 def visibility_cache(scene) -> VisibilityCache | None:
     """The cache of this scene (named after the .blend), or None when caching is off."""
     if not scene.visibake.use_cache:
         return None
-    label = os.path.splitext(os.path.basename(bpy.data.filepath))[0] if bpy.data.filepath else "untitled"
-    return VisibilityCache(cache_folder(scene), f"{label}-{scene.name}")
+    return VisibilityCache(cache_folder(scene), cache_label(scene))
 
 
 def output_objects(context, props) -> list[bpy.types.Object]:
@@ -56,9 +182,12 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
     """Bake again with refined copies of the ``coarse`` [(object, triangles)] in their place.
 
     If that bake fails or is cancelled the copies are removed and the originals shown
-    again, so the scene is as it was.
+    again (a copy refined again gets its previous mesh back), so the scene is as it was.
     """
     copies = {}
+    # Before refining: a copy refined again (a re-bake) is refined in place.
+    vertices_before = {obj.name: len(obj.data.vertices) for obj, _ in coarse}
+    new_copies = {obj.name for obj, _ in coarse if not obj.get(refine.REFINED_FROM_KEY)}
     try:
         for obj, triangles in coarse:
             copies[obj.name] = refine.refined_copy(obj, triangles)
@@ -68,10 +197,23 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
         for copy in copies.values():
             refine.undo_refinement(copy)
         raise
+    for copy in copies.values():
+        refine.keep_refinement(copy)
+    inner_rollback = outcome.rollback
+
+    def rollback():
+        # A copy refined in place keeps its finer mesh (the previous one is gone): it is still
+        # VisiBake's own copy, and the user's original was never touched.
+        inner_rollback()
+        for name in new_copies:
+            refine.undo_refinement(copies[name])
+
+    outcome.rollback = rollback
     report = Report.from_dict(outcome.report)
     report.refined = [
-        RefinedReport(object=name, copy=copy.name, coarse_triangles=int(len(triangles)),
-                      vertices=[len(bpy.data.objects[name].data.vertices), len(copy.data.vertices)])
+        # The object is the original the copy stands for, also when a re-bake refined the copy again.
+        RefinedReport(object=copy.get(refine.REFINED_FROM_KEY, name), copy=copy.name,
+                      coarse_triangles=int(len(triangles)), vertices=[vertices_before[name], len(copy.data.vertices)])
         for (obj, triangles), (name, copy) in zip(coarse, copies.items())]
     outcome.result.report = outcome.report = report.to_dict()
     return outcome
@@ -152,16 +294,22 @@ class BakeJob:
         """
         context, objects, setups = self.context, self.objects, self.setups
         if not objects:
-            raise BakeRefused("no mesh objects to bake: select some, or enable All Objects")
+            # A selected curve, text, metaball or instancer takes part in the light but has no output.
+            selected = getattr(context, "selected_objects", None) or []
+            reasons = [r for o in selected if (r := extract.why_not_a_target(o))]
+            raise BakeRefused("no mesh objects to bake: select some, or enable All Objects"
+                              + (f" ({'; '.join(reasons)})" if reasons else ""))
         if setups is not None and not self.out_dir:
             raise BakeRefused("lighting setups are written as files: give an output folder")
+        # Before any work: a bake that cannot write its results would lose them at the end.
+        check_destinations([(self.out_dir, FOLDER, "output folder")])
         self.resolved = resolve(context, self.threads, self.device_name, self.refine)
         self.settings = settings = self.resolved.bake
         if setups is None:
             writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
         self.chosen_device = device.choose(context, self.resolved.device)
         self.started = time.perf_counter()
-        self.shadow_rays_per_sample = sum(shadow_rays_per_sample(lamp.data.type, settings)
+        self.shadow_rays_per_sample = sum(shadow_rays_per_sample(extract.read_light(lamp), settings)
                                           for lamp in extract.scene_lights(context.scene))
         self.planned = plan_extraction(context, objects, self.progress)
 
@@ -175,6 +323,17 @@ class BakeJob:
         context, objects, setups, settings = self.context, self.objects, self.setups, self.settings
         self.extracted = extracted = complete_extraction(context, self.planned)
         self.cache = visibility_cache(context.scene)
+        unusable = None if self.cache is None else destination_problem(self.cache.folder, FOLDER, "cache folder")
+        if unusable is not None:
+            # The cache only saves time: the result is the same without it. A folder that exists may
+            # still hold a table to read (a shared, read-only cache).
+            readable = os.path.isdir(self.cache.folder)
+            extracted.warnings.append(f"{unusable}: the visibility cache is {'only read' if readable else 'off'} "
+                                      "in this bake (choose another Cache Folder, or --cache-dir)")
+            if readable:
+                self.cache.read_only = True
+            else:
+                self.cache = None
         try:
             if setups is None:
                 writeback.check_attribute_names(
@@ -266,20 +425,46 @@ class BakeJob:
         except BaseException:
             self.abort()
             raise
-        return self._write_and_report()
+        written = _WrittenResults([o for name, r in results if name is None for o in r.objects], self.out_dir)
+        extracted = self.extracted
+        try:
+            outcome = self._write_and_report()
+        except BaseException as error:
+            written.restore()
+            self.abort()
+            if isinstance(error, OSError):
+                # The disk (full, permissions changed during the bake): the user's to fix, not a bug.
+                raise OutputRefused(f"the results could not be written ({error.strerror or error}: "
+                                    f"{error.filename or self.out_dir}); nothing was changed") from error
+            raise
+
+        def rollback():
+            written.restore()
+            extracted.undo()
+
+        outcome.rollback = rollback
+        return outcome
 
     def _write_and_report(self) -> JobResult:
         extracted, results, lightings, setups = self.extracted, self.results, self.lightings, self.setups
         times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
         t = time.perf_counter()
-        files = []
+        files, renamed = [], []
+        setup_folders = names.unique_components([n for n, _ in results if n is not None],
+                                                reserved=writeback.OUT_FOLDER_RESERVED)
+        for name, result in results:
+            # Every destination of every setup before the first file is written.
+            if name is not None:
+                writeback.check_output_paths(result.objects, names.inside_folder(self.out_dir, setup_folders[name]))
         for name, result in results:
             if name is None:
-                files += writeback.write_outputs(result.objects, self.out_dir, self.previews)
+                files += writeback.write_outputs(result.objects, self.out_dir, self.previews, renamed=renamed)
             else:
-                files += writeback.write_outputs(result.objects,
-                                                 os.path.join(self.out_dir, writeback.safe_file_name(name)),
-                                                 self.previews, store_images=False)
+                folder = names.inside_folder(self.out_dir, setup_folders[name])
+                if setup_folders[name] != name:
+                    renamed.append({"name": name, "kind": "setup", "path": folder})
+                files += writeback.write_outputs(result.objects, folder, self.previews, store_images=False,
+                                                 renamed=renamed)
         times["write"] = time.perf_counter() - t
 
         result = results[-1][1]
@@ -290,7 +475,8 @@ class BakeJob:
         report.total_seconds = round(time.perf_counter() - self.started, 4)
         report.peak_memory_bytes = peak_memory_bytes()
         report.files = files
-        report.warnings = warnings + report.warnings
+        report.renamed_outputs = renamed
+        report.warnings = warnings + report.warnings + names.renamed_warnings(renamed)
         for entry in report.objects:
             plan = plans.get(entry.name)
             if plan is not None:
@@ -311,6 +497,17 @@ class BakeJob:
 
 
 def write_report(path: str, report: dict) -> None:
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    with open(path, "w", encoding="utf-8") as handle:
-        json.dump(report, handle, indent=2, default=float)
+    """Write the report as JSON, whole or not at all (a full disk leaves no half report)."""
+    path = os.path.abspath(path)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    if os.path.isdir(path):  # made by the bake itself (an object's folder): the check before could not know
+        raise IsADirectoryError(errno.EISDIR, "is a folder", path)
+    text = json.dumps(report, indent=2, default=float)
+    temporary = f"{path}.writing-{os.getpid()}"
+    try:
+        with open(temporary, "w", encoding="utf-8") as handle:
+            handle.write(text)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)

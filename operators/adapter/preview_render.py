@@ -10,7 +10,7 @@ from __future__ import annotations
 import bpy
 
 from . import compat
-from .writeback import image_name
+from .writeback import find_image
 
 
 def _emission_material(name: str, image: bpy.types.Image | None, uv_map: str | None,
@@ -57,7 +57,7 @@ def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_map
                     continue
                 material = _emission_material(f"__visibake_preview_{name}", None, None, attribute="VB_lighting")
             else:
-                image = bpy.data.images.get(image_name(name, "lighting"))
+                image = find_image(name, "lighting")
                 if image is None:
                     continue
                 material = _emission_material(f"__visibake_preview_{name}", image, uv_maps[name])

@@ -1,33 +1,36 @@
-"""Core -> Blender and disk: pass images as datablocks, EXR files, PNG previews."""
+"""Core -> Blender and disk: pass images as datablocks, EXR files, PNG previews; vertex-mode
+colour attributes and PLY files."""
 from __future__ import annotations
 
 import os
-import re
 
 import bpy
 
 import numpy as np
 
 from ...core.errors import OutputRefused
+from ...core.outputs import names
 from ...core.outputs.images import tonemap, write_exr
+from ...core.outputs.vertex_files import element_geometry, write_ply
+from . import compat
 
 OWNED_IMAGE_KEY = "visibake_image"
+# On every image VisiBake writes: the (object, pass) it holds, so readers need not re-derive its name.
+IMAGE_OBJECT_KEY, IMAGE_PASS_KEY = "visibake_object", "visibake_pass"
+# What the command line itself writes into the output folder, beside the object or setup folders.
+OUT_FOLDER_RESERVED = ("visibake_cache", "report.json", "preview_render.png")
 
 
 def image_name(object_name: str, pass_name: str) -> str:
-    return f"VB_{object_name}_{pass_name}"
+    """``VB_<object>_<pass>``, or a hashed form of it where that is ambiguous or too long for Blender."""
+    return names.image_name(object_name, pass_name, compat.MAX_NAME_BYTES)
 
 
-def safe_file_name(name: str) -> str:
-    """An object name usable as one path component on every platform."""
-    cleaned = re.sub(r'[<>:"/\\|?*\x00-\x1f]', "_", name).strip(" .")
-    return cleaned or "_"
-
-
-def owned_image(name: str):
+def owned_image(name: str, object_name: str | None = None, pass_name: str | None = None):
     """The image VisiBake created under ``name``, None if there is none.
 
-    Raises ValueError if an image of that name exists that VisiBake did not create.
+    Raises OutputRefused if an image of that name exists that VisiBake did not create, or
+    that holds another object's or pass's result.
     """
     image = bpy.data.images.get(name)
     if image is None:
@@ -35,7 +38,26 @@ def owned_image(name: str):
     if not image.get(OWNED_IMAGE_KEY):
         raise OutputRefused(f"image {name!r} exists and was not created by VisiBake; rename it to let VisiBake "
                             "write its pass")
+    # Images of bakes before these keys existed hold no (object, pass): their name was the only record.
+    held = image.get(IMAGE_OBJECT_KEY, object_name), image.get(IMAGE_PASS_KEY, pass_name)
+    if object_name is not None and held != (object_name, pass_name):
+        raise OutputRefused(f"image {name!r} holds VisiBake's pass {held[1]!r} of object {held[0]!r}; rename it to "
+                            f"let VisiBake write pass {pass_name!r} of object {object_name!r}")
     return image
+
+
+def find_image(object_name: str, pass_name: str):
+    """VisiBake's image of ``object_name``'s pass ``pass_name``, None if there is none.
+
+    Found by the (object, pass) stored on it, so a renamed image is found too.
+    """
+    pair = (object_name, pass_name)
+    image = bpy.data.images.get(image_name(object_name, pass_name))
+    if image is not None and image.get(OWNED_IMAGE_KEY) and \
+            (image.get(IMAGE_OBJECT_KEY, object_name), image.get(IMAGE_PASS_KEY, pass_name)) == pair:
+        return image
+    return next((i for i in bpy.data.images if i.get(OWNED_IMAGE_KEY) and i.get(IMAGE_OBJECT_KEY) == object_name
+                 and i.get(IMAGE_PASS_KEY) == pass_name), None)
 
 
 def check_image_names(names) -> None:
@@ -44,13 +66,15 @@ def check_image_names(names) -> None:
         owned_image(name)
 
 
-def store_image(name: str, pixels: np.ndarray) -> bpy.types.Image:
-    """Create or update VisiBake's float image ``name`` with (H, W, 4) bottom-up pixels."""
+def store_image(object_name: str, pass_name: str, pixels: np.ndarray) -> bpy.types.Image:
+    """Create or update VisiBake's float image of ``object_name``'s ``pass_name`` with (H, W, 4) bottom-up pixels."""
     height, width = pixels.shape[:2]
-    image = owned_image(name)
+    name = image_name(object_name, pass_name)
+    image = owned_image(name, object_name, pass_name)
     if image is None:
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
         image[OWNED_IMAGE_KEY] = True
+        image[IMAGE_OBJECT_KEY], image[IMAGE_PASS_KEY] = object_name, pass_name
         # Nothing uses a fresh result yet; without a fake user it would not be saved.
         image.use_fake_user = True
     # Non-Color before writing pixels, or saving would sRGB-encode the values. Only
@@ -123,33 +147,122 @@ def store_colors(obj: bpy.types.Object, pass_name: str, colors: np.ndarray, doma
     mesh.update()
 
 
-def write_outputs(results, out_dir: str | None, previews: bool, store_images: bool = True) -> list[str]:
-    """Store every pass as an image datablock (unless not ``store_images``) and, with ``out_dir``, as files.
+def vertex_geometry(obj: bpy.types.Object, domain: str) -> tuple[np.ndarray, np.ndarray]:
+    """The evaluated mesh of ``obj`` in world space as the PLY vertices and faces of a result on
+    ``domain`` (core.outputs.vertex_files.element_geometry): (k, 3) float64, (m, 3) int32.
 
-    Returns the paths of the files written.
+    Vertex mode keeps the base mesh's vertices and corners (extraction refuses modifiers that
+    change them), so these elements are the attribute's, in its order.
+    """
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        count = len(mesh.loop_triangles)
+        positions = np.empty(len(mesh.vertices) * 3, np.float64)
+        mesh.vertices.foreach_get("co", positions)
+        triangles = np.empty(count * 3, np.int32)
+        mesh.loop_triangles.foreach_get("vertices", triangles)
+        loops = np.empty(count * 3, np.int64)
+        mesh.loop_triangles.foreach_get("loops", loops)
+        loop_count = len(mesh.loops)
+    finally:
+        evaluated.to_mesh_clear()
+    matrix = np.array(obj.matrix_world, np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        positions = positions.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]
+    triangles, loops = triangles.reshape(-1, 3), loops.reshape(-1, 3)
+    if np.linalg.det(matrix[:3, :3]) < 0:
+        # A mirroring transform turns the winding around; keep fronts counter-clockwise.
+        triangles, loops = triangles[:, [0, 2, 1]], loops[:, [0, 2, 1]]
+    return element_geometry(positions, triangles, loops, domain, loop_count)
+
+
+def write_vertex_files(obj: bpy.types.Object, result, folder: str, previews: bool,
+                       renamed: list | None = None) -> list[str]:
+    """Write a vertex-mode result's passes as ``<pass>.ply`` in ``folder`` (with ``previews``, also
+    tone-mapped ``<pass>.preview.ply``: a PNG cannot hold per-vertex data); returns the paths written.
+
+    Format: core.outputs.vertex_files. File names as in :func:`write_outputs`; a preview's name
+    never takes a pass's (a light group may be named ``x.preview``).
+    """
+    positions, faces = vertex_geometry(obj, result.domain)
+    stems = names.unique_components(result.images, suffix=".ply")
+    preview_stems = names.unique_components([f"{p}.preview" for p in result.images] if previews else [],
+                                            reserved=[stem + ".ply" for stem in stems.values()], suffix=".ply")
+    files = []
+    for pass_name, colors in result.images.items():
+        path = names.inside_folder(folder, stems[pass_name] + ".ply")
+        if stems[pass_name] != pass_name and renamed is not None:
+            renamed.append({"name": f"{result.name}: {pass_name}", "kind": "pass", "path": path})
+        write_ply(path, positions, faces, colors,
+                  comment=f"VisiBake {pass_name} of {obj.name}: linear RGB in Cycles' units, {result.domain} domain")
+        files.append(path)
+        if previews:
+            preview = names.inside_folder(folder, preview_stems[f"{pass_name}.preview"] + ".ply")
+            write_ply(preview, positions, faces, tonemap(colors), display=True,
+                      comment=f"VisiBake {pass_name} of {obj.name}: tone-mapped sRGB display colours")
+            files.append(preview)
+    return files
+
+
+def check_output_paths(results, out_dir: str) -> None:
+    """Refuse (OutputRefused) before anything is written if a result's folder or image file under
+    ``out_dir`` would resolve outside it (a link there pointing elsewhere)."""
+    folders = names.unique_components([r.name for r in results], reserved=OUT_FOLDER_RESERVED)
+    for result in results:
+        folder = names.inside_folder(out_dir, folders[result.name])
+        if result.domain is None:
+            for stem in names.unique_components(result.images).values():
+                names.inside_folder(folder, stem + ".exr")
+                names.inside_folder(folder, stem + ".png")
+
+
+def write_outputs(results, out_dir: str | None, previews: bool, store_images: bool = True,
+                  renamed: list | None = None) -> list[str]:
+    """Store every pass as an image datablock (unless not ``store_images``) and, with ``out_dir``, as files
+    ``out_dir/<object>/<pass>.exr`` (vertex mode: colour attributes, and ``<pass>.ply``).
+
+    Object and pass names become distinct safe file names (core.outputs.names); every path is
+    checked to be inside ``out_dir`` before it is written (OutputRefused otherwise).
+    ``renamed``: extended with {"name", "kind", "path"} for every output whose file or image
+    name is not its object's or pass's own name. Returns the paths of the files written.
     """
     files = []
+    if out_dir:
+        check_output_paths(results, out_dir)
+    folders = names.unique_components([r.name for r in results], reserved=OUT_FOLDER_RESERVED) if out_dir else {}
     for result in results:
+        folder = names.inside_folder(out_dir, folders[result.name]) if out_dir else None
+        if folder is not None and folders[result.name] != result.name and renamed is not None:
+            renamed.append({"name": result.name, "kind": "object", "path": folder})
         if result.domain is not None:
-            # Vertex mode: colour attributes on the mesh; no image files.
+            # Vertex mode: colour attributes on the mesh and, with out_dir, PLY files (else an
+            # --out bake without --save would keep nothing of them).
             if store_images:
                 for pass_name, colors in result.images.items():
                     store_colors(bpy.data.objects[result.name], pass_name, colors, result.domain)
+            if folder is not None:
+                files += write_vertex_files(bpy.data.objects[result.name], result, folder, previews, renamed)
             continue
+        stems = names.unique_components(result.images)
         for pass_name, pixels in result.images.items():
             if store_images:
-                store_image(image_name(result.name, pass_name), pixels)
-            if not out_dir:
+                image = store_image(result.name, pass_name, pixels)
+                if image.name != f"VB_{result.name}_{pass_name}" and renamed is not None:
+                    renamed.append({"name": f"{result.name}: {pass_name}", "kind": "image", "path": image.name})
+            if folder is None:
                 continue
-            folder = os.path.join(out_dir, safe_file_name(result.name))
             os.makedirs(folder, exist_ok=True)
-            path = os.path.join(folder, f"{pass_name}.exr")
+            path = names.inside_folder(folder, stems[pass_name] + ".exr")
+            if stems[pass_name] != pass_name and renamed is not None:
+                renamed.append({"name": f"{result.name}: {pass_name}", "kind": "pass", "path": path})
             write_exr(path, pixels)
             files.append(path)
             if previews:
                 display = tonemap(pixels)
                 display[..., 3] = 1.0
-                png = os.path.join(folder, f"{pass_name}.png")
+                png = names.inside_folder(folder, stems[pass_name] + ".png")
                 save_png(png, display)
                 files.append(png)
     return files

@@ -156,3 +156,43 @@ def ground_block_lamp():
     props.directions, props.resolution, props.bounces = 16, 32, 1
     select_only([ground, block])
     return ground, block
+
+
+def small_bake_settings(mode="vertex", passes=("lighting",), bounces=0):
+    """scene.visibake for a quick bake of the selected objects: 32 directions, 32², no cache."""
+    props = bpy.context.scene.visibake
+    props.mode, props.directions, props.bounces, props.resolution = mode, 32, bounces, 32
+    props.passes = set(passes)
+    props.bake_all = False
+    props.use_cache = False
+    return props
+
+
+def color_attribute(obj, name="VB_lighting"):
+    """(domain, (n, 4) float32 values) of the colour attribute ``name`` on ``obj``'s mesh."""
+    attribute = obj.data.color_attributes[name]
+    values = np.empty(len(attribute.data) * 4, np.float32)
+    attribute.data.foreach_get("color", values)
+    return attribute.domain, values.reshape(-1, 4)
+
+
+def scene_report():
+    """The report the last operator bake stored on the scene, as a dict."""
+    import json
+
+    return json.loads(bpy.context.scene["visibake_report"])
+
+
+def bake_both(objects, directions, resolution, samples, bounces=1):
+    """Bake ``objects`` with VisiBake's operator (exact shadows, rotated directions, the lighting
+    pass on each object's UVMap) and with Cycles at ``samples``; returns Cycles' images by object."""
+    from tools.cycles_bake import bake_diffuse
+
+    props = bpy.context.scene.visibake
+    props.directions, props.bounces, props.shadows, props.resolution = directions, bounces, "exact", resolution
+    props.passes = {"lighting"}
+    props.bake_all = False
+    props.rotate = True  # ray effects of a fixed set become noise, as Cycles' are
+    select_only(objects)
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    return bake_diffuse(objects, "UVMap", resolution, resolution, bounces=bounces, samples=samples)

@@ -12,9 +12,8 @@ import bpy
 
 import numpy as np
 
-from bpy_scenes import cube, grid, image_pixels, material, mesh_object, relative_rmse, select_only, uv_sphere
+from bpy_scenes import bake_both, cube, grid, image_pixels, material, mesh_object, relative_rmse, uv_sphere
 from tools.blender_compat import compat
-from tools.cycles_bake import bake_diffuse
 
 WIDTH, HEIGHT = 128, 64
 RESOLUTION = 48
@@ -79,17 +78,7 @@ def _scene():
 
 
 def _bake_and_compare(objects, label):
-    props = bpy.context.scene.visibake
-    props.directions = DIRECTIONS
-    props.bounces = 1
-    props.shadows = "exact"
-    props.resolution = RESOLUTION
-    props.passes = {"lighting"}
-    props.bake_all = False
-    props.rotate = True  # ray effects of a fixed set become noise, as Cycles' are
-    select_only(objects)
-    assert bpy.ops.visibake.bake() == {"FINISHED"}
-    references = bake_diffuse(objects, "UVMap", RESOLUTION, RESOLUTION, bounces=1, samples=SAMPLES)
+    references = bake_both(objects, DIRECTIONS, RESOLUTION, SAMPLES)
     errors = {}
     for obj in objects:
         ours = image_pixels(f"VB_{obj.name}_lighting")
@@ -163,7 +152,10 @@ def test_mapping_rotated_world_matches_cycles(clean_scene):
 
 
 def test_read_world_nodes_and_fallbacks(clean_scene):
-    """What read_world makes of the node set-ups it supports, and of those it does not."""
+    """What the node reading makes of the set-ups it supports, and of those it does not.
+
+    read_world renders every set-up this reading approximates through Cycles instead
+    (tests/blender/test_scene_world.py); the reading stays its fallback."""
     extract = extract_module()
     world = _environment_world()
     tree = world.node_tree
@@ -173,7 +165,7 @@ def test_read_world_nodes_and_fallbacks(clean_scene):
 
     def read():
         warnings = []
-        result = extract.read_world(bpy.context.scene, warnings)
+        result = extract._read_world_nodes(bpy.context.scene.world, warnings)
         assert result.image is None or np.isfinite(result.image).all()
         assert np.isfinite(result.color).all() and np.isfinite(result.rotation).all()
         return result, warnings

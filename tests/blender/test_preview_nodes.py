@@ -84,10 +84,11 @@ def test_a_shared_material_is_left_alone_with_a_warning(visibake, clean_scene):
     before = _tree_state(shared)
     assert bpy.ops.visibake.preview_add() == {"FINISHED"}
     assert _tree_state(shared) == before
-    # The warning the operator reports, once per object that uses the material.
+    # The warning the operator reports, once per material, naming its users and the remedy.
     wired, warnings = visibake.operators.adapter.preview_nodes.add_preview([a, b])
     assert wired == 0 and _tree_state(shared) == before
-    assert warnings == ["material 'Shared' is shared by A, B, whose baked lighting differs; it was left as it is"] * 2
+    assert len(warnings) == 1 and "material 'Shared' is used by 'A', 'B'" in warnings[0]
+    assert "left as it is" in warnings[0] and "own copy of the material" in warnings[0]
 
 
 

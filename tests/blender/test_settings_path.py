@@ -64,16 +64,17 @@ def test_the_command_line_s_choices_are_core_s(visibake):
 def test_the_argument_wins_then_the_scene_then_the_preference(visibake, clean_scene, prefs):
     resolve = visibake.operators.adapter.settings.resolve
     props = bpy.context.scene.visibake
-    prefs.threads, prefs.device = 3, "cpu"
+    cores = visibake.core.settings.CPU_COUNT  # the preference offers no more threads than cores
+    prefs.threads, prefs.device = cores, "cpu"
     resolved = resolve(bpy.context)
-    assert (resolved.bake.threads, resolved.device, resolved.refine) == (3, "cpu", False)
+    assert (resolved.bake.threads, resolved.device, resolved.refine) == (cores, "cpu", False)
     props.refine_vertex_objects = True
     props.directions, props.resolution, props.mode = 40, 20, "vertex"
     resolved = resolve(bpy.context)
     assert resolved.refine and resolved.bake.directions == 40
     assert (resolved.layout.resolution, resolved.layout.mode) == (20, "vertex")
-    resolved = resolve(bpy.context, threads=1, device="auto", refine=False)
-    assert (resolved.bake.threads, resolved.device, resolved.refine) == (1, "auto", False)
+    resolved = resolve(bpy.context, threads=0, device="auto", refine=False)
+    assert (resolved.bake.threads, resolved.device, resolved.refine) == (0, "auto", False)
 
 
 def test_a_complete_set_is_refused_once_with_core_s_message(visibake, clean_scene, prefs):
@@ -92,11 +93,12 @@ def test_the_panel_s_bake_uses_the_preferences(visibake, clean_scene, prefs, tmp
     point(80.0, (0.5, 0.3, 1.2), name="Lamp")
     props = bpy.context.scene.visibake
     props.directions, props.resolution, props.use_cache = 16, 8, False
-    prefs.threads, prefs.device = 2, "cpu"
+    threads = min(2, visibake.core.settings.CPU_COUNT)
+    prefs.threads, prefs.device = threads, "cpu"
     select_only([ground])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     report = json.loads(bpy.context.scene["visibake_report"])
-    assert report["settings"]["threads"] == 2 and report["device"]["requested"] == "cpu"
+    assert report["settings"]["threads"] == threads and report["device"]["requested"] == "cpu"
 
 
 def test_a_command_line_value_is_refused_by_core_s_rule_before_blender_clamps_it(visibake, clean_scene, tmp_path,

@@ -1,32 +1,23 @@
 """Vertex-table mode in real bpy: colour attributes, domains, mode auto, and what it refuses."""
-import json
 
 import bpy
 
 import numpy as np
 import pytest
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, point, select_only, uv_sphere
-
-
-def _settings(mode="vertex", passes=("lighting",), bounces=0):
-    props = bpy.context.scene.visibake
-    props.mode, props.directions, props.bounces, props.resolution = mode, 32, bounces, 32
-    props.passes = set(passes)
-    props.bake_all = False
-    props.use_cache = False
-    return props
-
-
-def _colors(obj, name="VB_lighting"):
-    attribute = obj.data.color_attributes[name]
-    values = np.empty(len(attribute.data) * 4, np.float32)
-    attribute.data.foreach_get("color", values)
-    return attribute.domain, values.reshape(-1, 4)
-
-
-def _report():
-    return json.loads(bpy.context.scene["visibake_report"])
+from bpy_scenes import (
+    black_world,
+    color_attribute,
+    cube,
+    grid,
+    material,
+    mesh_object,
+    point,
+    scene_report,
+    select_only,
+    small_bake_settings,
+    uv_sphere,
+)
 
 
 def test_plane_vertices_get_the_analytic_direct_light(clean_scene):
@@ -35,10 +26,10 @@ def test_plane_vertices_get_the_analytic_direct_light(clean_scene):
     point(300.0, (0.3, -0.2, 1.5), name="Lamp")
     user = plane.data.color_attributes.new("Paint", "BYTE_COLOR", "POINT")
     user.data[0].color = (0.25, 0.5, 0.75, 1.0)
-    _settings()
+    small_bake_settings()
     select_only([plane])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
-    domain, colors = _colors(plane)
+    domain, colors = color_attribute(plane)
     assert domain == "POINT" and len(colors) == len(plane.data.vertices)
     positions = np.array([v.co for v in plane.data.vertices])
     offset = np.array([0.3, -0.2, 1.5]) - positions
@@ -52,7 +43,7 @@ def test_plane_vertices_get_the_analytic_direct_light(clean_scene):
     assert tuple(plane.data.color_attributes["Paint"].data[0].color) == pytest.approx((0.25, 0.5, 0.75, 1.0),
                                                                                     abs=1 / 255)
     assert "VisiBake" not in plane.data.uv_layers and "VB_Plane_lighting" not in bpy.data.images
-    entry = next(o for o in _report()["objects"] if o["name"] == "Plane")
+    entry = next(o for o in scene_report()["objects"] if o["name"] == "Plane")
     assert entry["mode"] == "vertex" and "asked for" in entry["layout_reason"]
 
 
@@ -60,10 +51,10 @@ def test_flat_shaded_cube_is_baked_per_corner(clean_scene):
     black_world()
     box = mesh_object("Box", cube(1.0), material("Grey", (0.5, 0.5, 0.5)), uv_map=None)
     point(200.0, (1.5, -1.0, 2.0), name="Lamp")
-    _settings(bounces=1)
+    small_bake_settings(bounces=1)
     select_only([box])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
-    domain, colors = _colors(box)
+    domain, colors = color_attribute(box)
     assert domain == "CORNER" and len(colors) == len(box.data.loops)
     # Each face's corners carry that face's light: the top face's four corners share a
     # normal, and face corners at one vertex differ between faces.
@@ -80,7 +71,7 @@ def test_a_user_attribute_named_like_a_result_is_never_overwritten(clean_scene):
     point(100.0, (0.0, 0.0, 1.0), name="Lamp")
     mine = plane.data.color_attributes.new("VB_lighting", "FLOAT_COLOR", "POINT")
     mine.data[0].color = (0.1, 0.2, 0.3, 1.0)
-    _settings()
+    small_bake_settings()
     select_only([plane])
     with pytest.raises(RuntimeError, match="did not create"):
         bpy.ops.visibake.bake()
@@ -92,7 +83,7 @@ def test_modifiers_that_change_the_vertices_are_refused_in_vertex_mode(clean_sce
     plane = mesh_object("Plane", grid(1.0, segments=2), material("White", (0.6, 0.6, 0.6)))
     plane.modifiers.new("Subdivision", "SUBSURF")
     point(100.0, (0.0, 0.0, 1.0), name="Lamp")
-    _settings()
+    small_bake_settings()
     select_only([plane])
     with pytest.raises(RuntimeError, match="apply the modifiers or use mode atlas"):
         bpy.ops.visibake.bake()
@@ -105,10 +96,10 @@ def test_auto_takes_vertex_tables_for_a_mesh_finer_than_a_texel(clean_scene):
     coarse = mesh_object("Coarse", grid(1.0, segments=2), material("White", (0.6, 0.6, 0.6)),
                          location=(3.0, 0.0, 0.0))
     point(100.0, (0.0, 0.0, 1.0), name="Lamp")
-    _settings(mode="auto")
+    small_bake_settings(mode="auto")
     select_only([dense, coarse])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
-    entries = {o["name"]: o for o in _report()["objects"]}
+    entries = {o["name"]: o for o in scene_report()["objects"]}
     assert entries["Dense"]["mode"] == "vertex" and "finer than a texel" in entries["Dense"]["layout_reason"]
     assert entries["Coarse"]["mode"] == "atlas"
     assert "VB_lighting" in dense.data.color_attributes and "VB_Coarse_lighting" in bpy.data.images
@@ -134,7 +125,7 @@ def test_vertex_colours_match_cycles(clean_scene, lookup):
     from tools.cycles_bake import bake_diffuse_vertex_colors
 
     floor, wall = _room_corner()
-    props = _settings(bounces=1)
+    props = small_bake_settings(bounces=1)
     props.directions = 256
     props.vertex_lookup = lookup
     select_only([floor, wall])
@@ -142,7 +133,7 @@ def test_vertex_colours_match_cycles(clean_scene, lookup):
     reference = bake_diffuse_vertex_colors([floor, wall], bounces=1, samples=256)
     errors = []
     for obj in (floor, wall):
-        domain, ours = _colors(obj)
+        domain, ours = color_attribute(obj)
         assert domain == "POINT"
         theirs = reference[obj.name]
         error = float(np.sqrt(np.mean((ours[:, :3] - theirs[:, :3]) ** 2)) / np.sqrt(np.mean(theirs[:, :3] ** 2)))
@@ -163,11 +154,11 @@ def test_auto_falls_back_to_vertex_tables_when_xatlas_cannot_unwrap(clean_scene)
     # A sphere without a UV map at 4 x 4 texels: its charts cannot fit the atlas.
     ball = mesh_object("Ball", uv_sphere(0.5, 24, 12), material("White", (0.6, 0.6, 0.6)), uv_map=None)
     point(100.0, (0.0, 0.0, 2.0), name="Lamp")
-    props = _settings(mode="auto")
+    props = small_bake_settings(mode="auto")
     props.resolution = 4
     select_only([ball])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
-    entry = next(o for o in _report()["objects"] if o["name"] == "Ball")
+    entry = next(o for o in scene_report()["objects"] if o["name"] == "Ball")
     assert entry["mode"] == "vertex" and "unwrapping failed" in entry["layout_reason"]
     assert "VB_lighting" in ball.data.color_attributes and "VisiBake" not in ball.data.uv_layers
 
@@ -179,12 +170,12 @@ def test_auto_leaves_meshes_beyond_the_unwrap_budget_to_vertex_tables(visibake, 
     segments = int(np.ceil(np.sqrt(budget / 2))) + 1  # two triangles per grid quad
     big = mesh_object("Big", grid(1.0, segments=segments), material("White", (0.6, 0.6, 0.6)), uv_map=None)
     point(100.0, (0.0, 0.0, 2.0), name="Lamp")
-    props = _settings(mode="auto")
+    props = small_bake_settings(mode="auto")
     props.resolution = 4096  # texels finer than its vertices: only the budget rule applies
     props.directions = 4
     select_only([big])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
-    entry = next(o for o in _report()["objects"] if o["name"] == "Big")
+    entry = next(o for o in scene_report()["objects"] if o["name"] == "Big")
     assert entry["mode"] == "vertex" and "the budget is" in entry["layout_reason"]
 
 
@@ -202,11 +193,11 @@ def _spot_over_coarse_plane():
 def test_refine_bakes_a_subdivided_copy_and_leaves_the_mesh_alone(clean_scene):
     plane = _spot_over_coarse_plane()
     vertices = len(plane.data.vertices)
-    props = _settings()
+    props = small_bake_settings()
     props.refine_vertex_objects = True
     select_only([plane])
     assert bpy.ops.visibake.bake() == {"FINISHED"}
-    report = _report()
+    report = scene_report()
     [refined] = report["refined"]
     copy = bpy.data.objects[refined["copy"]]
     assert refined["object"] == "Plane" and refined["coarse_triangles"] > 0
@@ -221,7 +212,7 @@ def test_refine_bakes_a_subdivided_copy_and_leaves_the_mesh_alone(clean_scene):
 def test_a_failed_refined_bake_restores_the_scene(visibake, clean_scene):
     plane = _spot_over_coarse_plane()
     names = set(bpy.data.objects.keys())
-    _settings()
+    small_bake_settings()
     calls = []
 
     def cancel_in_the_second_bake(stage, fraction):

@@ -14,6 +14,7 @@ from core.lights.environment import (
     equirectangular_to_direction,
     euler_xyz_matrix,
     mirror_ball_mean,
+    split_sun,
     world_radiance,
 )
 from core.outputs.images import bilinear_wrap as bilinear_lookup
@@ -215,3 +216,66 @@ def test_constant_lookup_and_mirror_ball_mean():
     inside = ((x + 0.5) / 32 - 1) ** 2 + ((y + 0.5) / 32 - 1) ** 2 <= 1
     ball[inside] = (1.0, 2.0, 3.0)
     np.testing.assert_allclose(mirror_ball_mean(ball), [1.0, 2.0, 3.0])
+
+
+def _sky_with_sun(height=256, width=512, sun=(0.3, -0.5, 0.6), radius_degrees=0.6, radiance=2.0e5):
+    """A smooth sky and a disc of ``radiance`` around ``sun``: (image, disc direction, disc irradiance (3,))."""
+    v = (np.arange(height) + 0.5) / height
+    u = (np.arange(width) + 0.5) / width
+    uu, vv = np.meshgrid(u, v)
+    directions = equirectangular_to_direction(uu.ravel(), vv.ravel()).reshape(height, width, 3)
+    sky = (0.5 + 0.5 * directions[..., 2:3]) * np.array([0.3, 0.5, 1.0]) + 0.05
+    axis = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    inside = directions @ axis > np.cos(np.radians(radius_degrees))
+    image = np.where(inside[..., None], radiance, sky).astype(np.float32)
+    solid_angle = np.broadcast_to(((2 * np.pi / width) * np.diff(_row_z_edges(height)))[:, None], inside.shape)
+    excess = ((radiance - sky[inside]) * solid_angle[inside][:, None]).sum(axis=0)
+    return image, axis, excess
+
+
+def test_split_sun_gives_a_small_bright_disc_to_a_lamp():
+    image, axis, excess = _sky_with_sun()
+    residual, sun = split_sun(image)
+    assert sun is not None and sun.kind == "SUN" and sun.strength == 1.0
+    # Direction within a fraction of a pixel (0.7 degrees), the disc's light within 2%.
+    assert np.degrees(np.arccos(np.clip(-sun.direction @ axis, -1, 1))) < 0.3
+    np.testing.assert_allclose(sun.color, excess, rtol=0.02)
+    assert 0.5 * np.radians(1.2) < sun.angle < 2.0 * np.radians(1.2)
+    # Nothing is lost or counted twice: the residual plus the lamp is the image's light.
+    np.testing.assert_allclose(_integral(residual) + sun.color, _integral(image), rtol=1e-3)
+    assert residual.max() < 2.0 and np.isfinite(residual).all()
+
+
+def test_split_sun_leaves_skies_without_a_compact_disc_alone():
+    image, _, _ = _sky_with_sun(radiance=1.0)  # a faint disc is part of the sky
+    residual, sun = split_sun(image)
+    assert sun is None and np.array_equal(residual, image)
+    # Two suns far apart are no single disc: the image stands as it is.
+    first, _, _ = _sky_with_sun(sun=(0.3, -0.5, 0.6))
+    second, _, _ = _sky_with_sun(sun=(-0.6, 0.2, 0.4))
+    both = np.maximum(first, second)
+    residual, sun = split_sun(both)
+    assert sun is None and np.array_equal(residual, both)
+    assert split_sun(np.zeros((8, 16, 3), np.float32))[1] is None
+
+
+def test_a_split_sun_lights_as_the_disc_does():
+    # An upward plane under a sky with a sun: irradiance / pi against the image's own
+    # integral of L cos. In a cell the disc's light is scaled by that cell's area ratio
+    # (and lit from the cell's direction); as a lamp it is exact.
+    image, axis, excess = _sky_with_sun(sun=(0.3, -0.5, 0.6))
+    height, width = image.shape[:2]
+    z_edges = _row_z_edges(height)
+    z = 0.5 * (z_edges[1:] + z_edges[:-1])
+    weight = (2 * np.pi / width) * np.diff(z_edges) * np.clip(z, 0, None)
+    expected = (np.asarray(image, np.float64) * weight[:, None, None]).sum(axis=(0, 1)) / np.pi
+    residual, sun = split_sun(image)
+    plane = quad_mesh("Plane", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], resolution=4)
+    settings = BakeSettings(directions=256, bounces=0, rotate=True, seed=3, passes=("irradiance",))
+    errors = {}
+    for label, world in (("cells", World(image=image)), ("lamp", World(image=residual, suns=[sun]))):
+        irradiance = bake(Scene([plane], [], world), settings).objects[0].images["irradiance"][..., :3]
+        errors[label] = float(np.abs(irradiance.reshape(-1, 3) / expected - 1).max())
+    print(f"\nsun in a cell: {errors['cells']:.4f}, as a lamp: {errors['lamp']:.4f}")
+    assert errors["lamp"] < 0.01
+    assert errors["lamp"] < errors["cells"]

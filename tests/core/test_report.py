@@ -99,7 +99,7 @@ def _job_report() -> dict:
         "light_groups": [], "emitters_sampled": [], "gathers": 3, "table_bytes": 1000,
         "cache": {"state": "miss", "path": "/c/t.npz", "message": "no cached visibility", "changed_objects": [],
                   "bytes_on_disk": 3 * 2**20, "load_seconds": 0.0, "save_seconds": 0.1,
-                  "lighting_reused": ["Key"]},
+                  "lighting_reused": ["Key"], "abandoned_writes_removed": 0},
         "skipped": ["bounce gathers: bounces = 0"], "warnings": ["object 'Leaf': coarse"],
         "passes": [{"pass": "gather 1", "device": "cpu", "seconds": 0.25}],
         "total_seconds": 2.345, "peak_memory_bytes": 200 * 2**20, "files": ["/o/a.exr", "/o/b.exr"],

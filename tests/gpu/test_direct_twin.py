@@ -179,3 +179,28 @@ def test_no_lamps_and_bad_lamps_behave_as_numpy(visibake, direct, prepared):
     bad.strength = float("inf")
     with pytest.raises(ValueError, match="non-finite"):
         direct.lamp_irradiance(p.sample_set(), p.shadowing(), [bad])
+
+
+@pytest.mark.parametrize("shadows", ["exact", "fractions"])
+def test_linked_and_unshadowed_hard_lamps_match_numpy(visibake, direct, prepared, shadows):
+    p = prepared("open", shadows)
+    point = _light(visibake.core, "point", 1.2)
+    sun = _light(visibake.core, "sun", 1.2)
+    only_ground = _light(visibake.core, "spot", 1.2)
+    only_ground.receivers = ("Ground",)
+    no_shadow = _light(visibake.core, "point", 1.2)
+    no_shadow.casts_shadows = False
+    lights = [point, sun, only_ground, no_shadow]
+    if shadows == "exact":
+        unblocked = _light(visibake.core, "point", 1.2)
+        unblocked.blockers = ("Ground",)  # the roof casts none of its shadows
+        lights.append(unblocked)
+    ours, twin = _compare(visibake, direct, p, lights, f"linked lamps {shadows}")
+    roof = slice(p.sample_offset[1], p.sample_offset[2])
+    alone, _ = visibake.core.transport.direct.lamp_irradiance(p.sample_set(), p.shadowing(), [only_ground])
+    assert np.all(alone[roof] == 0.0) and np.any(alone[: p.sample_offset[1]] > 0)
+    open_sky, _ = visibake.core.transport.direct.lamp_irradiance(p.sample_set(), p.shadowing(), [no_shadow])
+    unshadowed = sum(part.irradiance for part in visibake.core.lights.lamps.light_contributions(
+        no_shadow, p.position, p.normal, p.settings.area_light_samples))
+    above = np.einsum("kd,kd->k", p.geometric, np.asarray(no_shadow.position) - p.position) > 0
+    np.testing.assert_allclose(open_sky[above], unshadowed[above])

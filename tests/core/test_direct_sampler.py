@@ -1,0 +1,215 @@
+"""The direct-light sampler (core.lights.sampler) and the soft, linked and unshadowed lamps built on it."""
+import numpy as np
+import pytest
+
+from core.lights.lamps import lamp_points, light_contributions
+from core.lights.sampler import DirectSampler, parallelogram_footprint
+from core.pipeline.prepare import prepare
+from core.scene import Light, Scene
+from core.settings import BakeSettings
+from core.transport import direct
+from core.transport.direct import lamp_irradiance
+
+from .core_scenes import quad_mesh
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _points(count, ids, seed=0, stream=0):
+    sampler = DirectSampler(count, seed)
+    return np.stack([sampler.uniforms(j, ids, stream) for j in range(count)], axis=1)  # (K, M, 4)
+
+
+def test_points_are_jointly_stratified_for_every_sample():
+    u = _points(16, np.arange(50), seed=3, stream=11)
+    assert u.min() >= 0.0 and u.max() < 1.0
+    for sample in u:
+        for dimension in range(4):  # 16 1D strata per dimension
+            assert sorted(np.floor(sample[:, dimension] * 16)) == list(range(16))
+        for a, b in ((0, 1), (2, 3)):  # 4 x 4 over the lamp and over the footprint
+            cells = np.floor(sample[:, a] * 4) * 4 + np.floor(sample[:, b] * 4)
+            assert sorted(cells) == list(range(16))
+        # and the 2^4 orthants of the whole 4D cube: lamp and footprint together
+        cells = (np.floor(sample * 2) * np.array([8, 4, 2, 1])).sum(axis=1)
+        assert sorted(cells) == list(range(16))
+
+
+def test_points_are_deterministic_and_decorrelated():
+    ids = np.arange(200)
+    first = _points(8, ids, seed=5, stream=7)
+    np.testing.assert_array_equal(first, _points(8, ids, seed=5, stream=7))
+    assert not np.allclose(first, _points(8, ids, seed=6, stream=7))
+    assert not np.allclose(first, _points(8, ids, seed=5, stream=8))
+    # Different samples get different scrambles, and the scrambles are uniform.
+    assert len({tuple(row) for row in first[:, 0, :2].round(6)}) == len(ids)
+    assert abs(first[:, 0, 0].mean() - 0.5) < 0.05
+
+
+def _estimate(light, position, normal, samples=8, **keywords):
+    """(K, 3) sum of the sampler points' unshadowed irradiance."""
+    return sum(part.irradiance for part in light_contributions(light, position, normal, samples, **keywords))
+
+
+def _receivers(count, position=(0.0, 0.0, 0.0), normal=UP):
+    return np.tile(position, (count, 1)).astype(np.float64), np.tile(normal, (count, 1)).astype(np.float64)
+
+
+def test_sun_with_an_angle_is_unbiased_against_the_cone_average_of_the_cosine():
+    angle = np.radians(10.0)
+    tilt = np.radians(40.0)
+    direction = -np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    sun = Light("Sun", "SUN", np.ones(3), 4.0, direction=direction, angle=angle)
+    assert lamp_points(sun, 4) == 16
+    position, normal = _receivers(400)
+    estimate = _estimate(sun, position, normal, 4)[:, 0]
+    # Uniform in the cone of half-angle a around the axis, cos to the normal averages
+    # cos(tilt) (1 + cos a) / 2 while the cone stays above the horizon.
+    exact = 4.0 * np.cos(tilt) * (1.0 + np.cos(angle / 2.0)) / 2.0
+    assert estimate.mean() == pytest.approx(exact, rel=1e-4)
+    assert np.abs(estimate / exact - 1.0).max() < 5e-3  # 16 stratified points per sample: within 0.5%
+    hard = Light("Hard", "SUN", np.ones(3), 4.0, direction=direction)
+    assert lamp_points(hard, 4) == 1
+    np.testing.assert_allclose(_estimate(hard, position[:1], normal[:1])[0, 0], 4.0 * np.cos(tilt))
+
+
+@pytest.mark.parametrize("kind", ["POINT", "SPOT"])
+@pytest.mark.parametrize("sphere", [True, False])
+def test_point_with_a_radius_is_unbiased_against_the_closed_form(kind, sphere):
+    r, d, power = 0.5, 2.0, 300.0
+    lamp = Light("Lamp", kind, np.ones(3), power, position=np.array([0.0, 0.0, d]), radius=r, sphere=sphere,
+                 spot_size=np.radians(170), spot_blend=0.0)
+    position, normal = _receivers(3000)
+    estimate = _estimate(lamp, position, normal, 6)[:, 0]
+    # A sphere of radiance P / (4 pi^2 r^2) gives pi L sin^2 = P / (4 pi d^2) on axis; Cycles'
+    # soft-falloff disk of that radiance facing the receiver gives pi L r^2 / (r^2 + d^2).
+    exact = power / (4 * np.pi * d * d) if sphere else power / (4 * np.pi * (r * r + d * d))
+    assert estimate.mean() == pytest.approx(exact, rel=2e-4)
+    assert np.abs(estimate / exact - 1.0).max() < 1e-2
+
+
+def test_area_disk_through_the_sampler_is_unbiased():
+    r, d, power = 0.4, 1.0, 100.0
+    area = Light("Area", "AREA", np.ones(3), power, position=np.array([0.0, 0.0, d]), area_shape="DISK",
+                 size_x=2 * r, size_y=2 * r)
+    position, normal = _receivers(300)
+    estimate = _estimate(area, position, normal, 6)[:, 0]
+    exact = power / (np.pi * np.pi * r * r) * np.pi * r * r / (r * r + d * d)  # L pi r^2 / (r^2 + d^2)
+    assert estimate.mean() == pytest.approx(exact, rel=2e-4)
+
+
+def test_footprint_offsets_move_the_receiving_points():
+    point = Light("Point", "POINT", np.ones(3), 100.0, position=np.array([0.0, 0.0, 1.0]))
+    position, normal = _receivers(5)
+    axes = np.tile([[0.2, 0.0, 0.0], [0.0, 0.2, 0.0]], (5, 1, 1))
+    parts = list(light_contributions(point, position, normal, 4, footprint=parallelogram_footprint(axes), points=16))
+    assert len(parts) == 16
+    moved = np.stack([p.position for p in parts], axis=1)  # (K, 16, 3)
+    assert np.all(np.abs(moved[..., :2]) <= 0.1) and np.all(moved[..., 2] == 0.0)
+    assert np.ptp(moved[..., 0], axis=1).min() > 0.15  # spread over the texel
+    # The average over a small footprint is near the centre's value (the field is smooth there).
+    mean = sum(p.irradiance for p in parts)[:, 0]
+    np.testing.assert_allclose(mean, 100 / (4 * np.pi), rtol=0.03)
+
+
+def _blocked_plane(**light_keywords):
+    """A ground plane under a floating blocker, prepared for exact shadows."""
+    ground = quad_mesh("Ground", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], resolution=24)
+    blocker = quad_mesh("Blocker", [(-0.3, -0.3, 0.5), (-0.3, 0.3, 0.5), (0.3, 0.3, 0.5), (0.3, -0.3, 0.5)],
+                        resolution=8)
+    return ground, blocker
+
+
+def _ground_irradiance(meshes, light, shadows="exact", samples=4):
+    settings = BakeSettings(directions=64, bounces=0, shadows=shadows, area_light_samples=samples)
+    p = prepare(Scene(meshes, []), settings, table_needed=shadows == "fractions")
+    irradiance, rays = lamp_irradiance(p.sample_set(), p.shadowing(), [light])
+    ground = slice(p.sample_offset[0], p.sample_offset[1])
+    return irradiance[ground, 0], p.position[ground], rays
+
+
+def test_a_soft_sun_has_a_penumbra_and_a_hard_one_does_not():
+    meshes = _blocked_plane()
+    hard = Light("Sun", "SUN", np.ones(3), 1.0)
+    soft = Light("Sun", "SUN", np.ones(3), 1.0, angle=np.radians(30))
+    for shadows in ("exact", "fractions"):
+        e_hard, _, _ = _ground_irradiance(meshes, hard, shadows)
+        e_soft, _, _ = _ground_irradiance(meshes, soft, shadows)
+        between = lambda e: np.count_nonzero((e > 0.05) & (e < 0.95))  # noqa: E731
+        assert between(e_soft) > between(e_hard) + 10, shadows
+    e_hard, position, rays_hard = _ground_irradiance(meshes, hard)
+    e_soft, _, rays_soft = _ground_irradiance(meshes, soft)
+    # Nine probe rays everywhere, all sixteen points only where the probes disagree (the penumbra).
+    assert 9 * rays_hard < rays_soft < 16 * rays_hard
+    centre = np.linalg.norm(position[:, :2], axis=1) < 0.1  # umbra: dark either way
+    assert np.all(e_soft[centre] < 0.05) and np.all(e_hard[centre] == 0.0)
+
+
+def test_linking_use_shadow_and_shadow_visibility():
+    ground, blocker = _blocked_plane()
+    sun = Light("Sun", "SUN", np.ones(3), 1.0)
+    shaded, position, _ = _ground_irradiance([ground, blocker], sun)
+    under = np.all(np.abs(position[:, :2]) < 0.25, axis=1)
+    assert np.all(shaded[under] == 0.0) and np.all(shaded[~under & (np.abs(position[:, 0]) > 0.35)] == 1.0)
+
+    no_shadow = Light("Sun", "SUN", np.ones(3), 1.0, casts_shadows=False)
+    e, _, rays = _ground_irradiance([ground, blocker], no_shadow)
+    assert rays == 0 and np.all(e == 1.0)
+    e, _, _ = _ground_irradiance([ground, blocker], no_shadow, "fractions")
+    assert np.all(e == 1.0)
+
+    blocker.casts_shadow = False
+    e, _, _ = _ground_irradiance([ground, blocker], sun)
+    assert np.all(e == 1.0)
+    blocker.casts_shadow = True
+
+    other_blockers = Light("Sun", "SUN", np.ones(3), 1.0, blockers=("Ground",))
+    e, _, _ = _ground_irradiance([ground, blocker], other_blockers)
+    assert np.all(e == 1.0)
+    own_blocker = Light("Sun", "SUN", np.ones(3), 1.0, blockers=("Blocker",))
+    np.testing.assert_array_equal(_ground_irradiance([ground, blocker], own_blocker)[0], shaded)
+
+    elsewhere = Light("Sun", "SUN", np.ones(3), 1.0, receivers=("Blocker",))
+    e, _, rays = _ground_irradiance([ground, blocker], elsewhere)
+    assert rays == 0 and np.all(e == 0.0)
+    here = Light("Sun", "SUN", np.ones(3), 1.0, receivers=("Ground",))
+    np.testing.assert_array_equal(_ground_irradiance([ground, blocker], here)[0], shaded)
+
+
+def test_direct_light_over_a_footprint_traces_its_points_from_each_position():
+    meshes = _blocked_plane()
+    settings = BakeSettings(directions=16, bounces=0, shadows="exact", area_light_samples=2)
+    p = prepare(Scene(list(meshes), []), settings, table_needed=False)
+    sun = Light("Sun", "SUN", np.ones(3), 1.0)
+    point_sampled, rays = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
+    axes = np.tile([[2.0 / 24, 0.0, 0.0], [0.0, 2.0 / 24, 0.0]], (len(p.position), 1, 1))  # one ground texel
+    averaged, footprint_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [sun],
+                                               footprint=parallelogram_footprint(axes), footprint_points=16)
+    assert footprint_rays == 16 * rays
+    ground = slice(p.sample_offset[0], p.sample_offset[1])
+    # Lit and shadowed texels stay so; texels the shadow edge crosses get fractions.
+    partial = (averaged[ground, 0] > 0.02) & (averaged[ground, 0] < 0.98)
+    hard = point_sampled[ground, 0]
+    assert np.count_nonzero(partial) >= 20 and not np.any((hard > 0) & (hard < 1))
+    # The overhead sun's shadow of the 0.6 m square covers 0.36 of the 4 m^2 ground: the
+    # footprint average finds that area, texel centres alias it (24 texels per 2 m).
+    exact = 1.0 - 0.36 / 4.0
+    assert abs(averaged[ground, 0].mean() - exact) < 0.003 < abs(point_sampled[ground, 0].mean() - exact)
+
+
+@pytest.mark.parametrize("light", [
+    Light("Sun", "SUN", np.ones(3), 1.0, angle=np.radians(2.0), direction=np.array([0.6, 0.0, -0.8])),
+    Light("Sun", "SUN", np.ones(3), 1.0, angle=np.radians(30.0)),
+    Light("Lamp", "POINT", np.ones(3), 40.0, position=np.array([0.3, 0.2, 1.5]), radius=0.2),
+    Light("Panel", "AREA", np.ones(3), 40.0, position=np.array([0.0, 0.0, 1.2]), direction=np.array([0, 0, -1.0]),
+          size_x=0.6, size_y=0.6),
+])
+def test_skipping_the_rays_that_agree_keeps_the_estimate(monkeypatch, light):
+    """The probes decide lit and shadowed samples; the penumbra still gets every point."""
+    meshes = _blocked_plane()
+    adaptive, _, rays_adaptive = _ground_irradiance(meshes, light, samples=8)
+    monkeypatch.setattr(direct, "ADAPTIVE_MIN_POINTS", 10**6)
+    full, _, rays_full = _ground_irradiance(meshes, light, samples=8)
+    assert rays_adaptive < 0.75 * rays_full  # this small plane is mostly penumbra under the panel
+    lit = full > 0.02 * full.max()
+    assert np.mean(np.abs(adaptive[lit] / full[lit] - 1.0)) < 0.005
+    assert np.max(np.abs(adaptive - full)) < 0.03 * full.max()
