@@ -17,8 +17,9 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
     (:func:`core.lights.lamps.light_contributions`; one point for a hard lamp) and, if
     ``footprint`` (see :data:`core.lights.sampler.Footprint`) is given, over each sample's
     footprint with the same points (at least ``footprint_points`` per lamp, also for a hard
-    one). Shadows as ``shadowing`` says: one exact ray per point
-    against the lamp's blockers (:meth:`Shadowing.blocker_scene`), or the paper's fractions
+    one). Shadows as ``shadowing`` says: exact rays against the lamp's blockers
+    (:meth:`Shadowing.blocker_scene`), one per point where the penumbra probes of a soft lamp
+    disagree (:func:`_penumbra_probes`) and none elsewhere, or the paper's fractions
     looked up in each point's direction, so a soft lamp averages the fractions over its
     extent. Light linking: a lamp lights only its receivers. ``report(fraction)`` is
     called after each lamp. The CPU backend's direct-light pass.
@@ -27,11 +28,12 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
     irradiance = np.zeros((len(samples.position), 3))
     shadow_rays = 0
     sample_ids = np.arange(len(samples.position))
-    # Progress by shadow rays, not by lamps: a soft lamp traces several per sample.
     points = [lamp_points(light, shadowing.area_light_samples) for light in lights]
     if footprint is not None:
         points = [max(count, int(footprint_points)) for count in points]
-    costs = np.cumsum(points)
+    # Progress by expected shadow rays, not by lamps: a soft lamp traces several per sample.
+    costs = np.cumsum(points if footprint is not None else
+                      [shadow_rays_per_sample(light, shadowing) for light in lights])
     for light_index, light in enumerate(lights):
         fractions = None
         if fractions_mode and light.casts_shadows:
