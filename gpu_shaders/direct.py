@@ -147,7 +147,9 @@ def lamp_irradiance(sample_set, shadowing, lights, report=None,
                if light.kind == "AREA" or lamp_points(light, shadowing.area_light_samples) > 1]
     if sampled:
         hard = [light for light in lights if not any(light is other for other in sampled)]
-        share = len(sampled) / len(lights)
+        # Progress shared by expected shadow rays, as the numpy pass weighs its lamps.
+        sampled_cost = sum(cpu_direct.shadow_rays_per_sample(light, shadowing) for light in sampled)
+        share = sampled_cost / (sampled_cost + len(hard))  # a hard lamp traces one ray a sample
         irradiance, rays = cpu_direct.lamp_irradiance(sample_set, shadowing, sampled,
                                                       None if report is None else lambda f: report(share * f))
         if hard:
