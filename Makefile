@@ -9,7 +9,7 @@
 #   make test-core  tests/core only (no bpy, no extension build): seconds
 #   make lint     ruff (pinned in requirements.txt; config in ruff.toml)
 #   make demo     tools/visibake.py demo --out out/demo
-#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|standard|bounces|full)
+#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|standard|bounces|full), or accuracy.py (=accuracy)
 #   make clean    build/test outputs;  make distclean  also .venv and wheels
 
 SHELL := /bin/bash
@@ -168,9 +168,14 @@ demo: venv build
 	$(PY) tools/visibake.py demo --out out/demo
 
 # BENCH_PROFILE=smoke|quick|standard|bounces|full (see benchmarks/run.py); results in benchmarks/results/.
+# BENCH_PROFILE=accuracy: error against N per scene, one technique at a time (benchmarks/accuracy.py).
 BENCH_PROFILE ?= quick
 bench: venv
+ifeq ($(BENCH_PROFILE),accuracy)
+	$(PY) benchmarks/accuracy.py
+else
 	$(PY) benchmarks/run.py --profile $(BENCH_PROFILE)
+endif
 
 clean:
 	rm -rf dist out .pytest_cache .hypothesis

@@ -33,11 +33,11 @@ import numpy as np
 from tools.blender_compat import compat
 from tools.cycles_bake import bake_diffuse
 
-__all__ = ["FORMAT_VERSION", "Reference", "scene_key", "cached_reference", "relative_errors"]
+__all__ = ["FORMAT_VERSION", "Reference", "scene_key", "cached_reference", "relative_errors", "block_errors"]
 
 # Bump when the Cycles settings in tools/cycles_bake.py, the seeds or the layout of
 # the cache file change: every cached reference then becomes a miss.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the two halves are stored too (noise of any metric)
 
 _SEEDS = (1, 2)
 # Object types Cycles renders as surfaces; their geometry occludes and reflects light.
@@ -62,12 +62,15 @@ class Reference:
     noise : float | None, relative noise of ``images`` (RMS noise / mean value over
         covered texels); None when baked in one piece
     cached : bool, True when read from the cache instead of baked now
+    halves : (images of seed 1, images of seed 2), same layout as ``images``, or None
+        when baked in one piece; the noise of any error metric comes from them
     """
 
     images: dict[str, np.ndarray]
     seconds: float
     noise: float | None
     cached: bool
+    halves: tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None = None
 
 
 # --------------------------------------------------------------------------- key
@@ -347,6 +350,10 @@ def _load(path: str, key: str, names: set[str], resolution: int) -> Reference | 
                 return None
             # Reading every member checks every CRC: a damaged file raises here.
             images = {name: np.array(data[f"image_{i}"]) for i, name in enumerate(stored)}
+            halves = None
+            if "half0_0" in data.files:
+                halves = tuple({name: np.array(data[f"half{h}_{i}"]) for i, name in enumerate(stored)}
+                               for h in (0, 1))
             seconds = float(data["seconds"])
             noise = float(data["noise"])
     except Exception:  # noqa: BLE001 - zipfile, zlib, numpy and OS errors all mean "rebake"
@@ -356,7 +363,8 @@ def _load(path: str, key: str, names: set[str], resolution: int) -> Reference | 
         return None
     if not np.isfinite(seconds):
         return None
-    return Reference(images=images, seconds=seconds, noise=None if np.isnan(noise) else noise, cached=True)
+    return Reference(images=images, seconds=seconds, noise=None if np.isnan(noise) else noise, cached=True,
+                     halves=halves)
 
 
 def _save(path: str, key: str, reference: Reference) -> None:
@@ -364,6 +372,8 @@ def _save(path: str, key: str, reference: Reference) -> None:
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     names = sorted(reference.images)
     arrays = {f"image_{i}": reference.images[name] for i, name in enumerate(names)}
+    for h, half in enumerate(reference.halves or ()):
+        arrays.update({f"half{h}_{i}": half[name] for i, name in enumerate(names)})
     handle, temporary = tempfile.mkstemp(suffix=".npz.tmp", dir=os.path.dirname(path) or ".")
     try:
         with os.fdopen(handle, "wb") as stream:
@@ -415,10 +425,12 @@ def cached_reference(objects, uv_maps: dict[str, str], resolution: int, bounces:
         b = _bake(baked, uv_maps, resolution, bounces, samples // 2, _SEEDS[1])
         images = {name: ((a[name].astype(np.float64) + b[name]) / 2).astype(np.float32) for name in a}
         noise = _noise(a, b, images)
+        halves = (a, b)
     else:
         images = _bake(baked, uv_maps, resolution, bounces, samples, _SEEDS[0])
-        noise = None
-    reference = Reference(images=images, seconds=time.perf_counter() - started, noise=noise, cached=False)
+        noise, halves = None, None
+    reference = Reference(images=images, seconds=time.perf_counter() - started, noise=noise, cached=False,
+                          halves=halves)
     _save(path, key, reference)
     return reference
 
@@ -475,3 +487,59 @@ def relative_errors(ours: dict[str, np.ndarray], reference: dict[str, np.ndarray
         reference_mean=mean,
         texels=texels,
     )
+
+
+def _block_means(image: np.ndarray, covered: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Means of RGB over the covered texels of each ``block`` x ``block`` block, (b, 3), and
+    whether the block has at least half its texels covered, (b,) bool."""
+    height, width = covered.shape
+    h, w = height // block * block, width // block * block
+    rgb = np.where(covered[:h, :w, None], image[:h, :w, :3], 0.0).astype(np.float64)
+    rgb = rgb.reshape(h // block, block, w // block, block, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    count = covered[:h, :w].reshape(h // block, block, w // block, block).sum(axis=(1, 3)).reshape(-1)
+    means = rgb / np.maximum(count, 1)[:, None]
+    return means, count * 2 >= block * block
+
+
+def block_errors(ours: dict[str, np.ndarray], reference: Reference, block: int = 4) -> dict:
+    """Relative RMSE of ``block`` x ``block``-texel block means against ``reference``, and the
+    reference's own noise on the same metric (from its halves).
+
+    Only texels both cover count, and only blocks at least half covered. The block metric is
+    the low-frequency error a denoiser cannot remove. The error with the reference's noise
+    taken out is sqrt(e^2 - n^2) (the two are independent), reported beside the raw one.
+
+    Returns dict with block_rmse, block_noise (None without halves), block_rmse_denoised
+    (None without halves; 0 where e <= n), texel_noise (per texel, from the halves) and
+    texel_rmse_denoised.
+    """
+    ours_parts, ref_parts, half_parts = [], [], ([], [])
+    texel_ours, texel_ref, texel_halves = [], [], ([], [])
+    for name in sorted(reference.images):
+        mine, theirs = np.asarray(ours[name]), reference.images[name]
+        covered = (mine[..., 3] > 0) & (theirs[..., 3] > 0)
+        mine_means, usable = _block_means(mine, covered, block)
+        ref_means, _ = _block_means(theirs, covered, block)
+        ours_parts.append(mine_means[usable])
+        ref_parts.append(ref_means[usable])
+        texel_ours.append(mine[covered][:, :3].astype(np.float64))
+        texel_ref.append(theirs[covered][:, :3].astype(np.float64))
+        for h, half in enumerate(reference.halves or ()):
+            half_parts[h].append(_block_means(half[name], covered, block)[0][usable])
+            texel_halves[h].append(half[name][covered][:, :3].astype(np.float64))
+    a, b = np.concatenate(ours_parts), np.concatenate(ref_parts)
+    mean = float(np.mean(b)) if len(b) else float("nan")
+    result = {"block_rmse": float(np.sqrt(np.mean((a - b) ** 2)) / mean) if len(b) else float("nan"),
+              "block_noise": None, "block_rmse_denoised": None, "texel_noise": None, "texel_rmse_denoised": None}
+    if reference.halves is not None and len(b):
+        noise = 0.5 * float(np.sqrt(np.mean((np.concatenate(half_parts[0]) - np.concatenate(half_parts[1])) ** 2)))
+        result["block_noise"] = noise / mean
+        result["block_rmse_denoised"] = float(np.sqrt(max(result["block_rmse"] ** 2 - (noise / mean) ** 2, 0.0)))
+        ta, tb = np.concatenate(texel_ours), np.concatenate(texel_ref)
+        texel_mean = float(np.mean(tb))
+        texel_noise = 0.5 * float(np.sqrt(np.mean((np.concatenate(texel_halves[0])
+                                                   - np.concatenate(texel_halves[1])) ** 2))) / texel_mean
+        texel_rmse = float(np.sqrt(np.mean((ta - tb) ** 2))) / texel_mean
+        result["texel_noise"] = texel_noise
+        result["texel_rmse_denoised"] = float(np.sqrt(max(texel_rmse ** 2 - texel_noise ** 2, 0.0)))
+    return result

@@ -119,15 +119,22 @@ def plot(path: str, title: str, rows) -> None:
     noise = rows[0]["reference_noise"] if rows and rows[0]["reference_noise"] else None
     if noise:
         axes.axhline(noise, color="black", linewidth=0.8, linestyle="--", label="reference noise")
-    axes.set_xscale("log")
+    finish_error_plot(figure, axes, path, title, "wall time (s)", dpi=110)
+
+
+def finish_error_plot(figure, axes, path: str, title: str, xlabel: str, dpi: int, x_base: int = 10) -> None:
+    """Log-log axes of relative RMSE against ``xlabel``, titled, legend, written to ``path``."""
+    import matplotlib.pyplot as plt
+
+    axes.set_xscale("log", base=x_base)
     axes.set_yscale("log")
-    axes.set_xlabel("wall time (s)")
+    axes.set_xlabel(xlabel)
     axes.set_ylabel("relative RMSE against converged Cycles")
     axes.set_title(title)
     axes.grid(True, which="both", alpha=0.3)
     axes.legend(fontsize=7)
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
+    figure.savefig(path, dpi=dpi)
     plt.close(figure)
 
 

@@ -51,6 +51,9 @@ class Mesh:
     vertex_count, loop_count : sizes of the base mesh's point and corner domains
     casts_shadow : whether lamps' shadow rays stop at it (Blender's shadow visibility);
         off, it still occludes and reflects light for the table
+    terminator_offset : Blender's Shadow Terminator > Geometry Offset: below this cosine to a
+        lamp, shadow rays of smooth-shaded faces start lifted towards the smooth surface
+        (core.sampling.terminator); 0 turns it off
     """
 
     name: str
@@ -69,6 +72,7 @@ class Mesh:
     vertex_count: int = 0
     loop_count: int = 0
     casts_shadow: bool = True
+    terminator_offset: float = 0.1
 
 
 @dataclass

@@ -151,6 +151,11 @@ SETTINGS = _table(
     Setting("rotate", bool, False, "Rotate Directions",
             help="Randomly rotate the direction set (seeded): structured artefacts become noise"),
     Setting("seed", int, 0, "Seed", minimum=0, help="Seed of the direction rotation"),
+    Setting("interleave", int, 3, "Interleaved Rotations", minimum=1, maximum=8,
+            help="Neighbouring texels use different rotations of the direction set (a tile of this many texels "
+                 "squared, one rotation each) and their indirect light is averaged over the tile, so the fixed "
+                 "set's streaks from small bright patches become fine noise the average removes (1: one set for "
+                 "every texel)"),
     Setting("passes", tuple, ("lighting",), "Passes", help="Which passes to write",
             choices=tuple((p, p.capitalize(), f"Write the {p} pass") for p in PASSES)),
     Setting("margin", int, 4, "Margin", minimum=0, soft_max=32,
@@ -158,6 +163,15 @@ SETTINGS = _table(
     Setting("area_light_samples", int, 8, "Area Light Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
             help="Per side: a lamp with an extent (area lamp, sun with an angle, point or spot with a "
                  "radius) is integrated with this many squared stratified points per texel"),
+    Setting("footprint_samples", int, 16, "Texel Footprint Samples", minimum=1, maximum=256, soft_max=64,
+            help="Points per texel spread over its footprint on the surface, as Cycles' bake spreads its samples "
+                 "(half a texel wide, on the texel's own face): the table's rays start from them and exact "
+                 "shadows are averaged over them, so shadow edges and contacts are anti-aliased (1: texel "
+                 "centres only)"),
+    Setting("sharp_contacts", bool, True, "Sharp Contacts",
+            help="Where a ray of the table lands within two texels of its target (objects resting on others, "
+                 "corners), light it at the landing point with exact shadow rays instead of reading the target's "
+                 "texels, so contact shadows are not blurred by the texel size (exact shadows only)"),
     Setting("emitter_samples", int, 16, "Emitter Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
             help="Points per emissive object for direct sampling of small emitters"),
     # A preference (the machine's), not the scene's.
@@ -282,9 +296,12 @@ class BakeSettings(_Validated):
     shadow_regions: int = _default("shadow_regions")
     rotate: bool = _default("rotate")
     seed: int = _default("seed")
+    interleave: int = _default("interleave")
     passes: tuple[str, ...] = _default("passes")
     margin: int = _default("margin")
     area_light_samples: int = _default("area_light_samples")
+    footprint_samples: int = _default("footprint_samples")
+    sharp_contacts: bool = _default("sharp_contacts")
     emitter_samples: int = _default("emitter_samples")
     threads: int = _default("threads")
     chunk_rays: int = _default("chunk_rays")

@@ -18,6 +18,10 @@ SHADOW_RAY_SHORTEN = 1e-4
 # its longest edge, has no usable normal: it is skipped rather than shaded.
 DEGENERATE_TRIANGLE_RATIO = 1e-12
 
+# A face whose corner normals all agree with its own normal to this (1 - cos) is flat-shaded:
+# float32 normals of a flat face differ from the float64 face normal by ~1e-7.
+FLAT_NORMAL_SLACK = 1e-5
+
 # Barycentric slack when deciding whether a texel centre lies inside a UV triangle.
 RASTER_EDGE_EPSILON = 1e-7
 

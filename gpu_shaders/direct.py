@@ -9,8 +9,10 @@ counts per sample and region) and, with exact shadows, the shadow rays themselve
 Lamps integrated with the direct-light sampler (area lamps, suns with an angle, points
 and spots with a radius: :func:`core.lights.lamps.lamp_points` above one) draw their
 points per sample; those go through numpy's pass, and the GPU evaluates the hard lamps
-(one point each). Light linking is applied to the GPU's result per lamp, with the same
-receiver mask numpy uses, and shadow rays go to each lamp's blocker scene.
+(one point each) at texel centres. With exact shadows over texel footprints
+(:attr:`core.transport.contract.SampleSet.footprint`, the default) every lamp is several
+points a texel, and all of them go through numpy's pass. Light linking is applied to the
+GPU's result per lamp, with the same receiver mask numpy uses, and shadow rays go to each lamp's blocker scene.
 
 One dispatch per lamp; its virtual points are summed in float32 on the GPU and the
 lamps in float64 on the CPU, like numpy. Samples are split into chunks when one
@@ -143,8 +145,12 @@ def lamp_irradiance(sample_set, shadowing, lights, report=None,
     SampleSet, shadows as ``shadowing`` (a Shadowing) says, ``report(fraction)`` after each lamp.
     """
     samples = len(sample_set.position)
-    sampled = [light for light in lights
-               if light.kind == "AREA" or lamp_points(light, shadowing.area_light_samples) > 1]
+    # Over texel footprints (exact shadows) every lamp is several points a texel: numpy's.
+    # So do smooth faces (lit by the shading normal's horizon, their shadow rays lifted).
+    over_footprints = ((shadowing.mode == "exact" and sample_set.footprint is not None)
+                       or sample_set.terminator is not None)
+    sampled = [light for light in lights if over_footprints or light.kind == "AREA"
+               or lamp_points(light, shadowing.area_light_samples) > 1]
     if sampled:
         hard = [light for light in lights if not any(light is other for other in sampled)]
         # Progress shared by expected shadow rays, as the numpy pass weighs its lamps.

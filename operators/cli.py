@@ -33,6 +33,7 @@ SCENE_SETTING_OPTIONS = {
     "preset": "--preset", "directions": "--directions", "bounces": "--bounces", "shadows": "--shadows",
     "passes": "--passes", "resolution": "--resolution", "texel_density": "--texel-density", "mode": "--mode",
     "rotate": "--rotate", "seed": "--seed", "margin": "--margin", "use_cache": "--no-cache",
+    "footprint_samples": "--footprint-samples", "interleave": "--interleave", "sharp_contacts": "--no-sharp-contacts",
     "cache_dir": "--cache-dir", "light_groups": "--light-groups", "vertex_lookup": "--vertex-lookup",
     "refine_vertex_objects": "--refine", "output_dir": "--out",
     "bake_all": "--objects",  # the command bakes every visible mesh unless --objects names some
@@ -119,6 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
         _setting_option(sub, "--rotate", SETTINGS["rotate"])
         _setting_option(sub, "--seed", SETTINGS["seed"])
         _setting_option(sub, "--margin", SETTINGS["margin"], "PX", default=True)
+        _setting_option(sub, "--footprint-samples", SETTINGS["footprint_samples"], "N", default=True)
+        _setting_option(sub, "--interleave", SETTINGS["interleave"], "T", default=True)
+        sub.add_argument("--no-sharp-contacts", action="store_true",
+                         help="read short rays' light from the target's texels (see Sharp Contacts)")
         sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
         sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
         sub.add_argument("--previews", action="store_true", default=None,
@@ -150,7 +155,8 @@ def _apply_settings(args, props) -> None:
         raise BakeRefused("give one of --resolution (one atlas size) or --texel-density (sized by area), not both")
     given = {"directions": args.directions, "bounces": args.bounces, "resolution": args.resolution,
              "margin": args.margin, "threads": args.threads, "seed": args.seed,
-             "texel_density": args.texel_density, "passes": passes}
+             "texel_density": args.texel_density, "passes": passes, "footprint_samples": args.footprint_samples,
+             "interleave": args.interleave}
     for name, value in given.items():
         reason = None if value is None else SETTINGS[name].check(
             value, SCENE_SETTING_OPTIONS.get(name) or PREFERENCE_OPTIONS[name])
@@ -159,7 +165,7 @@ def _apply_settings(args, props) -> None:
     if args.preset is not None:
         props.preset = args.preset.upper()
     for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate",
-                 "light_groups", "vertex_lookup"):
+                 "light_groups", "vertex_lookup", "footprint_samples", "interleave"):
         value = getattr(args, name)
         if value is not None:
             setattr(props, name, value)
@@ -167,6 +173,8 @@ def _apply_settings(args, props) -> None:
         props.refine_vertex_objects = args.refine
     if args.cache_dir is not None:
         props.cache_dir = os.path.abspath(args.cache_dir)
+    if args.no_sharp_contacts:
+        props.sharp_contacts = False
     if args.no_cache:
         props.use_cache = False
     if args.texel_density is not None:

@@ -36,10 +36,13 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         seed = column.row()
         seed.active = props.rotate
         seed.prop(props, "seed")
+        column.prop(props, "interleave")
         column.separator()
         column.prop(props, "resolution")
         column.prop(props, "texel_density")
         column.prop(props, "margin")
+        column.prop(props, "footprint_samples")
+        column.prop(props, "sharp_contacts")
         column.prop(props, "mode")
         column.prop(props, "vertex_lookup")
         column.prop(props, "refine_vertex_objects")

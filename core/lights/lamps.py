@@ -18,7 +18,6 @@ from ..errors import BakeRefused
 from ..scene import Light
 from .sampler import (
     DirectSampler,
-    Footprint,
     cosine_hemisphere,
     orthonormal_frame,
     square_to_disk,
@@ -151,7 +150,7 @@ def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> 
 
 
 def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
-                        sample_ids: np.ndarray | None = None, seed: int = 0, footprint: Footprint | None = None,
+                        sample_ids: np.ndarray | None = None, seed: int = 0, footprint: np.ndarray | None = None,
                         points: int | None = None) -> Iterator[LightContribution]:
     """Unshadowed irradiance of ``light`` at every sample, one sampler point at a time.
 
@@ -169,7 +168,8 @@ def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray, 
     position, normal : (K, 3) float64 sample positions and unit shading normals
     sample_ids : (K,) integer, each sample's index in the bake (default 0..K-1): seeds its scramble
     seed : the bake seed
-    footprint : see :data:`core.lights.sampler.Footprint`; None: every point at the sample itself
+    footprint : (K, P, 3) float offsets of each sample's footprint points (core.sampling.footprint);
+        point j is received at footprint point j % P; None: every point at the sample itself
     """
     lamp = LampPoints(light, position, normal, area_light_samples, sample_ids, seed, footprint, points)
     for point in range(lamp.count):
@@ -184,7 +184,7 @@ class LampPoints:
     """
 
     def __init__(self, light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
-                 sample_ids: np.ndarray | None = None, seed: int = 0, footprint: Footprint | None = None,
+                 sample_ids: np.ndarray | None = None, seed: int = 0, footprint: np.ndarray | None = None,
                  points: int | None = None):
         strength = max(float(light.strength), 0.0)
         if not np.isfinite(strength):
@@ -194,7 +194,9 @@ class LampPoints:
         self.light, self.position, self.normal, self.footprint = light, position, normal, footprint
         self.scale = strength * np.asarray(light.color, np.float64)[:3]
         self.count = lamp_points(light, area_light_samples) if points is None else max(1, int(points))
-        self.hard = self.count == 1 and footprint is None and light.kind != "AREA"
+        # A lamp without extent is one exact point; over a footprint it is that point seen from each footprint point.
+        self.point_lamp = lamp_points(light, area_light_samples) == 1 and light.kind != "AREA"
+        self.hard = self.count == 1 and footprint is None and self.point_lamp
         if not self.hard:
             self.sampler = DirectSampler(self.count, seed)
             ids = np.arange(len(position)) if sample_ids is None else np.asarray(sample_ids)
@@ -203,11 +205,10 @@ class LampPoints:
     def subset(self, rows: np.ndarray) -> LampPoints:
         """The same lamp's points at the samples ``rows`` (an index array) only, each sample
         keeping its own scramble; contributions then have one row per chosen sample."""
-        if self.footprint is not None:
-            # A Footprint maps uniforms of all samples; it has no subset (issue 15 may add one).
-            raise ValueError("bug: LampPoints.subset with a footprint")
         chosen = copy.copy(self)
         chosen.position, chosen.normal = self.position[rows], self.normal[rows]
+        if self.footprint is not None:
+            chosen.footprint = self.footprint[rows]
         if not self.hard:
             chosen.scrambles = self.scrambles[:, rows]
         return chosen
@@ -217,9 +218,12 @@ class LampPoints:
         position, normal = self.position, self.normal
         if self.hard:
             return _hard_contribution(self.light, position, normal, self.scale)
-        u = self.sampler.uniforms(point, scrambles=self.scrambles)
-        receiver = position if self.footprint is None else position + self.footprint(u[:, 2:4])
-        part = _sampled_contribution(self.light, receiver, normal, u[:, :2], self.scale / self.count)
+        receiver = position if self.footprint is None else position + self.footprint[:, point % self.footprint.shape[1]]
+        if self.point_lamp:
+            part = _hard_contribution(self.light, receiver, normal, self.scale / self.count)
+        else:
+            u = self.sampler.uniforms(point, scrambles=self.scrambles)
+            part = _sampled_contribution(self.light, receiver, normal, u[:, :2], self.scale / self.count)
         if self.footprint is not None:
             part.position = receiver
         return part

@@ -1,9 +1,10 @@
-"""The direct-light sampler: M points per surface sample over (lamp extent) x (texel footprint).
+"""The direct-light sampler: M stratified points per surface sample over a lamp's extent.
 
-One 4D point set serves both integrals, stratified jointly: dimensions 0-1 pick a point
-on the lamp (a direction in a sun's cone, a point on a sphere, disk or area lamp),
-dimensions 2-3 a position inside the sample's footprint on its surface. The set is the
-first four dimensions of Sobol's sequence (Joe & Kuo's direction numbers), Owen-scrambled
+Dimensions 0-1 of a 4D point set pick a point on the lamp (a direction in a sun's cone, a
+point on a sphere, disk or area lamp); the texel's footprint has its own fixed points per
+texel (core.sampling.footprint, shared with the visibility table), and lamp point j is
+received at footprint point j % P. The set is the first four dimensions of Sobol's
+sequence (Joe & Kuo's direction numbers), Owen-scrambled
 per sample by the hash of Burley ("Practical Hash-based Owen Scrambling", JCGT 2020),
 seeded by the sample's index, the lamp and the bake seed. So every sample sees a
 differently scrambled, still stratified set (shadow banding becomes fine noise), and a
@@ -15,7 +16,6 @@ points is unbiased, and the first 2^m points of each sample stay an elementary n
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,7 +55,7 @@ def sobol_point(index: int) -> np.ndarray:
     return point.astype(np.uint32)
 
 
-def _hash(x: np.ndarray) -> np.ndarray:
+def hash32(x: np.ndarray) -> np.ndarray:
     """A 32-bit integer mixer (lowbias32, Wellons); (n,) uint32 -> (n,) uint32."""
     x = np.asarray(x, np.uint32).copy()
     x ^= x >> np.uint32(16)
@@ -109,9 +109,9 @@ class DirectSampler:
         """(4, K) uint32 Owen-scramble seeds of samples ``sample_ids`` (K,) integer (their
         indices in the bake) for a lamp's ``stream`` (:func:`stream_of`), one per dimension."""
         ids = np.asarray(sample_ids).astype(np.uint32)
-        base = _hash(ids ^ _hash(np.array([self.seed & 0xFFFFFFFF], np.uint32))
-                     ^ _hash(np.array([stream & 0xFFFFFFFF], np.uint32) + np.uint32(0x9E3779B9)))
-        return np.stack([_hash(base + np.uint32((0x68E31DA4 * (d + 1)) & 0xFFFFFFFF)) for d in range(DIMENSIONS)])
+        base = hash32(ids ^ hash32(np.array([self.seed & 0xFFFFFFFF], np.uint32))
+                     ^ hash32(np.array([stream & 0xFFFFFFFF], np.uint32) + np.uint32(0x9E3779B9)))
+        return np.stack([hash32(base + np.uint32((0x68E31DA4 * (d + 1)) & 0xFFFFFFFF)) for d in range(DIMENSIONS)])
 
     def uniforms(self, point: int, sample_ids: np.ndarray | None = None, stream: int = 0,
                  scrambles: np.ndarray | None = None) -> np.ndarray:
@@ -176,19 +176,3 @@ def cosine_hemisphere(normal: np.ndarray, u: np.ndarray) -> np.ndarray:
     z = np.sqrt(np.clip(1.0 - np.einsum("nd,nd->n", disk, disk), 0.0, None))
     tangent, bitangent = orthonormal_frame(normal)
     return disk[:, :1] * tangent + disk[:, 1:] * bitangent + z[:, None] * normal
-
-
-Footprint = Callable[[np.ndarray], np.ndarray]
-"""Where in its footprint a sample's point lies: (K, 2) uniforms in [0, 1)^2 -> (K, 3) world
-offsets from the sample's position (issue 15 passes each texel's footprint on its triangle)."""
-
-
-def parallelogram_footprint(axes: np.ndarray) -> Footprint:
-    """The footprint spanned by ``axes`` (K, 2, 3) (a texel's two edges on the surface),
-    centred on each sample."""
-    axes = np.asarray(axes, np.float64)
-
-    def offset(u: np.ndarray) -> np.ndarray:
-        return (u[:, :1] - 0.5) * axes[:, 0] + (u[:, 1:] - 0.5) * axes[:, 1]
-
-    return offset

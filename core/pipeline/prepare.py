@@ -12,16 +12,26 @@ import numpy as np
 from ..errors import BakeRefused
 from ..geometry import face_normals
 from ..lights.environment import has_light
-from ..sampling.samples import ObjectSamples, build_samples, build_vertex_samples
+from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples
 from ..scene import Scene
 from ..settings import BakeSettings
+from ..transport.contacts import find_short_hits
 from ..transport.contract import GatherGeometry, SampleSet, Shadowing
 from ..transport.gather import AtlasLayout, gather_normalisation
 from ..transport.groups import LightGroup, light_key_parts
+from ..transport.interleave import filter_pairs, find_near_hits
 from ..visibility.cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
-from ..visibility.directions import direction_set
+from ..visibility.directions import direction_set, interleaved_rotations
 from ..visibility.rays import RayScene
-from ..visibility.table import DeferredTable, HitGeometry, TraceRequest, table_from_arrays, trace_table, update_table
+from ..visibility.table import (
+    DeferredTable,
+    HitGeometry,
+    TraceRequest,
+    frame_vectors,
+    table_from_arrays,
+    trace_table,
+    update_table,
+)
 from .budget import check_budget
 from .progress import Stages
 
@@ -48,6 +58,10 @@ class Prepared:
     ray_scene: RayScene
     origins: np.ndarray  # (K, 3) float32, offset off the surface
     table: object  # VisibilityTable or None
+    footprint: tuple | None  # ((K, P, 3) footprint points, (K, 4, 3) box corners) float32 (ObjectSamples), or None
+    terminator: tuple | None  # ((K, 3) lifts, (K,) cutoffs) for smooth faces' shadow rays (SampleSet), or None
+    rotations: np.ndarray | None  # (G, 3, 3) interleaved rotations of the direction set, or None (one set)
+    group: np.ndarray | None  # (K,) int64 each sample's rotation, or None
     stage_seconds: dict
     skipped: list
     warnings: list
@@ -58,12 +72,38 @@ class Prepared:
     _gather_scale: np.ndarray | None = None
     _sample_set: SampleSet | None = None
     _shadowing: Shadowing | None = None
+    _frame_normal: np.ndarray | None = None
+    _short_hits: object = False  # core.transport.contacts.ShortHits, None (none), False (not looked for)
+    _near_hits: object = False
+    _filter_pairs: tuple | None = None
+
+    def filter_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """The texel pairs the interleaving filter averages (core.transport.interleave.filter_pairs),
+        found once per preparation: they depend on geometry alone."""
+        if self._filter_pairs is None:
+            self._filter_pairs = filter_pairs(self)
+        return self._filter_pairs
+
+    def near_hits(self):
+        """The table entries that land near their sample (core.transport.interleave.find_near_hits),
+        found once per preparation: they depend on geometry alone. None when there are none."""
+        if self._near_hits is False:
+            self._near_hits = find_near_hits(self)
+        return self._near_hits
+
+    def short_hits(self):
+        """The table entries whose rays land close by (core.transport.contacts), found once
+        per preparation: they depend on geometry alone. None when there are none."""
+        if self._short_hits is False:
+            self._short_hits = find_short_hits(self)
+        return self._short_hits
 
     def sample_set(self) -> SampleSet:
         """All samples as the transport contract's :class:`SampleSet`."""
         if self._sample_set is None:
             owner = np.repeat(np.arange(len(self.meshes)), np.diff(self.sample_offset))
-            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins, owner)
+            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins, owner,
+                                         *(self.footprint or (None, None)), *(self.terminator or (None, None)))
         return self._sample_set
 
     def shadowing(self) -> Shadowing:
@@ -73,17 +113,39 @@ class Prepared:
             s = self.settings
             self._shadowing = Shadowing(s.shadows, self.ray_scene, s.area_light_samples, self.table,
                                         self.directions, s.shadow_regions, tuple(m.name for m in self.meshes),
-                                        np.array([m.casts_shadow for m in self.meshes], bool), s.seed)
+                                        np.array([m.casts_shadow for m in self.meshes], bool), s.seed,
+                                        s.footprint_samples, self.rotations, self.group)
         return self._shadowing
 
     def gather_geometry(self) -> GatherGeometry:
-        """The light-independent half of every gather over this preparation."""
-        return GatherGeometry(self.table, self.normal, self.gather_scale(), self.layout, self.settings.threads)
+        """The light-independent half of every gather over this preparation. The normals are
+        in each sample's frame of the direction set (its interleaved rotation), so a gather
+        weighs direction i by max(0, d_i . n) whatever the rotation."""
+        return GatherGeometry(self.table, self.frame_normal, self.gather_scale(), self.layout, self.settings.threads)
+
+    @property
+    def frame_normal(self) -> np.ndarray:
+        """(K, 3) the shading normals in each sample's frame of the direction set."""
+        if self._frame_normal is None:
+            self._frame_normal = frame_vectors(self.normal, self.rotations, self.group)
+        return self._frame_normal
+
+    def world_directions(self) -> np.ndarray:
+        """The directions rays travel: (N, 3), or (G, N, 3) per interleaved rotation."""
+        if self.rotations is None:
+            return self.directions
+        return np.einsum("gab,nb->gna", self.rotations, self.directions)
+
+    def sample_directions(self, direction_index: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 world direction of direction i of sample k for pairs (n,) each."""
+        if self.rotations is None:
+            return self.directions[direction_index]
+        return np.einsum("nab,nb->na", self.rotations[self.group[sample_index]], self.directions[direction_index])
 
     def gather_scale(self) -> np.ndarray:
         """Per-sample gather normalisation (K,), computed once per preparation."""
         if self._gather_scale is None:
-            self._gather_scale = gather_normalisation(self.table, self.normal)
+            self._gather_scale = gather_normalisation(self.table, self.frame_normal)
         return self._gather_scale
 
     def bounces_needed(self) -> int:
@@ -103,6 +165,7 @@ class Prepared:
         s = self.settings
         emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
         parts = [self.table_key, self.bounces_needed(), s.shadows, s.shadow_regions, s.area_light_samples,
+                 s.sharp_contacts,
                  s.emitter_samples, max(s.margin, 2), s.vertex_lookup, self.albedo, self.normal,
                  np.where(emitting[:, None], self.emission, 0.0), group.world, group.emitting,
                  np.array([m.output for m in self.meshes])]
@@ -180,7 +243,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         warnings.append(precision_warning)
     object_samples: list[ObjectSamples] = []
     for index, mesh in enumerate(meshes):
-        object_samples.append(build_vertex_samples(mesh, centre) if mesh.mode == "vertex" else build_samples(mesh))
+        object_samples.append(build_vertex_samples(mesh, centre) if mesh.mode == "vertex"
+                              else build_samples(mesh, settings.footprint_samples))
         stages.report((index + 1) / len(meshes))
     for mesh, samples in zip(meshes, object_samples):
         if len(samples) == 0 and mesh.output:
@@ -193,6 +257,9 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     position = np.concatenate([s.position for s in object_samples])
     geometric = np.concatenate([s.geometric_normal for s in object_samples])
     emission = np.concatenate([s.emission for s in object_samples]).astype(np.float64)
+    footprint = concatenated_footprint(object_samples, settings.footprint_samples)
+    terminator = concatenated_terminator(meshes, object_samples)
+    rotations, group = interleaving(object_samples, settings.interleave, settings.seed)
     directions = direction_set(settings.directions, settings.rotate, settings.seed)
     if table_needed is None:
         table_needed = (settings.bounces > 0 or bool(np.any(emission > 0)) or "ao" in settings.passes
@@ -208,7 +275,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     visibility_rays = 0
     if table_needed:
         stages.start("cache" if cache is not None else "visibility")
-        request = TraceRequest(directions, position, geometric, scene_hit_geometry(meshes), settings.chunk_rays)
+        request = TraceRequest(directions, position, geometric, scene_hit_geometry(meshes), settings.chunk_rays,
+                               None if footprint is None else footprint[0], rotations, group)
         table, status, visibility_rays = _cached_or_traced_table(TableJob(
             meshes, object_keys, key, settings, request, sample_offset, ray_scene, cache, require_cached_table,
             stages, skipped, warnings))
@@ -229,9 +297,51 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples],
                                       [getattr(s, "corner_sample", None) for s in object_samples],
                                       settings.vertex_lookup == "nearest"), directions=directions,
-        ray_scene=ray_scene, origins=ray_scene.ray_origins(position, geometric), table=table,
+        ray_scene=ray_scene, origins=ray_scene.ray_origins(position, geometric), table=table, footprint=footprint,
+        terminator=terminator, rotations=rotations, group=group,
         stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings, table_key=key,
         visibility_rays=visibility_rays, cache=cache, cache_status=status)
+
+
+def concatenated_footprint(object_samples, count: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Every sample's footprint points (K, count, 3) and box corners (K, 4, 3) float32
+    offsets, objects concatenated (zero for samples that stand for a point, such as vertex
+    samples), or None when ``count`` is 1."""
+    if count <= 1:
+        return None
+    points = np.concatenate([s.footprint if s.footprint is not None else np.zeros((len(s), count, 3), np.float32)
+                             for s in object_samples])
+    corners = np.concatenate([s.footprint_corners if s.footprint_corners is not None
+                              else np.zeros((len(s), 4, 3), np.float32) for s in object_samples])
+    return points, corners
+
+
+def interleaving(object_samples, tile: int, seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The interleaved rotations (G, 3, 3) of the direction set and each sample's (K,) int64, or
+    (None, None) for one set. A texel at (x, y) of an atlas takes rotation
+    (x % tile) + tile * (y % tile), so every tile x tile block holds each rotation once; vertex
+    samples, which no filter averages, keep the set itself (rotation 0)."""
+    if tile <= 1:
+        return None, None
+    groups = []
+    for samples in object_samples:
+        if isinstance(samples, VertexSamples):
+            groups.append(np.zeros(len(samples), np.int64))
+        else:
+            x, y = samples.pixel % samples.width, samples.pixel // samples.width
+            groups.append((x % tile + tile * (y % tile)).astype(np.int64))
+    return interleaved_rotations(tile * tile, seed), np.concatenate(groups)
+
+
+def concatenated_terminator(meshes, object_samples) -> tuple[np.ndarray, np.ndarray] | None:
+    """Every sample's shadow-ray lift (K, 3) float64 and its object's cutoff (K,) float64
+    (core.sampling.terminator), objects concatenated; None when no sample has a lift."""
+    if all(s.terminator is None for s in object_samples):
+        return None
+    lifts = np.concatenate([s.terminator if s.terminator is not None else np.zeros((len(s), 3))
+                            for s in object_samples])
+    cutoffs = np.concatenate([np.full(len(s), m.terminator_offset) for m, s in zip(meshes, object_samples)])
+    return lifts, cutoffs
 
 
 # Float32 resolves about 1 part in 1.7e7; ray origins step a few hundred ULPs off the

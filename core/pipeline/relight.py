@@ -111,7 +111,9 @@ def relight_many(prepared: Prepared, lightings, progress=None,
         # The world's sun discs are lamps of the world's light group.
         suns = [replace(sun, group=world_group or "world") for sun in getattr(world, "suns", ())]
         lights = usable_lights(list(lights) + suns, warnings)
-        radiance = world_radiance(world, p.directions)
+        # Per interleaved rotation (G, N, 3) where the set is rotated per texel.
+        directions = p.world_directions()
+        radiance = world_radiance(world, directions.reshape(-1, 3)).reshape(directions.shape)
         needs_table = (settings.bounces > 0 or has_emission or bool(np.any(radiance > 0)) or "ao" in wants
                        or (bool(lights) and settings.shadows == "fractions"))
         if p.table is None and needs_table:
@@ -182,7 +184,8 @@ def relight_many(prepared: Prepared, lightings, progress=None,
             stages.record_pass(f"accumulation of passes ({len(parts)} groups)", backend.name,
                                time.perf_counter() - started)
         if "ao" in wants:
-            per_pass["ao"] = np.repeat(ambient_occlusion(p.table, p.normal, p.gather_scale())[:, None], 3, axis=1)
+            per_pass["ao"] = np.repeat(ambient_occlusion(p.table, p.frame_normal, p.gather_scale())[:, None], 3,
+                                       axis=1)
         per_lighting.append((per_pass, parts))
 
     images = []

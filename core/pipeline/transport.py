@@ -8,9 +8,11 @@ import time
 import numpy as np
 
 from ..lights.emitters import emitter_irradiance, find_emitters, sampled_directly
+from ..transport.contacts import contact_correction
 from ..transport.contract import GatherSource, TransportBackend
 from ..transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
 from ..transport.groups import LightGroup, Transported
+from ..transport.interleave import near_light, reconstruct_interleaved
 from .prepare import Prepared
 from .progress import Stages
 
@@ -74,6 +76,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         irradiance, rays = backend.lamp_irradiance(
             p.sample_set(), p.shadowing(), group.lights, lambda f, i=index: report(lamp_share * (i + f) / count))
         results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
+    contacts = _contact_light(p, backend, groups, results, stages, skipped)
     for number, (owner, emitter, chosen) in enumerate(sampled):
         irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen],
                                               p.geometric[chosen], p.origins[chosen], p.ray_scene)
@@ -114,24 +117,86 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         return result
 
     if gathers_emission:
-        emitted = timed_gather("gather of emitted and world light",
-                               GatherSource(p.to_atlas(wide(emissions), dilate), wide(worlds), exclude),
-                               step_progress(0), outputs if bounces == 0 else None)
+        emitting_atlas = p.to_atlas(wide(emissions), dilate)
+        emitted = _gather_emission(p, timed_gather, emitting_atlas, np.concatenate(worlds, axis=-1), exclude,
+                                   step_progress(0), outputs if bounces == 0 else None)
+        emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude))
+        np.maximum(emitted, 0.0, out=emitted)  # the filter's subtraction may leave -1e-10
         gathers += 1
         for result, part in zip(results, narrow(emitted)):
             result.direct += part
     gathered = np.zeros((len(p.position), 3 * count))
     direct = wide([r.direct for r in results])
     albedo = np.tile(p.albedo, count)
+    correction = None
     for bounce in range(1, bounces + 1):
         if not np.any(direct + gathered > 0):
             skipped.append(f"bounce {bounce} and later: no light left to reflect")
             break
-        reflected = albedo / np.pi * (direct + gathered)
-        gathered = timed_gather(f"gather of bounce {bounce}",
-                                GatherSource(p.to_atlas(reflected, dilate), np.zeros(3 * count)),
+        reflected_atlas = p.to_atlas(albedo / np.pi * (direct + gathered), dilate)
+        gathered = timed_gather(f"gather of bounce {bounce}", GatherSource(reflected_atlas, np.zeros(3 * count)),
                                 step_progress(bounce), outputs if bounce == bounces else None)
         gathers += 1
+        if contacts is not None:
+            # Every gather looks the lamps' direct light up again (bounce b gathers direct plus
+            # b - 1 bounces), so every one gets the same correction of its short hits.
+            if correction is None:
+                short, lamp_direct, at_hits = contacts
+                correction = contact_correction(short, p.layout, p.to_atlas(albedo / np.pi * lamp_direct, dilate),
+                                                at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
+            gathered += correction
+    if bounces and p.rotations is not None and np.any(gathered):
+        # The last gather's near part (its near entries' lookups, and the contacts' correction) stays sharp.
+        near = near_light(p, p.near_hits(), reflected_atlas)
+        gathered = reconstruct_interleaved(p, gathered, near if correction is None else near + correction)
+    # A contact correction takes light away where a lookup overestimated it; rounding there
+    # (and in the filter's subtraction) must never leave negative light.
+    np.maximum(gathered, 0.0, out=gathered)
     for result, part in zip(results, narrow(gathered)):
         result.gathered = part
     return results, gathers
+
+
+def _gather_emission(p: Prepared, timed_gather, atlas: np.ndarray, world: np.ndarray, exclude, progress, samples):
+    """The gather of emitted and world light. A world seen per interleaved rotation (G, N, C)
+    is gathered once per rotation, over that rotation's samples."""
+    name = "gather of emitted and world light"
+    if world.ndim < 3 or not np.any(world):
+        return timed_gather(name, GatherSource(atlas, world[0] if world.ndim == 3 else world, exclude), progress,
+                            samples)
+    total = np.zeros((len(p.position), atlas.shape[1]))
+    wanted = np.ones(len(p.position), bool) if samples is None else np.isin(np.arange(len(p.position)), samples)
+    for rotation in range(len(world)):
+        chosen = np.nonzero(wanted & (p.group == rotation))[0]
+        if len(chosen):
+            total += timed_gather(f"{name}, rotation {rotation}", GatherSource(atlas, world[rotation], exclude),
+                                  lambda f, r=rotation: progress((r + f) / len(world)), chosen)
+    return total
+
+
+def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGroup], results: list[Transported],
+                   stages: Stages, skipped: list):
+    """The lamps' direct light where short rays land (core.transport.contacts), per group, for
+    the first bounce's correction: (short hits, (K, 3G) the samples' lamp light, (m, 3G) the
+    hits' lamp light), or None when the bake needs none (say why in ``skipped``)."""
+    if not p.settings.sharp_contacts or p.bounces_needed() == 0 or p.table is None:
+        return None
+    if not any(group.lights for group in groups):
+        return None
+    if p.settings.shadows != "exact":
+        skipped.append("sharp contacts: shadow fractions have no shadow to evaluate where short rays land")
+        return None
+    started = time.perf_counter()
+    short = p.short_hits()
+    if short is None:
+        skipped.append("sharp contacts: no ray of the table lands within two texels of its target")
+        return None
+    at_hits = []
+    for group, result in zip(groups, results):
+        irradiance, rays = backend.lamp_irradiance(short.points, p.shadowing(), group.lights)
+        at_hits.append(irradiance)
+        result.shadow_rays += rays
+        result.contact_hits = len(short)
+    at_hits = np.concatenate(at_hits, axis=1)
+    stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
+    return short, np.concatenate([r.direct for r in results], axis=1).copy(), at_hits

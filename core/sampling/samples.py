@@ -9,7 +9,9 @@ from .. import tolerances as tol
 from ..geometry import face_normals
 from ..outputs.images import bilinear_wrap
 from ..scene import Mesh
+from .footprint import footprint_corners, footprint_offsets
 from .raster import rasterize
+from .terminator import smooth_surface_offsets
 
 
 @dataclass
@@ -25,6 +27,13 @@ class ObjectSamples:
     albedo : (k, 3) float32
     emission : (k, 3) float32
     coverage : (height, width) bool
+    footprint : (k, P, 3) float32 offsets from ``position`` of the points spread over each
+        texel's footprint (:func:`core.sampling.footprint.footprint_offsets`), or None: the
+        samples stand for their own position only (vertex samples, or one point per texel)
+    footprint_corners : (k, 4, 3) float32 offsets to the corners of each texel's box, where
+        exact shadows probe for an edge (core.sampling.footprint.footprint_corners), or None
+    terminator : (k, 3) float64 lift towards the smooth surface for shadow rays
+        (:func:`core.sampling.terminator.smooth_surface_offsets`), or None where no face is smooth
     """
 
     width: int
@@ -39,6 +48,9 @@ class ObjectSamples:
     emission: np.ndarray
     coverage: np.ndarray
     uv_overlap_texels: int = 0
+    footprint: np.ndarray | None = None
+    footprint_corners: np.ndarray | None = None
+    terminator: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.pixel)
@@ -52,8 +64,9 @@ def _normalise(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     return out
 
 
-def build_samples(mesh: Mesh) -> ObjectSamples:
-    """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel."""
+def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
+    """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel, with
+    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples)."""
     width, height = mesh.resolution
     corner_uv = mesh.uv_maps[mesh.bake_uv_map]
     # Only triangles with UV area can hold texels: the others need no normal (an occluder
@@ -107,11 +120,27 @@ def build_samples(mesh: Mesh) -> ObjectSamples:
     np.nan_to_num(emission, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     np.clip(emission, 0.0, None, out=emission)
 
+    footprint = box_corners = None
+    if footprint_samples > 1:
+        corners = mesh.positions[mesh.triangles].astype(np.float64)
+        footprint = footprint_offsets(raster.pixel, tri, width, height, raster_uv, corners, position,
+                                      footprint_samples)
+        box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint)
+    terminator = None
+    # Faces whose corner normals are their own (flat shading) have no smooth surface to lift to.
+    smooth = np.einsum("kcd,kd->kc", mesh.corner_normals[tri].astype(np.float64), geometric).min(axis=1) \
+        < 1.0 - tol.FLAT_NORMAL_SLACK if len(tri) else np.zeros(0, bool)
+    if mesh.terminator_offset > 0 and np.any(smooth):
+        terminator = np.zeros((len(tri), 3))
+        terminator[smooth] = smooth_surface_offsets(mesh.positions, mesh.triangles, mesh.corner_normals,
+                                                    geometric[smooth], tri[smooth], bary[smooth])
+        terminator = np.nan_to_num(terminator, nan=0.0, posinf=0.0, neginf=0.0)
     return ObjectSamples(
         width=width, height=height, pixel=raster.pixel, triangle=tri,
         barycentric=raster.barycentric, position=position, normal=shading,
         geometric_normal=geometric, albedo=albedo, emission=emission,
-        coverage=raster.coverage, uv_overlap_texels=int(raster.overlap_count),
+        coverage=raster.coverage, uv_overlap_texels=int(raster.overlap_count), footprint=footprint,
+        footprint_corners=box_corners, terminator=terminator,
     )
 
 

@@ -38,6 +38,14 @@ class SampleSet:
     origins : (K, 3) float32 ray origins, offset off the surface along ``geometric``
     owner : (K,) int64 index of the mesh each sample lies on (in :attr:`Shadowing.mesh_names`'
         order), or None when unknown (then every lamp lights every sample, linked or not)
+    footprint : (K, P, 3) float32 offsets from ``position`` of points over each sample's texel
+        footprint (core.sampling.footprint), or None: each sample stands for its position;
+        exact shadows are averaged over them
+    footprint_corners : (K, 4, 3) float32 offsets to the corners of each texel's box, where
+        exact shadows probe for an edge crossing it; None without a footprint
+    terminator : (K, 3) float64 lift towards the smooth surface of smooth-shaded faces, and
+    terminator_cutoff : (K,) float64 the object's cosine below which it applies
+        (core.sampling.terminator); None: no sample is on a smooth face
     """
 
     position: np.ndarray
@@ -45,6 +53,10 @@ class SampleSet:
     geometric: np.ndarray
     origins: np.ndarray
     owner: np.ndarray | None = None
+    footprint: np.ndarray | None = None
+    footprint_corners: np.ndarray | None = None
+    terminator: np.ndarray | None = None
+    terminator_cutoff: np.ndarray | None = None
 
     @classmethod
     def on_surface(cls, position: np.ndarray, normal: np.ndarray,
@@ -68,6 +80,7 @@ class Shadowing:
     mesh_names : the names of ``ray_scene``'s geometries, in order (light and shadow linking)
     casts_shadow : (meshes,) bool or None; False where a mesh's shadow visibility is off
     seed : the bake seed, which scrambles the direct-light sampler's points
+    footprint_samples : points a texel's footprint holds (the samples' footprint), for estimates
 
     The distant lights' fractions are computed once and shared by every sun of every
     lighting that uses this object; so is each lamp's scene of shadow blockers.
@@ -82,6 +95,9 @@ class Shadowing:
     mesh_names: tuple = ()
     casts_shadow: np.ndarray | None = None
     seed: int = 0
+    footprint_samples: int = 1
+    rotations: np.ndarray | None = None  # (G, 3, 3) the table's interleaved rotations, or None
+    group: np.ndarray | None = None  # (K,) each sample's rotation
     _regions: ShadowRegions | None = field(default=None, repr=False)
     _distant: ShadowFractions | None = field(default=None, repr=False)
     _blockers: dict = field(default_factory=dict, repr=False)
@@ -98,12 +114,12 @@ class Shadowing:
     def distant_fractions(self) -> ShadowFractions:
         """The shadow fractions for lights at infinity (suns)."""
         if self._distant is None:
-            self._distant = shadow_fractions(self.table, self.regions())
+            self._distant = shadow_fractions(self.table, self.regions(), None, self.rotations, self.group)
         return self._distant
 
     def local_fractions(self, light_distance: np.ndarray) -> ShadowFractions:
         """The shadow fractions for a lamp at ``light_distance`` (K,) from each sample."""
-        return shadow_fractions(self.table, self.regions(), light_distance)
+        return shadow_fractions(self.table, self.regions(), light_distance, self.rotations, self.group)
 
     def blocker_scene(self, light) -> RayScene | None:
         """The scene ``light``'s exact shadow rays are traced against: every mesh that casts

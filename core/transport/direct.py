@@ -6,34 +6,36 @@ import numpy as np
 
 from .. import tolerances as tol
 from ..lights.lamps import LampPoints, LightContribution, angular_radius, lamp_points, outline_probes
+from ..sampling.terminator import lift_amount
 from .contract import SampleSet, Shadowing
 
 
-def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None, footprint=None,
-                    footprint_points: int = 1) -> tuple[np.ndarray, int]:
+def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` at ``samples``, and the shadow rays traced.
 
     Each lamp is integrated over its extent with the direct-light sampler
-    (:func:`core.lights.lamps.light_contributions`; one point for a hard lamp) and, if
-    ``footprint`` (see :data:`core.lights.sampler.Footprint`) is given, over each sample's
-    footprint with the same points (at least ``footprint_points`` per lamp, also for a hard
-    one). Shadows as ``shadowing`` says: exact rays against the lamp's blockers
-    (:meth:`Shadowing.blocker_scene`), one per point where the penumbra probes of a soft lamp
-    disagree (:func:`_penumbra_probes`) and none elsewhere, or the paper's fractions
-    looked up in each point's direction, so a soft lamp averages the fractions over its
-    extent. Light linking: a lamp lights only its receivers. ``report(fraction)`` is
-    called after each lamp. The CPU backend's direct-light pass.
+    (:func:`core.lights.lamps.light_contributions`; one point for a hard lamp) and, with
+    exact shadows and a footprint in ``samples`` (:attr:`SampleSet.footprint`, P points a
+    texel), over each texel's footprint too: at least P points a lamp, point j seen from
+    footprint point j % P, also for a hard lamp, so a shadow edge crossing a texel leaves
+    the share of it that is lit. Shadows as ``shadowing`` says: exact rays against the
+    lamp's blockers (:meth:`Shadowing.blocker_scene`), one per point where the probes of
+    :func:`_penumbra_probes` disagree and none elsewhere, or the paper's fractions looked up
+    in each point's direction, so a soft lamp averages the fractions over its extent (the
+    fractions are per texel, so they ignore the footprint). Light linking: a lamp lights
+    only its receivers. ``report(fraction)`` is called after each lamp. The CPU backend's
+    direct-light pass.
     """
     fractions_mode = bool(lights) and shadowing.mode == "fractions"
+    footprint = None if fractions_mode else samples.footprint
     irradiance = np.zeros((len(samples.position), 3))
     shadow_rays = 0
     sample_ids = np.arange(len(samples.position))
     points = [lamp_points(light, shadowing.area_light_samples) for light in lights]
     if footprint is not None:
-        points = [max(count, int(footprint_points)) for count in points]
+        points = [max(count, footprint.shape[1]) for count in points]
     # Progress by expected shadow rays, not by lamps: a soft lamp traces several per sample.
-    costs = np.cumsum(points if footprint is not None else
-                      [shadow_rays_per_sample(light, shadowing) for light in lights])
+    costs = np.cumsum([shadow_rays_per_sample(light, shadowing) for light in lights])
     for light_index, light in enumerate(lights):
         fractions = None
         if fractions_mode and light.casts_shadows:
@@ -52,7 +54,7 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         # constant over the lamp) the first few points stand for all. Only penumbrae trace
         # every point. Without this, Blender's default sun (0.5 degrees) would trace
         # points[i] rays in every texel.
-        adaptive = blockers is not None and footprint is None and lamp.count >= ADAPTIVE_MIN_POINTS
+        adaptive = blockers is not None and lamp.count >= ADAPTIVE_MIN_POINTS
         decided = np.zeros(len(sample_ids), bool)
         shadowed = np.zeros(len(sample_ids), bool)
         if adaptive:
@@ -69,8 +71,10 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
                     break
                 lamp = lamp.subset(rows)
             part = lamp.contribution(index)
-            geometric = samples.geometric if rows is None else samples.geometric[rows]
-            above = np.einsum("kd,kd->k", part.to_light, geometric) > 0.0
+            # Above the shading normal's horizon, as Cycles lights a smooth face (its shadow rays
+            # then start lifted towards the smooth surface: trace_shadow_rays).
+            shading = samples.normal if rows is None else samples.normal[rows]
+            above = np.einsum("kd,kd->k", part.to_light, shading) > 0.0
             lit = above & np.any(part.irradiance > 0, axis=1)
             if receives is not None:
                 lit &= receives if rows is None else receives[rows]
@@ -97,7 +101,11 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
 
 
 def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, receives):
-    """Shadow rays to the lamp's centre and outline (:func:`core.lights.lamps.outline_probes`).
+    """Shadow rays that tell a penumbra from full light or full shadow: from the sample to
+    the lamp's centre and outline (:func:`core.lights.lamps.outline_probes`; the centre only
+    for a lamp without extent) and, over a footprint, from the four corners of the texel's
+    box (:attr:`SampleSet.footprint_corners`) to the lamp's centre: a straight shadow edge
+    that crosses the box separates two of them.
 
     Returns (decided, shadowed, rays): (K,) bool each, a sample whose probes all agree (and
     whether they all were blocked), and the rays traced. A sample none of whose probes is
@@ -107,15 +115,24 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
     seen_open, seen_blocked = np.zeros(count, bool), np.zeros(count, bool)
     # Each sample turns its round outline by its own scramble, so missed caps do not align.
     rotation = (lamp.scrambles[0] >> np.uint32(8)) * (2.0 * np.pi * 2.0 ** -24)
+    probes = [(to_light, distance, None) for to_light, distance in outline_probes(light, samples.position, rotation)]
+    footprint = lamp.footprint
+    if lamp.point_lamp:
+        probes = [] if footprint is not None else probes[:1]
+    if footprint is not None and samples.footprint_corners is not None:
+        for corner in range(FOOTPRINT_PROBES):
+            moved = samples.position + samples.footprint_corners[:, corner]
+            to_light, distance = outline_probes(light, moved, rotation)[0]
+            probes.append((to_light, distance, moved))
     rays = 0
-    for to_light, distance in outline_probes(light, samples.position, rotation):
-        aimed = np.einsum("kd,kd->k", to_light, samples.geometric) > 0.0
+    for to_light, distance, moved in probes:
+        aimed = np.einsum("kd,kd->k", to_light, samples.normal) > 0.0
         if receives is not None:
             aimed &= receives
         local = np.nonzero(aimed)[0]
         if not len(local):
             continue
-        probe = LightContribution(np.zeros((count, 3)), to_light, distance)
+        probe = LightContribution(np.zeros((count, 3)), to_light, distance, moved)
         blocked = trace_shadow_rays(blockers, samples, probe, local)
         seen_blocked[local[blocked]] = True
         seen_open[local[~blocked]] = True
@@ -130,19 +147,33 @@ def trace_shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray,
     (a :class:`core.lights.lamps.LightContribution`) are blocked in ``blockers`` (a
     RayScene). ``sample_rows``: those rows' samples, where the point was evaluated for a
     subset of the samples (default: the same indices). A point moved within its footprint
-    starts from its own origin."""
+    starts from its own origin; one on a smooth face towards a light near or below the flat
+    face's horizon starts lifted towards the smooth surface (core.sampling.terminator)."""
     sample_rows = rays if sample_rows is None else sample_rows
     distance = part.distance[rays]
     limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
-    if part.position is None:
+    to_light = part.to_light[rays]
+    lift = None
+    if samples.terminator is not None:
+        amount = lift_amount(np.einsum("kd,kd->k", samples.normal[sample_rows], to_light),
+                             np.einsum("kd,kd->k", samples.geometric[sample_rows], to_light),
+                             samples.terminator_cutoff[sample_rows])
+        lift = samples.terminator[sample_rows] * amount[:, None]
+        if not np.any(lift):
+            lift = None
+    if part.position is None and lift is None:
         origins = samples.origins[sample_rows]
     else:
-        origins = blockers.ray_origins(part.position[rays], samples.geometric[sample_rows])
-    return blockers.occluded(origins, part.to_light[rays], limit.astype(np.float32))
+        start = samples.position[sample_rows] if part.position is None else part.position[rays]
+        origins = blockers.ray_origins(start if lift is None else start + lift, samples.geometric[sample_rows])
+    return blockers.occluded(origins, to_light, limit.astype(np.float32))
 
 
-# A soft lamp with at least this many points probes for penumbrae first (_penumbra_probes).
+# A soft lamp with at least this many points probes for penumbrae first (_penumbra_probes),
+# and so does any lamp over a footprint of at least this many points.
 ADAPTIVE_MIN_POINTS = 16
+# The corners of a texel's box, whose view of the lamp's centre is probed.
+FOOTPRINT_PROBES = 4
 # Points of a soft lamp that every sample evaluates: outside penumbrae, where the lamp is
 # small (SMALL_LAMP_VARIATION), they stand for all of them.
 SMALL_LAMP_POINTS = 4
@@ -181,8 +212,14 @@ def shadow_rays_per_sample(light, settings) -> float:
     shadows (``settings``: anything with ``area_light_samples``, such as BakeSettings or a
     Shadowing): its points, or for a soft lamp that probes, the probes plus its points in
     the typical share of penumbra samples. For progress and time-left estimates."""
-    points = lamp_points(light, settings.area_light_samples)
+    footprint = getattr(settings, "footprint_samples", 1)
+    points = max(lamp_points(light, settings.area_light_samples), footprint)
     if points < ADAPTIVE_MIN_POINTS:
         return float(points)
-    probes = 5 if light.kind == "AREA" and light.area_shape not in ("DISK", "ELLIPSE") else 9
+    if lamp_points(light, settings.area_light_samples) == 1 and light.kind != "AREA":
+        probes = 0  # a lamp without extent is probed from the footprint only
+    else:
+        probes = 5 if light.kind == "AREA" and light.area_shape not in ("DISK", "ELLIPSE") else 9
+    if footprint > 1:
+        probes += FOOTPRINT_PROBES
     return probes + TYPICAL_PENUMBRA_SHARE * points

@@ -40,7 +40,8 @@ from ..scene import Mesh
 from ..settings import BakeSettings
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
-FORMAT_VERSION = 3  # 3: one checksum per array, backface counts stored
+# 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations.
+FORMAT_VERSION = 4
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
@@ -83,7 +84,10 @@ def settings_key(settings: BakeSettings) -> str:
     """Hash of the settings and code constants every table entry depends on."""
     constants = {name: getattr(tol, name) for name in sorted(dir(tol)) if name.isupper()}
     text = json.dumps({"format": FORMAT_VERSION, "directions": settings.directions, "rotate": settings.rotate,
-                       "seed": settings.seed if settings.rotate else 0, "tolerances": constants}, sort_keys=True)
+                       "seed": settings.seed if settings.rotate else 0,
+                       "footprint_samples": settings.footprint_samples,
+                       "interleave": settings.interleave,
+                       "tolerances": constants}, sort_keys=True)
     return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
 
 

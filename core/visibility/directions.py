@@ -49,6 +49,14 @@ def random_rotation(seed: int) -> np.ndarray:
     ])
 
 
+def interleaved_rotations(count: int, seed: int = 0) -> np.ndarray:
+    """(count, 3, 3) float64: the identity, then ``count - 1`` random rotations (seeded), one
+    per texel of an interleaving tile (Keller and Heidrich, "Interleaved Sampling", 2001)."""
+    rotations = [np.eye(3)]
+    rotations += [random_rotation(0x5EED0000 + 7919 * int(seed) + index) for index in range(1, count)]
+    return np.stack(rotations)
+
+
 def direction_set(count: int, rotate: bool = False, seed: int = 0) -> np.ndarray:
     """D: ``count`` spherical Fibonacci directions, optionally randomly rotated.
 

@@ -48,8 +48,8 @@ class ShadowFractions:
         return np.divide(numerator, denominator, out=np.zeros_like(numerator), where=denominator > 0)
 
 
-def shadow_fractions(table: VisibilityTable, regions: ShadowRegions,
-                     light_distance: np.ndarray | None = None) -> ShadowFractions:
+def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_distance: np.ndarray | None = None,
+                     rotations: np.ndarray | None = None, group: np.ndarray | None = None) -> ShadowFractions:
     """Count, per sample and region, the traced directions and the unoccluded ones.
 
     Parameters
@@ -59,6 +59,9 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions,
         that light. None (a distant light) counts only misses, as in the paper; a
         point light inside a closed room would otherwise be fully shadowed, since
         every direction from inside hits a wall somewhere.
+    rotations : (G, 3, 3) and group : (K,) or None
+        The table's interleaved rotations: sample k's direction i counts in the region of
+        ``rotations[group[k]] @ d_i``.
     """
     samples = table.hit_object.shape[1]
     lit = np.zeros((samples, regions.count), np.uint16)
@@ -66,11 +69,20 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions,
     limit = None
     if light_distance is not None:
         limit = (np.asarray(light_distance, np.float64) * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)
+    columns = np.arange(samples)
+    rotated = None
+    if rotations is not None:
+        turned = np.einsum("gab,nb->gna", rotations, np.asarray(table.directions, np.float64))
+        rotated = np.argmax(turned @ regions.centres.T, axis=2).astype(np.int32)  # (G, N)
     for i, region in enumerate(regions.nearest):
         row = table.hit_object[i]
-        traced[:, region] += row != BELOW_HORIZON
-        if limit is None:
-            lit[:, region] += row == MISS
+        if rotated is not None:
+            region = (columns, rotated[group, i])  # one region per sample: no index repeats
         else:
-            lit[:, region] += (row != BELOW_HORIZON) & (table.hit_distance[i] >= limit)
+            region = (slice(None), region)
+        traced[region] += row != BELOW_HORIZON
+        if limit is None:
+            lit[region] += row == MISS
+        else:
+            lit[region] += (row != BELOW_HORIZON) & (table.hit_distance[i] >= limit)
     return ShadowFractions(regions=regions, lit=lit, traced=traced)

@@ -127,6 +127,15 @@ class HitGeometry:
     vertex_object: np.ndarray | None = None
 
 
+def frame_vectors(vectors: np.ndarray, rotations: np.ndarray | None, group: np.ndarray | None) -> np.ndarray:
+    """(K, 3) world ``vectors`` (K, 3) in each sample's frame of the direction set:
+    ``rotations[group[k]]`` transposed times vector k (unchanged without rotations), so that
+    d_i . frame_vector = (R d_i) . vector for the sample's rotated direction R d_i."""
+    if rotations is None:
+        return vectors
+    return np.einsum("kba,kb->ka", rotations[group], vectors)
+
+
 @dataclass(frozen=True)
 class TraceRequest:
     """One table to trace: the direction set, the samples, and where their hits land.
@@ -135,6 +144,11 @@ class TraceRequest:
     positions, geometric_normals : (K, 3) float64 of all samples, objects concatenated
     hits : HitGeometry of the scene's objects
     chunk_rays : rays per batch (bounds memory)
+    footprint : (K, P, 3) float32 or None; direction i's ray of sample k starts from
+        ``positions[k] + footprint[k, i % P]`` (a point of the texel's footprint), so the
+        table averages the footprint; None: from the sample's position
+    rotations : (G, 3, 3) float64 and group : (K,) int or None; sample k's direction i is
+        ``rotations[group[k]] @ directions[i]`` (interleaved rotations of the set)
     """
 
     directions: np.ndarray
@@ -142,12 +156,42 @@ class TraceRequest:
     geometric_normals: np.ndarray
     hits: HitGeometry
     chunk_rays: int = 1 << 20
+    footprint: np.ndarray | None = None
+    rotations: np.ndarray | None = None
+    group: np.ndarray | None = None
+
+    def horizon_normals(self) -> np.ndarray:
+        """(K, 3) the geometric normals in each sample's frame of the direction set: a
+        direction d_i is above sample k's horizon where d_i . horizon_normals[k] > 0."""
+        return frame_vectors(self.geometric_normals, self.rotations, self.group)
+
+    def ray_directions(self, direction_index: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
+        """(n, 3) float32 world directions of the rays (direction_index, sample_index) (n,) each."""
+        if self.rotations is None:
+            return self.directions[direction_index].astype(np.float32)
+        rotated = np.einsum("gab,nb->gna", self.rotations, self.directions)  # (G, N, 3)
+        return rotated[self.group[sample_index], direction_index].astype(np.float32)
+
+    def ray_origins(self, ray_scene: RayScene, direction_index: np.ndarray, sample_index: np.ndarray) -> np.ndarray:
+        """(n, 3) origins of the rays (direction_index, sample_index) (n,) each, offset off the surface."""
+        position = self.positions[sample_index]
+        if self.footprint is not None:
+            position = position + self.footprint[sample_index, direction_index % self.footprint.shape[1]]
+        return ray_scene.ray_origins(position, self.geometric_normals[sample_index])
+
+    def footprint_reach(self) -> float:
+        """How far any ray starts from its sample's position (0 without a footprint)."""
+        if self.footprint is None or not self.footprint.size:
+            return 0.0
+        return float(np.sqrt(np.max(np.einsum("kpd,kpd->kp", self.footprint, self.footprint))))
 
 
-def _record(table: dict, geometry: HitGeometry, directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
             hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
             where: np.ndarray | None = None) -> None:
     """Write traced rays into the table arrays: hits, backfaces, and (unless ``where``) misses.
+
+    ``ray_directions`` (n, 3) are the rays' world directions, in the order of ``rows``/``cols``.
 
     ``hit_geometry`` holds object indices (-1: miss). With ``where`` given, only
     those rays are written (an update that keeps the old entry elsewhere).
@@ -161,7 +205,7 @@ def _record(table: dict, geometry: HitGeometry, directions: np.ndarray, rows: np
     else:
         hit = where & (hit_geometry >= 0)
     global_triangle = geometry.triangle_offset[hit_geometry[hit]] + triangle[hit]
-    facing = np.einsum("kd,kd->k", geometry.face_normals[global_triangle], directions[rows[hit]])
+    facing = np.einsum("kd,kd->k", geometry.face_normals[global_triangle], ray_directions[hit])
     back = facing > 0.0
     u = bary[hit, 0:1]
     v = bary[hit, 1:2]
@@ -237,20 +281,22 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
     arrays = _empty_arrays(count, samples, geometry.vertex_object is not None)
     origins_all = ray_scene.ray_origins(positions, geometric_normals)
-    directions32 = directions.astype(np.float32)
+    horizon = request.horizon_normals()
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
-    traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
+    traced_per_sample = np.count_nonzero(horizon @ directions.T > 0.0, axis=1).astype(np.int32)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
         # Direction-major order: consecutive rays share a direction (coherent for
         # embree) and land in one row of the table (contiguous writes).
-        above = (directions @ geometric_normals[start:stop].T) > 0.0
+        above = (directions @ horizon[start:stop].T) > 0.0
         direction_index, sample_index = np.nonzero(above)
         if len(sample_index):
-            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins_all[start:stop][sample_index],
-                                                                         directions32[direction_index])
-            _record(arrays, geometry, directions, direction_index, sample_index + start, hit_geometry, triangle,
+            origins = (origins_all[start:stop][sample_index] if request.footprint is None
+                       else request.ray_origins(ray_scene, direction_index, sample_index + start))
+            ray_directions = request.ray_directions(direction_index, sample_index + start)
+            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins, ray_directions)
+            _record(arrays, geometry, ray_directions, direction_index, sample_index + start, hit_geometry, triangle,
                     bary, distance)
             rays_cast += len(sample_index)
         if progress is not None:
@@ -278,16 +324,21 @@ def _bounding_sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
     return centre, radius * (1.0 + tol.CULL_SPHERE_MARGIN) + tol.CULL_SPHERE_MARGIN * float(np.abs(centre).max())
 
 
-def _may_hit_spheres(origins: np.ndarray, directions: np.ndarray, spheres) -> np.ndarray:
+def _may_hit_spheres(origins: np.ndarray, directions: np.ndarray, spheres, request: TraceRequest | None = None,
+                     cols: slice | None = None) -> np.ndarray:
     """(N, k) bool: whether the ray from origin k along direction i passes through any sphere.
 
     One matrix product per sphere: the squared distance from the centre to the ray's
     line is |v|^2 - (d . v)^2 with v = centre - origin; the sphere must not lie behind.
+    With ``request``'s interleaved rotations, sample k's direction i is rotated: v is then
+    taken into the sample's frame (d_i . R^T v = R d_i . v).
     """
     near = np.zeros((len(directions), len(origins)), bool)
+    rotations = None if request is None else request.rotations
+    group = None if rotations is None else request.group[cols]
     for centre, radius in spheres:
         v = centre - origins
-        along = directions @ v.T
+        along = directions @ frame_vectors(v, rotations, group).T
         squared = np.einsum("kd,kd->k", v, v)
         near |= ((squared[None, :] - along * along) < radius * radius) & (along > -radius)
     return near
@@ -336,12 +387,15 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
         arrays = _empty_arrays(count, samples, vertex_object is not None)
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, vertex_object)
     origins_all = ray_scene.ray_origins(positions, geometric_normals)
-    directions32 = directions.astype(np.float32)
-    traced_per_sample = np.count_nonzero(geometric_normals @ directions.T > 0.0, axis=1).astype(np.int32)
+    horizon = request.horizon_normals()
+    traced_per_sample = np.count_nonzero(horizon @ directions.T > 0.0, axis=1).astype(np.int32)
     is_changed = np.zeros(objects, bool)
     is_changed[list(changed)] = True
     changed_map = np.asarray(changed, np.int32)
-    spheres = [_bounding_sphere(changed_scene.positions(i) + changed_scene.centre) for i in range(len(changed))]
+    # A ray starts up to the footprint's reach from its sample: widen the spheres by it.
+    reach = request.footprint_reach()
+    spheres = [(centre, radius + reach) for centre, radius in
+               (_bounding_sphere(changed_scene.positions(i) + changed_scene.centre) for i in range(len(changed)))]
     counts = UpdateCounts()
     chunk = max(1, chunk_rays // max(count, 1))
     spans = []
@@ -351,7 +405,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     for done, (index, start, stop) in enumerate(spans):
         cols = slice(start, stop)
         if is_changed[index]:
-            redo = (directions @ geometric_normals[cols].T) > 0.0
+            redo = (directions @ horizon[cols].T) > 0.0
             if in_place:
                 arrays["hit_object"][:, cols] = BELOW_HORIZON
                 arrays["hit_uv"][:, cols] = 0.0
@@ -372,23 +426,27 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             hit_changed[hits] = is_changed[code[hits]]
             redo = hit_changed | (code == BACKFACE)
             probe = (code == MISS) | (hits & ~hit_changed)
-            probe &= _may_hit_spheres(origins_all[cols], directions, spheres)
+            probe &= _may_hit_spheres(origins_all[cols], directions, spheres, request, cols)
             counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
             direction_index, sample_index = np.nonzero(probe)
             if len(sample_index):
-                found, triangle, bary, distance = changed_scene.intersect(
-                    origins_all[cols][sample_index], directions32[direction_index])
+                origins = (origins_all[cols][sample_index] if request.footprint is None
+                           else request.ray_origins(ray_scene, direction_index, sample_index + start))
+                ray_directions = request.ray_directions(direction_index, sample_index + start)
+                found, triangle, bary, distance = changed_scene.intersect(origins, ray_directions)
                 rows, where = direction_index, sample_index + start
                 nearer = (found >= 0) & (distance < arrays["hit_distance"][rows, where])
                 mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
-                _record(arrays, geometry, directions, rows, where, mapped, triangle, bary, distance, where=nearer)
+                _record(arrays, geometry, ray_directions, rows, where, mapped, triangle, bary, distance, where=nearer)
                 counts.changed_only += len(sample_index)
                 counts.kept += len(sample_index) - int(np.count_nonzero(nearer))
         direction_index, sample_index = np.nonzero(redo)
         if len(sample_index):
-            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins_all[cols][sample_index],
-                                                                         directions32[direction_index])
-            _record(arrays, geometry, directions, direction_index, sample_index + start, hit_geometry, triangle,
+            origins = (origins_all[cols][sample_index] if request.footprint is None
+                       else request.ray_origins(ray_scene, direction_index, sample_index + start))
+            ray_directions = request.ray_directions(direction_index, sample_index + start)
+            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins, ray_directions)
+            _record(arrays, geometry, ray_directions, direction_index, sample_index + start, hit_geometry, triangle,
                     bary, distance)
             counts.full += len(sample_index)
         if progress is not None:

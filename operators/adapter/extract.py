@@ -177,7 +177,14 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
                 material_index=material_index, materials=materials, uv_maps=uv_maps,
                 bake_uv_map=bake_uv_map, resolution=resolution, output=output,
                 light_group=getattr(obj, "lightgroup", ""), corner_loops=loops, vertex_count=vertex_count,
-                loop_count=loop_count, casts_shadow=bool(getattr(obj, "visible_shadow", True)))
+                loop_count=loop_count, casts_shadow=bool(getattr(obj, "visible_shadow", True)),
+                terminator_offset=_terminator_offset(obj))
+
+
+def _terminator_offset(obj) -> float:
+    """The object's Shadow Terminator > Geometry Offset (Cycles' default 0.1 where absent)."""
+    value = float(getattr(obj, "shadow_terminator_geometry_offset", 0.1))
+    return value if np.isfinite(value) and value > 0 else 0.0
 
 
 def read_light(obj: bpy.types.Object, warnings: list[str] | None = None, mesh_names=None) -> Light:

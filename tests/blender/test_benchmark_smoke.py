@@ -51,3 +51,21 @@ def test_smoke_profile_writes_csv_plot_and_summary(tmp_path):
         env={**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")})
     assert again.returncode == 0
     assert "(cached)" in again.stdout
+
+
+def test_accuracy_benchmark_writes_errors_with_the_reference_noise_and_a_plot(tmp_path):
+    out = tmp_path / "accuracy"
+    process = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "benchmarks" / "accuracy.py"), "--size", "smoke", "--scenes", "sun_occluders",
+         "--resolution", "32", "--directions", "8", "--reference-samples", "8", "--variants", "texel centres",
+         "+ interleaved rotations", "--out", str(out), "--cache", str(tmp_path / "cache")],
+        capture_output=True, text=True, timeout=600, cwd=str(REPO_ROOT))
+    assert process.returncode == 0, process.stderr[-2000:]
+    result = json.loads((out / "accuracy.json").read_text())
+    runs = result["scenes"]["sun_occluders"]["runs"]
+    assert [r["variant"] for r in runs] == ["texel centres", "+ interleaved rotations"]
+    for run in runs:
+        assert 0 < run["relative_rmse"] < 10 and 0 <= run["block_rmse_denoised"] <= run["block_rmse"]
+    assert result["scenes"]["sun_occluders"]["texel_noise"] > 0
+    assert (out / "sun_occluders.png").stat().st_size > 1000
+    assert "| variant | N |" in (out / "summary.md").read_text()

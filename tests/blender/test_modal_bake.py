@@ -72,10 +72,14 @@ def test_time_left_comes_from_the_known_work_and_the_measured_rate(visibake, sce
     try:
         work = bake_job.expected_work()
         # Ground 32 x 32 texels and the block's atlas, 64 directions, 2 bounces, one lamp
-        # with exact shadows (a shadow ray weighs as SHADOW_RAY_IN_LOOKUPS lookups).
+        # with exact shadows (a shadow ray weighs as SHADOW_RAY_IN_LOOKUPS lookups). The hard
+        # lamp over 16-point texel footprints probes each box's 4 corners, then traces every
+        # point in the share of texels a shadow edge crosses.
         assert work["visibility"] > 0.7 * 32 * 32 * 64 / 2
         samples = work["visibility"] / 32
-        assert work["transport"] == pytest.approx(3 * work["visibility"] + job.SHADOW_RAY_IN_LOOKUPS * samples)
+        rays = bake_job.shadow_rays_per_sample
+        assert rays == pytest.approx(4 + visibake.core.transport.direct.TYPICAL_PENUMBRA_SHARE * 16)
+        assert work["transport"] == pytest.approx(3 * work["visibility"] + job.SHADOW_RAY_IN_LOOKUPS * samples * rays)
         progress = visibake.core.pipeline.progress.Progress()
         progress.plan({"visibility": 1e6, "transport": 3e6})
         progress("visibility", 0.0)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from core.lights.lamps import lamp_points, light_contributions
-from core.lights.sampler import DirectSampler, parallelogram_footprint
+from core.lights.sampler import DirectSampler
 from core.pipeline.prepare import prepare
 from core.scene import Light, Scene
 from core.settings import BakeSettings
@@ -100,8 +100,9 @@ def test_area_disk_through_the_sampler_is_unbiased():
 def test_footprint_offsets_move_the_receiving_points():
     point = Light("Point", "POINT", np.ones(3), 100.0, position=np.array([0.0, 0.0, 1.0]))
     position, normal = _receivers(5)
-    axes = np.tile([[0.2, 0.0, 0.0], [0.0, 0.2, 0.0]], (5, 1, 1))
-    parts = list(light_contributions(point, position, normal, 4, footprint=parallelogram_footprint(axes), points=16))
+    grid = (np.stack(np.meshgrid(np.arange(4), np.arange(4)), axis=-1).reshape(16, 2) + 0.5) / 4 - 0.5
+    offsets = np.tile(np.concatenate([0.2 * grid, np.zeros((16, 1))], axis=1), (5, 1, 1))  # (5, 16, 3)
+    parts = list(light_contributions(point, position, normal, 4, footprint=offsets, points=16))
     assert len(parts) == 16
     moved = np.stack([p.position for p in parts], axis=1)  # (K, 16, 3)
     assert np.all(np.abs(moved[..., :2]) <= 0.1) and np.all(moved[..., 2] == 0.0)
@@ -120,7 +121,9 @@ def _blocked_plane(**light_keywords):
 
 
 def _ground_irradiance(meshes, light, shadows="exact", samples=4):
-    settings = BakeSettings(directions=64, bounces=0, shadows=shadows, area_light_samples=samples)
+    """The ground's irradiance at its texel centres (footprints are tested on their own)."""
+    settings = BakeSettings(directions=64, bounces=0, shadows=shadows, area_light_samples=samples,
+                            footprint_samples=1)
     p = prepare(Scene(meshes, []), settings, table_needed=shadows == "fractions")
     irradiance, rays = lamp_irradiance(p.sample_set(), p.shadowing(), [light])
     ground = slice(p.sample_offset[0], p.sample_offset[1])
@@ -177,23 +180,30 @@ def test_linking_use_shadow_and_shadow_visibility():
 
 def test_direct_light_over_a_footprint_traces_its_points_from_each_position():
     meshes = _blocked_plane()
-    settings = BakeSettings(directions=16, bounces=0, shadows="exact", area_light_samples=2)
-    p = prepare(Scene(list(meshes), []), settings, table_needed=False)
     sun = Light("Sun", "SUN", np.ones(3), 1.0)
-    point_sampled, rays = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
-    axes = np.tile([[2.0 / 24, 0.0, 0.0], [0.0, 2.0 / 24, 0.0]], (len(p.position), 1, 1))  # one ground texel
-    averaged, footprint_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [sun],
-                                               footprint=parallelogram_footprint(axes), footprint_points=16)
-    assert footprint_rays == 16 * rays
+    centres = prepare(Scene(list(meshes), []), BakeSettings(directions=16, bounces=0, shadows="exact",
+                                                            footprint_samples=1), table_needed=False)
+    point_sampled, rays = lamp_irradiance(centres.sample_set(), centres.shadowing(), [sun])
+    p = prepare(Scene(list(meshes), []), BakeSettings(directions=16, bounces=0, shadows="exact",
+                                                      footprint_samples=16), table_needed=False)
+    averaged, footprint_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
+    # Four probes a texel, and every footprint point only where they disagree (the edge).
+    assert 4 * rays <= footprint_rays < 6 * rays
     ground = slice(p.sample_offset[0], p.sample_offset[1])
     # Lit and shadowed texels stay so; texels the shadow edge crosses get fractions.
     partial = (averaged[ground, 0] > 0.02) & (averaged[ground, 0] < 0.98)
     hard = point_sampled[ground, 0]
     assert np.count_nonzero(partial) >= 20 and not np.any((hard > 0) & (hard < 1))
-    # The overhead sun's shadow of the 0.6 m square covers 0.36 of the 4 m^2 ground: the
-    # footprint average finds that area, texel centres alias it (24 texels per 2 m).
-    exact = 1.0 - 0.36 / 4.0
-    assert abs(averaged[ground, 0].mean() - exact) < 0.003 < abs(point_sampled[ground, 0].mean() - exact)
+    # Each texel is the lit share of its box, half a texel (2 m / 24 / 2) wide as in Cycles'
+    # bake, under the overhead sun's shadow of the 0.6 m square: texel centres alias it.
+    half = 0.25 * 2.0 / 24
+    centre = p.position[ground]
+    covered = np.prod([np.clip(np.minimum(centre[:, a] + half, 0.3) - np.maximum(centre[:, a] - half, -0.3), 0, None)
+                       for a in (0, 1)], axis=0) / (2 * half) ** 2
+    exact = 1.0 - covered
+    error, aliased = averaged[ground, 0] - exact, point_sampled[ground, 0] - exact
+    assert np.abs(error).max() < 0.13 and np.sqrt(np.mean(error ** 2)) < 0.02
+    assert np.sqrt(np.mean(error ** 2)) < 0.25 * np.sqrt(np.mean(aliased ** 2))
 
 
 @pytest.mark.parametrize("light", [

@@ -51,8 +51,9 @@ def test_each_field_s_default_is_its_setting_s(cls, name):
 def test_the_report_s_settings_keep_their_keys():
     # asdict(BakeSettings) is the report's "settings": its keys are part of the JSON.
     assert list(dataclasses.asdict(BakeSettings())) == [
-        "directions", "bounces", "shadows", "shadow_regions", "rotate", "seed", "passes", "margin",
-        "area_light_samples", "emitter_samples", "threads", "chunk_rays", "light_groups", "vertex_lookup"]
+        "directions", "bounces", "shadows", "shadow_regions", "rotate", "seed", "interleave", "passes", "margin",
+        "area_light_samples", "footprint_samples", "sharp_contacts",
+        "emitter_samples", "threads", "chunk_rays", "light_groups", "vertex_lookup"]
 
 
 def test_the_choices_are_core_s_constants():
@@ -138,5 +139,6 @@ def test_the_scene_holds_exactly_the_settings_marked_so():
     # Mirrors panels/properties.py: what a scene stores besides the list's UI state.
     on_scene = {name for name, spec in SETTINGS.items() if spec.on_scene}
     assert on_scene == {"preset", "directions", "bounces", "shadows", "passes", "resolution", "texel_density", "mode",
-                        "bake_all", "rotate", "seed", "margin", "use_cache", "cache_dir", "light_groups",
+                        "bake_all", "rotate", "seed", "margin", "footprint_samples",
+                        "sharp_contacts", "interleave", "use_cache", "cache_dir", "light_groups",
                         "vertex_lookup", "refine_vertex_objects", "output_dir"}

@@ -92,9 +92,10 @@ def prepare_scene(core, scene, shadows):
         meshes = [builders.box_interior(size=1.0, resolution=36),
                   builders.quad_mesh("Tile", [(-0.15, -0.15, -0.2), (0.15, -0.15, -0.2), (0.15, 0.15, -0.2),
                                               (-0.15, 0.15, -0.2)], resolution=8)]
+    # Texel centres: the GLSL pass evaluates them (over footprints it hands every lamp to numpy).
     settings = core.settings.BakeSettings(directions=64, bounces=0, shadows=shadows,
                                           shadow_regions=spec["shadow_regions"],
-                                          area_light_samples=spec["area_light_samples"])
+                                          area_light_samples=spec["area_light_samples"], footprint_samples=1)
     return core.pipeline.prepare.prepare(core.scene.Scene(meshes, []), settings, table_needed=True)
 
 

@@ -1,0 +1,153 @@
+"""Where in its texel a sample's light is measured: points spread over the texel's footprint.
+
+A texel of a baked image stands for an area of surface, not its centre. Cycles' bake
+(``init_from_bake.h`` with Blender's ``bake_differentials``) averages every texel over a box
+half a texel wide in x and y around the centre (the differentials carry a factor 1/2),
+keeping only the points that lie inside the texel's own triangle: a point outside is drawn
+again, up to ten times, and otherwise the centre stands in. That is a box filter clipped
+to the triangle, so a border texel is the mean of the part of its box on its own face and
+never of the surface beyond the face's edge (another face of the mesh, or the gutter).
+
+:func:`footprint_offsets` gives each sample ``count`` such points, as offsets from the
+sample's position: a stratified 2D set (Sobol, Owen-scrambled per texel so neighbouring
+texels do not share a pattern), each point drawn again up to :data:`REDRAWS` times when
+it leaves the triangle, as Cycles does. Points that find no place inside are replaced by
+the sample's other points, cycling, so every slot holds a usable point and consumers
+simply use slot ``j % count``. The visibility table starts direction i's ray from slot
+``i % count``, so the table itself averages the footprint; exact shadows average all slots.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import tolerances as tol
+from ..lights.sampler import hash32, owen_scramble, sobol_point
+
+# Width of the box each texel is averaged over, in texels: Cycles' bake jitters by half the
+# texel's UV differentials either way (Blender's bake_differentials halves them).
+BOX_WIDTH = 0.5
+# A point outside the triangle is drawn again this many times before its slot gives up.
+REDRAWS = 10
+
+
+def _scrambled_points(count: int, seeds: np.ndarray) -> np.ndarray:
+    """(k, count, 2) float64 in [0, 1): the first ``count`` 2D Sobol points, Owen-scrambled
+    per sample by ``seeds`` (2, k) uint32."""
+    points = np.empty((seeds.shape[1], count, 2))
+    for index in range(count):
+        sobol = sobol_point(index)
+        for dimension in range(2):
+            scrambled = owen_scramble(np.array([sobol[dimension]], np.uint32), seeds[dimension])
+            points[:, index, dimension] = (scrambled >> np.uint32(8)) * 2.0 ** -24
+    return points
+
+
+def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
+                      corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray, count: int) -> np.ndarray:
+    """Offsets of each sample's footprint points from its position.
+
+    Parameters
+    ----------
+    pixel : (k,) int64 flat texel index ``y * width + x``
+    triangle : (k,) int32 the owning triangle of each texel
+    corner_uv : (T, 3, 2) float the bake UVs of every triangle's corners
+    corners : (T, 3, 3) float64 the world positions of every triangle's corners
+    position : (k, 3) float64 each sample's own position (on its triangle)
+    count : points per sample (1: the sample itself, offset 0)
+
+    Returns
+    -------
+    offsets : (k, count, 3) float32 world-space offsets; ``position + offsets[:, j]`` lies
+        on the sample's triangle, within half a texel's box (BOX_WIDTH) of its centre
+    """
+    samples = len(pixel)
+    if count <= 1 or samples == 0:
+        return np.zeros((samples, max(count, 1), 3), np.float32)
+    # Texel space: the triangle's corners in texel units, the texel's centre at (x + .5, y + .5).
+    uv = np.asarray(corner_uv, np.float64)[triangle] * np.array([width, height], np.float64)
+    centre = np.stack([pixel % width + 0.5, pixel // width + 0.5], axis=1).astype(np.float64)
+    a, b, c = uv[:, 0], uv[:, 1], uv[:, 2]
+    doubled = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    usable = np.abs(doubled) > 0
+    inverse = np.divide(1.0, doubled, out=np.zeros_like(doubled), where=usable)
+
+    def barycentric(point, rows):
+        pa, pb, pc, scale = a[rows], b[rows], c[rows], inverse[rows]
+        x, y = point[:, 0] - pa[:, 0], point[:, 1] - pa[:, 1]
+        w1 = (x * (pc[:, 1] - pa[:, 1]) - (pc[:, 0] - pa[:, 0]) * y) * scale
+        w2 = ((pb[:, 0] - pa[:, 0]) * y - x * (pb[:, 1] - pa[:, 1])) * scale
+        return np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+
+    # Seeded by the texel and its triangle only: an object's points do not depend on
+    # which other objects are in the bake, so an incremental table update reproduces them.
+    base = hash32(np.asarray(pixel, np.uint64).astype(np.uint32) ^ hash32(np.asarray(triangle, np.uint32)
+                                                                        + np.uint32(0x9E3779B9)))
+    seeds = np.stack([hash32(base + np.uint32(0x85EBCA6B)), hash32(base + np.uint32(0xC2B2AE35))])
+    jitter = _scrambled_points(count, seeds)
+    chosen = np.full((samples, count, 3), np.nan)
+    tri_corners = np.asarray(corners, np.float64)[triangle]  # (k, 3, 3)
+    for slot in range(count):
+        rows = np.nonzero(usable)[0]  # the texels still looking for this slot's point
+        u = jitter[rows, slot]
+        for attempt in range(REDRAWS + 1):
+            if not len(rows):
+                break
+            if attempt:
+                # Cycles redraws from a hash of the rejected point; so does this, per texel and slot.
+                bits = (u * 2.0 ** 24).astype(np.uint32)
+                salt = np.uint32((0x68E31DA4 * attempt) & 0xFFFFFFFF)
+                u = np.stack([hash32(bits[:, 0] ^ hash32(bits[:, 1] + np.uint32(attempt))),
+                              hash32(bits[:, 1] ^ hash32(bits[:, 0] + salt))], axis=1)
+                u = (u >> np.uint32(8)) * 2.0 ** -24
+            weights = barycentric(centre[rows] + (u - 0.5) * BOX_WIDTH, rows)
+            inside = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1)
+            chosen[rows[inside], slot] = np.einsum("kc,kcd->kd", weights[inside], tri_corners[rows[inside]])
+            rows, u = rows[~inside], u[~inside]
+    found = ~np.isnan(chosen[:, :, 0])
+    # A slot that found no place takes another slot's point, cycling; a sample with none at
+    # all (a sliver of a triangle) keeps its own position in every slot.
+    valid = found.sum(axis=1)
+    order = np.argsort(~found, axis=1, kind="stable")  # found slots first, in slot order
+    take = order[np.arange(samples)[:, None], np.arange(count)[None, :] % np.maximum(valid, 1)[:, None]]
+    points = chosen[np.arange(samples)[:, None], take]
+    points = np.where((valid > 0)[:, None, None], points, position[:, None, :])
+    return (points - position[:, None, :]).astype(np.float32)
+
+
+def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
+                      corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray,
+                      offsets: np.ndarray) -> np.ndarray:
+    """(k, 4, 3) float32 offsets from each sample's position to the four corners of its box
+    (BOX_WIDTH texels wide), or where a corner lies beyond the texel's own triangle, to the
+    texel's footprint point (``offsets`` (k, P, 3), :func:`footprint_offsets`) nearest to it.
+
+    A straight shadow edge that crosses the box separates at least one corner from the
+    others, so rays from the corners tell a texel the edge crosses from one it misses, which
+    a few of the (random) footprint points can fail to do. A corner beyond the triangle is
+    never used itself: the plane's continuation runs into the ground or the air on a curved
+    or finely tessellated surface, and onto the neighbouring face's edge on a flat one.
+    Other arguments as :func:`footprint_offsets`.
+    """
+    if len(pixel) == 0:
+        return np.zeros((0, 4, 3), np.float32)
+    uv = np.asarray(corner_uv, np.float64)[triangle] * np.array([width, height], np.float64)
+    centre = np.stack([pixel % width + 0.5, pixel // width + 0.5], axis=1).astype(np.float64)
+    a, b, c = uv[:, 0], uv[:, 1], uv[:, 2]
+    doubled = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    inverse = np.divide(1.0, doubled, out=np.zeros_like(doubled), where=np.abs(doubled) > 0)
+    tri_corners = np.asarray(corners, np.float64)[triangle]
+    result = np.empty((len(pixel), 4, 3), np.float32)
+    half = BOX_WIDTH / 2
+    for index, (sx, sy) in enumerate(((-1, -1), (1, -1), (-1, 1), (1, 1))):
+        point = centre + np.array([sx * half, sy * half])
+        w1 = ((point[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (point[:, 1] - a[:, 1])) * inverse
+        w2 = ((b[:, 0] - a[:, 0]) * (point[:, 1] - a[:, 1]) - (point[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])) * inverse
+        weights = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+        moved = np.einsum("kc,kcd->kd", weights, tri_corners) - position
+        inside = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1) & np.all(np.isfinite(moved), axis=1)
+        gap = np.einsum("kpd,kpd->kp", offsets - np.nan_to_num(moved)[:, None, :],
+                        offsets - np.nan_to_num(moved)[:, None, :])
+        nearest = offsets[np.arange(len(pixel)), np.argmin(gap, axis=1)]
+        result[:, index] = np.where(inside[:, None], moved, nearest)
+    return result
+

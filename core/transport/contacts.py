@@ -1,0 +1,157 @@
+"""Contacts: direct light where a short ray lands, instead of the target's texels.
+
+A ray that lands within a few of the target's texels (a sphere resting on a floor, a wall
+standing on it, the inside of a corner) reads the target's light by a bilinear lookup in
+its atlas, and texels a few centimetres wide blur what lies under the contact: a floor
+texel half under a wall is half dark, and the rays of the wall's lowest row read it. For
+those rays this module evaluates the lamps' direct light at the landing point itself, with
+exact shadow rays, and corrects the first bounce by the difference: the light a short ray
+carries is then as sharp as the direct light at its landing point, whatever the target's
+texel size. Later bounces inherit the correction through the first.
+
+Only the lamps' direct light is replaced (emitters and the world keep the table's lookup),
+and only with exact shadows: the fractions have no per-point shadow to evaluate. What a
+short hit is depends on geometry alone; the lamps' light at the hits is computed at every
+(re)light, like the direct light of the samples.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .contract import SampleSet
+
+# A hit nearer than this many of its target's texels is evaluated at its landing point.
+SHORT_HIT_TEXELS = 2.0
+
+
+@dataclass
+class ShortHits:
+    """The table entries whose ray lands close to its origin, with where it landed.
+
+    sample : (m,) int64 the sample whose ray it is
+    weight : (m,) float32 the entry's gather weight, max(0, n . d_i) times the sample's scale
+    obj : (m,) int64 the object it landed on
+    uv : (m, 2) float32 the atlas coordinate it landed at (the table's)
+    points : SampleSet of the m landing points (position, normals facing the ray's origin,
+        owner = the object), where the lamps' light is evaluated
+    """
+
+    sample: np.ndarray
+    weight: np.ndarray
+    obj: np.ndarray
+    uv: np.ndarray
+    points: SampleSet
+
+    def __len__(self) -> int:
+        return len(self.sample)
+
+
+def texel_sizes(meshes, object_samples) -> np.ndarray:
+    """(O,) float64 about how wide one atlas texel of each object is on its surface: the
+    square root of its area over its covered texels (0 for objects without texels or in
+    vertex mode: their light is not read from texels, so no hit on them counts as short)."""
+    sizes = np.zeros(len(meshes))
+    for index, (mesh, samples) in enumerate(zip(meshes, object_samples)):
+        if mesh.mode != "atlas" or len(samples) == 0:
+            continue
+        corners = mesh.positions[mesh.triangles].astype(np.float64)
+        area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        sizes[index] = np.sqrt(np.nansum(area) / len(samples))
+    return sizes
+
+
+def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None:
+    """The table entries of prepared scene ``p`` (core.pipeline.prepare.Prepared) that land
+    within ``max_texels`` of their target's texel size; None when there are none.
+
+    Nothing is traced: a landing point is the entry's ray origin plus its stored distance,
+    and its normals are those of the sample owning the texel it landed in (a covered
+    neighbour where that texel is outside the chart; an entry with none is left to the lookup).
+    """
+    table = p.table
+    limit = (max_texels * texel_sizes(p.meshes, p.object_samples)).astype(np.float32)
+    scale = p.gather_scale().astype(np.float32)
+    normals = p.frame_normal.astype(np.float32)
+    samples, directions, weights = [], [], []
+    for i, direction in enumerate(table.directions):
+        row = table.hit_object[i]
+        hit = np.nonzero(row >= 0)[0]
+        if not len(hit):
+            continue
+        short = hit[table.hit_distance[i][hit] < limit[row[hit]]]
+        if not len(short):
+            continue
+        weight = np.maximum(normals[short] @ direction.astype(np.float32), 0.0) * scale[short]
+        keep = weight > 0
+        samples.append(short[keep])
+        directions.append(np.full(int(keep.sum()), i, np.int64))
+        weights.append(weight[keep])
+    if not samples or not sum(len(s) for s in samples):
+        return None
+    sample, direction, weight = np.concatenate(samples), np.concatenate(directions), np.concatenate(weights)
+    obj = table.hit_object[direction, sample].astype(np.int64)
+    uv = table.hit_uv[direction, sample]
+    owner = _texel_owners(p, obj, uv)
+    found = owner >= 0
+    sample, direction, weight, obj, uv, owner = (a[found] for a in (sample, direction, weight, obj, uv, owner))
+    if not len(sample):
+        return None
+    start = p.position[sample]
+    if p.footprint is not None:
+        points = p.footprint[0]
+        start = start + points[sample, direction % points.shape[1]]
+    unit = p.sample_directions(direction, sample)
+    origins = np.asarray(p.ray_scene.ray_origins(start, p.geometric[sample]), np.float64)
+    position = origins + unit * table.hit_distance[direction, sample][:, None].astype(np.float64)
+    geometric, shading = p.geometric[owner].copy(), p.normal[owner].copy()
+    # The side the ray came from is the side that is lit (the table keeps front-face hits only).
+    facing = np.where(np.einsum("kd,kd->k", geometric, unit) > 0, -1.0, 1.0)[:, None]
+    geometric *= facing
+    shading *= facing
+    points = SampleSet(position, shading, geometric, p.ray_scene.ray_origins(position, geometric), obj)
+    return ShortHits(sample, weight, obj, uv, points)
+
+
+def _texel_owners(p, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(m,) int64 the sample owning the texel each landing (object (m,), atlas uv (m, 2)) lies
+    in, else one owning a neighbouring texel; -1 where none does."""
+    owner = np.full(len(obj), -1, np.int64)
+    for index in np.unique(obj):
+        samples = p.object_samples[index]
+        width, height = samples.width, samples.height
+        texel_owner = np.full(width * height, -1, np.int64)
+        texel_owner[samples.pixel] = p.sample_offset[index] + np.arange(len(samples))
+        chosen = np.nonzero(obj == index)[0]
+        x = np.clip(np.floor(uv[chosen, 0] * width).astype(np.int64), 0, width - 1)
+        y = np.clip(np.floor(uv[chosen, 1] * height).astype(np.int64), 0, height - 1)
+        found = np.full(len(chosen), -1, np.int64)
+        for dx, dy in ((0, 0), (-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)):
+            open_rows = found < 0
+            if not open_rows.any():
+                break
+            xx, yy = np.clip(x + dx, 0, width - 1), np.clip(y + dy, 0, height - 1)
+            found[open_rows] = texel_owner[(yy * width + xx)[open_rows]]
+        owner[chosen] = found
+    return owner
+
+
+def contact_correction(short: ShortHits, layout, reflected_atlas: np.ndarray, at_hits: np.ndarray,
+                       albedo_atlas: np.ndarray, samples: int) -> np.ndarray:
+    """(samples, C) float64: what the first bounce gains when the short hits reflect the lamps'
+    direct irradiance ``at_hits`` (m, C) at their landing points instead of what the gather
+    looked up for them in ``reflected_atlas`` (layout.size, C) float32, the packed radiance
+    albedo / pi * lamp irradiance.
+
+    ``albedo_atlas`` (layout.size, 3) float32 is the packed albedo (C a multiple of 3, one
+    RGB per light group). Each entry adds weight * (albedo / pi * at_hits - lookup).
+    """
+    looked_up = layout.bilinear(reflected_atlas, short.obj, short.uv).astype(np.float64)
+    albedo = layout.bilinear(albedo_atlas, short.obj, short.uv).astype(np.float64)
+    groups = at_hits.shape[1] // 3
+    difference = (np.tile(albedo, groups) / np.pi * at_hits - looked_up) * short.weight[:, None]
+    correction = np.zeros((samples, at_hits.shape[1]))
+    np.add.at(correction, short.sample, difference)
+    return correction
+

@@ -1,0 +1,175 @@
+"""Interleaved rotations of the direction set, and the filter that puts them back together.
+
+A fixed direction set sees a small bright patch (a sun spot on the floor, a lit window
+reveal) through the same few directions from every texel nearby, so its light arrives as
+streaks and blobs that no direction count removes quickly ("ray effects"). Interleaved
+sampling (Keller and Heidrich, 2001) gives the texels of every tile x tile block of an
+atlas their own rotation of the set (core.pipeline.prepare.interleaving): a block then
+sees tile^2 times as many directions, and the structured error turns into a fine
+per-texel pattern. :func:`reconstruct_interleaved` averages each texel's gathered light
+over the tile x tile block around it, where the neighbours lie on the same surface
+(similar normal, close in space: never across a chart's border into another part of the
+mesh, and in sight of each other: never across a wall standing between them), which
+removes the pattern and keeps the light's shape at the tile's scale. Texels
+buried inside other geometry (core.visibility.table.VisibilityTable.buried: a floor
+under a wall standing on it) neither give nor take light there: nobody sees them, and
+their dark would bleed into the visible texels beside them. Nor are neighbours averaged
+whose near field differs (:func:`near_field`: how much of what a texel sees is close by,
+within a few texels): beside a contact or in a corner, the light changes faster than the
+tile, and averaging there would blur what the contact correction and the footprint made sharp.
+
+Only the light that arrives from afar is filtered: the ray effects of small bright patches
+come from there, while light from within a few texels (a wall standing on the floor, the
+inside of a corner, what the contact correction and the footprint made sharp) changes
+faster than the tile and is kept as it was gathered (:func:`find_near_hits`,
+:func:`near_light`). The lamps' direct light, with its shadow edges, is never filtered;
+texels buried inside other geometry (core.visibility.table.VisibilityTable.buried: a
+floor under a wall standing on it) neither give nor take light (nobody sees them); vertex
+samples keep the set itself and are not filtered.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..sampling.samples import VertexSamples
+from .contacts import texel_sizes
+
+# Neighbours whose shading normals differ by more than this (cosine) are another surface.
+SAME_SURFACE_COSINE = 0.995
+# Neighbours farther than this many texels (of the object's mean texel size) apart in
+# space are across a chart's border, on another part of the mesh.
+SAME_SURFACE_TEXELS = 2.0
+# Light arriving from hits within this many tiles of the sample's texels is near light,
+# which the filter keeps as gathered.
+NEAR_FIELD_TILES = 2.0
+
+
+@dataclass
+class NearHits:
+    """Table entries that land near their sample (within NEAR_FIELD_TILES tiles of its texels)
+    on an atlas object: sample (m,) int64, weight (m,) float32 (the gather's), obj (m,)
+    int64 and uv (m, 2) float32 (where it landed)."""
+
+    sample: np.ndarray
+    weight: np.ndarray
+    obj: np.ndarray
+    uv: np.ndarray
+
+
+def find_near_hits(p) -> NearHits | None:
+    """The near table entries of prepared scene ``p`` (geometry alone; None when there are none
+    or the set is not interleaved)."""
+    if p.rotations is None or p.table is None:
+        return None
+    tile = int(round(np.sqrt(len(p.rotations))))
+    sizes = texel_sizes(p.meshes, p.object_samples)
+    reach = np.repeat(NEAR_FIELD_TILES * tile * sizes, np.diff(p.sample_offset)).astype(np.float32)
+    atlas = np.array([m.mode == "atlas" for m in p.meshes] + [False])
+    table, normals, scale = p.table, p.frame_normal.astype(np.float32), p.gather_scale().astype(np.float32)
+    parts = []
+    for i, direction in enumerate(table.directions):
+        row = table.hit_object[i]
+        near = np.nonzero((row >= 0) & (table.hit_distance[i] < reach))[0]
+        near = near[atlas[row[near]]]
+        if len(near):
+            weight = np.maximum(normals[near] @ direction.astype(np.float32), 0.0) * scale[near]
+            parts.append((near, np.full(len(near), i, np.int64), weight))
+    if not parts:
+        return None
+    sample = np.concatenate([q[0] for q in parts])
+    direction = np.concatenate([q[1] for q in parts])
+    return NearHits(sample, np.concatenate([q[2] for q in parts]), table.hit_object[direction, sample].astype(np.int64),
+                    table.hit_uv[direction, sample])
+
+
+def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
+    """(K, C) what the near entries contributed to a gather of the packed ``atlas`` (size, C)
+    (``exclude`` (K, O) as the gather's)."""
+    total = np.zeros((len(p.position), atlas.shape[1]))
+    if near is None:
+        return total
+    weight = near.weight.astype(np.float64)
+    if exclude is not None:
+        weight = np.where(exclude[near.sample, near.obj], 0.0, weight)
+    np.add.at(total, near.sample, p.layout.bilinear(atlas, near.obj, near.uv) * weight[:, None])
+    return total
+
+
+def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
+    """The (texel, neighbour) pairs the filter averages, global sample indices (n,) int64 each,
+    every visible atlas texel paired with itself too: the neighbours within its tile x tile
+    block that lie on the same surface (normals within SAME_SURFACE_COSINE, closer than
+    SAME_SURFACE_TEXELS tiles), are not buried, and see each other (the segment between
+    them, just off the surface, is clear: never across a wall standing between them).
+    Geometry alone, found once per preparation (p.filter_pairs())."""
+    tile = int(round(np.sqrt(len(p.rotations))))
+    offsets = range(-(tile // 2), tile - tile // 2)
+    sizes = texel_sizes(p.meshes, p.object_samples)
+    buried = p.table.buried() if p.table is not None else np.zeros(len(p.position), bool)
+    origins = np.asarray(p.origins, np.float64)
+    texels, neighbours = [], []
+    for index, samples in enumerate(p.object_samples):
+        if isinstance(samples, VertexSamples) or len(samples) == 0:
+            continue
+        first = int(p.sample_offset[index])
+        count, width, height = len(samples), samples.width, samples.height
+        owner = np.full(width * height, -1, np.int64)
+        visible = ~buried[first:first + count]
+        owner[samples.pixel[visible]] = first + np.nonzero(visible)[0]
+        x, y = samples.pixel % width, samples.pixel // width
+        reach = (SAME_SURFACE_TEXELS * tile * sizes[index]) ** 2
+        for dy in offsets:
+            for dx in offsets:
+                xx, yy = x + dx, y + dy
+                inside = (xx >= 0) & (xx < width) & (yy >= 0) & (yy < height)
+                neighbour = np.where(inside, owner[np.clip(yy, 0, height - 1) * width + np.clip(xx, 0, width - 1)], -1)
+                rows = first + np.nonzero((neighbour >= 0) & visible)[0]
+                other = neighbour[rows - first]
+                if dx or dy:
+                    gap = p.position[rows] - p.position[other]
+                    same = ((np.einsum("kd,kd->k", p.normal[rows], p.normal[other]) > SAME_SURFACE_COSINE)
+                            & (np.einsum("kd,kd->k", gap, gap) < reach))
+                    rows, other = rows[same], other[same]
+                    along = origins[other] - origins[rows]
+                    length = np.linalg.norm(along, axis=1)
+                    clear = length > 0
+                    if clear.any():
+                        clear[clear] = ~p.ray_scene.occluded(
+                            p.origins[rows[clear]], (along[clear] / length[clear, None]).astype(np.float32),
+                            length[clear].astype(np.float32))
+                    rows, other = rows[clear], other[clear]
+                texels.append(rows)
+                neighbours.append(other)
+    if not texels:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(texels), np.concatenate(neighbours)
+
+
+def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
+    """(K, C) ``values`` (gathered light) with its far part averaged over each atlas texel's
+    neighbours (:func:`filter_pairs`) and its ``near`` part (K, C) kept; unchanged without
+    interleaving (``p.rotations`` None) and for texels without pairs (vertex samples, buried
+    texels). ``p`` is a core.pipeline.prepare.Prepared."""
+    if p.rotations is None:
+        return values
+    near = np.zeros_like(values) if near is None else near
+    far = values - near
+    # What is averaged is the far light per unit of far weight (the mean radiance arriving
+    # from afar), put back with the texel's own far weight: texels whose near and far shares
+    # differ (one beside a wall, one in the open) then agree wherever the light is uniform,
+    # and a white furnace stays exact.
+    hits = p.near_hits()
+    near_weight = np.zeros(len(far)) if hits is None else np.bincount(hits.sample, hits.weight, minlength=len(far))
+    far_weight = np.where(p.gather_scale() > 0, np.pi, 0.0) - near_weight
+    usable = far_weight > 1e-6 * np.pi
+    radiance = np.where(usable[:, None], far / np.where(usable, far_weight, 1.0)[:, None], 0.0)
+    texels, neighbours = p.filter_pairs()
+    keep = usable[texels] & usable[neighbours]
+    texels, neighbours = texels[keep], neighbours[keep]
+    total = np.zeros_like(far, dtype=np.float64)
+    np.add.at(total, texels, radiance[neighbours])
+    count = np.bincount(texels, minlength=len(far)).astype(np.float64)
+    filtered = np.where(count[:, None] > 0, total / np.maximum(count, 1.0)[:, None] * far_weight[:, None], far)
+    return filtered + near

@@ -1,0 +1,52 @@
+"""Sharp contacts (core.transport.contacts): short rays read the lamps' light at their landing point."""
+import numpy as np
+
+from core.pipeline.relight import bake
+from core.scene import Light, Material, Scene
+from core.settings import BakeSettings
+from core.transport.contacts import SHORT_HIT_TEXELS, texel_sizes
+from core_scenes import quad_mesh
+
+
+def _wall_on_floor(floor_resolution):
+    floor = quad_mesh("Floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], resolution=floor_resolution,
+                      material=Material(base_color=np.full(3, 0.8)))
+    # A 5 cm slab standing on the floor: its sunlit front at y = 0 faces -y, its back +y.
+    wall = quad_mesh("Wall", [(-0.8, 0, 0), (0.8, 0, 0), (0.8, 0, 1), (-0.8, 0, 1)], resolution=32,
+                     material=Material(base_color=np.full(3, 0.5)))
+    back = quad_mesh("Back", [(-0.8, 0.05, 0), (-0.8, 0.05, 1), (0.8, 0.05, 1), (0.8, 0.05, 0)], resolution=8)
+    towards_sun = np.array([0.3, -0.6, 0.74])
+    sun = Light("Sun", "SUN", np.ones(3), 3.0, direction=-towards_sun / np.linalg.norm(towards_sun))
+    return Scene([floor, wall, back], [sun])
+
+
+def _wall_indirect(floor_resolution, contacts):
+    settings = BakeSettings(directions=256, bounces=1, passes=("indirect",), sharp_contacts=contacts)
+    result = bake(_wall_on_floor(floor_resolution), settings)
+    wall = result.objects[1]
+    image = wall.images["indirect"]
+    return image[..., 0], image[..., 3] > 0, result.report
+
+
+def test_short_hits_are_lit_where_they_land_so_a_coarse_floor_does_not_blur_the_contact():
+    fine, covered, _ = _wall_indirect(256, contacts=False)  # texels of 8 mm: no blur worth the name
+    coarse, _, _ = _wall_indirect(16, contacts=False)  # texels of 12.5 cm, half under the wall
+    sharp, _, report = _wall_indirect(16, contacts=True)
+    lowest = np.nonzero(covered.any(axis=1))[0][:2]  # the wall's two lowest rows (2 cm above the floor)
+    rows = covered[lowest]
+
+    def error(image):
+        return float(np.sqrt(np.mean((image[lowest][rows] - fine[lowest][rows]) ** 2)) / fine[lowest][rows].mean())
+
+    print(f"\nwall's lowest rows against a 256^2 floor: coarse floor {error(coarse):.3f}, "
+          f"with sharp contacts {error(sharp):.3f}")
+    assert error(sharp) < 0.5 * error(coarse)
+    assert any("short hits" in entry["pass"] for entry in report["passes"])
+
+
+def test_only_atlas_objects_have_a_texel_size():
+    scene = _wall_on_floor(16)
+    scene.meshes[2].mode = "vertex"
+    sizes = texel_sizes(scene.meshes, [np.zeros(256), np.zeros(1024), np.zeros(10)])
+    np.testing.assert_allclose(sizes[:2], [np.sqrt(4.0 / 256), np.sqrt(1.6 / 1024)])
+    assert sizes[2] == 0.0 and SHORT_HIT_TEXELS >= 1

@@ -1,0 +1,126 @@
+"""Texel footprints (core.sampling.footprint): Cycles' half-texel box, clipped to the texel's
+triangle, and what the table and exact shadows do with it."""
+import numpy as np
+
+from core.pipeline.prepare import prepare
+from core.sampling.footprint import BOX_WIDTH, footprint_corners, footprint_offsets
+from core.sampling.samples import build_samples
+from core.scene import Light, Scene
+from core.settings import BakeSettings
+from core.transport.direct import lamp_irradiance
+from core.visibility.table import TraceRequest, trace_table, update_table
+from core_scenes import quad_mesh
+
+
+def _plane(resolution=16, size=2.0):
+    h = size / 2
+    return quad_mesh("Plane", [(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)], resolution=resolution)
+
+
+def test_points_fill_half_a_texel_around_the_centre_on_the_surface():
+    mesh = _plane(resolution=16, size=2.0)
+    samples = build_samples(mesh, footprint_samples=16)
+    texel = 2.0 / 16
+    offsets = samples.footprint.astype(np.float64)
+    assert offsets.shape == (len(samples), 16, 3) and samples.footprint.dtype == np.float32
+    assert np.all(offsets[..., 2] == 0.0)  # on the plane
+    # Within the box of half a texel (Cycles' bake_differentials halve the differentials).
+    assert np.abs(offsets[..., :2]).max() <= BOX_WIDTH / 2 * texel * (1 + 1e-5)
+    # Stratified: each quarter of the box holds 4 of the 16 points of every texel the quad's
+    # diagonal does not cut (there, points on the other triangle were drawn again).
+    quarter = (offsets[..., 0] > 0).astype(int) * 2 + (offsets[..., 1] > 0)
+    counts = np.stack([(quarter == q).sum(axis=1) for q in range(4)], axis=1)
+    x, y = samples.pixel % 16, samples.pixel // 16
+    assert np.all(counts[np.abs(x - y) > 1] == 4)
+    # Scrambled per texel: neighbours do not share a pattern.
+    assert not np.allclose(offsets[0], offsets[1])
+
+
+def test_points_stay_on_the_texel_s_own_triangle_and_are_reproducible():
+    # A triangle whose hypotenuse cuts through texels: every point of a texel whose centre
+    # lies inside must stay inside the triangle (Cycles redraws the others).
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64)
+    corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
+    corners = positions[None]
+    width = height = 8
+    pixel = np.array([y * width + x for y in range(height) for x in range(width) if x + y + 1 < width], np.int64)
+    centre_uv = np.stack([(pixel % width + 0.5) / width, (pixel // width + 0.5) / height], axis=1)
+    position = np.concatenate([centre_uv, np.zeros((len(pixel), 1))], axis=1)
+    triangle = np.zeros(len(pixel), np.int32)
+    offsets = footprint_offsets(pixel, triangle, width, height, corner_uv, corners, position, 16)
+    points = position[:, None, :] + offsets
+    assert np.all(points[..., 0] >= -1e-6) and np.all(points[..., 1] >= -1e-6)
+    assert np.all(points[..., 0] + points[..., 1] <= 1 + 1e-6)
+    # Texels along the hypotenuse had points redrawn: they stay on the triangle's side.
+    border = (pixel % width) + (pixel // width) + 1 == width - 1
+    assert np.any(border)
+    again = footprint_offsets(pixel, triangle, width, height, corner_uv, corners, position, 16)
+    np.testing.assert_array_equal(offsets, again)
+    box = footprint_corners(pixel, triangle, width, height, corner_uv, corners, position, offsets)
+    inner = ~border & ((pixel % width) + (pixel // width) + 1 < width - 1)
+    np.testing.assert_allclose(np.abs(box[inner][..., :2]), BOX_WIDTH / 2 / width, rtol=1e-3)
+    # Corners beyond the hypotenuse are replaced by footprint points, on the triangle.
+    corner_points = position[:, None, :] + box
+    assert np.all(corner_points[..., 0] + corner_points[..., 1] <= 1 + 1e-6)
+
+
+def test_a_sliver_too_thin_for_any_point_keeps_the_sample_s_own_position():
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1e-7, 0]], np.float64)
+    corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1e-7]]])
+    offsets = footprint_offsets(np.array([0]), np.array([0], np.int32), 4, 4, corner_uv, positions[None],
+                                np.array([[0.1, 0.0, 0.0]]), 8)
+    assert np.all(offsets == 0.0)
+
+
+def test_the_table_starts_each_direction_from_its_footprint_point_and_updates_reproduce_it():
+    ground = _plane(resolution=12)
+    blocker = quad_mesh("Blocker", [(-0.3, -0.3, 0.5), (-0.3, 0.3, 0.5), (0.3, 0.3, 0.5), (0.3, -0.3, 0.5)],
+                        resolution=6)
+    settings = BakeSettings(directions=32, bounces=1, footprint_samples=8)
+    p = prepare(Scene([ground, blocker], []), settings, table_needed=True)
+    request = TraceRequest(p.directions, p.position, p.geometric, _hits(p), footprint=p.footprint[0],
+                           rotations=p.rotations, group=p.group)
+    fresh = trace_table(p.ray_scene, request)
+    np.testing.assert_array_equal(fresh.hit_object, p.table.hit_object)
+    centres = trace_table(p.ray_scene, TraceRequest(p.directions, p.position, p.geometric, _hits(p),
+                                                    rotations=p.rotations, group=p.group))
+    hit = fresh.hit_object >= 0
+    moved = np.abs(fresh.hit_uv - centres.hit_uv).max(axis=2)[hit]
+    assert np.count_nonzero(moved > 1e-4) > 0.5 * np.count_nonzero(hit)  # the rays did start elsewhere
+    # Move the blocker: the incremental update (spheres widened by the footprint's reach)
+    # gives exactly the fresh table of the moved scene.
+    blocker.positions = blocker.positions + np.array([0.15, 0.0, 0.0])
+    q = prepare(Scene([ground, blocker], []), settings, table_needed=True)
+    new_request = TraceRequest(q.directions, q.position, q.geometric, _hits(q), footprint=q.footprint[0],
+                               rotations=q.rotations, group=q.group)
+    changed_scene = type(q.ray_scene)([(blocker.positions, blocker.triangles)], 1, q.ray_scene.centre)
+    updated, _ = update_table(fresh, p.sample_offset, q.sample_offset, q.ray_scene, changed_scene, [1], new_request)
+    np.testing.assert_array_equal(updated.hit_object, q.table.hit_object)
+    np.testing.assert_array_equal(updated.hit_distance, q.table.hit_distance)
+
+
+def _hits(p):
+    from core.pipeline.prepare import scene_hit_geometry
+
+    return scene_hit_geometry(p.meshes)
+
+
+def test_a_shadow_edge_through_a_sliver_of_the_box_is_found_by_the_corner_probes():
+    # A blocker edge that clips only a thin strip of some texels' boxes: the corner probes
+    # must not call those texels fully lit or fully shadowed.
+    ground = _plane(resolution=16, size=2.0)
+    texel = 2.0 / 16
+    half = BOX_WIDTH / 2 * texel
+    centre = -1 + 11.5 * texel
+    edge = centre + 0.6 * half  # a fifth of the box of the texels at x = centre stays lit
+    blocker = quad_mesh("Blocker", [(-2, -2, 0.5), (edge, -2, 0.5), (edge, 2, 0.5), (-2, 2, 0.5)], resolution=4)
+    sun = Light("Sun", "SUN", np.ones(3), 1.0)
+    p = prepare(Scene([ground, blocker], []), BakeSettings(directions=8, bounces=0, footprint_samples=16),
+                table_needed=False)
+    irradiance, _ = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
+    x = p.position[:len(p.object_samples[0]), 0]
+    value = irradiance[:len(x), 0]
+    crossed = np.abs(x - centre) < 1e-6
+    assert np.count_nonzero(crossed) >= 8
+    assert np.all((value[crossed] > 0.0) & (value[crossed] < 0.5))
+    assert np.all(value[x < edge - texel] == 0.0) and np.all(value[x > edge + texel] == 1.0)
