@@ -177,8 +177,9 @@ def _gather_emission(p: Prepared, timed_gather, atlas: np.ndarray, world: np.nda
 def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGroup], results: list[Transported],
                    stages: Stages, skipped: list):
     """The lamps' direct light where short rays land (core.transport.contacts), per group, for
-    the first bounce's correction: (short hits, (K, 3G) the samples' lamp light, (m, 3G) the
-    hits' lamp light), or None when the bake needs none (say why in ``skipped``)."""
+    every bounce's correction: (short hits, (K, 3G) the samples' lamp light, (m, 3G) the
+    hits' lamp light), or None when the bake needs none (say why in ``skipped``). The pass
+    record names the short hits; their shadow rays count with each group's."""
     if not p.settings.sharp_contacts or p.bounces_needed() == 0 or p.table is None:
         return None
     if not any(group.lights for group in groups):
@@ -196,7 +197,6 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         irradiance, rays = backend.lamp_irradiance(short.points, p.shadowing(), group.lights)
         at_hits.append(irradiance)
         result.shadow_rays += rays
-        result.contact_hits = len(short)
     at_hits = np.concatenate(at_hits, axis=1)
     stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
     return short, np.concatenate([r.direct for r in results], axis=1).copy(), at_hits

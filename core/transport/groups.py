@@ -41,7 +41,6 @@ class Transported:
     shadow_rays: int = 0
     emitter_rays: int = 0
     emitters_sampled: tuple = ()
-    contact_hits: int = 0  # short rays whose landing point was lit directly (core.transport.contacts)
 
 
 def light_groups(meshes, emission: np.ndarray, sample_offset: np.ndarray, lights, world: np.ndarray,
