@@ -62,6 +62,38 @@ def texel_sizes(meshes, object_samples) -> np.ndarray:
     return sizes
 
 
+def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None):
+    """The table entries of prepared scene ``p`` that hit an object o nearer than
+    ``target_reach[o]`` (O,) and, if given, than their sample's ``sample_reach`` (K,), and
+    have a gather weight: (sample (m,) int64, direction (m,) int64, weight (m,) float32), the
+    weight max(0, n . d_i) times the sample's scale; None when there are none."""
+    table = p.table
+    target_reach = np.asarray(target_reach, np.float32)
+    scale = p.gather_scale().astype(np.float32)
+    normals = p.frame_normal.astype(np.float32)
+    samples, directions, weights = [], [], []
+    for i, direction in enumerate(table.directions):
+        row = table.hit_object[i]
+        hit = np.nonzero(row >= 0)[0]
+        if not len(hit):
+            continue
+        distance = table.hit_distance[i][hit]
+        close = distance < target_reach[row[hit]]
+        if sample_reach is not None:
+            close &= distance < sample_reach[hit]
+        close = hit[close]
+        if not len(close):
+            continue
+        weight = np.maximum(normals[close] @ direction.astype(np.float32), 0.0) * scale[close]
+        keep = weight > 0
+        samples.append(close[keep])
+        directions.append(np.full(int(keep.sum()), i, np.int64))
+        weights.append(weight[keep])
+    if not samples or not sum(len(s) for s in samples):
+        return None
+    return np.concatenate(samples), np.concatenate(directions), np.concatenate(weights)
+
+
 def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None:
     """The table entries of prepared scene ``p`` (core.pipeline.prepare.Prepared) that land
     within ``max_texels`` of their target's texel size; None when there are none.
@@ -71,26 +103,10 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
     neighbour where that texel is outside the chart; an entry with none is left to the lookup).
     """
     table = p.table
-    limit = (max_texels * texel_sizes(p.meshes, p.object_samples)).astype(np.float32)
-    scale = p.gather_scale().astype(np.float32)
-    normals = p.frame_normal.astype(np.float32)
-    samples, directions, weights = [], [], []
-    for i, direction in enumerate(table.directions):
-        row = table.hit_object[i]
-        hit = np.nonzero(row >= 0)[0]
-        if not len(hit):
-            continue
-        short = hit[table.hit_distance[i][hit] < limit[row[hit]]]
-        if not len(short):
-            continue
-        weight = np.maximum(normals[short] @ direction.astype(np.float32), 0.0) * scale[short]
-        keep = weight > 0
-        samples.append(short[keep])
-        directions.append(np.full(int(keep.sum()), i, np.int64))
-        weights.append(weight[keep])
-    if not samples or not sum(len(s) for s in samples):
+    entries = close_entries(p, max_texels * texel_sizes(p.meshes, p.object_samples))
+    if entries is None:
         return None
-    sample, direction, weight = np.concatenate(samples), np.concatenate(directions), np.concatenate(weights)
+    sample, direction, weight = entries
     obj = table.hit_object[direction, sample].astype(np.int64)
     uv = table.hit_uv[direction, sample]
     owner = _texel_owners(p, obj, uv)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..sampling.samples import VertexSamples
-from .contacts import texel_sizes
+from .contacts import close_entries, texel_sizes
 
 # Neighbours whose shading normals differ by more than this (cosine) are another surface.
 SAME_SURFACE_COSINE = 0.995
@@ -66,22 +66,13 @@ def find_near_hits(p) -> NearHits | None:
     tile = int(round(np.sqrt(len(p.rotations))))
     sizes = texel_sizes(p.meshes, p.object_samples)
     reach = np.repeat(NEAR_FIELD_TILES * tile * sizes, np.diff(p.sample_offset)).astype(np.float32)
-    atlas = np.array([m.mode == "atlas" for m in p.meshes] + [False])
-    table, normals, scale = p.table, p.frame_normal.astype(np.float32), p.gather_scale().astype(np.float32)
-    parts = []
-    for i, direction in enumerate(table.directions):
-        row = table.hit_object[i]
-        near = np.nonzero((row >= 0) & (table.hit_distance[i] < reach))[0]
-        near = near[atlas[row[near]]]
-        if len(near):
-            weight = np.maximum(normals[near] @ direction.astype(np.float32), 0.0) * scale[near]
-            parts.append((near, np.full(len(near), i, np.int64), weight))
-    if not parts:
+    atlas = np.array([np.inf if m.mode == "atlas" else 0.0 for m in p.meshes])
+    entries = close_entries(p, atlas, reach)
+    if entries is None:
         return None
-    sample = np.concatenate([q[0] for q in parts])
-    direction = np.concatenate([q[1] for q in parts])
-    return NearHits(sample, np.concatenate([q[2] for q in parts]), table.hit_object[direction, sample].astype(np.int64),
-                    table.hit_uv[direction, sample])
+    sample, direction, weight = entries
+    return NearHits(sample, weight, p.table.hit_object[direction, sample].astype(np.int64),
+                    p.table.hit_uv[direction, sample])
 
 
 def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
