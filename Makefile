@@ -169,10 +169,13 @@ demo: venv build
 
 # BENCH_PROFILE=smoke|quick|standard|bounces|full (see benchmarks/run.py); results in benchmarks/results/.
 # BENCH_PROFILE=accuracy: error against N per scene, one technique at a time (benchmarks/accuracy.py).
+# BENCH_PROFILE=seams: seam stitching judged on renders of the baked lighting (benchmarks/seams.py).
 BENCH_PROFILE ?= quick
 bench: venv
 ifeq ($(BENCH_PROFILE),accuracy)
 	$(PY) benchmarks/accuracy.py
+else ifeq ($(BENCH_PROFILE),seams)
+	$(PY) benchmarks/seams.py
 else
 	$(PY) benchmarks/run.py --profile $(BENCH_PROFILE)
 endif

@@ -172,6 +172,10 @@ SETTINGS = _table(
             help="Where a ray of the table lands within two texels of its target (objects resting on others, "
                  "corners), light it at the landing point with exact shadow rays instead of reading the target's "
                  "texels, so contact shadows are not blurred by the texel size (exact shadows only)"),
+    Setting("stitch_seams", bool, True, "Stitch Seams",
+            help="Move the texels along UV seams between smooth faces, as little as possible, until both sides "
+                 "of each seam read the same light under bilinear filtering, so no line shows along a seam "
+                 "(Cycles does not stitch: off matches its texels)"),
     Setting("emitter_samples", int, 16, "Emitter Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
             help="Points per emissive object for direct sampling of small emitters"),
     # A preference (the machine's), not the scene's.
@@ -302,6 +306,7 @@ class BakeSettings(_Validated):
     area_light_samples: int = _default("area_light_samples")
     footprint_samples: int = _default("footprint_samples")
     sharp_contacts: bool = _default("sharp_contacts")
+    stitch_seams: bool = _default("stitch_seams")
     emitter_samples: int = _default("emitter_samples")
     threads: int = _default("threads")
     chunk_rays: int = _default("chunk_rays")

@@ -34,6 +34,7 @@ SCENE_SETTING_OPTIONS = {
     "passes": "--passes", "resolution": "--resolution", "texel_density": "--texel-density", "mode": "--mode",
     "rotate": "--rotate", "seed": "--seed", "margin": "--margin", "use_cache": "--no-cache",
     "footprint_samples": "--footprint-samples", "interleave": "--interleave", "sharp_contacts": "--no-sharp-contacts",
+    "stitch_seams": "--no-stitch-seams",
     "cache_dir": "--cache-dir", "light_groups": "--light-groups", "vertex_lookup": "--vertex-lookup",
     "refine_vertex_objects": "--refine", "output_dir": "--out",
     "bake_all": "--objects",  # the command bakes every visible mesh unless --objects names some
@@ -124,6 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
         _setting_option(sub, "--interleave", SETTINGS["interleave"], "T", default=True)
         sub.add_argument("--no-sharp-contacts", action="store_true",
                          help="read short rays' light from the target's texels (see Sharp Contacts)")
+        sub.add_argument("--no-stitch-seams", action="store_true",
+                         help="leave UV seams as baked, as Cycles does (see Stitch Seams)")
         sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
         sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
         sub.add_argument("--previews", action="store_true", default=None,
@@ -175,6 +178,8 @@ def _apply_settings(args, props) -> None:
         props.cache_dir = os.path.abspath(args.cache_dir)
     if args.no_sharp_contacts:
         props.sharp_contacts = False
+    if args.no_stitch_seams:
+        props.stitch_seams = False
     if args.no_cache:
         props.use_cache = False
     if args.texel_density is not None:

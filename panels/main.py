@@ -43,6 +43,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         column.prop(props, "margin")
         column.prop(props, "footprint_samples")
         column.prop(props, "sharp_contacts")
+        column.prop(props, "stitch_seams")
         column.prop(props, "mode")
         column.prop(props, "vertex_lookup")
         column.prop(props, "refine_vertex_objects")

@@ -90,6 +90,7 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     margin: setting_property(SETTINGS["margin"])
     footprint_samples: setting_property(SETTINGS["footprint_samples"])
     sharp_contacts: setting_property(SETTINGS["sharp_contacts"])
+    stitch_seams: setting_property(SETTINGS["stitch_seams"])
     use_cache: setting_property(SETTINGS["use_cache"])
     cache_dir: setting_property(SETTINGS["cache_dir"], subtype="DIR_PATH")
     light_groups: setting_property(SETTINGS["light_groups"])

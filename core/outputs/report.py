@@ -63,6 +63,11 @@ class ObjectReport:
     # Vertex mode, with lamps: triangles whose direct light varies inside them.
     under_tessellated_triangles: int | None = None
     under_tessellated_area_share: float | None = None
+    # Atlas mode with seam stitching on: seam edges between smooth faces stitched, and the RMS
+    # disagreement of the two sides' bilinear lookups along them, relative to the object's
+    # mean light, before and after (core.outputs.seams).
+    seam_edges: int | None = None
+    seam_disagreement: list | None = None  # [before, after]
     # Set by the Blender job from its layout plan.
     mode: str | None = None  # 'atlas' | 'vertex'
     layout_reason: str | None = None
@@ -73,7 +78,8 @@ class ObjectReport:
                   "texels": self.texels, "triangles": self.triangles}
         return {**always, **_without_none({
             "buried_texels": self.buried_texels, "under_tessellated_triangles": self.under_tessellated_triangles,
-            "under_tessellated_area_share": self.under_tessellated_area_share, "mode": self.mode,
+            "under_tessellated_area_share": self.under_tessellated_area_share,
+            "seam_edges": self.seam_edges, "seam_disagreement": self.seam_disagreement, "mode": self.mode,
             "layout_reason": self.layout_reason, "uv_map_created": self.uv_map_created})}
 
     @classmethod
@@ -364,3 +370,23 @@ def report_tessellation(p: "Prepared", lights, objects: list, report: Report) ->
                 f"object {entry.name!r}: {check.flagged} of {check.triangles} triangles "
                 f"({check.area_share:.0%} of its area) have direct light varying inside them by up to "
                 f"{check.worst:.0%}, which its vertices cannot show; subdivide it or bake it as an atlas")
+
+
+def report_seams(report: Report, enabled: bool, seams: dict, stitched: dict) -> None:
+    """Seam stitching's part of ``report``: per object its stitched seam edges and the
+    disagreement along them before and after, and in ``skipped`` what was not stitched.
+
+    seams : mesh index -> core.outputs.seams.Seams or None (no seam between smooth faces)
+    stitched : mesh index -> (edges, before, after)
+    """
+    if not enabled:
+        report.skipped.append("seam stitching: off")
+        return
+    for index, (edges, before, after) in stitched.items():
+        entry = report.objects[index]
+        entry.seam_edges = int(edges)
+        entry.seam_disagreement = [round(float(before), 5), round(float(after), 5)]
+    without = [report.objects[i].name for i, found in seams.items() if found is None]
+    if without:
+        report.skipped.append(f"seam stitching of {len(without)} objects without UV seams between smooth faces: "
+                              + ", ".join(without))

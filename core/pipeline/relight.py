@@ -16,7 +16,8 @@ from ..errors import BakeRefused
 from ..lights.environment import world_radiance
 from ..lights.lamps import usable_lights
 from ..outputs.images import sample_image
-from ..outputs.report import lighting_report, report_tessellation
+from ..outputs.report import lighting_report, report_seams, report_tessellation
+from ..outputs.seams import find_seams, stitch
 from ..scene import Scene
 from ..settings import LIGHTING_PASSES, BakeSettings
 from ..transport.contract import TransportBackend
@@ -190,6 +191,10 @@ def relight_many(prepared: Prepared, lightings, progress=None,
 
     images = []
     output_meshes = [(i, m) for i, m in enumerate(p.meshes) if m.output]
+    started = time.perf_counter()
+    seams = _seams(p, output_meshes) if settings.stitch_seams else {}
+    stitch_seconds = time.perf_counter() - started
+    stitched: dict[int, tuple] = {}  # mesh index -> (seam edges, before, after), the lighting pass's
     for per_pass, _ in per_lighting:
         objects = []
         for index, mesh in output_meshes:
@@ -202,12 +207,21 @@ def relight_many(prepared: Prepared, lightings, progress=None,
                     result.images[name] = element_colors(values[a:b], samples.element_sample)
             else:
                 for name, values in per_pass.items():
-                    result.images[name] = sample_image(values[a:b], samples.pixel, samples.coverage,
-                                                       settings.margin, dilation)
+                    image = sample_image(values[a:b], samples.pixel, samples.coverage, settings.margin, dilation)
+                    if seams.get(index) is not None:
+                        started = time.perf_counter()
+                        done = stitch(image[..., :3], seams[index])
+                        image[..., :3] = done.image
+                        stitch_seconds += time.perf_counter() - started
+                        if index not in stitched or name == "lighting":
+                            stitched[index] = (seams[index].edges, done.before, done.after)
+                    result.images[name] = image
             objects.append(result)
         images.append(objects)
         stages.report(len(images) / len(per_lighting))
     stages.stop()
+    if stitched:
+        stages.record_pass(f"seam stitching ({len(stitched)} objects)", "cpu", stitch_seconds)
 
     if dilation.calls:
         stages.record_pass(f"gutter dilation ({dilation.calls} images)", backend.name, dilation.seconds)
@@ -216,8 +230,21 @@ def relight_many(prepared: Prepared, lightings, progress=None,
         report = lighting_report(p, plan, parts, stages.times, list(stages.passes), gathers, shared_skips,
                                  len(lightings))
         report_tessellation(p, plan["lights"], objects, report)
+        report_seams(report, settings.stitch_seams, seams, stitched)
         results.append(BakeResult(objects=objects, report=report.to_dict()))
     return results
+
+
+def _seams(p: Prepared, output_meshes) -> dict:
+    """Mesh index -> core.outputs.seams.Seams (or None) of each atlas-mode output mesh."""
+    found = {}
+    for index, mesh in output_meshes:
+        if mesh.mode != "atlas":
+            continue
+        samples = p.object_samples[index]
+        found[index] = find_seams(mesh.positions, mesh.triangles, mesh.uv_maps[mesh.bake_uv_map], mesh.corner_normals,
+                                  samples.width, samples.height, samples.coverage)
+    return found
 
 
 def bake(scene: Scene, settings: BakeSettings, progress=None, backend: TransportBackend = CPU_BACKEND) -> BakeResult:

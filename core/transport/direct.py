@@ -194,9 +194,9 @@ def unshadowed_variation(light, samples: SampleSet) -> np.ndarray:
         towards = np.asarray(light.position, np.float64) - samples.position
         towards = towards / np.maximum(np.linalg.norm(towards, axis=1), 1e-300)[:, None]
     cosine = np.einsum("kd,kd->k", samples.normal, towards)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tangent = np.sqrt(np.clip(1.0 - cosine * cosine, 0.0, None)) / cosine
-    return np.where(cosine > 0, alpha * (1.0 + tangent), np.inf)
+    lit = cosine > 0
+    tangent = np.sqrt(np.clip(1.0 - cosine * cosine, 0.0, None)) / np.where(lit, cosine, 1.0)
+    return np.where(lit, alpha * (1.0 + tangent), np.inf)
 
 # An exact shadow ray costs about as much as this many table lookups of a gather
 # (embree ~5 M rays/s, the numpy gather ~15 M lookups/s on 2 cores).

@@ -37,8 +37,9 @@ def _emission_material(name: str, image: bpy.types.Image | None, uv_map: str | N
 
 
 def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_maps: dict[str, str],
-                        width: int = 640, height: int = 400, samples: int = 16) -> bool:
-    """Render ``scene`` from its camera with baked lighting only; False if it has no camera."""
+                        width: int = 640, height: int = 400, samples: int = 16, file_format: str = "PNG") -> bool:
+    """Render ``scene`` from its camera with baked lighting only, to ``path`` as ``file_format``
+    (PNG: display-encoded; OPEN_EXR: the linear values, for measuring); False if it has no camera."""
     if scene.camera is None:
         return False
     render = scene.render
@@ -80,7 +81,7 @@ def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_map
         scene.cycles.use_denoising = False
         scene.cycles.use_adaptive_sampling = False
         scene.view_settings.view_transform = "Standard"
-        render.image_settings.file_format = "PNG"
+        render.image_settings.file_format = file_format
         render.filepath = path
         bpy.ops.render.render(write_still=True, scene=scene.name)
     finally:

@@ -69,3 +69,23 @@ def test_accuracy_benchmark_writes_errors_with_the_reference_noise_and_a_plot(tm
     assert result["scenes"]["sun_occluders"]["texel_noise"] > 0
     assert (out / "sun_occluders.png").stat().st_size > 1000
     assert "| variant | N |" in (out / "summary.md").read_text()
+
+
+def test_seam_benchmark_renders_both_bakes_and_the_truth_and_measures_the_seams(tmp_path):
+    out = tmp_path / "seams"
+    process = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "benchmarks" / "seams.py"), "--resolution", "32", "--directions", "16",
+         "--bounces", "1", "--width", "160", "--height", "100", "--truth-samples", "8", "--out", str(out)],
+        capture_output=True, text=True, timeout=600, cwd=str(REPO_ROOT))
+    assert process.returncode == 0, process.stderr[-2000:]
+    result = json.loads((out / "seams.json").read_text())
+    # The sphere, cylinder and torus are smooth and cut by seams; the floor is one flat quad.
+    assert result["seams"]["Floor"]["seam_edges"] is None
+    for name in ("Sphere", "Cylinder", "Torus"):
+        before, after = result["seams"][name]["seam_disagreement"]
+        assert result["seams"][name]["seam_edges"] > 0 and after < before
+    assert 0 < result["seam_pixels"] < result["object_pixels"]
+    for name in ("off", "on"):
+        assert 0 < result["rmse"][name]["all"] < 10
+    assert (out / "seams.png").stat().st_size > 1000
+    assert "| seam pixels |" in (out / "summary.md").read_text()

@@ -52,7 +52,7 @@ def test_the_report_s_settings_keep_their_keys():
     # asdict(BakeSettings) is the report's "settings": its keys are part of the JSON.
     assert list(dataclasses.asdict(BakeSettings())) == [
         "directions", "bounces", "shadows", "shadow_regions", "rotate", "seed", "interleave", "passes", "margin",
-        "area_light_samples", "footprint_samples", "sharp_contacts",
+        "area_light_samples", "footprint_samples", "sharp_contacts", "stitch_seams",
         "emitter_samples", "threads", "chunk_rays", "light_groups", "vertex_lookup"]
 
 
@@ -140,5 +140,5 @@ def test_the_scene_holds_exactly_the_settings_marked_so():
     on_scene = {name for name, spec in SETTINGS.items() if spec.on_scene}
     assert on_scene == {"preset", "directions", "bounces", "shadows", "passes", "resolution", "texel_density", "mode",
                         "bake_all", "rotate", "seed", "margin", "footprint_samples",
-                        "sharp_contacts", "interleave", "use_cache", "cache_dir", "light_groups",
+                        "sharp_contacts", "stitch_seams", "interleave", "use_cache", "cache_dir", "light_groups",
                         "vertex_lookup", "refine_vertex_objects", "output_dir"}

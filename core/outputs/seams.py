@@ -1,0 +1,231 @@
+"""Seam stitching: the two sides of a UV seam made to agree under bilinear filtering.
+
+A mesh edge whose two faces lie in different places of the atlas (a UV seam) is drawn
+twice, once from each side's texels. The sides are baked as separate texels, and a
+bilinear lookup on the edge reads texels of which half lie in the gutter, so a renderer
+shows a line along the seam. Stitching moves the texels those lookups read, as little as
+it can, until the lookups on both sides agree: the least-squares stitch of Unity's,
+Godot's and Bakery's lightmappers,
+
+    minimise  sum_i keep_i (x_i - x0_i)^2  +  SEAM_WEIGHT * sum_s (a_s . x - b_s . x)^2
+
+with x0 the baked (dilated) image and a_s, b_s the bilinear weights of seam point s on
+either side. Gutter texels keep little weight: they exist only to be filtered.
+
+Only seams between smooth faces are stitched. Where the shading normals across an edge
+differ (a box's corner, a flat-shaded facet) the light really changes at the edge.
+
+Cycles does not stitch, so stitching is judged by how far the two sides' lookups
+disagree before and after (:attr:`StitchResult.before` / ``after``), not by texel error
+against Cycles. Images are (H, W, C) float32, row 0 at v = 0 (core.outputs.images).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Seams", "StitchResult", "find_seams", "stitch"]
+
+# Weight of one seam point's disagreement against keeping one covered texel's value.
+# Three points per texel of edge length: 8 makes a seam's lookups agree to well under a
+# percent of their difference while interior texels move by little more than half of it.
+SEAM_WEIGHT = 8.0
+# Keep weight of a texel outside the UV islands (dilated or empty). Lower lets the seams
+# agree no better (0.01: within 3e-5 of 0.1's disagreement on benchmarks/seams.py's shapes
+# at 512²) but needs twice the iterations.
+GUTTER_KEEP = 0.1
+POINTS_PER_TEXEL = 3.0
+# Shading normals across an edge closer than this cosine: the light is continuous there.
+SMOOTH_COSINE = 0.995
+# A shared corner whose two UVs differ by more than this many texels is split (a seam).
+SPLIT_TEXELS = 0.05
+WELD_FRACTION = 1e-6  # positions closer than this share of the mesh's extent are one vertex
+MAX_ITERATIONS = 400
+# Conjugate gradients stop at this residual relative to the right-hand side: 30-60
+# iterations; 1e-7 takes 250-400 for the same disagreement to four digits.
+TOLERANCE = 1e-4
+
+
+@dataclass(frozen=True)
+class Seams:
+    """The stitching system of one atlas.
+
+    texels : (n,) int64 flat texel indices (y * width + x) that the seam lookups read
+    keep : (n,) float64 weight of each texel's baked value (1 covered, GUTTER_KEEP not)
+    index : (s, 8) int64 into ``texels``: side a's four lookup texels, then side b's
+    weight : (s, 8) float64 their bilinear weights, side b's negated, so that
+        ``(weight * x[index]).sum(1)`` is seam point s's disagreement
+    edges : seam edges stitched
+    """
+
+    texels: np.ndarray
+    keep: np.ndarray
+    index: np.ndarray
+    weight: np.ndarray
+    edges: int
+
+    def disagreement(self, values: np.ndarray) -> np.ndarray:
+        """(s, C) float64 side a's lookup minus side b's, of ``values`` (n, C) on ``texels``."""
+        return np.einsum("sk,skc->sc", self.weight, values[self.index])
+
+
+@dataclass(frozen=True)
+class StitchResult:
+    """image : (H, W, C) float32 stitched, finite, non-negative; before / after : RMS
+    disagreement of the seam lookups (all channels) relative to the mean covered value
+    (0 when that mean is 0); iterations : conjugate-gradient steps taken."""
+
+    image: np.ndarray
+    before: float
+    after: float
+    iterations: int
+
+
+def find_seams(positions: np.ndarray, triangles: np.ndarray, corner_uvs: np.ndarray, corner_normals: np.ndarray,
+               width: int, height: int, coverage: np.ndarray) -> Seams | None:
+    """The seams between smooth faces of one mesh in its ``width`` x ``height`` atlas;
+    None when it has none.
+
+    Parameters
+    ----------
+    positions : (v, 3) float vertex positions (vertices closer than WELD_FRACTION of the
+        extent count as one, so meshes split at their seams are stitched too)
+    triangles : (m, 3) int vertex indices
+    corner_uvs : (m, 3, 2) float the atlas UVs of each triangle corner
+    corner_normals : (m, 3, 3) float shading normals of each corner
+    coverage : (height, width) bool texels inside the UV islands
+    """
+    positions = np.asarray(positions, np.float64)
+    triangles = np.asarray(triangles, np.int64)
+    if not len(triangles) or width < 1 or height < 1:
+        return None
+    extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
+    quantum = max(extent * WELD_FRACTION, np.finfo(np.float64).tiny)
+    _, welded = np.unique(np.round(positions / quantum).astype(np.int64), axis=0, return_inverse=True)
+    corners = welded.reshape(-1)[triangles]  # (m, 3)
+
+    count = len(triangles)
+    triangle = np.repeat(np.arange(count), 3)
+    first = np.tile(np.arange(3), count)
+    second = (first + 1) % 3
+    start, end = corners[triangle, first], corners[triangle, second]
+    low, high = np.minimum(start, end), np.maximum(start, end)
+    # Corner of each edge at its lower and higher vertex.
+    low_corner = np.where(start == low, first, second)
+    high_corner = np.where(start == low, second, first)
+    usable = low != high
+    triangle, low, high, low_corner, high_corner = (a[usable] for a in (triangle, low, high, low_corner, high_corner))
+    order = np.lexsort((high, low))
+    triangle, low, high, low_corner, high_corner = (a[order] for a in (triangle, low, high, low_corner, high_corner))
+    same_as_next = (low[1:] == low[:-1]) & (high[1:] == high[:-1])
+    # Manifold edges only: exactly two faces (an edge shared by three has no two sides).
+    pair = np.zeros(len(low), bool)
+    pair[:-1] = same_as_next  # i and i + 1 share an edge ...
+    pair[:-2] &= ~same_as_next[1:]  # ... that i + 2 does not share ...
+    pair[1:] &= ~same_as_next  # ... nor i - 1
+    a = np.flatnonzero(pair)
+    b = a + 1
+    a, b = a[triangle[a] != triangle[b]], b[triangle[a] != triangle[b]]
+    if not len(a):
+        return None
+
+    uvs = np.asarray(corner_uvs, np.float64)
+    normals = np.asarray(corner_normals, np.float64)
+    normals = normals / np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-30)
+    scale = np.array([width, height], np.float64)
+    a_low, a_high = uvs[triangle[a], low_corner[a]], uvs[triangle[a], high_corner[a]]
+    b_low, b_high = uvs[triangle[b], low_corner[b]], uvs[triangle[b], high_corner[b]]
+    split = np.maximum(np.abs((a_low - b_low) * scale).max(1), np.abs((a_high - b_high) * scale).max(1)) > SPLIT_TEXELS
+
+    def cosine(corner_a, corner_b):
+        return np.einsum("kd,kd->k", normals[triangle[a], corner_a[a]], normals[triangle[b], corner_b[b]])
+
+    smooth = (cosine(low_corner, low_corner) > SMOOTH_COSINE) & (cosine(high_corner, high_corner) > SMOOTH_COSINE)
+    length = np.maximum(np.linalg.norm((a_high - a_low) * scale, axis=1), np.linalg.norm((b_high - b_low) * scale,
+                                                                                         axis=1))
+    seam = split & smooth & np.isfinite(length) & (length > 0)
+    if not seam.any():
+        return None
+    a_low, a_high, b_low, b_high, length = (x[seam] for x in (a_low, a_high, b_low, b_high, length))
+
+    points = np.maximum(2, np.ceil(POINTS_PER_TEXEL * length)).astype(np.int64)
+    edge = np.repeat(np.arange(len(points)), points)
+    step = np.arange(len(edge)) - np.repeat(np.cumsum(points) - points, points)
+    t = ((step + 0.5) / points[edge])[:, None]
+    a_texels, a_weights = _bilinear_taps(a_low[edge] + t * (a_high - a_low)[edge], width, height)
+    b_texels, b_weights = _bilinear_taps(b_low[edge] + t * (b_high - b_low)[edge], width, height)
+    taps = np.concatenate([a_texels, b_texels], axis=1)
+    texels, index = np.unique(taps, return_inverse=True)
+    keep = np.where(np.asarray(coverage, bool).reshape(-1)[texels], 1.0, GUTTER_KEEP)
+    return Seams(texels=texels, keep=keep, index=index.reshape(taps.shape),
+                 weight=np.concatenate([a_weights, -b_weights], axis=1), edges=int(len(points)))
+
+
+def _bilinear_taps(uv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The four texels (s, 4) int64 flat and weights (s, 4) float64 of a bilinear lookup at
+    ``uv`` (s, 2), with texel centres at (i + 1/2) / size and clamped at the atlas border,
+    as core.transport.gather.AtlasLayout.bilinear and the GPU's linear filter read it."""
+    x = np.clip(uv[:, 0] * width - 0.5, 0.0, width - 1)
+    y = np.clip(uv[:, 1] * height - 0.5, 0.0, height - 1)
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    x1, y1 = np.minimum(x0 + 1, width - 1), np.minimum(y0 + 1, height - 1)
+    texels = np.stack([y0 * width + x0, y0 * width + x1, y1 * width + x0, y1 * width + x1], axis=1)
+    weights = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
+    return texels, weights
+
+
+def stitch(image: np.ndarray, seams: Seams) -> StitchResult:
+    """``image`` (H, W, C) float with its seam texels moved by the least-squares stitch.
+
+    Solved by Jacobi-preconditioned conjugate gradients, each channel on its own; the
+    system is symmetric positive definite (keep > 0), so it converges. Texels no seam
+    reads are returned unchanged.
+    """
+    height, width = image.shape[:2]
+    channels = image.shape[2] if image.ndim == 3 else 1
+    flat = np.asarray(image, np.float32).reshape(height * width, channels)
+    baked = np.nan_to_num(flat[seams.texels].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    n = len(seams.texels)
+    keep = seams.keep[:, None]
+    rows = seams.index.reshape(-1)
+
+    def normal_matrix(x):
+        residual = seams.disagreement(x)  # (s, C)
+        spread = seams.weight[:, :, None] * residual[:, None, :]
+        back = np.stack([np.bincount(rows, spread[..., c].reshape(-1), n) for c in range(channels)], axis=1)
+        return keep * x + SEAM_WEIGHT * back
+
+    diagonal = (seams.keep + SEAM_WEIGHT * np.bincount(rows, (seams.weight ** 2).reshape(-1), n))[:, None]
+    rhs = keep * baked
+    x = baked.copy()
+    r = rhs - normal_matrix(x)
+    z = r / diagonal
+    d = z.copy()
+    rz = (r * z).sum(0)
+    limit = TOLERANCE * np.maximum(np.linalg.norm(rhs, axis=0), 1e-30)
+    iterations = 0
+    while iterations < MAX_ITERATIONS and (np.linalg.norm(r, axis=0) > limit).any():
+        q = normal_matrix(d)
+        dq = (d * q).sum(0)
+        alpha = np.divide(rz, dq, out=np.zeros_like(rz), where=dq > 0)
+        x += alpha * d
+        r -= alpha * q
+        z = r / diagonal
+        rz_next = (r * z).sum(0)
+        beta = np.divide(rz_next, rz, out=np.zeros_like(rz), where=rz > 0)
+        d = z + beta * d
+        rz = rz_next
+        iterations += 1
+    x = np.clip(np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
+    out = flat.copy()
+    out[seams.texels] = x
+    covered = seams.keep == 1.0
+    mean = float(np.abs(baked[covered]).mean()) if covered.any() else 0.0
+
+    def relative(values):
+        return float(np.sqrt(np.mean(seams.disagreement(values) ** 2)) / mean) if mean > 0 else 0.0
+
+    return StitchResult(image=out.reshape(image.shape), before=relative(baked), after=relative(x),
+                        iterations=iterations)

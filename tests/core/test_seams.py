@@ -1,0 +1,142 @@
+"""Seam stitching (core.outputs.seams): both sides of a UV seam between smooth faces read the
+same light under bilinear filtering, and nothing else moves."""
+import numpy as np
+import pytest
+
+from core.outputs.seams import _bilinear_taps, find_seams, stitch
+from core.pipeline.relight import bake
+from core.scene import Light, Material, Mesh, Scene
+from core.settings import BakeSettings
+from core_scenes import box_interior
+
+
+def _hinge(bend_degrees=20.0, smooth=True, resolution=32):
+    """Two 1 m quads meeting at the edge x = 0, the right one bent up by ``bend_degrees``;
+    the left in UV [0.05, 0.45] x [0.1, 0.9], the right in [0.55, 0.95] x [0.1, 0.9], so the
+    shared edge is a seam. Smooth: corner normals on the edge are the two faces' mean."""
+    angle = np.radians(bend_degrees)
+    right = np.array([np.cos(angle), 0.0, np.sin(angle)])
+    positions = np.array([[-1, 0, 0], [0, 0, 0], [0, 1, 0], [-1, 1, 0],
+                          [0, 0, 0], right, right + [0, 1, 0], [0, 1, 0]], np.float64)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], np.int32)
+    uv = np.array([[0.05, 0.1], [0.45, 0.1], [0.45, 0.9], [0.05, 0.9],
+                   [0.55, 0.1], [0.95, 0.1], [0.95, 0.9], [0.55, 0.9]], np.float32)
+    up_left = np.array([0, 0, 1.0])
+    up_right = np.cross(right, [0, 1, 0])
+    edge = (up_left + up_right) / np.linalg.norm(up_left + up_right) if smooth else None
+    normals = np.zeros((8, 3))
+    normals[:4] = up_left
+    normals[4:] = up_right
+    if smooth:
+        normals[[1, 2, 4, 7]] = edge
+    return Mesh(name="Hinge", positions=positions, triangles=triangles, corner_normals=normals[triangles].astype(
+        np.float32), material_index=np.zeros(4, np.int32), materials=[Material(base_color=np.full(3, 0.8))],
+        uv_maps={"UVMap": uv[triangles]}, bake_uv_map="UVMap", resolution=(resolution, resolution))
+
+
+def _islands(resolution=32):
+    centres = (np.arange(resolution) + 0.5) / resolution
+    u, v = np.meshgrid(centres, centres)  # row 0 at v = 0
+    inside_v = (v > 0.1) & (v < 0.9)
+    left = (u > 0.05) & (u < 0.45) & inside_v
+    right = (u > 0.55) & (u < 0.95) & inside_v
+    return left, right
+
+
+def test_a_seam_between_smooth_faces_is_found_once_and_a_sharp_edge_is_not():
+    mesh = _hinge()
+    left, right = _islands()
+    seams = find_seams(mesh.positions, mesh.triangles, mesh.uv_maps["UVMap"], mesh.corner_normals, 32, 32,
+                       left | right)
+    assert seams is not None and seams.edges == 1
+    # Three points per texel of the edge's 0.8 * 32 texels, each reading four texels a side.
+    assert len(seams.index) == int(np.ceil(3 * 0.8 * 32)) and seams.index.shape[1] == 8
+    np.testing.assert_allclose(seams.weight[:, :4].sum(1), 1.0)
+    np.testing.assert_allclose(seams.weight[:, 4:].sum(1), -1.0)
+    sharp = _hinge(smooth=False)
+    assert find_seams(sharp.positions, sharp.triangles, sharp.uv_maps["UVMap"], sharp.corner_normals, 32, 32,
+                      left | right) is None
+
+
+def test_a_mesh_split_at_its_seam_is_welded_by_position():
+    mesh = _hinge()  # vertices 1/4 and 2/7 are distinct indices at equal positions
+    assert not np.array_equal(mesh.triangles[0], mesh.triangles[2])
+    seams = find_seams(mesh.positions, mesh.triangles, mesh.uv_maps["UVMap"], mesh.corner_normals, 32, 32,
+                       np.ones((32, 32), bool))
+    assert seams is not None and seams.edges == 1
+
+
+def test_stitching_makes_the_two_sides_agree_and_moves_only_texels_the_seam_reads():
+    mesh = _hinge()
+    left, right = _islands()
+    image = np.zeros((32, 32, 3), np.float32)
+    image[left] = (1.0, 0.5, 0.25)
+    image[right] = (2.0, 1.0, 0.5)
+    # The dilated gutter, as sample_image leaves it: each side's value pushed outwards.
+    image[:, :16][~left[:, :16]] = (1.0, 0.5, 0.25)
+    image[:, 16:][~right[:, 16:]] = (2.0, 1.0, 0.5)
+    seams = find_seams(mesh.positions, mesh.triangles, mesh.uv_maps["UVMap"], mesh.corner_normals, 32, 32,
+                       left | right)
+    done = stitch(image, seams)
+    assert done.before > 0.3
+    assert done.after < 0.01 * done.before
+    touched = np.zeros(32 * 32, bool)
+    touched[seams.texels] = True
+    moved = np.abs(done.image - image).max(axis=2).reshape(-1) > 0
+    assert moved.any() and not (moved & ~touched).any()
+    # The two sides meet in between: the stitched seam is neither side's value.
+    lookups = np.einsum("sk,skc->sc", np.abs(seams.weight[:, :4]), done.image.reshape(-1, 3)[seams.texels][
+        seams.index[:, :4]])
+    assert (lookups[:, 0] > 1.05).all() and (lookups[:, 0] < 1.95).all()
+    assert np.isfinite(done.image).all() and (done.image >= 0).all()
+
+
+def test_bilinear_taps_match_the_gather_s_convention():
+    image = np.arange(12.0).reshape(3, 4)  # row 0 at v = 0
+    uv = np.array([[0.125, 1 / 6], [0.5, 0.5], [1.0, 1.0], [0.0, 0.0]])
+    texels, weights = _bilinear_taps(uv, 4, 3)
+    values = (image.reshape(-1)[texels] * weights).sum(1)
+    np.testing.assert_allclose(values, [0.0, 5.5, 11.0, 0.0])
+
+
+def _hinge_bake(stitch_seams):
+    mesh = _hinge(bend_degrees=30.0)
+    towards_sun = np.array([0.5, -0.3, 0.8])
+    sun = Light("Sun", "SUN", np.ones(3), 3.0, direction=-towards_sun / np.linalg.norm(towards_sun))
+    settings = BakeSettings(directions=64, bounces=0, passes=("lighting",), stitch_seams=stitch_seams)
+    return bake(Scene([mesh], [sun]), settings)
+
+
+def test_a_bake_stitches_its_seams_and_reports_how_far_the_sides_disagreed():
+    plain, stitched = _hinge_bake(False), _hinge_bake(True)
+    entry = stitched.report["objects"][0]
+    assert entry["seam_edges"] == 1
+    before, after = entry["seam_disagreement"]
+    assert before > 0.02 and after < 0.1 * before
+    assert "seam stitching: off" in plain.report["skipped"]
+    assert "seam_edges" not in plain.report["objects"][0]
+    assert any(p["pass"].startswith("seam stitching") for p in stitched.report["passes"])
+    a, b = plain.objects[0].images["lighting"], stitched.objects[0].images["lighting"]
+    assert not np.array_equal(a, b)
+    np.testing.assert_array_equal(a[..., 3], b[..., 3])
+    # Texels far from the seam (the outer quarter of each island) keep their values.
+    np.testing.assert_array_equal(a[:, :6], b[:, :6])
+
+
+def test_a_box_seen_from_inside_has_only_sharp_edges_so_nothing_is_stitched():
+    settings = BakeSettings(directions=32, bounces=0, passes=("lighting",))
+    light = Light("Lamp", "POINT", np.ones(3), 50.0, position=np.zeros(3))
+    result = bake(Scene([box_interior()], [light]), settings)
+    assert "seam_edges" not in result.report["objects"][0]
+    assert any(s.startswith("seam stitching of 1 objects without UV seams") for s in result.report["skipped"])
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_non_finite_texels_never_leave_the_stitch(value):
+    mesh = _hinge()
+    left, right = _islands()
+    image = np.ones((32, 32, 3), np.float32)
+    image[16, 14] = value
+    seams = find_seams(mesh.positions, mesh.triangles, mesh.uv_maps["UVMap"], mesh.corner_normals, 32, 32,
+                       left | right)
+    assert np.isfinite(stitch(image, seams).image).all()
