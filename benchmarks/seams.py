@@ -40,8 +40,9 @@ CHANGED = 0.002  # a pixel stitching moved by more than this share of the mean i
 
 def build_scene():
     """Floor, UV sphere, cylinder and torus (all smooth) under a 40-degree sun, and a camera."""
-    import bmesh
     import bpy
+
+    import bmesh
     from mathutils import Matrix
 
     from benchmarks import scenes
@@ -232,7 +233,7 @@ def markdown(result: dict) -> str:
              f"{result['resolution']}² atlases, N = {result['directions']}, {result['bounces']} bounces; renders "
              f"{result['render'][0]}×{result['render'][1]}, truth {result['truth_samples']} spp "
              f"({result['truth_seconds']:.0f} s).", "",
-             f"| pixels | count | stitching off | stitching on | truth's noise |", "|---|---|---|---|---|",
+             "| pixels | count | stitching off | stitching on | truth's noise |", "|---|---|---|---|---|",
              f"| all object pixels | {result['object_pixels']} | {rmse['off']['all']:.2%} | {rmse['on']['all']:.2%} "
              f"| {noise['all']:.2%} |",
              f"| seam pixels | {result['seam_pixels']} | {rmse['off']['seam']:.2%} | {rmse['on']['seam']:.2%} "
