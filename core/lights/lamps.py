@@ -185,13 +185,15 @@ class LampPoints:
 
     def __init__(self, light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
                  sample_ids: np.ndarray | None = None, seed: int = 0, footprint: np.ndarray | None = None,
-                 points: int | None = None):
+                 points: int | None = None, footprint_normals: np.ndarray | None = None):
         strength = max(float(light.strength), 0.0)
         if not np.isfinite(strength):
             raise ValueError(f"light {light.name!r} has a non-finite strength")
         if light.kind not in ("SUN", "POINT", "SPOT", "AREA"):
             raise ValueError(f"light {light.name!r}: unsupported kind {light.kind!r}")
         self.light, self.position, self.normal, self.footprint = light, position, normal, footprint
+        # (K, P, 3) the shading normal at each footprint point, or None: the sample's own for all.
+        self.footprint_normals = footprint_normals if footprint is not None else None
         self.scale = strength * np.asarray(light.color, np.float64)[:3]
         self.count = lamp_points(light, area_light_samples) if points is None else max(1, int(points))
         # A lamp without extent is one exact point; over a footprint it is that point seen from each footprint point.
@@ -209,9 +211,17 @@ class LampPoints:
         chosen.position, chosen.normal = self.position[rows], self.normal[rows]
         if self.footprint is not None:
             chosen.footprint = self.footprint[rows]
+        if self.footprint_normals is not None:
+            chosen.footprint_normals = self.footprint_normals[rows]
         if not self.hard:
             chosen.scrambles = self.scrambles[:, rows]
         return chosen
+
+    def point_normal(self, point: int) -> np.ndarray:
+        """(K, 3) the shading normal where point ``point`` is received."""
+        if self.footprint_normals is None:
+            return self.normal
+        return self.footprint_normals[:, point % self.footprint_normals.shape[1]].astype(np.float64)
 
     def contribution(self, point: int) -> LightContribution:
         """Point ``point``'s share (weighted 1 / count) at every sample."""
@@ -219,6 +229,7 @@ class LampPoints:
         if self.hard:
             return _hard_contribution(self.light, position, normal, self.scale)
         receiver = position if self.footprint is None else position + self.footprint[:, point % self.footprint.shape[1]]
+        normal = self.point_normal(point)
         if self.point_lamp:
             part = _hard_contribution(self.light, receiver, normal, self.scale / self.count)
         else:

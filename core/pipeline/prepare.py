@@ -58,7 +58,9 @@ class Prepared:
     ray_scene: RayScene
     origins: np.ndarray  # (K, 3) float32, offset off the surface
     table: object  # VisibilityTable or None
-    footprint: tuple | None  # ((K, P, 3) footprint points, (K, 4, 3) box corners) float32 (ObjectSamples), or None
+    # ((K, P, 3) footprint points, (K, 4, 3) box corners, (K, P, 3) their normals or None)
+    # float32 (ObjectSamples), or None
+    footprint: tuple | None
     terminator: tuple | None  # ((K, 3) lifts, (K,) cutoffs) for smooth faces' shadow rays (SampleSet), or None
     rotations: np.ndarray | None  # (G, 3, 3) interleaved rotations of the direction set, or None (one set)
     group: np.ndarray | None  # (K,) int64 each sample's rotation, or None
@@ -102,8 +104,9 @@ class Prepared:
         """All samples as the transport contract's :class:`SampleSet`."""
         if self._sample_set is None:
             owner = np.repeat(np.arange(len(self.meshes)), np.diff(self.sample_offset))
-            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins, owner,
-                                         *(self.footprint or (None, None)), *(self.terminator or (None, None)))
+            points, corners, normals = self.footprint or (None, None, None)
+            self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins, owner, points,
+                                         corners, *(self.terminator or (None, None)), footprint_normals=normals)
         return self._sample_set
 
     def shadowing(self) -> Shadowing:
@@ -256,8 +259,9 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     counts = np.array([len(s) for s in object_samples], np.int64)
     position = np.concatenate([s.position for s in object_samples])
     geometric = np.concatenate([s.geometric_normal for s in object_samples])
+    normal = np.concatenate([s.normal for s in object_samples])
     emission = np.concatenate([s.emission for s in object_samples]).astype(np.float64)
-    footprint = concatenated_footprint(object_samples, settings.footprint_samples)
+    footprint = concatenated_footprint(object_samples, settings.footprint_samples, normal)
     terminator = concatenated_terminator(meshes, object_samples)
     rotations, group = interleaving(object_samples, settings.interleave, settings.seed)
     directions = direction_set(settings.directions, settings.rotate, settings.seed)
@@ -292,7 +296,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     return Prepared(
         settings=settings, meshes=meshes, object_samples=object_samples,
         sample_offset=np.concatenate([[0], np.cumsum(counts)]), position=position,
-        normal=np.concatenate([s.normal for s in object_samples]), geometric=geometric,
+        normal=normal, geometric=geometric,
         albedo=np.concatenate([s.albedo for s in object_samples]).astype(np.float64), emission=emission,
         layout=AtlasLayout.from_sizes([(s.width, s.height) for s in object_samples],
                                       [getattr(s, "corner_sample", None) for s in object_samples],
@@ -303,17 +307,25 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         visibility_rays=visibility_rays, cache=cache, cache_status=status)
 
 
-def concatenated_footprint(object_samples, count: int) -> tuple[np.ndarray, np.ndarray] | None:
+def concatenated_footprint(object_samples, count: int, normals: np.ndarray) -> tuple | None:
     """Every sample's footprint points (K, count, 3) and box corners (K, 4, 3) float32
     offsets, objects concatenated (zero for samples that stand for a point, such as vertex
-    samples), or None when ``count`` is 1."""
+    samples), and the points' shading normals (K, count, 3) float32 (each sample's own
+    ``normals`` (K, 3) on flat faces), None where no face is smooth; or None when ``count`` is 1."""
     if count <= 1:
         return None
     points = np.concatenate([s.footprint if s.footprint is not None else np.zeros((len(s), count, 3), np.float32)
                              for s in object_samples])
     corners = np.concatenate([s.footprint_corners if s.footprint_corners is not None
                               else np.zeros((len(s), 4, 3), np.float32) for s in object_samples])
-    return points, corners
+    if all(s.footprint_normals is None for s in object_samples):
+        return points, corners, None
+    offsets = np.cumsum([0] + [len(s) for s in object_samples])
+    point_normals = np.broadcast_to(np.asarray(normals, np.float32)[:, None, :], points.shape).copy()
+    for s, start in zip(object_samples, offsets):
+        if s.footprint_normals is not None:
+            point_normals[start:start + len(s)] = s.footprint_normals
+    return points, corners, point_normals
 
 
 def interleaving(object_samples, tile: int, seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -10,10 +10,11 @@ never of the surface beyond the face's edge (another face of the mesh, or the gu
 
 :func:`footprint_offsets` gives each sample ``count`` such points, as offsets from the
 sample's position: a stratified 2D set (Sobol, Owen-scrambled per texel so neighbouring
-texels do not share a pattern), each point drawn again up to :data:`REDRAWS` times when
-it leaves the triangle, as Cycles does. Points that find no place inside are replaced by
-the sample's other points, cycling, so every slot holds a usable point and consumers
-simply use slot ``j % count``. The visibility table starts direction i's ray from slot
+texels do not share a pattern), each point drawn up to :data:`REDRAWS` times until it
+lies inside the triangle, and otherwise the sample's own position (the texel's centre), as
+Cycles does. On a mesh whose triangles are smaller than the box, that centre weighs a
+large share of the texel (about 43% where the triangle covers 8% of the box), in Cycles
+and here alike. Every slot holds a usable point, and consumers simply use slot ``j % count``. The visibility table starts direction i's ray from slot
 ``i % count``, so the table itself averages the footprint; exact shadows average all slots.
 """
 from __future__ import annotations
@@ -26,7 +27,8 @@ from ..lights.sampler import hash32, owen_scramble, sobol_point
 # Width of the box each texel is averaged over, in texels: Cycles' bake jitters by half the
 # texel's UV differentials either way (Blender's bake_differentials halves them).
 BOX_WIDTH = 0.5
-# A point outside the triangle is drawn again this many times before its slot gives up.
+# A point is drawn this many times before its slot gives up and takes the centre (Cycles'
+# bake_jitter_barycentric tries ten jitters).
 REDRAWS = 10
 
 
@@ -89,7 +91,7 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     for slot in range(count):
         rows = np.nonzero(usable)[0]  # the texels still looking for this slot's point
         u = jitter[rows, slot]
-        for attempt in range(REDRAWS + 1):
+        for attempt in range(REDRAWS):
             if not len(rows):
                 break
             if attempt:
@@ -103,14 +105,8 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
             inside = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1)
             chosen[rows[inside], slot] = np.einsum("kc,kcd->kd", weights[inside], tri_corners[rows[inside]])
             rows, u = rows[~inside], u[~inside]
-    found = ~np.isnan(chosen[:, :, 0])
-    # A slot that found no place takes another slot's point, cycling; a sample with none at
-    # all (a sliver of a triangle) keeps its own position in every slot.
-    valid = found.sum(axis=1)
-    order = np.argsort(~found, axis=1, kind="stable")  # found slots first, in slot order
-    take = order[np.arange(samples)[:, None], np.arange(count)[None, :] % np.maximum(valid, 1)[:, None]]
-    points = chosen[np.arange(samples)[:, None], take]
-    points = np.where((valid > 0)[:, None, None], points, position[:, None, :])
+    # A slot that found no place inside takes the centre, as Cycles' sample does.
+    points = np.where(np.isnan(chosen), position[:, None, :], chosen)
     return (points - position[:, None, :]).astype(np.float32)
 
 
@@ -151,3 +147,49 @@ def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         result[:, index] = np.where(inside[:, None], moved, nearest)
     return result
 
+
+
+def footprint_normals(offsets: np.ndarray, position: np.ndarray, triangle: np.ndarray, corners: np.ndarray,
+                      corner_normals: np.ndarray, normal: np.ndarray, smooth: np.ndarray) -> np.ndarray:
+    """The shading normal at each footprint point, as Cycles shades its jittered bake samples.
+
+    On a smooth face the normal turns across a texel, and where a texel spans a large angle
+    (a thin cylinder's few texels around) the light of its points differs from that of its
+    centre; Cycles averages it, so the direct light does too.
+
+    Parameters
+    ----------
+    offsets : (k, P, 3) float footprint points relative to ``position`` (k, 3) float64
+    triangle : (k,) int the sample's triangle; corners, corner_normals : (T, 3, 3) float
+        every triangle's corner positions and shading normals
+    normal : (k, 3) float64 each sample's own unit shading normal (the points of a flat
+        face, ``smooth`` (k,) bool False, all take it)
+
+    Returns
+    -------
+    (k, P, 3) float32 unit normals (a point's normal facing away from ``normal`` takes
+    ``normal``, as the sample's own does its face's)
+    """
+    out = np.broadcast_to(np.asarray(normal, np.float32)[:, None, :], offsets.shape).copy()
+    rows = np.flatnonzero(smooth)
+    if not len(rows):
+        return out
+    a, b, c = (np.asarray(corners, np.float64)[triangle[rows], i] for i in range(3))
+    points = np.asarray(position, np.float64)[rows, None, :] + np.asarray(offsets, np.float64)[rows]
+    e1, e2 = (b - a)[:, None, :], (c - a)[:, None, :]
+    d = points - a[:, None, :]
+    d11, d12, d22 = (np.einsum("kpd,kpd->kp", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
+    d1, d2 = np.einsum("kpd,kpd->kp", d, e1), np.einsum("kpd,kpd->kp", d, e2)
+    denominator = d11 * d22 - d12 * d12
+    scale = np.divide(1.0, denominator, out=np.zeros_like(denominator), where=denominator > 0)
+    w1 = (d22 * d1 - d12 * d2) * scale
+    w2 = (d11 * d2 - d12 * d1) * scale
+    weights = np.clip(np.stack([1.0 - w1 - w2, w1, w2], axis=-1), 0.0, None)  # (r, P, 3)
+    weights /= np.maximum(weights.sum(axis=-1, keepdims=True), 1e-30)
+    smooth_normals = np.einsum("kpc,kcd->kpd", weights, np.asarray(corner_normals, np.float64)[triangle[rows]])
+    length = np.linalg.norm(smooth_normals, axis=-1, keepdims=True)
+    unit = np.divide(smooth_normals, length, out=np.zeros_like(smooth_normals), where=length > 1e-12)
+    own = np.asarray(normal, np.float64)[rows, None, :]
+    usable = (length[..., 0] > 1e-12) & (np.einsum("kpd,kpd->kp", unit, own) > 0) & (denominator > 0)
+    out[rows] = np.where(usable[..., None], unit, own).astype(np.float32)
+    return out

@@ -9,7 +9,7 @@ from .. import tolerances as tol
 from ..geometry import face_normals
 from ..outputs.images import bilinear_wrap
 from ..scene import Mesh
-from .footprint import footprint_corners, footprint_offsets
+from .footprint import footprint_corners, footprint_normals, footprint_offsets
 from .raster import rasterize
 from .terminator import smooth_surface_offsets
 
@@ -34,6 +34,8 @@ class ObjectSamples:
         exact shadows probe for an edge (core.sampling.footprint.footprint_corners), or None
     terminator : (k, 3) float64 lift towards the smooth surface for shadow rays
         (:func:`core.sampling.terminator.smooth_surface_offsets`), or None where no face is smooth
+    footprint_normals : (k, P, 3) float32 the shading normal at each footprint point
+        (:func:`core.sampling.footprint.footprint_normals`), or None where no face is smooth
     """
 
     width: int
@@ -51,6 +53,7 @@ class ObjectSamples:
     footprint: np.ndarray | None = None
     footprint_corners: np.ndarray | None = None
     terminator: np.ndarray | None = None
+    footprint_normals: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.pixel)
@@ -120,16 +123,19 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
     np.nan_to_num(emission, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     np.clip(emission, 0.0, None, out=emission)
 
-    footprint = box_corners = None
+    # Faces whose corner normals are their own (flat shading) have no smooth surface to lift
+    # to, and one normal over the whole footprint.
+    smooth = np.einsum("kcd,kd->kc", mesh.corner_normals[tri].astype(np.float64), geometric).min(axis=1) \
+        < 1.0 - tol.FLAT_NORMAL_SLACK if len(tri) else np.zeros(0, bool)
+    footprint = box_corners = point_normals = None
     if footprint_samples > 1:
         corners = mesh.positions[mesh.triangles].astype(np.float64)
         footprint = footprint_offsets(raster.pixel, tri, width, height, raster_uv, corners, position,
                                       footprint_samples)
         box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint)
+        if np.any(smooth):
+            point_normals = footprint_normals(footprint, position, tri, corners, mesh.corner_normals, shading, smooth)
     terminator = None
-    # Faces whose corner normals are their own (flat shading) have no smooth surface to lift to.
-    smooth = np.einsum("kcd,kd->kc", mesh.corner_normals[tri].astype(np.float64), geometric).min(axis=1) \
-        < 1.0 - tol.FLAT_NORMAL_SLACK if len(tri) else np.zeros(0, bool)
     if mesh.terminator_offset > 0 and np.any(smooth):
         terminator = np.zeros((len(tri), 3))
         terminator[smooth] = smooth_surface_offsets(mesh.positions, mesh.triangles, mesh.corner_normals,
@@ -140,7 +146,7 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
         barycentric=raster.barycentric, position=position, normal=shading,
         geometric_normal=geometric, albedo=albedo, emission=emission,
         coverage=raster.coverage, uv_overlap_texels=int(raster.overlap_count), footprint=footprint,
-        footprint_corners=box_corners, terminator=terminator,
+        footprint_corners=box_corners, terminator=terminator, footprint_normals=point_normals,
     )
 
 

@@ -46,6 +46,8 @@ class SampleSet:
     terminator : (K, 3) float64 lift towards the smooth surface of smooth-shaded faces, and
     terminator_cutoff : (K,) float64 the object's cosine below which it applies
         (core.sampling.terminator); None: no sample is on a smooth face
+    footprint_normals : (K, P, 3) float32 the shading normal at each footprint point, with
+        which direct light is shaded there; None: every point takes ``normal``
     """
 
     position: np.ndarray
@@ -57,6 +59,7 @@ class SampleSet:
     footprint_corners: np.ndarray | None = None
     terminator: np.ndarray | None = None
     terminator_cutoff: np.ndarray | None = None
+    footprint_normals: np.ndarray | None = None
 
     @classmethod
     def on_surface(cls, position: np.ndarray, normal: np.ndarray,

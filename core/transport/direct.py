@@ -47,7 +47,7 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         blockers = shadowing.blocker_scene(light) if not fractions_mode else None
         receives = shadowing.receivers(light, samples)
         lamp = LampPoints(light, samples.position, samples.normal, shadowing.area_light_samples, sample_ids,
-                          shadowing.seed, footprint, points[light_index])
+                          shadowing.seed, footprint, points[light_index], samples.footprint_normals)
         # Skip what a sample does not need. Rays to the lamp's centre and outline tell each
         # sample whether it is in a penumbra; a sample wholly lit or wholly shadowed traces no
         # more rays, and where the lamp looks small from it (its unshadowed light is nearly
@@ -65,6 +65,10 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         for index in range(lamp.count):
             if adaptive and index == SMALL_LAMP_POINTS:
                 small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION)
+                if lamp.footprint_normals is not None:
+                    # A curved footprint's light changes across it: it needs every point's cosine
+                    # (no ray: it is decided).
+                    small &= ~curved_footprints(lamp.footprint_normals, samples.normal)
                 lamp_light[small] *= lamp.count / SMALL_LAMP_POINTS
                 rows = np.nonzero(~small)[0]
                 if not len(rows):
@@ -73,7 +77,7 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
             part = lamp.contribution(index)
             # Above the shading normal's horizon, as Cycles lights a smooth face (its shadow rays
             # then start lifted towards the smooth surface: trace_shadow_rays).
-            shading = samples.normal if rows is None else samples.normal[rows]
+            shading = lamp.point_normal(index)
             above = np.einsum("kd,kd->k", part.to_light, shading) > 0.0
             lit = above & np.any(part.irradiance > 0, axis=1)
             if receives is not None:
@@ -98,6 +102,17 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         if report is not None:
             report(costs[light_index] / costs[-1])
     return irradiance, shadow_rays
+
+
+def curved_footprints(footprint_normals: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(K,) bool: samples whose footprint points' normals (K, P, 3) turn away from their own
+    ``normal`` (K, 3) by more than about a degree."""
+    return np.einsum("kpd,kd->kp", footprint_normals, normal).min(axis=1) < CURVED_COSINE
+
+
+# A footprint whose normals stay within this cosine of its centre's (about 1.8 degrees) shades
+# like its centre to within 0.05 of a cosine's slope: the first points stand for all.
+CURVED_COSINE = 0.9995
 
 
 def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, receives):

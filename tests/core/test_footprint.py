@@ -124,3 +124,72 @@ def test_a_shadow_edge_through_a_sliver_of_the_box_is_found_by_the_corner_probes
     assert np.count_nonzero(crossed) >= 8
     assert np.all((value[crossed] > 0.0) & (value[crossed] < 0.5))
     assert np.all(value[x < edge - texel] == 0.0) and np.all(value[x > edge + texel] == 1.0)
+
+
+def test_a_point_that_finds_no_place_on_a_small_triangle_takes_the_centre_as_cycles_does():
+    # Cells a fifth of a texel across: the box, half a texel wide, holds 12.5 triangles, so a
+    # draw lands on the texel's own with odds 0.08, all ten miss with odds 0.43, and Cycles
+    # then bakes the texel's centre.
+    samples = build_samples(_fine_grid(cells=40, resolution=8), footprint_samples=16)
+    at_centre = np.all(samples.footprint == 0.0, axis=2).mean()
+    assert 0.3 < at_centre < 0.6
+    on_plane = samples.position[:, None, :] + samples.footprint
+    assert np.all(np.abs(on_plane[..., 2]) < 1e-6)
+
+
+def _fine_grid(cells=40, resolution=8):
+    """A 1 m plane of cells x cells quads (two triangles each), UVs = xy, at ``resolution``²."""
+    from core.scene import Material, Mesh
+    ticks = np.linspace(0.0, 1.0, cells + 1)
+    x, y = np.meshgrid(ticks, ticks)
+    positions = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    index = np.arange(x.size).reshape(cells + 1, cells + 1)
+    a, b, c, d = index[:-1, :-1], index[:-1, 1:], index[1:, 1:], index[1:, :-1]
+    triangles = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    uv = positions[:, :2].astype(np.float32)
+    return Mesh(name="Grid", positions=positions, triangles=triangles.astype(np.int32),
+                corner_normals=np.tile(np.float32([0, 0, 1]), (len(triangles), 3, 1)),
+                material_index=np.zeros(len(triangles), np.int32), materials=[Material()],
+                uv_maps={"UVMap": uv[triangles]}, bake_uv_map="UVMap", resolution=(resolution, resolution))
+
+
+def test_points_on_a_smooth_face_take_the_normal_interpolated_where_they_lie():
+    from core.sampling.footprint import footprint_normals
+    mesh = _plane(resolution=8, size=2.0)
+    tilted = np.array([[0.3, 0.0, 1.0], [-0.3, 0.0, 1.0], [0.0, 0.3, 1.0]])
+    tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
+    mesh.corner_normals[:] = tilted.astype(np.float32)  # both triangles smooth
+    samples = build_samples(mesh, footprint_samples=16)
+    normals = samples.footprint_normals
+    assert normals is not None and normals.shape == samples.footprint.shape
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=2), 1.0, rtol=1e-5)
+    # Each point's normal is the corner normals weighted by its barycentric coordinates there.
+    row, slot = 5, 3
+    triangle = mesh.triangles[samples.triangle[row]]
+    corners = mesh.positions[triangle]
+    point = samples.position[row] + samples.footprint[row, slot]
+    weights = np.linalg.lstsq(np.vstack([corners.T, np.ones(3)]), np.append(point, 1.0), rcond=None)[0]
+    expected = weights @ tilted
+    np.testing.assert_allclose(normals[row, slot], expected / np.linalg.norm(expected), atol=1e-5)
+    # The points spread the normal: not every point shades like the centre.
+    assert np.einsum("kpd,kd->kp", normals, samples.normal).min() < 0.99999
+    flat = build_samples(_plane(resolution=8), footprint_samples=16)
+    assert flat.footprint_normals is None
+
+
+def test_direct_light_on_a_smooth_face_averages_the_cosine_over_the_footprint():
+    # Corner normals spread 35 degrees either way over a 2 m plane at 4² texels: a texel's
+    # points see the sun at different angles, and the texel takes their mean, not its centre's.
+    mesh = _plane(resolution=4, size=2.0)
+    spread = np.array([[0.7, 0.0, 1.0], [-0.7, 0.0, 1.0], [-0.7, 0.0, 1.0], [0.7, 0.0, 1.0]])
+    per_vertex = spread / np.linalg.norm(spread, axis=1, keepdims=True)
+    mesh.corner_normals[:] = per_vertex[mesh.triangles].astype(np.float32)
+    towards = np.array([0.8, 0.0, 0.6])
+    sun = Light("Sun", "SUN", np.ones(3), 1.0, direction=-towards)
+    p = prepare(Scene([mesh], []), BakeSettings(directions=8, bounces=0, footprint_samples=16), table_needed=False)
+    irradiance, _ = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
+    normals = p.sample_set().footprint_normals.astype(np.float64)
+    expected = np.clip(normals @ towards, 0.0, None).mean(axis=1)
+    np.testing.assert_allclose(irradiance[:, 0], expected, rtol=1e-5, atol=1e-7)
+    at_centre = np.clip(p.normal @ towards, 0.0, None)
+    assert np.abs(expected - at_centre).max() > 1e-3
