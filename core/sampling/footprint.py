@@ -14,8 +14,10 @@ texels do not share a pattern), each point drawn up to :data:`REDRAWS` times unt
 lies inside the triangle, and otherwise the sample's own position (the texel's centre), as
 Cycles does. On a mesh whose triangles are smaller than the box, that centre weighs a
 large share of the texel (about 43% where the triangle covers 8% of the box), in Cycles
-and here alike. Every slot holds a usable point, and consumers simply use slot ``j % count``. The visibility table starts direction i's ray from slot
-``i % count``, so the table itself averages the footprint; exact shadows average all slots.
+and here alike. Every slot holds a usable point, and consumers simply use slot
+``j % count``. The visibility table starts direction i's ray from slot ``i % count``, so
+the table itself averages the footprint; exact shadows average all slots, and direct
+light is shaded with each point's own normal (:func:`footprint_normals`).
 """
 from __future__ import annotations
 

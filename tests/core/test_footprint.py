@@ -154,7 +154,6 @@ def _fine_grid(cells=40, resolution=8):
 
 
 def test_points_on_a_smooth_face_take_the_normal_interpolated_where_they_lie():
-    from core.sampling.footprint import footprint_normals
     mesh = _plane(resolution=8, size=2.0)
     tilted = np.array([[0.3, 0.0, 1.0], [-0.3, 0.0, 1.0], [0.0, 0.3, 1.0]])
     tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
