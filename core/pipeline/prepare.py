@@ -15,7 +15,7 @@ from ..lights.environment import has_light
 from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples
 from ..scene import Scene
 from ..settings import BakeSettings
-from ..transport.contacts import find_short_hits
+from ..transport.contacts import exposed_share, find_short_hits, lookup_scale
 from ..transport.contract import GatherGeometry, SampleSet, Shadowing
 from ..transport.gather import AtlasLayout, gather_normalisation
 from ..transport.groups import LightGroup, light_key_parts
@@ -78,6 +78,18 @@ class Prepared:
     _short_hits: object = False  # core.transport.contacts.ShortHits, None (none), False (not looked for)
     _near_hits: object = False
     _filter_pairs: tuple | None = None
+    _lookup_scale: np.ndarray | None = None
+
+    def lookup_scale(self) -> np.ndarray:
+        """(K,) float64: what the gathers multiply each texel's reflected light by to look up
+        the radiance of its exposed part (core.transport.contacts.exposed_share); ones
+        without a table or footprint. Found once per preparation: it depends on geometry alone."""
+        if self._lookup_scale is None:
+            if self.table is None or self.footprint is None:
+                self._lookup_scale = np.ones(len(self.position))
+            else:
+                self._lookup_scale = lookup_scale(exposed_share(self.table, self.footprint[0].shape[1]))
+        return self._lookup_scale
 
     def filter_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """The texel pairs the interleaving filter averages (core.transport.interleave.filter_pairs),

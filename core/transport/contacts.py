@@ -13,6 +13,15 @@ Only the lamps' direct light is replaced (emitters and the world keep the table'
 and only with exact shadows: the fractions have no per-point shadow to evaluate. What a
 short hit is depends on geometry alone; the lamps' light at the hits is computed at every
 (re)light, like the direct light of the samples.
+
+The indirect light a short ray carries is still the target texel's. A texel half under a
+box standing on it is, as Cycles bakes it, the mean of its lit half and its dark buried
+half; but a ray can only land on the lit half. :func:`exposed_share` measures per texel
+how much of its footprint is not buried, and the radiance the gathers look up is that of
+the exposed part (the texel's value divided by its exposed share): the second bounce into
+a contact (light from the box's face, reflected by the floor at its foot, back onto the
+face) is otherwise a third of Cycles' on the benchmark's sunlit block. The texels' own
+outputs keep Cycles' mean.
 """
 from __future__ import annotations
 
@@ -20,10 +29,42 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..visibility.table import BACKFACE, BELOW_HORIZON
 from .contract import SampleSet
 
 # A hit nearer than this many of its target's texels is evaluated at its landing point.
 SHORT_HIT_TEXELS = 2.0
+# A footprint point most of whose rays (this share) hit the back of a face lies inside
+# other geometry. Inside a closed object every ray does; beside an open, one-sided mesh
+# seen from behind only those towards it do, so that does not count as buried.
+BURIED_POINT_SHARE = 0.9
+# Below this exposed share a texel is left as it is: dividing by a sliver's share would
+# amplify its noise, and few rays land on a sliver.
+MIN_EXPOSED_SHARE = 0.25
+
+
+def exposed_share(table, slots: int) -> np.ndarray:
+    """(K,) float64: the share of each sample's footprint points (``slots`` of them; the
+    table's direction i starts from point i % slots) that are not buried inside other
+    geometry, among the points with any ray above the horizon (1 where none has)."""
+    samples = table.hit_object.shape[1]
+    slots = max(int(slots), 1)
+    traced = np.zeros((samples, slots), np.int32)
+    backface = np.zeros((samples, slots), np.int32)
+    for direction in range(table.hit_object.shape[0]):
+        row = table.hit_object[direction]
+        traced[:, direction % slots] += row != BELOW_HORIZON
+        backface[:, direction % slots] += row == BACKFACE
+    with_rays = traced > 0
+    buried = with_rays & (backface >= BURIED_POINT_SHARE * traced)
+    counted = with_rays.sum(axis=1)
+    return np.where(counted > 0, 1.0 - buried.sum(axis=1) / np.maximum(counted, 1), 1.0)
+
+
+def lookup_scale(exposed: np.ndarray) -> np.ndarray:
+    """(K,) float64 the factor from a texel's value to the radiance of its exposed part:
+    1 / ``exposed`` (K,), or 1 where the share is under MIN_EXPOSED_SHARE."""
+    return np.where(exposed >= MIN_EXPOSED_SHARE, 1.0 / np.maximum(exposed, MIN_EXPOSED_SHARE), 1.0)
 
 
 @dataclass

@@ -50,3 +50,42 @@ def test_only_atlas_objects_have_a_texel_size():
     sizes = texel_sizes(scene.meshes, [np.zeros(256), np.zeros(1024), np.zeros(10)])
     np.testing.assert_allclose(sizes[:2], [np.sqrt(4.0 / 256), np.sqrt(1.6 / 1024)])
     assert sizes[2] == 0.0 and SHORT_HIT_TEXELS >= 1
+
+
+def _box_on_floor(floor_resolution=16):
+    """A closed 0.5 m box (outward faces) standing on a 2 m floor at 16² texels, under a sun."""
+    from core_scenes import box_interior
+    box = box_interior(size=0.5, resolution=16)
+    # Its bottom face on the floor, its sides through floor texel centres (the footprint box
+    # covers the middle half of a texel: only a side through it buries part of it).
+    box.positions = box.positions + np.array([0.3125, 0.3125, 0.25])
+    box.triangles = box.triangles[:, ::-1].copy()  # faces outwards
+    box.uv_maps["UVMap"] = box.uv_maps["UVMap"][:, ::-1].copy()
+    box.corner_normals = -box.corner_normals[:, ::-1].copy()
+    floor = quad_mesh("Floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], resolution=floor_resolution,
+                      material=Material(base_color=np.full(3, 0.8)))
+    towards_sun = np.array([0.3, -0.6, 0.74])
+    sun = Light("Sun", "SUN", np.ones(3), 3.0, direction=-towards_sun / np.linalg.norm(towards_sun))
+    return Scene([floor, box], [sun])
+
+
+def test_a_floor_texel_half_under_a_box_is_looked_up_as_its_exposed_part():
+    from core.pipeline.prepare import prepare
+    from core.transport.contacts import MIN_EXPOSED_SHARE, exposed_share
+    p = prepare(_box_on_floor(), BakeSettings(directions=256, bounces=1, footprint_samples=16))
+    floor = p.object_samples[0]
+    share = exposed_share(p.table, 16)[:len(floor)]
+    x, y = p.position[:len(floor), 0], p.position[:len(floor), 1]
+    texel = 2.0 / 16
+    inside = (np.abs(x - 0.3125) < 0.25 - texel / 2) & (np.abs(y - 0.3125) < 0.25 - texel / 2)
+    outside = (np.abs(x - 0.3125) > 0.25 + texel / 2) | (np.abs(y - 0.3125) > 0.25 + texel / 2)
+    assert np.all(share[inside] == 0.0) and np.all(share[outside] == 1.0)
+    straddling = share[~inside & ~outside]
+    assert np.any((straddling > 0.2) & (straddling < 0.8))
+    scale = p.lookup_scale()[:len(floor)]
+    np.testing.assert_allclose(scale[outside], 1.0)
+    np.testing.assert_allclose(scale[inside], 1.0)  # wholly buried: nothing lands there
+    partly = (share >= MIN_EXPOSED_SHARE) & (share < 1.0)
+    np.testing.assert_allclose(scale[partly], 1.0 / share[partly])
+    # The box's own texels are not buried.
+    assert np.all(exposed_share(p.table, 16)[len(floor):] == 1.0)
