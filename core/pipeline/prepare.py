@@ -15,7 +15,7 @@ from ..lights.environment import has_light
 from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples
 from ..scene import Scene
 from ..settings import BakeSettings
-from ..transport.contacts import exposed_share, find_short_hits, lookup_scale
+from ..transport.contacts import MIN_EXPOSED_SHARE, exposed_share, find_short_hits, lookup_scale
 from ..transport.contract import GatherGeometry, SampleSet, Shadowing
 from ..transport.gather import AtlasLayout, gather_normalisation
 from ..transport.groups import LightGroup, light_key_parts
@@ -78,18 +78,26 @@ class Prepared:
     _short_hits: object = False  # core.transport.contacts.ShortHits, None (none), False (not looked for)
     _near_hits: object = False
     _filter_pairs: tuple | None = None
-    _lookup_scale: np.ndarray | None = None
+    _exposed: np.ndarray | None = None
 
-    def lookup_scale(self) -> np.ndarray:
-        """(K,) float64: what the gathers multiply each texel's reflected light by to look up
-        the radiance of its exposed part (core.transport.contacts.exposed_share); ones
-        without a table or footprint. Found once per preparation: it depends on geometry alone."""
-        if self._lookup_scale is None:
-            if self.table is None or self.footprint is None:
-                self._lookup_scale = np.ones(len(self.position))
+    def exposed(self) -> np.ndarray:
+        """(K,) float64 each sample's share of footprint points not buried inside other geometry
+        (core.transport.contacts.exposed_share); ones without a table. Found once per
+        preparation: it depends on geometry alone."""
+        if self._exposed is None:
+            if self.table is None:
+                self._exposed = np.ones(len(self.position))
             else:
-                self._lookup_scale = lookup_scale(exposed_share(self.table, self.footprint[0].shape[1]))
-        return self._lookup_scale
+                self._exposed = exposed_share(self.table, 1 if self.footprint is None else self.footprint[0].shape[1])
+        return self._exposed
+
+    def lookup_atlas(self, values: np.ndarray, dilate) -> np.ndarray:
+        """Per-sample reflected light (K, C) as the atlas rays look it up in: each texel's
+        light over its exposed share, and texels wholly buried under other geometry filled
+        from their exposed neighbours like the gutter (core.transport.contacts)."""
+        exposed = self.exposed()
+        buried = exposed < MIN_EXPOSED_SHARE
+        return self.to_atlas(values * lookup_scale(exposed)[:, None], dilate, buried if buried.any() else None)
 
     def filter_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """The texel pairs the interleaving filter averages (core.transport.interleave.filter_pairs),
@@ -193,19 +201,26 @@ class Prepared:
             parts += light_key_parts(light)
         return arrays_key(*parts)
 
-    def to_atlas(self, values: np.ndarray, dilate) -> np.ndarray:
+    def to_atlas(self, values: np.ndarray, dilate, empty: np.ndarray | None = None) -> np.ndarray:
         """Per-sample values (K, C) as the packed, gutter-dilated radiance atlas (size, C).
 
         ``dilate`` is a backend's dilation, (image, coverage, margin) -> (image, coverage).
+        ``empty`` (K,) bool: texels of atlas-mode objects filled by the dilation like the gutter.
         """
         margin = max(self.settings.margin, 2)
         images = []
-        for samples, a, b in zip(self.object_samples, self.sample_offset[:-1], self.sample_offset[1:]):
+        for mesh, samples, a, b in zip(self.meshes, self.object_samples, self.sample_offset[:-1],
+                                       self.sample_offset[1:]):
             image = np.zeros((samples.height * samples.width, values.shape[1]), np.float32)
             image[samples.pixel] = values[a:b]
             image = image.reshape(samples.height, samples.width, values.shape[1])
-            if not samples.coverage.all():  # a vertex-mode object covers its whole one-row "atlas"
-                image, _ = dilate(image, samples.coverage, margin)
+            coverage = samples.coverage
+            if empty is not None and mesh.mode != "vertex" and empty[a:b].any():
+                coverage = coverage.copy()
+                coverage.reshape(-1)[samples.pixel[empty[a:b]]] = False
+            # A vertex-mode object covers its whole one-row "atlas": nothing to dilate.
+            if not coverage.all():
+                image, _ = dilate(image, coverage, margin)
             images.append(image)
         return self.layout.pack(images)
 

@@ -129,13 +129,12 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     direct = wide([r.direct for r in results])
     albedo = np.tile(p.albedo, count)
     correction = None
-    # Rays land only on the part of a texel that is not buried under other geometry.
-    exposed = p.lookup_scale() if bounces else None
     for bounce in range(1, bounces + 1):
         if not np.any(direct + gathered > 0):
             skipped.append(f"bounce {bounce} and later: no light left to reflect")
             break
-        reflected_atlas = p.to_atlas(albedo / np.pi * (direct + gathered) * exposed[:, None], dilate)
+        # Rays land only on what is not buried under other geometry (core.transport.contacts).
+        reflected_atlas = p.lookup_atlas(albedo / np.pi * (direct + gathered), dilate)
         gathered = timed_gather(f"gather of bounce {bounce}", GatherSource(reflected_atlas, np.zeros(3 * count)),
                                 step_progress(bounce), outputs if bounce == bounces else None)
         gathers += 1
@@ -144,8 +143,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             # b - 1 bounces), so every one gets the same correction of its short hits.
             if correction is None:
                 short, lamp_direct, at_hits = contacts
-                correction = contact_correction(short, p.layout,
-                                                p.to_atlas(albedo / np.pi * lamp_direct * exposed[:, None], dilate),
+                correction = contact_correction(short, p.layout, p.lookup_atlas(albedo / np.pi * lamp_direct, dilate),
                                                 at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
             gathered += correction
     if bounces and p.rotations is not None and np.any(gathered):

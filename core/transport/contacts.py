@@ -14,14 +14,19 @@ and only with exact shadows: the fractions have no per-point shadow to evaluate.
 short hit is depends on geometry alone; the lamps' light at the hits is computed at every
 (re)light, like the direct light of the samples.
 
-The indirect light a short ray carries is still the target texel's. A texel half under a
-box standing on it is, as Cycles bakes it, the mean of its lit half and its dark buried
-half; but a ray can only land on the lit half. :func:`exposed_share` measures per texel
-how much of its footprint is not buried, and the radiance the gathers look up is that of
-the exposed part (the texel's value divided by its exposed share): the second bounce into
-a contact (light from the box's face, reflected by the floor at its foot, back onto the
-face) is otherwise a third of Cycles' on the benchmark's sunlit block. The texels' own
-outputs keep Cycles' mean.
+The indirect light any ray carries is still read from its target's texels, and buried
+texels darken that read at a contact. :func:`exposed_share` measures per texel how much
+of its footprint is not inside other geometry, and the atlas the gathers look up
+(core.pipeline.prepare.Prepared.lookup_atlas) is built from it:
+- a texel half under a box standing on it is, as Cycles bakes it, the mean of its lit half
+  and its dark buried half, but a ray can only land on the lit half: it is looked up as
+  its value over its exposed share (:func:`lookup_scale`);
+- a texel wholly under the box is never landed on, but bilinear filtering blends it, with
+  up to half the weight, into every ray that lands at the box's foot: it is filled from
+  its exposed neighbours, as the gutter is.
+Without them the second bounce into a contact (the box's sunlit face, reflected by the
+floor at its foot, back onto the face) is a third of Cycles' on the benchmark's sunlit
+block. The texels' own outputs keep Cycles' mean.
 """
 from __future__ import annotations
 

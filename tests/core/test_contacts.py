@@ -71,7 +71,7 @@ def _box_on_floor(floor_resolution=16):
 
 def test_a_floor_texel_half_under_a_box_is_looked_up_as_its_exposed_part():
     from core.pipeline.prepare import prepare
-    from core.transport.contacts import MIN_EXPOSED_SHARE, exposed_share
+    from core.transport.contacts import MIN_EXPOSED_SHARE, exposed_share, lookup_scale
     p = prepare(_box_on_floor(), BakeSettings(directions=256, bounces=1, footprint_samples=16))
     floor = p.object_samples[0]
     share = exposed_share(p.table, 16)[:len(floor)]
@@ -82,10 +82,35 @@ def test_a_floor_texel_half_under_a_box_is_looked_up_as_its_exposed_part():
     assert np.all(share[inside] == 0.0) and np.all(share[outside] == 1.0)
     straddling = share[~inside & ~outside]
     assert np.any((straddling > 0.2) & (straddling < 0.8))
-    scale = p.lookup_scale()[:len(floor)]
+    scale = lookup_scale(p.exposed())[:len(floor)]
     np.testing.assert_allclose(scale[outside], 1.0)
     np.testing.assert_allclose(scale[inside], 1.0)  # wholly buried: nothing lands there
     partly = (share >= MIN_EXPOSED_SHARE) & (share < 1.0)
     np.testing.assert_allclose(scale[partly], 1.0 / share[partly])
     # The box's own texels are not buried.
     assert np.all(exposed_share(p.table, 16)[len(floor):] == 1.0)
+
+
+def test_rays_look_up_a_box_s_foot_without_the_dark_beneath_it():
+    from core.pipeline.prepare import prepare
+    from core.transport.cpu import CPU_BACKEND
+    p = prepare(_box_on_floor(), BakeSettings(directions=256, bounces=1, footprint_samples=16))
+    floor = p.object_samples[0]
+    exposed = p.exposed()
+    # Light as Cycles bakes it: the exposed share of a uniform 1 (buried points are dark).
+    values = np.repeat(exposed[:, None], 3, axis=1)
+    atlas = p.lookup_atlas(values, CPU_BACKEND.dilate)
+    looked = p.layout.bilinear(atlas, np.zeros(len(floor), np.int64), _texel_centres(floor, 16))
+    buried = exposed[:len(floor)] < 0.25
+    assert buried.any()
+    # Every texel reads as the lit surface it is where it is not buried, and a wholly
+    # buried texel (filled from its exposed neighbours) no darker than they are.
+    np.testing.assert_allclose(looked[~buried, 0], 1.0, rtol=1e-5)
+    next_to_exposed = buried & (looked[:, 0] > 0)
+    assert next_to_exposed.any()
+    np.testing.assert_allclose(looked[next_to_exposed, 0], 1.0, rtol=1e-5)
+
+
+def _texel_centres(samples, resolution):
+    x, y = samples.pixel % resolution, samples.pixel // resolution
+    return (np.stack([x, y], axis=1).astype(np.float32) + np.float32(0.5)) / np.float32(resolution)
