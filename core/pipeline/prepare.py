@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import BakeRefused
 from ..geometry import face_normals
 from ..lights.environment import has_light
-from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples
+from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples, dense_footprint
 from ..scene import Scene
 from ..settings import BakeSettings
 from ..transport.contacts import MIN_EXPOSED_SHARE, exposed_share, find_short_hits, lookup_scale
@@ -91,6 +91,28 @@ class Prepared:
                 self._exposed = exposed_share(self.table, 1 if self.footprint is None else self.footprint[0].shape[1])
         return self._exposed
 
+    def dense_footprint(self, rows: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """``count`` footprint points (r, count, 3) float32 of samples ``rows`` (r,), and their
+        normals (r, count, 3) float32 or None (core.sampling.samples.dense_footprint); vertex
+        samples stand for their position (zero offsets)."""
+        rows = np.asarray(rows, np.int64)
+        offsets = np.zeros((len(rows), count, 3), np.float32)
+        normals = None
+        owner = np.searchsorted(self.sample_offset, rows, side="right") - 1
+        for index in np.unique(owner):
+            mesh, samples = self.meshes[index], self.object_samples[index]
+            chosen = np.nonzero(owner == index)[0]
+            if mesh.mode == "vertex" or getattr(samples, "footprint", None) is None:
+                continue
+            local = rows[chosen] - self.sample_offset[index]
+            offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count)
+            if point_normals is not None:
+                if normals is None:
+                    normals = np.broadcast_to(self.normal[rows].astype(np.float32)[:, None, :],
+                                              offsets.shape).copy()
+                normals[chosen] = point_normals
+        return offsets, normals
+
     def lookup_atlas(self, values: np.ndarray, dilate) -> np.ndarray:
         """Per-sample reflected light (K, C) as the atlas rays look it up in: each texel's
         light over its exposed share, and texels wholly buried under other geometry filled
@@ -126,7 +148,8 @@ class Prepared:
             owner = np.repeat(np.arange(len(self.meshes)), np.diff(self.sample_offset))
             points, corners, normals = self.footprint or (None, None, None)
             self._sample_set = SampleSet(self.position, self.normal, self.geometric, self.origins, owner, points,
-                                         corners, *(self.terminator or (None, None)), footprint_normals=normals)
+                                         corners, *(self.terminator or (None, None)), footprint_normals=normals,
+                                         dense_footprint=None if points is None else self.dense_footprint)
         return self._sample_set
 
     def shadowing(self) -> Shadowing:

@@ -270,3 +270,26 @@ def build_vertex_samples(mesh: Mesh, centre: np.ndarray | None = None) -> Vertex
         geometric_normal=normal.copy(), albedo=albedo.astype(np.float32), emission=emission.astype(np.float32),
         coverage=np.ones((1, count), bool), corner_sample=corner_sample, domain=domain,
         element_sample=element_sample)
+
+
+def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count: int):
+    """``count`` footprint points of samples ``rows`` (r,) of ``samples`` (built from ``mesh``),
+    drawn as build_samples draws them, so that the first footprint_samples of them are the
+    samples' own (the same scrambled Sobol sequence, longer).
+
+    Returns (offsets (r, count, 3) float32, normals (r, count, 3) float32 or None where no
+    face of ``rows`` is smooth).
+    """
+    width, height = samples.width, samples.height
+    triangle = samples.triangle[rows]
+    corners = mesh.positions[mesh.triangles].astype(np.float64)
+    position = samples.position[rows]
+    offsets = footprint_offsets(samples.pixel[rows], triangle, width, height,
+                                np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64), corners, position, count)
+    geometric = samples.geometric_normal[rows]
+    smooth = np.einsum("kcd,kd->kc", mesh.corner_normals[triangle].astype(np.float64), geometric).min(axis=1) \
+        < 1.0 - tol.FLAT_NORMAL_SLACK
+    if not smooth.any():
+        return offsets, None
+    return offsets, footprint_normals(offsets, position, triangle, corners, mesh.corner_normals,
+                                      samples.normal[rows], smooth)

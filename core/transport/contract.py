@@ -48,6 +48,9 @@ class SampleSet:
         (core.sampling.terminator); None: no sample is on a smooth face
     footprint_normals : (K, P, 3) float32 the shading normal at each footprint point, with
         which direct light is shaded there; None: every point takes ``normal``
+    dense_footprint : callable (rows (r,) int64, count) -> (offsets (r, count, 3) float32,
+        normals (r, count, 3) float32 or None): a denser footprint of samples ``rows``, of
+        which the first P points are ``footprint``'s; None: there is none
     """
 
     position: np.ndarray
@@ -60,6 +63,7 @@ class SampleSet:
     terminator: np.ndarray | None = None
     terminator_cutoff: np.ndarray | None = None
     footprint_normals: np.ndarray | None = None
+    dense_footprint: object = None
 
     @classmethod
     def on_surface(cls, position: np.ndarray, normal: np.ndarray,

@@ -1,5 +1,7 @@
 """Texel footprints (core.sampling.footprint): Cycles' half-texel box, clipped to the texel's
 triangle, and what the table and exact shadows do with it."""
+import dataclasses
+
 import numpy as np
 
 from core.pipeline.prepare import prepare
@@ -192,3 +194,45 @@ def test_direct_light_on_a_smooth_face_averages_the_cosine_over_the_footprint():
     np.testing.assert_allclose(irradiance[:, 0], expected, rtol=1e-5, atol=1e-7)
     at_centre = np.clip(p.normal @ towards, 0.0, None)
     assert np.abs(expected - at_centre).max() > 1e-3
+
+
+def _lit_share_of_boxes(centres, normal, offset, half, grid=120):
+    """The share of each texel's box (centre (k, 2), half-width ``half``) on the lit side
+    n . p > offset of a straight shadow edge, by a fine grid."""
+    steps = (np.arange(grid) + 0.5) / grid * 2 - 1
+    gx, gy = np.meshgrid(steps * half, steps * half)
+    points = centres[:, None, :] + np.stack([gx.ravel(), gy.ravel()], axis=1)[None]
+    return (points @ normal > offset).mean(axis=1)
+
+
+def test_texels_a_shadow_edge_crosses_take_the_dense_footprint_and_follow_the_edge_closer():
+    from core.transport import direct
+    # A slanted blocker edge over a 32² ground under an overhead sun: the lit share of every
+    # texel's box is known exactly.
+    ground = _plane(resolution=32, size=2.0)
+    texel = 2.0 / 32
+    normal = np.array([np.cos(0.3), np.sin(0.3)])
+    offset = 0.05
+    far = 4.0
+    # The blocker covers n . p <= offset at height 0.5 (its edge passes through many boxes).
+    along = np.array([-normal[1], normal[0]])
+    a, b = offset * normal - far * along, offset * normal + far * along
+    blocker = quad_mesh("Blocker", [(*a, 0.5), (*(a - far * normal), 0.5), (*(b - far * normal), 0.5), (*b, 0.5)],
+                        resolution=4)
+    sun = Light("Sun", "SUN", np.ones(3), 1.0)
+    p = prepare(Scene([ground, blocker], []), BakeSettings(directions=8, bounces=0, footprint_samples=16),
+                table_needed=False)
+    count = len(p.object_samples[0])
+    exact = _lit_share_of_boxes(p.position[:count, :2], normal, offset, BOX_WIDTH / 2 * texel)
+    crossed = (exact > 0) & (exact < 1)
+    assert crossed.sum() >= 15
+    dense, _ = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
+    sparse_set = dataclasses.replace(p.sample_set(), dense_footprint=None)
+    sparse, _ = lamp_irradiance(sparse_set, p.shadowing(), [sun])
+    error_dense = np.sqrt(np.mean((dense[:count, 0][crossed] - exact[crossed]) ** 2))
+    error_sparse = np.sqrt(np.mean((sparse[:count, 0][crossed] - exact[crossed]) ** 2))
+    assert error_dense < 0.6 * error_sparse, (error_dense, error_sparse)
+    # Texels the edge does not cross are the same either way.
+    np.testing.assert_array_equal(dense[:count][~crossed & (np.abs(exact - 0.5) == 0.5)],
+                                  sparse[:count][~crossed & (np.abs(exact - 0.5) == 0.5)])
+    assert direct.EDGE_FOOTPRINT_POINTS > 16
