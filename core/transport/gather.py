@@ -126,8 +126,12 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndar
     scale : (K,) float64
     """
     total = np.zeros(len(normals))
-    for i, direction in enumerate(table.directions):
-        cosine = np.clip(normals @ direction, 0.0, None)
+    # The cosines in float32, as the gathers weigh with them: at a grazing direction the
+    # float32 dot product differs from the float64 one by up to 1e-4 of itself, and the
+    # weights must sum to pi as the gathers compute them.
+    normals32 = np.asarray(normals, np.float32)
+    for i, direction in enumerate(np.asarray(table.directions, np.float32)):
+        cosine = np.maximum(normals32 @ direction, np.float32(0.0)).astype(np.float64)
         total += np.where(table.hit_object[i] != BELOW_HORIZON, cosine, 0.0)
     return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
 
