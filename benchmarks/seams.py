@@ -103,6 +103,7 @@ def render_truth(path: str, width: int, height: int, samples: int, seed: int, bo
     cycles.glossy_bounces = cycles.transmission_bounces = cycles.volume_bounces = cycles.transparent_max_bounces = 0
     scene.view_settings.view_transform = "Standard"
     scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
     scene.render.filepath = path
     bpy.ops.render.render(write_still=True)
     return read_exr(path, width, height)

@@ -1,3 +1,3 @@
 """What a bake hands back: pass images assembled from samples (``images``), gutter
-dilation (``dilation``), the bake report (``report``) and checks of the results
+dilation (``dilation``), seam stitching (``seams``), the bake report (``report``) and checks of the results
 (``diagnostics``: vertex-mode objects too coarse for their light)."""

@@ -82,31 +82,42 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         w2 = ((pb[:, 0] - pa[:, 0]) * y - x * (pb[:, 1] - pa[:, 1])) * scale
         return np.stack([1.0 - w1 - w2, w1, w2], axis=1)
 
+    def barycentric_of_slots(point):  # (k, count, 2) points of every texel, the same arithmetic
+        pa, pb, pc, scale = a[:, None, :], b[:, None, :], c[:, None, :], inverse[:, None]
+        x, y = point[..., 0] - pa[..., 0], point[..., 1] - pa[..., 1]
+        w1 = (x * (pc[..., 1] - pa[..., 1]) - (pc[..., 0] - pa[..., 0]) * y) * scale
+        w2 = ((pb[..., 0] - pa[..., 0]) * y - x * (pb[..., 1] - pa[..., 1])) * scale
+        return np.stack([1.0 - w1 - w2, w1, w2], axis=2)
+
     # Seeded by the texel and its triangle only: an object's points do not depend on
     # which other objects are in the bake, so an incremental table update reproduces them.
     base = hash32(np.asarray(pixel, np.uint64).astype(np.uint32) ^ hash32(np.asarray(triangle, np.uint32)
                                                                         + np.uint32(0x9E3779B9)))
     seeds = np.stack([hash32(base + np.uint32(0x85EBCA6B)), hash32(base + np.uint32(0xC2B2AE35))])
     jitter = _scrambled_points(count, seeds)
-    chosen = np.full((samples, count, 3), np.nan)
     tri_corners = np.asarray(corners, np.float64)[triangle]  # (k, 3, 3)
-    for slot in range(count):
-        rows = np.nonzero(usable)[0]  # the texels still looking for this slot's point
-        u = jitter[rows, slot]
-        for attempt in range(REDRAWS):
-            if not len(rows):
-                break
-            if attempt:
-                # Cycles redraws from a hash of the rejected point; so does this, per texel and slot.
-                bits = (u * 2.0 ** 24).astype(np.uint32)
-                salt = np.uint32((0x68E31DA4 * attempt) & 0xFFFFFFFF)
-                u = np.stack([hash32(bits[:, 0] ^ hash32(bits[:, 1] + np.uint32(attempt))),
-                              hash32(bits[:, 1] ^ hash32(bits[:, 0] + salt))], axis=1)
-                u = (u >> np.uint32(8)) * 2.0 ** -24
-            weights = barycentric(centre[rows] + (u - 0.5) * BOX_WIDTH, rows)
-            inside = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1)
-            chosen[rows[inside], slot] = np.einsum("kc,kcd->kd", weights[inside], tri_corners[rows[inside]])
-            rows, u = rows[~inside], u[~inside]
+    # The first draw of every slot at once: most land inside at once, and only the rest
+    # (border texels, triangles smaller than the box) loop over their redraws.
+    first = barycentric_of_slots(centre[:, None, :] + (jitter - 0.5) * BOX_WIDTH)  # (k, count, 3)
+    inside = np.all(first >= tol.SAMPLE_BARYCENTRIC_INSET, axis=2) & usable[:, None]
+    chosen = (first[..., 0:1] * tri_corners[:, None, 0] + first[..., 1:2] * tri_corners[:, None, 1]
+              + first[..., 2:3] * tri_corners[:, None, 2])
+    chosen[~inside] = np.nan
+    rows, slots = np.nonzero(~inside & usable[:, None])
+    u = jitter[rows, slots]
+    for attempt in range(1, REDRAWS):
+        if not len(rows):
+            break
+        # Cycles redraws from a hash of the rejected point; so does this, per texel and slot.
+        bits = (u * 2.0 ** 24).astype(np.uint32)
+        salt = np.uint32((0x68E31DA4 * attempt) & 0xFFFFFFFF)
+        u = np.stack([hash32(bits[:, 0] ^ hash32(bits[:, 1] + np.uint32(attempt))),
+                      hash32(bits[:, 1] ^ hash32(bits[:, 0] + salt))], axis=1)
+        u = (u >> np.uint32(8)) * 2.0 ** -24
+        weights = barycentric(centre[rows] + (u - 0.5) * BOX_WIDTH, rows)
+        found = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1)
+        chosen[rows[found], slots[found]] = np.einsum("kc,kcd->kd", weights[found], tri_corners[rows[found]])
+        rows, slots, u = rows[~found], slots[~found], u[~found]
     # A slot that found no place inside takes the centre, as Cycles' sample does.
     points = np.where(np.isnan(chosen), position[:, None, :], chosen)
     return (points - position[:, None, :]).astype(np.float32)

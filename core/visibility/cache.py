@@ -40,8 +40,9 @@ from ..scene import Mesh
 from ..settings import BakeSettings
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
-# 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations.
-FORMAT_VERSION = 4
+# 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations;
+# 5: a footprint point that finds no place on its triangle starts from the texel's centre.
+FORMAT_VERSION = 5
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session

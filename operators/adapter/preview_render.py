@@ -45,6 +45,7 @@ def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_map
     render = scene.render
     saved_render = (render.engine, render.resolution_x, render.resolution_y, render.resolution_percentage,
                     render.filepath, render.image_settings.file_format, scene.view_settings.view_transform)
+    saved_depth = render.image_settings.color_depth
     saved_cycles = (scene.cycles.samples, scene.cycles.max_bounces, scene.cycles.use_denoising,
                     scene.cycles.use_adaptive_sampling)
     saved_slots = []
@@ -82,6 +83,8 @@ def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_map
         scene.cycles.use_adaptive_sampling = False
         scene.view_settings.view_transform = "Standard"
         render.image_settings.file_format = file_format
+        if file_format == "OPEN_EXR":
+            render.image_settings.color_depth = "32"  # full float: the values are measured
         render.filepath = path
         bpy.ops.render.render(write_still=True, scene=scene.name)
     finally:
@@ -96,6 +99,10 @@ def render_baked_preview(scene: bpy.types.Scene, object_names, path: str, uv_map
             bpy.data.materials.remove(material)
         (render.engine, render.resolution_x, render.resolution_y, render.resolution_percentage,
          render.filepath, render.image_settings.file_format, scene.view_settings.view_transform) = saved_render
+        try:
+            render.image_settings.color_depth = saved_depth
+        except TypeError:  # a depth the restored format does not offer: it keeps its own
+            pass
         (scene.cycles.samples, scene.cycles.max_bounces, scene.cycles.use_denoising,
          scene.cycles.use_adaptive_sampling) = saved_cycles
     return True
