@@ -109,12 +109,11 @@ def render_truth(path: str, width: int, height: int, samples: int, seed: int, bo
     return read_exr(path, width, height)
 
 
-def render_bake(path: str, objects, uv_maps, width: int, height: int, samples: int) -> np.ndarray:
-    """The render of the baked ``lighting`` textures, as an EXR (linear, unclipped)."""
+def render_bake(preview, path: str, objects, uv_maps, width: int, height: int, samples: int) -> np.ndarray:
+    """The render of the baked ``lighting`` textures through the extension's
+    ``preview`` (operators.adapter.preview_render), as an EXR (linear, unclipped)."""
     import bpy
 
-    extension = sys.modules["visibake_benchmark_extension"]
-    preview = importlib.import_module(f"{extension.__name__}.operators.adapter.preview_render")
     scene = bpy.context.scene
     preview.render_baked_preview(scene, [o.name for o in objects], path, uv_maps, width, height, samples,
                                  file_format="OPEN_EXR")
@@ -144,12 +143,12 @@ def main(argv=None) -> int:
     from tools.visibake import load_extension
 
     extension = load_extension()
-    sys.modules["visibake_benchmark_extension"] = extension
     import bpy
 
     from benchmarks.run import machine
 
     job = importlib.import_module(f"{extension.__name__}.operators.adapter.job")
+    preview = importlib.import_module(f"{extension.__name__}.operators.adapter.preview_render")
     objects = build_scene()
     props = bpy.context.scene.visibake
     props.passes = {"lighting"}
@@ -168,7 +167,7 @@ def main(argv=None) -> int:
         stitch_pass = [p for p in outcome.report["passes"] if p["pass"].startswith("seam stitching")]
         reports[stitch]["stitch_seconds"] = stitch_pass[0]["seconds"] if stitch_pass else 0.0
         name = "on" if stitch else "off"
-        renders[name] = render_bake(os.path.join(out, f"bake_{name}.exr"), objects, uv_maps, args.width,
+        renders[name] = render_bake(preview, os.path.join(out, f"bake_{name}.exr"), objects, uv_maps, args.width,
                                     args.height, 16)
         print(f"stitching {name}: bake {seconds[stitch]:.1f} s", flush=True)
     started = time.perf_counter()

@@ -194,9 +194,11 @@ def relight_many(prepared: Prepared, lightings, progress=None,
     started = time.perf_counter()
     seams = _seams(p, output_meshes) if settings.stitch_seams else {}
     stitch_seconds = time.perf_counter() - started
-    stitched: dict[int, tuple] = {}  # mesh index -> (seam edges, before, after), the lighting pass's
+    # Per lighting: mesh index -> (seam edges, before, after), of its lighting pass (else its first).
+    stitched_per_lighting: list[dict[int, tuple]] = []
     for per_pass, _ in per_lighting:
         objects = []
+        stitched: dict[int, tuple] = {}
         for index, mesh in output_meshes:
             samples = p.object_samples[index]
             a, b = p.sample_offset[index], p.sample_offset[index + 1]
@@ -218,15 +220,16 @@ def relight_many(prepared: Prepared, lightings, progress=None,
                     result.images[name] = image
             objects.append(result)
         images.append(objects)
+        stitched_per_lighting.append(stitched)
         stages.report(len(images) / len(per_lighting))
     stages.stop()
-    if stitched:
-        stages.record_pass(f"seam stitching ({len(stitched)} objects)", "cpu", stitch_seconds)
+    if stitched_per_lighting and stitched_per_lighting[0]:
+        stages.record_pass(f"seam stitching ({len(stitched_per_lighting[0])} objects)", "cpu", stitch_seconds)
 
     if dilation.calls:
         stages.record_pass(f"gutter dilation ({dilation.calls} images)", backend.name, dilation.seconds)
     results = []
-    for objects, plan, (_, parts) in zip(images, plans, per_lighting):
+    for objects, plan, (_, parts), stitched in zip(images, plans, per_lighting, stitched_per_lighting):
         report = lighting_report(p, plan, parts, stages.times, list(stages.passes), gathers, shared_skips,
                                  len(lightings))
         report_tessellation(p, plan["lights"], objects, report)

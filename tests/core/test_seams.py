@@ -140,3 +140,25 @@ def test_non_finite_texels_never_leave_the_stitch(value):
     seams = find_seams(mesh.positions, mesh.triangles, mesh.uv_maps["UVMap"], mesh.corner_normals, 32, 32,
                        left | right)
     assert np.isfinite(stitch(image, seams).image).all()
+
+
+def test_each_lighting_of_a_batch_reports_its_own_seams():
+    from core.pipeline.prepare import prepare
+    from core.pipeline.relight import relight_many
+    from core.scene import World
+
+    mesh = _hinge(bend_degrees=30.0)
+    settings = BakeSettings(directions=64, bounces=0, passes=("lighting",))
+    p = prepare(Scene([mesh], []), settings, table_needed=False)
+
+    def sun(towards):
+        towards = np.asarray(towards, np.float64)
+        return [Light("Sun", "SUN", np.ones(3), 3.0, direction=-towards / np.linalg.norm(towards))]
+
+    # Along the hinge's edge the two faces' light differs more under a low sun across it.
+    results = relight_many(p, [(sun([0.5, -0.3, 0.8]), World()), (sun([0.9, 0.0, 0.2]), World())])
+    before = [r.report["objects"][0]["seam_disagreement"][0] for r in results]
+    alone = [relight_many(p, [(sun(t), World())])[0].report["objects"][0]["seam_disagreement"][0]
+             for t in ([0.5, -0.3, 0.8], [0.9, 0.0, 0.2])]
+    assert before[0] != before[1]
+    np.testing.assert_allclose(before, alone, rtol=1e-6)
