@@ -67,6 +67,16 @@ def _normalise(vectors: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     return out
 
 
+def _on_smooth_faces(mesh: Mesh, triangle: np.ndarray, geometric: np.ndarray) -> np.ndarray:
+    """(k,) bool: samples on triangles ``triangle`` (k,) whose corner normals differ from the
+    face normal ``geometric`` (k, 3). A flat-shaded face has no smooth surface to lift shadow
+    rays to, and one normal over the whole footprint."""
+    if not len(triangle):
+        return np.zeros(0, bool)
+    cosines = np.einsum("kcd,kd->kc", mesh.corner_normals[triangle].astype(np.float64), geometric)
+    return cosines.min(axis=1) < 1.0 - tol.FLAT_NORMAL_SLACK
+
+
 def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
     """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel, with
     ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples)."""
@@ -123,10 +133,7 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
     np.nan_to_num(emission, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     np.clip(emission, 0.0, None, out=emission)
 
-    # Faces whose corner normals are their own (flat shading) have no smooth surface to lift
-    # to, and one normal over the whole footprint.
-    smooth = np.einsum("kcd,kd->kc", mesh.corner_normals[tri].astype(np.float64), geometric).min(axis=1) \
-        < 1.0 - tol.FLAT_NORMAL_SLACK if len(tri) else np.zeros(0, bool)
+    smooth = _on_smooth_faces(mesh, tri, geometric)
     footprint = box_corners = point_normals = None
     if footprint_samples > 1:
         corners = mesh.positions[mesh.triangles].astype(np.float64)
@@ -286,9 +293,7 @@ def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count:
     position = samples.position[rows]
     offsets = footprint_offsets(samples.pixel[rows], triangle, width, height,
                                 np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64), corners, position, count)
-    geometric = samples.geometric_normal[rows]
-    smooth = np.einsum("kcd,kd->kc", mesh.corner_normals[triangle].astype(np.float64), geometric).min(axis=1) \
-        < 1.0 - tol.FLAT_NORMAL_SLACK
+    smooth = _on_smooth_faces(mesh, triangle, samples.geometric_normal[rows])
     if not smooth.any():
         return offsets, None
     return offsets, footprint_normals(offsets, position, triangle, corners, mesh.corner_normals,
