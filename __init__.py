@@ -6,8 +6,10 @@ hard-coded: extensions load as ``bl_ext.<repository>.visibake``.
 import bpy
 
 from . import operators, panels
+from .core import kernels
 from .operators import cli
 from .operators.adapter import cache_status, compat
+from .operators.adapter.settings import kernel_cache_folder
 from .panels import preferences, properties
 
 _classes = operators.classes + panels.classes
@@ -23,6 +25,8 @@ def register():
     for cls in _classes:
         bpy.utils.register_class(cls)
     properties.register_properties()
+    # Only where compiled kernels will be cached: nothing is compiled or imported until a bake needs it.
+    kernels.configure(kernel_cache_folder())
     preferences.register_handlers()
     cache_status.register_handlers()
     if compat.cli_commands_supported():

@@ -34,6 +34,9 @@ _USER_RESOURCES = tempfile.mkdtemp(prefix="visibake-blender-user-")
 os.environ["BLENDER_USER_RESOURCES"] = _USER_RESOURCES
 # Registered before bpy is imported, so it runs after bpy's own exit handlers.
 atexit.register(shutil.rmtree, _USER_RESOURCES, ignore_errors=True)
+# Kernels compiled by tests/core (which runs the source tree, not the installed extension)
+# are cached in the session's folder too, not in the user's cache.
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(_USER_RESOURCES, "numba-cache"))
 
 try:
     from hypothesis import settings as _hyp_settings

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import kernels
 from ..transport.contract import Shadowing
 from ..visibility.cache import CacheStatus
 from .diagnostics import check_vertex_objects
@@ -212,6 +213,8 @@ class Report:
     skipped: list = field(default_factory=list)  # work not done, and why
     warnings: list = field(default_factory=list)
     passes: list[PassReport] = field(default_factory=list)
+    # How the CPU lookups ran (core.kernels.KernelStatus.as_dict); empty in reports from before.
+    kernels: dict = field(default_factory=dict)
     # Set by the Blender job (operators.adapter.job); None until then, and left out of the JSON.
     total_seconds: float | None = None
     peak_memory_bytes: int | None = None
@@ -245,6 +248,7 @@ class Report:
             "cache": cache,
             "skipped": self.skipped,
             "warnings": self.warnings,
+            "kernels": self.kernels,
             "passes": [p.to_dict() for p in self.passes],
             **_without_none({
                 "total_seconds": self.total_seconds, "peak_memory_bytes": self.peak_memory_bytes,
@@ -337,6 +341,7 @@ def lighting_report(p: "Prepared", plan: dict, parts: dict, times: dict, passes:
         skipped=skipped,
         warnings=warnings,
         passes=[PassReport.from_dict(entry) for entry in passes],
+        kernels=kernels.status().as_dict(),
     )
     if table is not None and table.backface_hits:
         buried = table.buried()

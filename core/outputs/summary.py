@@ -5,9 +5,13 @@ each fact the same way."""
 from __future__ import annotations
 
 import os
+from dataclasses import fields
 
+from ..kernels import KernelStatus
 from ..visibility.cache import CacheStatus
 from .report import DeviceReport, Rays, Report
+
+_KERNEL_FIELDS = {f.name for f in fields(KernelStatus)}
 
 
 def _as_report(report: Report | dict) -> Report:
@@ -32,6 +36,11 @@ def _rays_phrase(rays: Rays) -> str:
 def _device_phrase(device: DeviceReport) -> str:
     return (f"device: {device.used} ({device.reason})"
             + (f"; {device.backend}, {device.renderer}" if device.renderer else ""))
+
+
+def _kernels_phrase(record: dict) -> str:
+    """How the CPU lookups ran, from a report's ``kernels`` record (core.kernels.KernelStatus)."""
+    return "CPU lookups: " + KernelStatus(**{k: v for k, v in record.items() if k in _KERNEL_FIELDS}).describe()
 
 
 def _cache_phrase(cache: CacheStatus) -> str:
@@ -68,6 +77,8 @@ def summary_lines(report: Report | dict) -> list[str]:
     lines.append("  " + _rays_phrase(report.rays))
     if report.device is not None:
         lines.append("  " + _device_phrase(report.device))
+    if report.kernels:
+        lines.append("  " + _kernels_phrase(report.kernels))
     for entry in report.passes:
         lines.append(f"  pass: {entry.name} on {entry.device}: {entry.seconds:.3f} s")
     cache = report.cache
@@ -102,6 +113,8 @@ def panel_lines(report: Report | dict) -> list[tuple[str, str]]:
         lines.append((_cache_phrase(report.cache), "FILE_CACHE"))
     if report.device is not None:
         lines.append((_device_phrase(report.device), "MEMORY"))
+    if report.kernels:
+        lines.append((_kernels_phrase(report.kernels), "MEMORY"))
     lines += [(_skipped_phrase(item), "FORWARD") for item in report.skipped]
     lines += [(item, "ERROR") for item in report.warnings]
     return lines

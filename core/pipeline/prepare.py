@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from ..errors import BakeRefused
 from ..geometry import face_normals
 from ..lights.environment import has_light
@@ -191,7 +192,7 @@ class Prepared:
     def gather_scale(self) -> np.ndarray:
         """Per-sample gather normalisation (K,), computed once per preparation."""
         if self._gather_scale is None:
-            self._gather_scale = gather_normalisation(self.table, self.frame_normal)
+            self._gather_scale = gather_normalisation(self.table, self.frame_normal, self.settings.threads)
         return self._gather_scale
 
     def bounces_needed(self) -> int:
@@ -271,6 +272,11 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     skipped: list[str] = []
     warnings: list[str] = []
 
+    if not kernels.tried():
+        # The first bake of a session loads the compiled lookups: seconds when they must be
+        # compiled (a fresh kernel cache), shown as a stage of its own.
+        stages.start("kernels")
+        kernels.status()
     stages.start("samples")
     meshes = []
     for mesh in scene.meshes:

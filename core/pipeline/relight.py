@@ -185,8 +185,8 @@ def relight_many(prepared: Prepared, lightings, progress=None,
             stages.record_pass(f"accumulation of passes ({len(parts)} groups)", backend.name,
                                time.perf_counter() - started)
         if "ao" in wants:
-            per_pass["ao"] = np.repeat(ambient_occlusion(p.table, p.frame_normal, p.gather_scale())[:, None], 3,
-                                       axis=1)
+            occlusion = ambient_occlusion(p.table, p.frame_normal, p.gather_scale(), settings.threads)
+            per_pass["ao"] = np.repeat(occlusion[:, None], 3, axis=1)
         per_lighting.append((per_pass, parts))
 
     images = []

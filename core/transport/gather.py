@@ -1,8 +1,11 @@
-"""Light transport by table lookups (the Method of Dependent Tests), in numpy.
+"""Light transport by table lookups (the Method of Dependent Tests) on the CPU.
 
 All objects' radiance atlases live in one flat array so a gather over the table
 needs no per-object loop. Each atlas is stored with one extra replicated column and
 row, so a bilinear lookup always finds its four texels without bounds checks.
+
+The lookups run in the compiled kernels of :mod:`core.kernels` where numba loads, and
+in the numpy functions here (``*_numpy``) where it does not; both compute the same sums.
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable
 from .contract import GatherGeometry, GatherSource
@@ -115,25 +119,50 @@ class AtlasLayout:
         return self.offsets.astype(np.int32)
 
 
-def gather_normalisation(table: VisibilityTable, normals: np.ndarray) -> np.ndarray:
+# Table entries one compiled gather call walks: the progress bar moves, and a cancel is
+# seen, between calls (about a quarter of a second each on one core).
+LOOKUPS_PER_CALL = 1 << 23
+
+
+def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: int = 0) -> np.ndarray:
     """Per-sample factor that makes the weights max(0, d_i . n) of one sample sum to pi.
 
     With a finite direction set the raw sum is only near pi; normalising makes a
     white furnace exact for any N (DESIGN.md). Samples with no open direction get 0.
 
+    normals : (K, 3) float; threads : the kernels' threads (0: all cores)
+
     Returns
     -------
     scale : (K,) float64
     """
-    total = np.zeros(len(normals))
     # The cosines in float32, as the gathers weigh with them: at a grazing direction the
     # float32 dot product differs from the float64 one by up to 1e-4 of itself, and the
     # weights must sum to pi as the gathers compute them.
-    normals32 = np.asarray(normals, np.float32)
-    for i, direction in enumerate(np.asarray(table.directions, np.float32)):
+    normals32 = np.ascontiguousarray(normals, np.float32)
+    directions32 = np.ascontiguousarray(table.directions, np.float32)
+    module = kernels.compiled()
+    if module is not None:
+        total = np.zeros(len(normals))
+        if len(normals):
+            kernels.run(module.open_cosine_sum, threads, _hit_objects(table), directions32, normals32,
+                        np.int16(BELOW_HORIZON), total)
+    else:
+        total = _open_cosine_sum_numpy(table, directions32, normals32)
+    return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
+
+
+def _open_cosine_sum_numpy(table, directions32: np.ndarray, normals32: np.ndarray) -> np.ndarray:
+    total = np.zeros(len(normals32))
+    for i, direction in enumerate(directions32):
         cosine = np.maximum(normals32 @ direction, np.float32(0.0)).astype(np.float64)
         total += np.where(table.hit_object[i] != BELOW_HORIZON, cosine, 0.0)
-    return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
+    return total
+
+
+def _hit_objects(table) -> np.ndarray:
+    """The table's (N, K) int16 hit objects as one C-ordered block (no copy when they are)."""
+    return np.ascontiguousarray(table.hit_object, np.int16)
 
 
 def gather(geometry: GatherGeometry, source: GatherSource, progress=None, samples: np.ndarray | None = None,
@@ -159,6 +188,60 @@ def gather(geometry: GatherGeometry, source: GatherSource, progress=None, sample
     -------
     irradiance : (K, C) float64
     """
+    count = len(geometry.table.directions)
+    chosen_directions = range(count) if directions is None else directions
+    if chosen_directions.step != 1 or chosen_directions.start < 0 or chosen_directions.stop > count:
+        raise ValueError(f"gather: directions must be a contiguous range within 0..{count}, got {directions!r}")
+    module = kernels.compiled()
+    if module is None:
+        return gather_numpy(geometry, source, progress, samples, directions)
+    return _gather_compiled(module, geometry, source, progress, samples, chosen_directions)
+
+
+def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, progress, samples, directions: range
+                     ) -> np.ndarray:
+    """:func:`gather` in the compiled kernel, a slice of the directions per call."""
+    table, layout = geometry.table, geometry.layout
+    radiance = np.ascontiguousarray(source.radiance, np.float32)
+    channels = radiance.shape[1]
+    sample_count = len(geometry.normals)
+    chosen = np.arange(sample_count, dtype=np.int64) if samples is None else np.asarray(samples, np.int64)
+    out = np.zeros((len(chosen), channels))
+    world = np.broadcast_to(np.asarray(source.world, np.float64), (len(table.directions), channels))
+    world32 = np.ascontiguousarray(world, np.float32) if np.any(world != 0) else np.zeros((0, channels), np.float32)
+    exclude = (np.zeros((0, 0), bool) if source.exclude is None
+               else np.ascontiguousarray(source.exclude, bool))
+    if layout.is_vertex is None:
+        triangles, is_vertex = np.zeros((1, 1), np.int32), np.zeros(len(layout.widths), bool)
+        corner_flat, corner_base = np.zeros((1, 3), np.int32), np.zeros(len(layout.widths), np.int64)
+    else:
+        triangles, is_vertex = np.ascontiguousarray(table.hit_triangle, np.int32), layout.is_vertex
+        corner_flat, corner_base = layout.corner_flat, np.maximum(layout.corner_base, 0)
+    arguments = (_hit_objects(table), np.ascontiguousarray(table.hit_uv, np.float32), triangles,
+                 np.ascontiguousarray(table.directions, np.float32),
+                 np.ascontiguousarray(geometry.normals, np.float32), np.ascontiguousarray(geometry.scale, np.float32),
+                 chosen)
+    atlases = (radiance, layout.widths.astype(np.int64), layout.heights.astype(np.int64),
+               layout.offsets.astype(np.int64), np.ascontiguousarray(is_vertex, bool),
+               np.ascontiguousarray(corner_flat, np.int32), np.ascontiguousarray(corner_base, np.int64),
+               bool(layout.nearest_vertex), world32, exclude, out)
+    step = max(1, LOOKUPS_PER_CALL // max(len(chosen), 1))
+    first, stop = directions.start, directions.stop
+    for start in range(first, stop, step):
+        if len(chosen):
+            kernels.run(module.gather, geometry.threads, *arguments, start, min(stop, start + step), *atlases)
+        if progress is not None:
+            progress((min(stop, start + step) - first) / max(stop - first, 1))
+    if samples is None:
+        return out
+    full = np.zeros((sample_count, channels))
+    full[chosen] = out
+    return full
+
+
+def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, samples: np.ndarray | None = None,
+                 directions: range | None = None) -> np.ndarray:
+    """:func:`gather` in numpy: the fallback where the compiled kernels cannot load."""
     table, normals, scale, layout = geometry.table, geometry.normals, geometry.scale, geometry.layout
     radiance, world, exclude = source.radiance, source.world, source.exclude
     threads = geometry.threads
@@ -226,10 +309,21 @@ def gather(geometry: GatherGeometry, source: GatherSource, progress=None, sample
     return full
 
 
-def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Cosine-weighted fraction of open directions, (K,) float64 in [0, 1]."""
+def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, threads: int = 0
+                      ) -> np.ndarray:
+    """Cosine-weighted fraction of open directions, (K,) float64 in [0, 1].
+
+    normals : (K, 3) float; scale : (K,) float from :func:`gather_normalisation`
+    """
+    module = kernels.compiled()
     open_weight = np.zeros(len(normals))
-    for i, direction in enumerate(table.directions):
-        weight = np.clip(normals @ direction, 0.0, None) * scale
-        open_weight += weight * (table.hit_object[i] == MISS)
+    if module is not None:
+        if len(normals):
+            kernels.run(module.open_weight, threads, _hit_objects(table),
+                        np.ascontiguousarray(table.directions, np.float64), np.ascontiguousarray(normals, np.float64),
+                        np.ascontiguousarray(scale, np.float64), open_weight)
+    else:
+        for i, direction in enumerate(table.directions):
+            weight = np.clip(normals @ direction, 0.0, None) * scale
+            open_weight += weight * (table.hit_object[i] == MISS)
     return np.clip(open_weight / np.pi, 0.0, 1.0)

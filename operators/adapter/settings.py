@@ -75,6 +75,16 @@ def resolve(context, threads: int | None = None, device: str | None = None,
     return resolved
 
 
+def kernel_cache_folder() -> str | None:
+    """Where compiled CPU kernels are cached: the extension's user folder, which Blender lets
+    it write and keeps across updates (the install folder is replaced); None where it is not
+    installed as an extension (the core's default folder then)."""
+    try:
+        return bpy.utils.extension_path_user(EXTENSION_PACKAGE, path="kernels", create=True)
+    except ValueError:
+        return None
+
+
 def cache_folder(scene) -> str:
     """The cache folder: the scene's setting, the preference, beside the saved .blend, the user folder."""
     props = scene.visibake

@@ -101,6 +101,8 @@ def _job_report() -> dict:
                   "bytes_on_disk": 3 * 2**20, "load_seconds": 0.0, "save_seconds": 0.1,
                   "lighting_reused": ["Key"], "abandoned_writes_removed": 0},
         "skipped": ["bounce gathers: bounces = 0"], "warnings": ["object 'Leaf': coarse"],
+        "kernels": {"backend": "numba", "version": "0.68.1", "load_seconds": 9.2, "compiled": True,
+                    "cache_dir": "/k", "reason": None},
         "passes": [{"pass": "gather 1", "device": "cpu", "seconds": 0.25}],
         "total_seconds": 2.345, "peak_memory_bytes": 200 * 2**20, "files": ["/o/a.exr", "/o/b.exr"],
         "blender_version": "5.0.1", "lights": ["Sun"], "relight_only": False,
@@ -136,6 +138,7 @@ def test_the_terminal_summary():
         "  Wall             occluder 8x8       40 texels  UV map UVMap",
         "  rays: 12345 traced, 678 skipped below the horizon, 90 shadow rays",
         "  device: gpu (a GPU was found); OPENGL, NVIDIA",
+        "  CPU lookups: numba 0.68.1 kernels, compiled on first use in 9.2 s",
         "  pass: gather 1 on cpu: 0.250 s",
         "  cache: miss (no cached visibility), 3.0 MiB at /c/t.npz",
         "  setup noon: 1 lights, 3 gathers, reused Key",
@@ -167,6 +170,7 @@ def test_the_panel_lines_share_the_terminal_s_phrases():
         ("rays: 12345 traced, 678 skipped below the horizon, 90 shadow rays", "LIGHT_SUN"),
         ("cache: miss (no cached visibility)", "FILE_CACHE"),
         ("device: gpu (a GPU was found); OPENGL, NVIDIA", "MEMORY"),
+        ("CPU lookups: numba 0.68.1 kernels, compiled on first use in 9.2 s", "MEMORY"),
         ("skipped: bounce gathers: bounces = 0", "FORWARD"),
         ("object 'Leaf': coarse", "ERROR"),
     ]
@@ -174,7 +178,7 @@ def test_the_panel_lines_share_the_terminal_s_phrases():
     for text, icon in lines:
         if icon in ("LIGHT_SUN", "MEMORY", "FORWARD"):
             assert "  " + text in terminal
-    assert terminal[8].startswith("  " + lines[5][0])  # the terminal adds the size and place
+    assert terminal[9].startswith("  " + lines[5][0])  # the terminal adds the size and place
 
 
 def test_the_panel_reads_a_report_of_another_version_and_shows_what_it_knows():

@@ -1,0 +1,167 @@
+"""Compiled CPU kernels (numba) for the table lookups, loaded once per process.
+
+The kernels (:mod:`core.kernels.transport_kernels`) are the CPU twin of the GLSL passes.
+Where numba cannot load (no wheel for the platform, a broken install, or
+``VISIBAKE_KERNELS=numpy`` in the environment) the numpy passes of :mod:`core.transport`
+run instead, and :func:`status` says so for the report.
+
+Compiled code is cached on disk, in the folder given to :func:`configure` (Blender: the
+extension's user folder; elsewhere the user's cache folder), never beside the sources:
+an installed extension's folder may be read-only and is replaced on update. The first
+load in a fresh cache compiles (seconds); later loads read the cache.
+
+numba's portable threading layer (workqueue) is used on every platform: it needs no
+OpenMP or TBB runtime beside Blender's own, but it must not be entered from two threads
+at once, so every call goes through :func:`run`, which holds one lock. The bake calls the
+kernels from its worker thread; the lock also covers a script calling from another.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+# Which implementation runs the lookups: 'numba' (default) or 'numpy' (the fallback).
+ENVIRONMENT_SWITCH = "VISIBAKE_KERNELS"
+
+_lock = threading.RLock()
+_cache_dir: str | None = None
+_status: KernelStatus | None = None
+_module = None
+
+
+@dataclass(frozen=True)
+class KernelStatus:
+    """How the CPU lookups run in this process.
+
+    backend : 'numba' or 'numpy'
+    version : numba's version, or None
+    load_seconds : time the first use spent compiling or reading the compiled cache
+    compiled : True when that first use compiled (nothing usable was cached)
+    cache_dir : where compiled kernels are cached, or None
+    reason : why the numpy fallback runs, or None
+    """
+
+    backend: str
+    version: str | None = None
+    load_seconds: float = 0.0
+    compiled: bool = False
+    cache_dir: str | None = None
+    reason: str | None = None
+
+    def describe(self) -> str:
+        """One line for the report and the terminal."""
+        if self.backend != "numba":
+            return f"numpy lookups (compiled kernels unavailable: {self.reason})"
+        how = "compiled on first use" if self.compiled else "loaded from the kernel cache"
+        return f"numba {self.version} kernels, {how} in {self.load_seconds:.1f} s"
+
+    def as_dict(self) -> dict:
+        return {"backend": self.backend, "version": self.version, "load_seconds": round(self.load_seconds, 3),
+                "compiled": self.compiled, "cache_dir": self.cache_dir, "reason": self.reason}
+
+
+def default_cache_dir() -> str:
+    """The user's cache folder for compiled kernels, outside any install folder."""
+    if sys.platform == "win32":
+        base = os.environ.get("LOCALAPPDATA") or os.path.expanduser("~")
+    elif sys.platform == "darwin":
+        base = os.path.expanduser("~/Library/Caches")
+    else:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache")
+    return os.path.join(base, "visibake", "kernels")
+
+
+def configure(cache_dir: str | None) -> None:
+    """Cache compiled kernels in ``cache_dir`` (None: :func:`default_cache_dir`). Takes
+    effect at the first load; once the kernels are loaded their cache stays where it is."""
+    global _cache_dir
+    with _lock:
+        if _module is None:
+            _cache_dir = cache_dir
+
+
+def _load() -> KernelStatus:
+    global _module
+    wanted = os.environ.get(ENVIRONMENT_SWITCH, "numba").strip().lower() or "numba"
+    if wanted == "numpy":
+        return KernelStatus("numpy", reason=f"{ENVIRONMENT_SWITCH}=numpy")
+    if wanted != "numba":
+        return KernelStatus("numpy", reason=f"{ENVIRONMENT_SWITCH}={wanted!r} is neither 'numba' nor 'numpy'")
+    cache_dir = _cache_dir or os.environ.get("NUMBA_CACHE_DIR") or default_cache_dir()
+    started = time.perf_counter()
+    try:
+        os.makedirs(cache_dir, exist_ok=True)
+        # numba reads these when it is first imported; set them for an import still to come.
+        os.environ["NUMBA_CACHE_DIR"] = cache_dir
+        os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
+        import numba
+        numba.config.CACHE_DIR = cache_dir
+        numba.config.THREADING_LAYER = "workqueue"
+        from . import transport_kernels as module
+        misses = _warm_up(module)
+    except Exception as error:  # noqa: BLE001 - any failure to load means: use numpy, and say why
+        return KernelStatus("numpy", cache_dir=cache_dir, reason=f"{type(error).__name__}: {error}")
+    _module = module
+    return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir)
+
+
+def _warm_up(module) -> int:
+    """Compile (or read from the cache) every kernel for the one signature the callers use,
+    by running each on a tiny input. Returns how many kernels had to be compiled."""
+    objects = np.zeros((1, 1), np.int16)
+    uv = np.zeros((1, 1, 2), np.float32)
+    triangles = np.zeros((1, 1), np.int32)
+    directions = np.zeros((1, 3), np.float32)
+    normals = np.zeros((1, 3), np.float32)
+    one32 = np.ones(1, np.float32)
+    samples = np.zeros(1, np.int64)
+    radiance = np.zeros((4, 3), np.float32)
+    sizes = np.ones(1, np.int64)
+    module.gather(objects, uv, triangles, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
+                  np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32), np.zeros(1, np.int64),
+                  False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool), np.zeros((1, 3)))
+    module.open_cosine_sum(objects, directions, normals, np.int16(-2), np.zeros(1))
+    module.open_weight(objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1), np.zeros(1))
+    module.bare_lookup(objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros((1, 3)))
+    kernels = (module.gather, module.open_cosine_sum, module.open_weight, module.bare_lookup)
+    return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
+
+
+def status() -> KernelStatus:
+    """Load the kernels if that was not tried yet (compiling on first use), and say how
+    the lookups run. Thread-safe; the load happens once per process."""
+    global _status
+    with _lock:
+        if _status is None:
+            _status = _load()
+        return _status
+
+
+def tried() -> bool:
+    """Whether this process has loaded the kernels already (or found it cannot)."""
+    return _status is not None
+
+
+def compiled():
+    """The kernels module, or None when the numpy fallback runs."""
+    status()
+    return _module
+
+
+def thread_count(threads: int) -> int:
+    """The kernels' thread count for the Threads preference ``threads`` (0: all cores)."""
+    import numba
+    return max(1, min(int(threads) or os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
+
+
+def run(kernel, threads: int, *arguments) -> None:
+    """Call ``kernel(*arguments)`` on ``threads`` threads (0: all cores), one call at a time."""
+    import numba
+    with _lock:
+        numba.set_num_threads(thread_count(threads))
+        kernel(*arguments)

@@ -1,0 +1,208 @@
+"""Compiled (numba) kernels of the table lookups: the gather, its normalisation, and AO.
+
+Imported only through :mod:`core.kernels`, which sets numba's cache folder and threading
+layer first. Every kernel runs in parallel over blocks of samples and sums each sample's
+directions in ascending order, starting from what ``out`` already holds, so a result is
+bitwise the same for any thread count and any split of the directions into calls.
+
+The arithmetic follows the numpy twin (:mod:`core.transport.gather`): float32 weights and
+bilinear lookups, as the GLSL gather computes them; only the per-sample sums are float64.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..visibility.table import MISS
+
+# Samples per parallel task: the block's float64 sums stay in the L1 cache while the
+# block's slice of every direction's table row is read once, in order.
+BLOCK = 256
+
+_F32 = np.float32
+_KERNEL = {"parallel": True, "cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
+
+
+@nb.njit(inline="always")
+def _bilinear_add(acc, j, radiance, weight, offset, width, height, u, v):
+    """acc[j] += weight * bilinear lookup of the padded atlas at ``offset`` (float32 math)."""
+    widthf = _F32(width)
+    heightf = _F32(height)
+    x = min(max(u * widthf - _F32(0.5), _F32(0.0)), widthf - _F32(1.0))
+    y = min(max(v * heightf - _F32(0.5), _F32(0.0)), heightf - _F32(1.0))
+    x0 = np.int64(x)
+    y0 = np.int64(y)
+    fx = x - _F32(x0)
+    fy = y - _F32(y0)
+    stride = width + 1
+    base = offset + y0 * stride + x0
+    for c in range(radiance.shape[1]):
+        c00 = radiance[base, c]
+        c01 = radiance[base + 1, c]
+        c10 = radiance[base + stride, c]
+        c11 = radiance[base + stride + 1, c]
+        bottom = c00 + (c01 - c00) * fx
+        top = c10 + (c11 - c10) * fx
+        acc[j, c] += np.float64((bottom + (top - bottom) * fy) * weight)
+
+
+@nb.njit(inline="always")
+def _vertex_add(acc, j, radiance, weight, corners, u, v, nearest):
+    """acc[j] += weight * the hit triangle's samples ``corners`` (3,) mixed by barycentrics."""
+    w0 = _F32(1.0) - u - v
+    if nearest:
+        pick = 0
+        if u > w0:
+            pick = 1
+        if v > max(w0, u):
+            pick = 2
+        for c in range(radiance.shape[1]):
+            acc[j, c] += np.float64(radiance[corners[pick], c] * weight)
+        return
+    for c in range(radiance.shape[1]):
+        mixed = (radiance[corners[0], c] * w0 + radiance[corners[1], c] * u) + radiance[corners[2], c] * v
+        acc[j, c] += np.float64(mixed * weight)
+
+
+@nb.njit(**_KERNEL)
+def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples, first, stop,
+           radiance, widths, heights, offsets, is_vertex, corner_flat, corner_base, nearest_vertex,
+           world, exclude, out):
+    """out[j] += sum_{i in [first, stop)} w_i(s) L(S_i[s]) for s = samples[j].
+
+    hit_object : (N, K) int16; hit_uv : (N, K, 2) float32; hit_triangle : (N, K) int32,
+        or (1, 1) when no object is in vertex mode
+    directions : (N, 3) float32; normals : (K, 3) float32 (the frame normals); scale : (K,) float32
+    samples : (k,) int64 sample indices; first, stop : the direction range
+    radiance : (size, C) float32 packed atlases; widths, heights, offsets : (O,) int64
+    is_vertex : (O,) bool; corner_flat : (T, 3) int32; corner_base : (O,) int64 (dummies
+        of length 1 when no object is in vertex mode); nearest_vertex : bool
+    world : (N, C) float32 radiance of misses, or (0, C) for a black world
+    exclude : (K, O) bool, or (0, 0) for no exclusion
+    out : (k, C) float64, added to
+    """
+    count = samples.shape[0]
+    channels = radiance.shape[1]
+    has_world = world.shape[0] > 0
+    has_exclude = exclude.shape[0] > 0
+    blocks = (count + BLOCK - 1) // BLOCK
+    for block in nb.prange(blocks):
+        start = block * BLOCK
+        end = min(count, start + BLOCK)
+        acc = np.empty((end - start, channels), np.float64)
+        for j in range(end - start):
+            for c in range(channels):
+                acc[j, c] = out[start + j, c]
+        for i in range(first, stop):
+            dx = directions[i, 0]
+            dy = directions[i, 1]
+            dz = directions[i, 2]
+            for j in range(end - start):
+                s = samples[start + j]
+                obj = hit_object[i, s]
+                if obj < 0 and not (obj == MISS and has_world):
+                    continue
+                cosine = normals[s, 0] * dx + normals[s, 1] * dy + normals[s, 2] * dz
+                if cosine <= _F32(0.0):
+                    continue
+                weight = cosine * scale[s]
+                if obj == MISS:
+                    for c in range(channels):
+                        acc[j, c] += np.float64(weight * world[i, c])
+                    continue
+                if has_exclude and exclude[s, obj]:
+                    continue
+                u = hit_uv[i, s, 0]
+                v = hit_uv[i, s, 1]
+                if is_vertex[obj]:
+                    corners = corner_flat[corner_base[obj] + hit_triangle[i, s]]
+                    _vertex_add(acc, j, radiance, weight, corners, u, v, nearest_vertex)
+                else:
+                    _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v)
+        for j in range(end - start):
+            for c in range(channels):
+                out[start + j, c] = acc[j, c]
+
+
+@nb.njit(**_KERNEL)
+def open_cosine_sum(hit_object, directions, normals, below, out):
+    """out[k] = sum_i max(0, d_i . n_k) (float32 cosines, float64 sum) over directions whose
+    entry is not ``below`` (BELOW_HORIZON): the weight sum the gathers normalise to pi.
+
+    hit_object : (N, K) int16; directions : (N, 3) float32; normals : (K, 3) float32;
+    out : (K,) float64, overwritten
+    """
+    count = normals.shape[0]
+    blocks = (count + BLOCK - 1) // BLOCK
+    for block in nb.prange(blocks):
+        start = block * BLOCK
+        end = min(count, start + BLOCK)
+        acc = np.zeros(end - start, np.float64)
+        for i in range(directions.shape[0]):
+            for j in range(end - start):
+                s = start + j
+                if hit_object[i, s] == below:
+                    continue
+                cosine = normals[s, 0] * directions[i, 0] + normals[s, 1] * directions[i, 1] \
+                    + normals[s, 2] * directions[i, 2]
+                if cosine > _F32(0.0):
+                    acc[j] += np.float64(cosine)
+        for j in range(end - start):
+            out[start + j] = acc[j]
+
+
+@nb.njit(**_KERNEL)
+def open_weight(hit_object, directions, normals, scale, out):
+    """out[k] = sum_i max(0, d_i . n_k) scale[k] over the directions whose ray missed (float64).
+
+    hit_object : (N, K) int16; directions : (N, 3) float64; normals : (K, 3) float64;
+    scale : (K,) float64; out : (K,) float64, overwritten
+    """
+    count = normals.shape[0]
+    blocks = (count + BLOCK - 1) // BLOCK
+    for block in nb.prange(blocks):
+        start = block * BLOCK
+        end = min(count, start + BLOCK)
+        acc = np.zeros(end - start, np.float64)
+        for i in range(directions.shape[0]):
+            for j in range(end - start):
+                s = start + j
+                if hit_object[i, s] != MISS:
+                    continue
+                cosine = normals[s, 0] * directions[i, 0] + normals[s, 1] * directions[i, 1] \
+                    + normals[s, 2] * directions[i, 2]
+                if cosine > 0.0:
+                    acc[j] += cosine * scale[s]
+        for j in range(end - start):
+            out[start + j] = acc[j]
+
+
+@nb.njit(**_KERNEL)
+def bare_lookup(hit_object, hit_uv, samples, first, stop, radiance, widths, heights, offsets, out):
+    """The ceiling a gather is measured against: one nearest-texel read per hit entry, summed.
+
+    The same table walk as :func:`gather` with the arithmetic taken out: what reading the
+    table and the radiance costs on this machine. Arrays as in :func:`gather`.
+    """
+    count = samples.shape[0]
+    channels = radiance.shape[1]
+    blocks = (count + BLOCK - 1) // BLOCK
+    for block in nb.prange(blocks):
+        start = block * BLOCK
+        end = min(count, start + BLOCK)
+        acc = np.zeros((end - start, channels), np.float64)
+        for i in range(first, stop):
+            for j in range(end - start):
+                s = samples[start + j]
+                obj = hit_object[i, s]
+                if obj < 0:
+                    continue
+                width = widths[obj]
+                x = np.int64(hit_uv[i, s, 0] * _F32(width))
+                y = np.int64(hit_uv[i, s, 1] * _F32(heights[obj]))
+                base = offsets[obj] + y * (width + 1) + x
+                for c in range(channels):
+                    acc[j, c] += radiance[base, c]
+        for j in range(end - start):
+            for c in range(channels):
+                out[start + j, c] = acc[j, c]

@@ -1,0 +1,160 @@
+"""The compiled CPU kernels (core.kernels) against the numpy passes they replace, their
+determinism across thread counts and call splits, and the numpy fallback."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from core import kernels
+from core.transport import gather as gather_module
+from core.transport.contract import GatherGeometry, GatherSource
+from core.transport.gather import AtlasLayout, ambient_occlusion, gather, gather_normalisation, gather_numpy
+from core.visibility.directions import spherical_fibonacci
+from core.visibility.table import BELOW_HORIZON, VisibilityTable
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+pytestmark = pytest.mark.skipif(kernels.compiled() is None,
+                                reason=f"numba kernels unavailable here: {kernels.status().reason}")
+
+
+def _random_scene(seed, samples=300, count=97, channels=6, vertex=True, nearest=False):
+    """A table over two atlases and (with ``vertex``) one vertex-mode object, every kind of
+    entry (hits, misses, backfaces, below the horizon), and radiance of ``channels`` channels."""
+    rng = np.random.default_rng(seed)
+    normals = rng.normal(size=(samples, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    d = spherical_fibonacci(count)
+    above = (normals @ d.T).T > 0
+    objects = 3 if vertex else 2
+    hit = np.where(above, rng.integers(-3, objects, size=above.shape), BELOW_HORIZON).astype(np.int16)
+    uv = rng.uniform(-0.1, 1.1, size=(count, samples, 2)).astype(np.float32)
+    triangles = None
+    corner_samples = None
+    sizes = [(5, 3), (7, 9)]
+    if vertex:
+        vertex_samples = 10
+        corners = rng.integers(0, vertex_samples, size=(12, 3))
+        triangles = rng.integers(0, 12, size=(count, samples)).astype(np.int32)
+        on_vertex = hit == 2
+        bary = rng.uniform(0, 1, size=(count, samples, 2)).astype(np.float32)
+        bary = np.where(bary.sum(axis=2, keepdims=True) > 1, 1 - bary, bary)
+        uv = np.where(on_vertex[..., None], bary, uv).astype(np.float32)
+        sizes.append((vertex_samples, 1))
+        corner_samples = [None, None, corners]
+    table = VisibilityTable(d, hit, uv, np.ones((count, samples), np.float32), hit_triangle=triangles)
+    layout = AtlasLayout.from_sizes(sizes, corner_samples, nearest_vertex=nearest)
+    radiance = rng.uniform(0, 3, size=(layout.size, channels)).astype(np.float32)
+    world = rng.uniform(0, 1, size=(count, channels))
+    exclude = rng.random((samples, objects)) < 0.2
+    return table, normals, layout, radiance, world, exclude
+
+
+@pytest.mark.parametrize("vertex, nearest", [(False, False), (True, False), (True, True)])
+def test_compiled_gather_matches_numpy(vertex, nearest):
+    table, normals, layout, radiance, world, exclude = _random_scene(1, vertex=vertex, nearest=nearest)
+    scale = gather_normalisation(table, normals)
+    geometry = GatherGeometry(table, normals, scale, layout, threads=2)
+    for source in (GatherSource(radiance, world, exclude), GatherSource(radiance, np.zeros(6)),
+                   GatherSource(radiance, world[0])):
+        compiled = gather(geometry, source)
+        reference = gather_numpy(geometry, source)
+        assert np.any(compiled > 0)
+        np.testing.assert_allclose(compiled, reference, rtol=2e-6, atol=1e-9)
+
+
+def test_compiled_gather_of_chosen_samples_and_direction_ranges_matches_numpy():
+    table, normals, layout, radiance, world, exclude = _random_scene(2)
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals), layout, threads=2)
+    source = GatherSource(radiance, world, exclude)
+    chosen = np.array([5, 0, 299, 17, 17, 120])
+    np.testing.assert_allclose(gather(geometry, source, samples=chosen, directions=range(10, 60)),
+                               gather_numpy(geometry, source, samples=chosen, directions=range(10, 60)),
+                               rtol=2e-6, atol=1e-9)
+    empty = gather(geometry, source, samples=np.zeros(0, np.int64))
+    assert empty.shape == (300, 6) and not np.any(empty)
+
+
+def test_normalisation_and_ambient_occlusion_match_numpy(monkeypatch):
+    table, normals, *_ = _random_scene(3, vertex=False)
+    scale = gather_normalisation(table, normals)
+    occlusion = ambient_occlusion(table, normals, scale)
+    monkeypatch.setattr(kernels, "_module", None)  # the numpy passes, as where numba cannot load
+    # float32 cosines: numpy's dot product rounds in another order (a few ULPs).
+    np.testing.assert_allclose(scale, gather_normalisation(table, normals), rtol=1e-6)
+    np.testing.assert_allclose(occlusion, ambient_occlusion(table, normals, scale), rtol=1e-12, atol=1e-15)
+    assert np.any(scale > 0) and np.any((occlusion > 0) & (occlusion < 1))
+
+
+def test_gather_is_bitwise_the_same_for_any_thread_count_and_call_split(monkeypatch):
+    """Each sample sums its directions in one fixed order, whatever the threads or the
+    number of kernel calls the directions are walked in (the scale-out contract)."""
+    table, normals, layout, radiance, world, exclude = _random_scene(4, samples=1000)
+    scale = gather_normalisation(table, normals, threads=1)
+    assert np.array_equal(scale, gather_normalisation(table, normals, threads=2))
+    source = GatherSource(radiance, world, exclude)
+    results = [gather(GatherGeometry(table, normals, scale, layout, threads=t), source) for t in (1, 2)]
+    monkeypatch.setattr(gather_module, "LOOKUPS_PER_CALL", 3000)  # three directions a call
+    calls = []
+    results.append(gather(GatherGeometry(table, normals, scale, layout, threads=2), source, progress=calls.append))
+    assert len(calls) == 33 and calls[-1] == 1.0
+    for result in results[1:]:
+        assert np.array_equal(result, results[0])
+
+
+def _run_python(code, **environment):
+    env = dict(os.environ, **environment)
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+_STATUS_AND_FURNACE = """
+import json, numpy as np
+from core import kernels
+from core.transport.contract import GatherGeometry, GatherSource
+from core.transport.gather import AtlasLayout, gather, gather_normalisation
+from core.visibility.directions import spherical_fibonacci
+from core.visibility.table import MISS, BELOW_HORIZON, VisibilityTable
+normals = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+d = spherical_fibonacci(64)
+hit = np.where((normals @ d.T).T > 0, MISS, BELOW_HORIZON).astype(np.int16)
+table = VisibilityTable(d, hit, np.zeros((64, 2, 2), np.float32), np.ones((64, 2), np.float32))
+layout = AtlasLayout.from_sizes([(2, 2)])
+e = gather(GatherGeometry(table, normals, gather_normalisation(table, normals), layout),
+           GatherSource(np.zeros((layout.size, 3), np.float32), np.ones(3)))
+print(json.dumps({"status": kernels.status().as_dict(), "line": kernels.status().describe(),
+                  "furnace": float(np.max(np.abs(e - np.pi)))}))
+"""
+
+
+@pytest.mark.parametrize("switch, reason", [("numpy", "VISIBAKE_KERNELS=numpy"),
+                                            ("fortran", "neither 'numba' nor 'numpy'")])
+def test_the_numpy_fallback_runs_and_says_why(switch, reason):
+    result = _run_python(_STATUS_AND_FURNACE, VISIBAKE_KERNELS=switch)
+    assert result["status"]["backend"] == "numpy"
+    assert reason in result["status"]["reason"] and reason in result["line"]
+    assert result["furnace"] < 1e-5
+
+
+def test_first_use_compiles_into_the_cache_folder_and_later_loads_read_it(tmp_path):
+    cache = str(tmp_path / "kernels")
+    first = _run_python(_STATUS_AND_FURNACE, NUMBA_CACHE_DIR=cache, VISIBAKE_KERNELS="numba")
+    second = _run_python(_STATUS_AND_FURNACE, NUMBA_CACHE_DIR=cache, VISIBAKE_KERNELS="numba")
+    assert first["status"]["backend"] == second["status"]["backend"] == "numba"
+    assert first["status"]["compiled"] and not second["status"]["compiled"]
+    assert "compiled on first use" in first["line"] and "from the kernel cache" in second["line"]
+    assert first["status"]["cache_dir"] == cache and os.listdir(cache)
+    assert first["furnace"] < 1e-5 and second["furnace"] < 1e-5
+
+
+def test_configure_chooses_the_cache_folder_only_before_the_first_load(tmp_path):
+    code = ("import json; from core import kernels; kernels.configure(%r); s = kernels.status(); "
+            "kernels.configure('/elsewhere'); print(json.dumps(s.as_dict()))") % str(tmp_path / "mine")
+    result = _run_python(code, VISIBAKE_KERNELS="numba")
+    assert result["cache_dir"] == str(tmp_path / "mine")
+    assert os.listdir(tmp_path / "mine")
