@@ -97,8 +97,9 @@ def main(argv=None) -> int:
         results["fresh_trace_of_moved_scene"] = {"seconds": seconds, "rays": fresh.visibility_rays,
                                                  "visibility_seconds": fresh.stage_seconds.get("visibility", 0.0)}
         a, b = updated.table, fresh.table
-        differing = int(np.count_nonzero((a.hit_object != b.hit_object) | (a.hit_distance != b.hit_distance)
-                                         | np.any(a.hit_uv != b.hit_uv, axis=-1)))
+        differing = int(np.count_nonzero((a.hit_object != b.hit_object)
+                                         | (a.hit_distance_code != b.hit_distance_code)
+                                         | np.any(a.hit_uv_code != b.hit_uv_code, axis=-1)))
         results["entries"] = int(a.hit_object.size)
         results["entries_differing_from_fresh_trace"] = differing
     results["update_speedup"] = (results["fresh_trace_of_moved_scene"]["visibility_seconds"]

@@ -211,7 +211,7 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             codes = np.full((stop - start, height * width), -2.0, np.float32)
             codes[:, :total_samples] = table.hit_object[start:stop]
             uvs = np.zeros((stop - start, height * width, 2), np.float32)
-            uvs[:, :total_samples] = table.hit_uv[start:stop]
+            uvs[:, :total_samples] = table.hit_uv(slice(start, stop))
             codes_texture, codes_data = runtime.float_texture(codes.reshape(-1, height, width, 1), True)
             uvs_texture, uvs_data = runtime.float_texture(uvs.reshape(-1, height, width, 2), True)
             if has_vertex:

@@ -124,6 +124,34 @@ def enable_extension():
     return sys.modules[name]
 
 
+def _keep_wheels_between_tests() -> None:
+    """Let the extension's wheels stay extracted for the whole session.
+
+    ``read_factory_settings`` (every :func:`clean_scene`) disables the extension, and
+    Blender then deletes the wheels that only disabled extensions use, and extracts them
+    again when the next test enables it: numba's LLVM alone is 170 MB, seconds per test.
+    The wheels do not change within a session, so the first extraction (the install, through
+    Blender's own wheel manager) is kept and later syncs of the same or fewer wheels are
+    skipped. Where Blender has no such function, nothing changes (only slower).
+    """
+    import addon_utils
+
+    original = getattr(addon_utils, "_extension_sync_wheels", None)
+    if original is None or getattr(original, "keeps_wheels", False):
+        return
+    extracted: set = set()
+
+    def sync(*, wheel_list, **keywords):
+        wanted = {(name, tuple(paths)) for name, paths in wheel_list}
+        if wanted <= extracted:
+            return None
+        extracted.update(wanted)
+        return original(wheel_list=wheel_list, **keywords)
+
+    sync.keeps_wheels = True
+    addon_utils._extension_sync_wheels = sync
+
+
 def _check_user_profile_isolated() -> None:
     import bpy
 
@@ -146,6 +174,7 @@ def visibake():
     import addon_utils  # importable only once bpy is
 
     _check_user_profile_isolated()
+    _keep_wheels_between_tests()
     name = extension_module_name()
     result = bpy.ops.extensions.package_install_files(
         filepath=str(zip_path), repo=EXTENSION_REPO, enable_on_install=True

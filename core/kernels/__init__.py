@@ -114,7 +114,7 @@ def _warm_up(module) -> int:
     """Compile (or read from the cache) every kernel for the one signature the callers use,
     by running each on a tiny input. Returns how many kernels had to be compiled."""
     objects = np.zeros((1, 1), np.int16)
-    uv = np.zeros((1, 1, 2), np.float32)
+    uv = np.zeros((1, 1, 2), np.uint16)
     triangles = np.zeros((1, 1), np.int32)
     directions = np.zeros((1, 3), np.float32)
     normals = np.zeros((1, 3), np.float32)

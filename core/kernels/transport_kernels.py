@@ -13,13 +13,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..visibility.table import MISS
+from ..visibility.table import MISS, UV_CODE_SCALE
 
 # Samples per parallel task: the block's float64 sums stay in the L1 cache while the
 # block's slice of every direction's table row is read once, in order.
 BLOCK = 256
 
 _F32 = np.float32
+# As core.visibility.table.decode_uv computes it (the GPU pass reads the decoded floats).
+_UV_STEP = np.float32(1.0 / UV_CODE_SCALE)
 _KERNEL = {"parallel": True, "cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
 
 
@@ -70,7 +72,7 @@ def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples
            world, exclude, out):
     """out[j] += sum_{i in [first, stop)} w_i(s) L(S_i[s]) for s = samples[j].
 
-    hit_object : (N, K) int16; hit_uv : (N, K, 2) float32; hit_triangle : (N, K) int32,
+    hit_object : (N, K) int16; hit_uv : (N, K, 2) uint16 codes; hit_triangle : (N, K) int32,
         or (1, 1) when no object is in vertex mode
     directions : (N, 3) float32; normals : (K, 3) float32 (the frame normals); scale : (K,) float32
     samples : (k,) int64 sample indices; first, stop : the direction range
@@ -112,8 +114,8 @@ def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples
                     continue
                 if has_exclude and exclude[s, obj]:
                     continue
-                u = hit_uv[i, s, 0]
-                v = hit_uv[i, s, 1]
+                u = _F32(hit_uv[i, s, 0]) * _UV_STEP
+                v = _F32(hit_uv[i, s, 1]) * _UV_STEP
                 if is_vertex[obj]:
                     corners = corner_flat[corner_base[obj] + hit_triangle[i, s]]
                     _vertex_add(acc, j, radiance, weight, corners, u, v, nearest_vertex)
@@ -198,8 +200,8 @@ def bare_lookup(hit_object, hit_uv, samples, first, stop, radiance, widths, heig
                 if obj < 0:
                     continue
                 width = widths[obj]
-                x = np.int64(hit_uv[i, s, 0] * _F32(width))
-                y = np.int64(hit_uv[i, s, 1] * _F32(heights[obj]))
+                x = np.int64(_F32(hit_uv[i, s, 0]) * _UV_STEP * _F32(width))
+                y = np.int64(_F32(hit_uv[i, s, 1]) * _UV_STEP * _F32(heights[obj]))
                 base = offsets[obj] + y * (width + 1) + x
                 for c in range(channels):
                     acc[j, c] += radiance[base, c]

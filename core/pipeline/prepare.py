@@ -516,7 +516,7 @@ def _cached_or_traced_table(job: TableJob):
         warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
         fresh = trace(None)
         save(fresh)
-        return {name: getattr(fresh, name) for name in ("hit_object", "hit_uv", "hit_distance", "hit_triangle")}
+        return {name: getattr(fresh, name) for name in DeferredTable.LARGE}
 
     if cache is not None:
         status.path = cache.table_path(settings)

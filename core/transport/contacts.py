@@ -123,7 +123,7 @@ def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None =
         hit = np.nonzero(row >= 0)[0]
         if not len(hit):
             continue
-        distance = table.hit_distance[i][hit]
+        distance = table.hit_distance(i, hit)
         close = distance < target_reach[row[hit]]
         if sample_reach is not None:
             close &= distance < sample_reach[hit]
@@ -154,7 +154,7 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
         return None
     sample, direction, weight = entries
     obj = table.hit_object[direction, sample].astype(np.int64)
-    uv = table.hit_uv[direction, sample]
+    uv = table.hit_uv(direction, sample)
     owner = _texel_owners(p, obj, uv)
     found = owner >= 0
     sample, direction, weight, obj, uv, owner = (a[found] for a in (sample, direction, weight, obj, uv, owner))
@@ -166,7 +166,7 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
         start = start + points[sample, direction % points.shape[1]]
     unit = p.sample_directions(direction, sample)
     origins = np.asarray(p.ray_scene.ray_origins(start, p.geometric[sample]), np.float64)
-    position = origins + unit * table.hit_distance[direction, sample][:, None].astype(np.float64)
+    position = origins + unit * table.hit_distance(direction, sample)[:, None].astype(np.float64)
     geometric, shading = p.geometric[owner].copy(), p.normal[owner].copy()
     # The side the ray came from is the side that is lit (the table keeps front-face hits only).
     facing = np.where(np.einsum("kd,kd->k", geometric, unit) > 0, -1.0, 1.0)[:, None]

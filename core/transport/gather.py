@@ -17,7 +17,7 @@ import numpy as np
 
 from .. import kernels
 from .. import tolerances as tol
-from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable
+from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable, decode_uv
 from .contract import GatherGeometry, GatherSource
 
 
@@ -217,7 +217,7 @@ def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, pro
     else:
         triangles, is_vertex = np.ascontiguousarray(table.hit_triangle, np.int32), layout.is_vertex
         corner_flat, corner_base = layout.corner_flat, np.maximum(layout.corner_base, 0)
-    arguments = (_hit_objects(table), np.ascontiguousarray(table.hit_uv, np.float32), triangles,
+    arguments = (_hit_objects(table), np.ascontiguousarray(table.hit_uv_code, np.uint16), triangles,
                  np.ascontiguousarray(table.directions, np.float32),
                  np.ascontiguousarray(geometry.normals, np.float32), np.ascontiguousarray(geometry.scale, np.float32),
                  chosen)
@@ -272,7 +272,7 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
             if chosen_exclude is not None and len(hit):
                 hit = hit[~chosen_exclude[hit, row[hit]]]
             if len(hit):
-                uv = table.hit_uv[i][chosen][hit] if samples is not None else table.hit_uv[i, hit]
+                uv = decode_uv(table.hit_uv_code[i][chosen][hit] if samples is not None else table.hit_uv_code[i, hit])
                 objects = row[hit].astype(np.int64)
                 if layout.is_vertex is None:
                     looked_up = layout.bilinear(radiance, objects, uv)

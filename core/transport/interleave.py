@@ -72,7 +72,7 @@ def find_near_hits(p) -> NearHits | None:
         return None
     sample, direction, weight = entries
     return NearHits(sample, weight, p.table.hit_object[direction, sample].astype(np.int64),
-                    p.table.hit_uv[direction, sample])
+                    p.table.hit_uv(direction, sample))
 
 
 def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:

@@ -41,8 +41,9 @@ from ..settings import BakeSettings
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
 # 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations;
-# 5: a footprint point that finds no place on its triangle starts from the texel's centre.
-FORMAT_VERSION = 5
+# 5: a footprint point that finds no place on its triangle starts from the texel's centre;
+# 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances).
+FORMAT_VERSION = 6
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
@@ -51,7 +52,7 @@ LIGHTING_ENTRIES_KEPT = 16
 # A table's small arrays (a few bytes per sample) are read with its header; the large
 # ones (per sample and direction) only when the table is used.
 _SMALL_TABLE_ARRAYS = ("directions", "traced_per_sample", "backface_per_sample")
-_LARGE_TABLE_ARRAYS = ("hit_object", "hit_uv", "hit_distance")
+_LARGE_TABLE_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code")
 _TABLE_ARRAYS = _SMALL_TABLE_ARRAYS + _LARGE_TABLE_ARRAYS
 _OPTIONAL_TABLE_ARRAYS = ("hit_triangle",)
 

@@ -84,5 +84,5 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
         if limit is None:
             lit[region] += row == MISS
         else:
-            lit[region] += (row != BELOW_HORIZON) & (table.hit_distance[i] >= limit)
+            lit[region] += (row != BELOW_HORIZON) & (table.hit_distance(i) >= limit)
     return ShadowFractions(regions=regions, lit=lit, traced=traced)

@@ -19,6 +19,50 @@ MISS = -1
 BELOW_HORIZON = -2
 BACKFACE = -3
 
+# Table entries are stored compact, 8 bytes each (plus 4 for a vertex-mode hit's triangle):
+# the object (int16), the landing point's atlas coordinate as two 16-bit fractions of the
+# atlas (1/16 texel at 4096^2; a vertex-mode hit's barycentrics the same way) and the hit
+# distance as a 16-bit logarithmic code. The code spans 2^-16 to 2^16 scene units with a
+# relative step of 2^(1/2048) - 1 = 3.4e-4 at every scale, where a half float would lose
+# precision below 6e-5 units and overflow above 65504 (millimetre tiles and kilometre
+# terrains alike); the top code means "nothing hit".
+UV_CODE_SCALE = 65535
+_UV_STEP = np.float32(1.0 / UV_CODE_SCALE)
+DISTANCE_CODES_PER_OCTAVE = 2048
+DISTANCE_LOWEST_OCTAVE = -16
+NO_HIT_DISTANCE_CODE = 65535
+# Every code's distance: decoding is one lookup (the kernels use the same table).
+DISTANCE_VALUES = np.append(np.exp2(np.arange(NO_HIT_DISTANCE_CODE, dtype=np.float64) / DISTANCE_CODES_PER_OCTAVE
+                                    + DISTANCE_LOWEST_OCTAVE), np.inf).astype(np.float32)
+
+
+def encode_uv(uv: np.ndarray) -> np.ndarray:
+    """(..., 2) float atlas coordinates (or barycentrics) in [0, 1] -> uint16 codes (clamped)."""
+    with np.errstate(invalid="ignore"):
+        return np.rint(np.clip(np.nan_to_num(np.asarray(uv, np.float64)), 0.0, 1.0) * UV_CODE_SCALE).astype(np.uint16)
+
+
+def decode_uv(codes: np.ndarray) -> np.ndarray:
+    """uint16 codes -> float32 coordinates, computed as the kernels compute them."""
+    return np.asarray(codes).astype(np.float32) * _UV_STEP
+
+
+def encode_distance(distance: np.ndarray) -> np.ndarray:
+    """Hit distances (float, inf: nothing hit) -> uint16 codes of the nearest stored distance."""
+    distance = np.asarray(distance, np.float64)
+    finite = np.isfinite(distance)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        steps = (np.log2(np.where(finite & (distance > 0), distance, 1.0)) - DISTANCE_LOWEST_OCTAVE) \
+            * DISTANCE_CODES_PER_OCTAVE
+    codes = np.clip(np.rint(steps), 0, NO_HIT_DISTANCE_CODE - 1)
+    codes = np.where(finite & (distance <= 0), 0, codes)
+    return np.where(finite, codes, NO_HIT_DISTANCE_CODE).astype(np.uint16)
+
+
+def decode_distance(codes: np.ndarray) -> np.ndarray:
+    """uint16 codes -> float32 distances (inf where nothing was hit)."""
+    return DISTANCE_VALUES[codes]
+
 
 @dataclass
 class VisibilityTable:
@@ -26,18 +70,20 @@ class VisibilityTable:
 
     directions : (N, 3) float64
     hit_object : (N, K) int16, object index, or MISS / BELOW_HORIZON / BACKFACE
-    hit_uv : (N, K, 2) float32, atlas coordinate of the hit (0 where no hit); on a
-        vertex-mode object, embree's barycentric (u, v) in the hit triangle instead
-    hit_distance : (N, K) float32, distance to the hit (inf where nothing was hit),
-        so shadow fractions can ignore occluders beyond a local light
+    hit_uv_code : (N, K, 2) uint16, atlas coordinate of the hit (:func:`encode_uv`; 0
+        where no hit); on a vertex-mode object, embree's barycentric (u, v) in the hit
+        triangle instead
+    hit_distance_code : (N, K) uint16, distance to the hit (:func:`encode_distance`;
+        NO_HIT_DISTANCE_CODE where nothing was hit), so shadow fractions can ignore
+        occluders beyond a local light
     hit_triangle : (N, K) int32, the hit triangle (of its object) where the hit object
         is in vertex mode; None when the scene has no vertex-mode object
     """
 
     directions: np.ndarray
     hit_object: np.ndarray
-    hit_uv: np.ndarray
-    hit_distance: np.ndarray
+    hit_uv_code: np.ndarray
+    hit_distance_code: np.ndarray
     hit_triangle: np.ndarray | None = None
     rays_cast: int = 0
     rays_below_horizon: int = 0
@@ -53,10 +99,25 @@ class VisibilityTable:
         """
         return 2 * self.backface_per_sample > self.traced_per_sample
 
+    @classmethod
+    def from_values(cls, directions, hit_object, hit_uv, hit_distance, hit_triangle=None, **counters
+                    ) -> "VisibilityTable":
+        """A table from float coordinates (N, K, 2) and distances (N, K), encoded as stored."""
+        return cls(directions, np.asarray(hit_object, np.int16), encode_uv(hit_uv), encode_distance(hit_distance),
+                   hit_triangle, **counters)
+
     @property
     def nbytes(self) -> int:
         extra = self.hit_triangle.nbytes if self.hit_triangle is not None else 0
-        return self.hit_object.nbytes + self.hit_uv.nbytes + self.hit_distance.nbytes + extra
+        return self.hit_object.nbytes + self.hit_uv_code.nbytes + self.hit_distance_code.nbytes + extra
+
+    def hit_uv(self, *index) -> np.ndarray:
+        """The decoded atlas coordinates (float32) of the entries ``table.hit_uv_code[index]``."""
+        return decode_uv(self.hit_uv_code[index])
+
+    def hit_distance(self, *index) -> np.ndarray:
+        """The decoded distances (float32, inf: nothing hit) of the entries ``hit_distance_code[index]``."""
+        return decode_distance(self.hit_distance_code[index])
 
 
 class DeferredTable:
@@ -67,7 +128,7 @@ class DeferredTable:
     counts, counters) are there at once, ``buried`` and ``nbytes`` need no read.
     """
 
-    _LARGE = ("hit_object", "hit_uv", "hit_distance", "hit_triangle")
+    LARGE = ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle")
 
     def __init__(self, small: dict, counters: dict, has_triangles: bool, read_large):
         self.directions = small["directions"]
@@ -92,13 +153,16 @@ class DeferredTable:
             self.read_seconds = time.perf_counter() - started
 
     def __getattr__(self, name):
-        if name in DeferredTable._LARGE:
+        if name in DeferredTable.LARGE:
             self.load()
             return self._large.get(name)
         raise AttributeError(name)
 
     def buried(self) -> np.ndarray:
         return 2 * self.backface_per_sample > self.traced_per_sample
+
+    hit_uv = VisibilityTable.hit_uv
+    hit_distance = VisibilityTable.hit_distance
 
     @property
     def nbytes(self) -> int:
@@ -107,7 +171,7 @@ class DeferredTable:
 
 def table_bytes(directions: int, samples: int, vertex_objects: bool = False) -> int:
     """Memory the table of ``samples`` samples needs, for refusing before allocating."""
-    return directions * samples * (2 + 8 + 4 + (4 if vertex_objects else 0))
+    return directions * samples * (2 + 4 + 2 + (4 if vertex_objects else 0))
 
 
 @dataclass(frozen=True)
@@ -199,8 +263,8 @@ def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows
     if where is None:
         missed = hit_geometry < 0
         table["hit_object"][rows[missed], cols[missed]] = MISS
-        table["hit_uv"][rows[missed], cols[missed]] = 0.0
-        table["hit_distance"][rows[missed], cols[missed]] = np.inf
+        table["hit_uv_code"][rows[missed], cols[missed]] = 0
+        table["hit_distance_code"][rows[missed], cols[missed]] = NO_HIT_DISTANCE_CODE
         hit = ~missed
     else:
         hit = where & (hit_geometry >= 0)
@@ -218,8 +282,8 @@ def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows
         landing = np.where(on_vertices[:, None], bary[hit], landing)
         table["hit_triangle"][rows[hit], cols[hit]] = np.where(on_vertices & ~back, triangle[hit], 0)
     table["hit_object"][rows[hit], cols[hit]] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
-    table["hit_uv"][rows[hit], cols[hit]] = np.where(back[:, None], 0.0, landing)
-    table["hit_distance"][rows[hit], cols[hit]] = distance[hit]
+    table["hit_uv_code"][rows[hit], cols[hit]] = encode_uv(np.where(back[:, None], 0.0, landing))
+    table["hit_distance_code"][rows[hit], cols[hit]] = encode_distance(distance[hit])
 
 
 def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int) -> VisibilityTable:
@@ -237,8 +301,8 @@ def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
     backface_per_sample = arrays.get("backface_per_sample")
     if backface_per_sample is None:
         backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
-    return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv=arrays["hit_uv"],
-                           hit_distance=arrays["hit_distance"], hit_triangle=arrays.get("hit_triangle"),
+    return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv_code=arrays["hit_uv_code"],
+                           hit_distance_code=arrays["hit_distance_code"], hit_triangle=arrays.get("hit_triangle"),
                            rays_cast=int(counters["rays_cast"]),
                            rays_below_horizon=int(counters["rays_below_horizon"]),
                            backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
@@ -253,8 +317,8 @@ def _vertex_mask(vertex_object) -> np.ndarray | None:
 
 def _empty_arrays(count: int, samples: int, vertex_objects: bool = False) -> dict:
     arrays = {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
-              "hit_uv": np.zeros((count, samples, 2), np.float32),
-              "hit_distance": np.full((count, samples), np.inf, np.float32)}
+              "hit_uv_code": np.zeros((count, samples, 2), np.uint16),
+              "hit_distance_code": np.full((count, samples), NO_HIT_DISTANCE_CODE, np.uint16)}
     if vertex_objects:
         arrays["hit_triangle"] = np.zeros((count, samples), np.int32)
     return arrays
@@ -380,7 +444,8 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     in_place = np.array_equal(old_offset, sample_offset)
     if in_place:
         # Same layout (a moved object keeps its samples): update the old arrays where they are.
-        arrays = {"hit_object": old.hit_object, "hit_uv": old.hit_uv, "hit_distance": old.hit_distance}
+        arrays = {"hit_object": old.hit_object, "hit_uv_code": old.hit_uv_code,
+                  "hit_distance_code": old.hit_distance_code}
         if vertex_object is not None:
             arrays["hit_triangle"] = old.hit_triangle
     else:
@@ -408,8 +473,8 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             redo = (directions @ horizon[cols].T) > 0.0
             if in_place:
                 arrays["hit_object"][:, cols] = BELOW_HORIZON
-                arrays["hit_uv"][:, cols] = 0.0
-                arrays["hit_distance"][:, cols] = np.inf
+                arrays["hit_uv_code"][:, cols] = 0
+                arrays["hit_distance_code"][:, cols] = NO_HIT_DISTANCE_CODE
                 if "hit_triangle" in arrays:
                     arrays["hit_triangle"][:, cols] = 0
         else:
@@ -435,7 +500,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                 ray_directions = request.ray_directions(direction_index, sample_index + start)
                 found, triangle, bary, distance = changed_scene.intersect(origins, ray_directions)
                 rows, where = direction_index, sample_index + start
-                nearer = (found >= 0) & (distance < arrays["hit_distance"][rows, where])
+                nearer = (found >= 0) & (encode_distance(distance) < arrays["hit_distance_code"][rows, where])
                 mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
                 _record(arrays, geometry, ray_directions, rows, where, mapped, triangle, bary, distance, where=nearer)
                 counts.changed_only += len(sample_index)

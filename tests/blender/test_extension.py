@@ -20,7 +20,7 @@ from blender_support import (
 
 DEV_DIRS = ("tests/", "benchmarks/", "tools/")
 NEVER_SHIPPED = DEV_DIRS + ("docs/", ".ci/", ".venv/", "dist/", "out/", ".git", "Makefile", "requirements")
-BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR", "tqdm")
+BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR", "tqdm", "numba", "llvmlite")
 
 
 def _wheel_names(manifest):
@@ -108,7 +108,7 @@ def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
         assert site in sys.path, "Blender did not add its extension site-packages to sys.path"
         sys.path.remove(site)
         sys.path.insert(0, site)
-        import xatlas, embreex, OpenEXR, tqdm
+        import xatlas, embreex, OpenEXR, tqdm, numba, llvmlite
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
         tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
@@ -120,9 +120,10 @@ def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
         OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": np.ones((2, 2, 3), np.float32)}).write(exr)
         with OpenEXR.File(exr) as f:
             shape = list(f.channels()["RGB"].pixels.shape)
+        doubled = numba.njit(lambda x: 2 * x)(np.arange(3.0))
         print(json.dumps({
-            "files": {m.__name__: m.__file__ for m in (xatlas, embreex, OpenEXR, tqdm)},
-            "uvs": list(uvs.shape), "hit": int(hit[0]), "exr": shape,
+            "files": {m.__name__: m.__file__ for m in (xatlas, embreex, OpenEXR, tqdm, numba, llvmlite)},
+            "uvs": list(uvs.shape), "hit": int(hit[0]), "exr": shape, "numba": doubled.tolist(),
         }))
         """
     )
@@ -135,3 +136,4 @@ def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
     for name, path in result["files"].items():
         assert Path(path).is_relative_to(site), f"{name} imported from {path}, not from {site}"
     assert result["uvs"] == [3, 2] and result["hit"] == 0 and result["exr"] == [2, 2, 3]
+    assert result["numba"] == [0.0, 2.0, 4.0]

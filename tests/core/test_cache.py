@@ -16,7 +16,7 @@ from core_scenes import quad_mesh
 
 SUN = Light("Sun", "SUN", np.ones(3), 3.0, direction=np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, 1.0]))
 LAMP = Light("Lamp", "POINT", np.array([1.0, 0.8, 0.6]), 150.0, position=np.array([0.5, 0.2, 1.2]))
-TABLE_FIELDS = ("hit_object", "hit_uv", "hit_distance", "traced_per_sample", "backface_per_sample")
+TABLE_FIELDS = ("hit_object", "hit_uv_code", "hit_distance_code", "traced_per_sample", "backface_per_sample")
 
 
 def _meshes(roof_height=0.6, roof_shift=0.0):

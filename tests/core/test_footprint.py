@@ -87,7 +87,7 @@ def test_the_table_starts_each_direction_from_its_footprint_point_and_updates_re
     centres = trace_table(p.ray_scene, TraceRequest(p.directions, p.position, p.geometric, _hits(p),
                                                     rotations=p.rotations, group=p.group))
     hit = fresh.hit_object >= 0
-    moved = np.abs(fresh.hit_uv - centres.hit_uv).max(axis=2)[hit]
+    moved = np.abs(fresh.hit_uv() - centres.hit_uv()).max(axis=2)[hit]
     assert np.count_nonzero(moved > 1e-4) > 0.5 * np.count_nonzero(hit)  # the rays did start elsewhere
     # Move the blocker: the incremental update (spheres widened by the footprint's reach)
     # gives exactly the fresh table of the moved scene.
@@ -98,7 +98,7 @@ def test_the_table_starts_each_direction_from_its_footprint_point_and_updates_re
     changed_scene = type(q.ray_scene)([(blocker.positions, blocker.triangles)], 1, q.ray_scene.centre)
     updated, _ = update_table(fresh, p.sample_offset, q.sample_offset, q.ray_scene, changed_scene, [1], new_request)
     np.testing.assert_array_equal(updated.hit_object, q.table.hit_object)
-    np.testing.assert_array_equal(updated.hit_distance, q.table.hit_distance)
+    np.testing.assert_array_equal(updated.hit_distance_code, q.table.hit_distance_code)
 
 
 def _hits(p):

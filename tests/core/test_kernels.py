@@ -45,7 +45,7 @@ def _random_scene(seed, samples=300, count=97, channels=6, vertex=True, nearest=
         uv = np.where(on_vertex[..., None], bary, uv).astype(np.float32)
         sizes.append((vertex_samples, 1))
         corner_samples = [None, None, corners]
-    table = VisibilityTable(d, hit, uv, np.ones((count, samples), np.float32), hit_triangle=triangles)
+    table = VisibilityTable.from_values(d, hit, uv, np.ones((count, samples), np.float32), hit_triangle=triangles)
     layout = AtlasLayout.from_sizes(sizes, corner_samples, nearest_vertex=nearest)
     radiance = rng.uniform(0, 3, size=(layout.size, channels)).astype(np.float32)
     world = rng.uniform(0, 1, size=(count, channels))
@@ -123,7 +123,7 @@ from core.visibility.table import MISS, BELOW_HORIZON, VisibilityTable
 normals = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
 d = spherical_fibonacci(64)
 hit = np.where((normals @ d.T).T > 0, MISS, BELOW_HORIZON).astype(np.int16)
-table = VisibilityTable(d, hit, np.zeros((64, 2, 2), np.float32), np.ones((64, 2), np.float32))
+table = VisibilityTable.from_values(d, hit, np.zeros((64, 2, 2), np.float32), np.ones((64, 2), np.float32))
 layout = AtlasLayout.from_sizes([(2, 2)])
 e = gather(GatherGeometry(table, normals, gather_normalisation(table, normals), layout),
            GatherSource(np.zeros((layout.size, 3), np.float32), np.ones(3)))

@@ -13,7 +13,7 @@ from core.visibility.table import BELOW_HORIZON, MISS, VisibilityTable
 def _table(directions, normals, hit_object, hit_uv, hit_distance=None):
     if hit_distance is None:
         hit_distance = np.where(hit_object >= 0, 1.0, np.inf).astype(np.float32)
-    return VisibilityTable(directions=directions, hit_object=hit_object, hit_uv=hit_uv, hit_distance=hit_distance)
+    return VisibilityTable.from_values(directions, hit_object, hit_uv, hit_distance)
 
 
 def _open_table(count, normals, code=MISS):

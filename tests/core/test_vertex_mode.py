@@ -154,7 +154,7 @@ def test_vertex_tables_are_cached_and_updated_like_atlas_tables(tmp_path):
     updated = prepare(moved, settings, cache=cache, table_needed=True)
     assert updated.cache_status.state == "updated"
     fresh = prepare(moved, settings, table_needed=True)
-    for name in ("hit_object", "hit_uv", "hit_distance", "hit_triangle"):
+    for name in ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle"):
         np.testing.assert_array_equal(getattr(updated.table, name), getattr(fresh.table, name), err_msg=name)
     lights = moved.lights
     a, b = relight(updated, lights, World()), relight(fresh, lights, World())

@@ -29,8 +29,8 @@ def _random_codes(core, rng, samples, directions, objects):
 
 
 def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None):
-    table = core.visibility.table.VisibilityTable(directions=dirs, hit_object=codes, hit_uv=uv,
-                                            hit_distance=np.ones(codes.shape, np.float32), hit_triangle=triangles)
+    table = core.visibility.table.VisibilityTable.from_values(dirs, codes, uv, np.ones(codes.shape, np.float32),
+                                                          triangles)
     scale = core.transport.gather.gather_normalisation(table, normals)
     radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
     world = rng.uniform(0, 1, size=(len(dirs), channels))
