@@ -13,7 +13,6 @@ coordinates to 16 bits and the distances to 16-bit logarithmic codes). Writes
 ``<out>/table_codes.json``.
 """
 import argparse
-import json
 import os
 import subprocess
 import sys
