@@ -7,6 +7,7 @@ import bpy
 
 from . import operators, panels
 from .core import kernels
+from .core.pipeline import resident
 from .operators import cli
 from .operators.adapter import cache_status, compat
 from .operators.adapter.settings import kernel_cache_folder
@@ -40,6 +41,8 @@ def unregister():
         _cli_handle = None
     cache_status.unregister_handlers()
     preferences.unregister_handlers()
+    # A kept preparation (core.pipeline.resident) is let go with the extension.
+    resident.forget()
     properties.unregister_properties()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

@@ -305,7 +305,7 @@ def main(argv=None) -> int:
             del warm
         prepared.cache = None  # relights below measure transport, not the lighting cache
         limit_rows[-1].update(compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend(1 << 30),
-                                                     contract.GatherSource))
+                                                     contract.GatherSource, extension.__name__))
         base_lights = extracted.scene.lights
         for count in profile["relight_setups"]:
             setups = []
@@ -378,22 +378,39 @@ def main(argv=None) -> int:
     return 0
 
 
-def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather_source) -> dict:
-    """One bounce gather on the same table in numpy and on the GPU: time, lookups/s, agreement.
+def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather_source, package: str) -> dict:
+    """One bounce gather on the same table: the compiled CPU kernel against its ceiling (the
+    bare table walk, :func:`limits.bare_lookup_seconds`), the numpy fallback, and the GPU:
+    time, lookups/s, agreement.
 
     The radiance is the scene's albedo lit uniformly (any atlas will do: the cost of
     a gather does not depend on the values). Lookups are the table entries above the
-    horizon, what either path walks.
+    horizon, what every path walks. ``package``: the loaded extension's module name.
     """
+    from benchmarks import limits
+
+    cpu_gather = importlib.import_module(f"{package}.core.transport.gather")
+    kernels = importlib.import_module(f"{package}.core.kernels")
+
     table = prepared.table
     geometry = prepared.gather_geometry()
     source = gather_source(prepared.to_atlas(prepared.albedo, cpu_backend.dilate), np.zeros(3))
     lookups = int(table.rays_cast)
+    cpu_backend.gather(geometry, source)  # the kernels' first load is not a gather's cost
     started = time.perf_counter()
     numpy_result = cpu_backend.gather(geometry, source)
     numpy_seconds = time.perf_counter() - started
+    bare_seconds = limits.bare_lookup_seconds(kernels, table, geometry, source.radiance)
+    started = time.perf_counter()
+    fallback_result = cpu_gather.gather_numpy(geometry, source)
+    fallback_seconds = time.perf_counter() - started
+    reference = max(float(np.abs(numpy_result).max()), 1e-30)
     row = {"gather_lookups": lookups, "numpy_gather_seconds": numpy_seconds,
-           "numpy_gather_lookups_per_second": lookups / numpy_seconds}
+           "numpy_gather_lookups_per_second": lookups / numpy_seconds,
+           "bare_lookup_seconds": bare_seconds, "gather_fraction_of_bare_lookups": bare_seconds / numpy_seconds,
+           "numpy_fallback_gather_seconds": fallback_seconds,
+           "kernel_over_numpy_fallback": fallback_seconds / numpy_seconds,
+           "fallback_max_difference_relative": float(np.abs(fallback_result - numpy_result).max()) / reference}
     try:
         info = gpu_runtime.device_info()
     except gpu_runtime.GPUUnavailable as error:
@@ -406,7 +423,6 @@ def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather
     started = time.perf_counter()
     gpu_result = gpu_backend.gather(geometry, source)
     gpu_seconds = time.perf_counter() - started
-    reference = max(float(np.abs(numpy_result).max()), 1e-30)
     row.update({"gpu_device": f"{info.backend} {info.renderer}", "gpu_gather_seconds": gpu_seconds,
                 "gpu_gather_first_call_seconds": first_seconds,
                 "gpu_gather_lookups_per_second": lookups / gpu_seconds,
@@ -504,15 +520,21 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
                 lines.append(f"| VisiBake | {row['directions']} | {row['lookup']} | {float(row['seconds']):.2f} | "
                              f"{float(row['relative_rmse']):.4f} | {float(row['bias']):+.4f} | "
                              f"{'n/a' if at is None else f'{at:.2f}'} | {'n/a' if ratio is None else f'{ratio:.1f}'} |")
-    lines += ["", "Ceilings, and one bounce gather on the same table in numpy and on the GPU "
-              "(lookups/s = table entries above the horizon per second):", "",
-              "| scene | embreex rays/s (2 threads) | numpy lookups/s (bare np.take) | numpy gather lookups/s "
-              "| GPU gather lookups/s | GPU / numpy | max rel. difference | GPU |", "|---|---|---|---|---|---|---|---|"]
+    lines += ["", "Ceilings, and one bounce gather on the same table: the CPU kernel against the bare table "
+              "walk (one nearest-texel read per entry, same kernel layout and threads), the numpy fallback, "
+              "and the GPU (lookups/s = table entries above the horizon per second):", "",
+              "| scene | embreex rays/s (2 threads) | numpy lookups/s (bare np.take) | CPU gather lookups/s "
+              "| gather / bare walk | numpy fallback s | kernel / fallback speed "
+              "| GPU gather lookups/s | GPU / CPU | max rel. difference | GPU |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in summary["limits"]:
         gpu_rate = _number(row.get("gpu_gather_lookups_per_second"))
         lines.append(f"| {row['scene']} | {float(row['embree_rays_per_second']) / 1e6:.2f} M | "
                      f"{float(row['numpy_lookups_per_second']) / 1e6:.0f} M | "
                      f"{float(row.get('numpy_gather_lookups_per_second', 0)) / 1e6:.1f} M | "
+                     f"{float(row.get('gather_fraction_of_bare_lookups', 0)):.0%} | "
+                     f"{float(row.get('numpy_fallback_gather_seconds', 0)):.3f} | "
+                     f"{float(row.get('kernel_over_numpy_fallback', 0)):.1f} | "
                      + (f"{gpu_rate / 1e6:.1f} M | {float(row['gpu_over_numpy_speed']):.2f} | "
                         f"{float(row['gpu_numpy_max_difference_relative']):.1e} | {row['gpu_device']} |"
                         if gpu_rate else f"n/a | n/a | n/a | {row.get('gpu_device', 'n/a')} |"))

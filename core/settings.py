@@ -259,6 +259,10 @@ PREFERENCE_SETTINGS = _table(
                      ("DRAFT", "Draft", "New scenes start with the Draft preset"),
                      ("PRODUCTION", "Production", "New scenes start with the Production preset"))),
     SETTINGS["threads"],
+    Setting("resident_memory_mib", int, 2048, "Resident Memory (MiB)", minimum=0, soft_max=65536,
+            help="Memory the last bake's preparation (samples and visibility table) may keep between bakes of "
+                 "this session, so that a Relight with only lights or world changed reads nothing from disk; "
+                 "0 keeps nothing"),
     Setting("gpu_memory_mib", int, 1024, "GPU Memory (MiB)", minimum=64, soft_max=16384,
             help="GPU memory the transport passes may use; the table is streamed in batches of directions "
                  "that fit"),

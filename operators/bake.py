@@ -55,7 +55,7 @@ class _BakeOperator:
         props = context.scene.visibake
         return job.BakeJob(context, job.output_objects(context, props),
                            bpy.path.abspath(props.output_dir) or None, False, progress,
-                           relight_only=self.relight_only)
+                           relight_only=self.relight_only, keep_preparation=True)
 
     def _finished(self, context, outcome) -> set:
         context.scene["visibake_last_report"] = summary(outcome.report)

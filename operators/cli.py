@@ -48,6 +48,8 @@ OPERATOR_COMMANDS = {
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
     "gpu_memory_mib": None,  # a property of the machine: the command uses the preference as it is
+    # Kept between bakes of one session; a command is one bake, so there is nothing to keep.
+    "resident_memory_mib": None,
     "default_preset": "--preset",  # the command takes a preset per run
 }
 

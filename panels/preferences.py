@@ -12,6 +12,7 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
 
     device: setting_property(PREFERENCE_SETTINGS["device"])
     gpu_memory_mib: setting_property(PREFERENCE_SETTINGS["gpu_memory_mib"])
+    resident_memory_mib: setting_property(PREFERENCE_SETTINGS["resident_memory_mib"])
 
     cache_dir: setting_property(PREFERENCE_SETTINGS["cache_dir"], subtype="DIR_PATH")
     default_preset: setting_property(PREFERENCE_SETTINGS["default_preset"])
@@ -22,6 +23,7 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
         layout.use_property_split = True
         layout.prop(self, "device")
         layout.prop(self, "gpu_memory_mib")
+        layout.prop(self, "resident_memory_mib")
         layout.prop(self, "cache_dir")
         layout.prop(self, "default_preset")
         layout.prop(self, "threads")

@@ -24,8 +24,8 @@ from ...core.outputs import names
 from ...core.outputs.destinations import FOLDER, check_destinations, destination_problem
 from ...core.outputs.report import DeviceReport, RefinedReport, Report, SetupReport
 from ...core.pipeline.budget import peak_memory_bytes
-from ...core.pipeline.prepare import prepare
 from ...core.pipeline.relight import BakeResult, relight_many
+from ...core.pipeline.resident import prepare_or_reuse
 from ...core.sampling import layout as layout_policy
 from ...core.transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
 from ...core.visibility.cache import VisibilityCache
@@ -221,7 +221,7 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
              progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
-             refine: bool | None = None, threads: int | None = None) -> JobResult:
+             refine: bool | None = None, threads: int | None = None, keep_preparation: bool = False) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -239,9 +239,12 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     refine : bake refined copies of vertex-mode objects whose triangles are too coarse for
         their light (operators.adapter.refine); None: the scene's setting
     threads : worker threads for ray tracing and gathers (0: all cores); None: the preference
+    keep_preparation : keep what this bake prepared in memory (within the preference Resident
+        Memory) for the next Relight of this session, and let a Relight reuse the kept one
+        (core.pipeline.resident); the panel's buttons do, a command (one bake a process) does not
     """
     return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
-                   threads).run()
+                   threads, keep_preparation).run()
 
 
 class BakeJob:
@@ -256,10 +259,11 @@ class BakeJob:
     """
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
-                 setups=None, device_name=None, refine=None, threads=None):
+                 setups=None, device_name=None, refine=None, threads=None, keep_preparation=False):
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine, self.threads = device_name, refine, threads
+        self.keep_preparation = keep_preparation
         self.extracted = None
         self.results = None
 
@@ -387,9 +391,11 @@ class BakeJob:
         """The visibility table, traced or from the cache (no bpy: any thread)."""
         # Relighting with a setup may need the table although the scene's own lights do not.
         # A user's error is a BakeRefused from the core; anything else is a bug and says so.
-        self.prepared = prepare(self.extracted.scene, self.settings, self.progress,
-                                table_needed=True if self.setups else None, cache=self.cache,
-                                require_cached_table=self.relight_only)
+        keep_bytes = self.resolved.resident_bytes if self.keep_preparation else 0
+        self.prepared = prepare_or_reuse(self.extracted.scene, self.settings, self.progress,
+                                         table_needed=True if self.setups else None, cache=self.cache,
+                                         require_cached_table=self.relight_only, keep_bytes=keep_bytes,
+                                         reuse=self.relight_only)
 
     def compute_lighting(self) -> None:
         """Direct and indirect light from the table (any thread for numpy; the main

@@ -32,6 +32,7 @@ class Resolved:
     layout: LayoutSettings
     device: str  # one of core.settings.DEVICES, as asked for ('auto' is decided when the bake starts)
     refine: bool  # bake refined copies of coarse vertex-mode objects (operators.adapter.refine)
+    resident_bytes: int = 0  # the preparation kept in memory between bakes may hold this much (the preference)
 
 
 def bake_settings(props, threads: int = SETTINGS["threads"].default) -> BakeSettings:
@@ -66,7 +67,8 @@ def resolve(context, threads: int | None = None, device: str | None = None,
         bake=bake_settings(props, _preference(context, "threads") if threads is None else threads),
         layout=layout_settings(props),
         device=device or _preference(context, "device"),
-        refine=props.refine_vertex_objects if refine is None else refine)
+        refine=props.refine_vertex_objects if refine is None else refine,
+        resident_bytes=int(_preference(context, "resident_memory_mib")) * 2**20)
     resolved.bake.validate()
     resolved.layout.validate()
     reason = PREFERENCE_SETTINGS["device"].check(resolved.device)

@@ -42,13 +42,25 @@ def test_second_bake_reuses_the_cache_and_relight_matches_a_fresh_bake(visibake,
     assert first["cache"]["state"] == "miss"
     cache_dir = tmp_path / "visibake_cache"
     assert cache_dir.is_dir() and first["cache"]["path"].startswith(str(cache_dir))
-    # Only the lamp changes: Relight reads the table back and traces no visibility ray.
+    # Only the lamp changes: Relight reuses the preparation the bake kept in memory, and traces
+    # no visibility ray.
+    bpy.data.objects["Lamp"].data.energy = 160.0
+    assert _bake("relight") == {"FINISHED"}
+    again = _last_report(visibake)
+    assert again["cache"]["state"] == "resident" and again["rays"]["visibility_cast"] == 0
+    assert any(s.startswith("samples and visibility: geometry, materials and settings unchanged")
+               for s in again["skipped"])
+    assert "visibility" not in again["stage_seconds"]
+    relit = image_pixels("VB_Ground_lighting")
+    # With nothing kept in memory, Relight reads the table back from the cache: the same numbers.
+    bpy.context.preferences.addons[visibake.__name__].preferences.resident_memory_mib = 0
+    bpy.data.objects["Lamp"].data.energy = 150.0
+    assert _bake("relight") == {"FINISHED"}
     bpy.data.objects["Lamp"].data.energy = 160.0
     assert _bake("relight") == {"FINISHED"}
     again = _last_report(visibake)
     assert again["cache"]["state"] == "hit" and again["rays"]["visibility_cast"] == 0
-    assert "visibility" not in again["stage_seconds"]
-    relit = image_pixels("VB_Ground_lighting")
+    np.testing.assert_array_equal(relit, image_pixels("VB_Ground_lighting"))
     # The same numbers as a bake that traces everything anew.
     bpy.context.scene.visibake.use_cache = False
     assert _bake() == {"FINISHED"}
@@ -181,6 +193,8 @@ def test_cli_sun_sweep(visibake, room, tmp_path):
 
 
 def test_a_damaged_cache_file_is_reported_and_rebuilt(visibake, room):
+    # Relight must read the damaged file, not a preparation kept in memory.
+    bpy.context.preferences.addons[visibake.__name__].preferences.resident_memory_mib = 0
     assert _bake() == {"FINISHED"}
     path = _last_report(visibake)["cache"]["path"]
     with open(path, "r+b") as handle:  # a bit flipped in the middle of the table
