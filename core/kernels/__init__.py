@@ -102,15 +102,25 @@ def _load() -> KernelStatus:
         import numba
         numba.config.CACHE_DIR = cache_dir
         numba.config.THREADING_LAYER = "workqueue"
-        from . import transport_kernels as module
-        misses = _warm_up(module)
+        from . import table_kernels, transport_kernels
+        misses = _warm_up(transport_kernels, table_kernels)
     except Exception as error:  # noqa: BLE001 - any failure to load means: use numpy, and say why
         return KernelStatus("numpy", cache_dir=cache_dir, reason=f"{type(error).__name__}: {error}")
-    _module = module
+    _module = _Kernels(transport_kernels, table_kernels)
     return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir)
 
 
-def _warm_up(module) -> int:
+class _Kernels:
+    """Every compiled kernel under one name (``kernels.compiled().gather``)."""
+
+    def __init__(self, *modules):
+        for module in modules:
+            for name, value in vars(module).items():
+                if hasattr(value, "stats") and not name.startswith("_"):
+                    setattr(self, name, value)
+
+
+def _warm_up(module, table_module) -> int:
     """Compile (or read from the cache) every kernel for the one signature the callers use,
     by running each on a tiny input. Returns how many kernels had to be compiled."""
     objects = np.zeros((1, 1), np.int16)
@@ -128,7 +138,13 @@ def _warm_up(module) -> int:
     module.open_cosine_sum(objects, directions, normals, np.int16(-2), np.zeros(1))
     module.open_weight(objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1), np.zeros(1))
     module.bare_lookup(objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros((1, 3)))
-    kernels = (module.gather, module.open_cosine_sum, module.open_weight, module.bare_lookup)
+    from ..visibility.table import DISTANCE_SPLITS
+    index = np.zeros(1, np.int64)
+    table_module.record(objects, uv, np.zeros((1, 1), np.uint16), triangles, index, index, np.zeros(1, np.int32),
+                        np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
+                        np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32),
+                        np.zeros(1, bool), np.zeros(0, bool), DISTANCE_SPLITS)
+    kernels = (module.gather, module.open_cosine_sum, module.open_weight, module.bare_lookup, table_module.record)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

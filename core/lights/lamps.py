@@ -101,6 +101,18 @@ def angular_radius(light: Light, position: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(ratio), np.arcsin(np.clip(ratio, 0.0, 1.0)), np.pi)
 
 
+def centre_probe(light: Light, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The first of :func:`outline_probes` alone, bitwise the same: the direction (K, 3) unit
+    and distance (K,) from ``position`` (K, 3) to the lamp's centre (a sun: its direction, at
+    infinity). The footprint's corner probes need only this."""
+    if light.kind == "SUN":
+        axis = np.broadcast_to(-np.asarray(light.direction, np.float64), position.shape)
+        return np.array(axis), np.full(len(position), np.inf)
+    offset = np.asarray(light.position, np.float64) - position
+    distance = np.linalg.norm(offset, axis=1)
+    return offset / np.maximum(distance, 1e-12)[:, None], distance
+
+
 def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """Shadow-ray targets that tell a penumbra from full light or full shadow: the lamp's
     centre and points on its outline, as [(to_light (K, 3) unit, distance (K,))].

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from .. import tolerances as tol
-from ..lights.lamps import LampPoints, LightContribution, angular_radius, lamp_points, outline_probes
+from ..lights.lamps import (
+    LampPoints,
+    LightContribution,
+    angular_radius,
+    centre_probe,
+    lamp_points,
+    outline_probes,
+)
 from ..sampling.terminator import lift_amount
 from .contract import SampleSet, Shadowing
 
@@ -164,14 +171,17 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
     seen_open, seen_blocked = np.zeros(count, bool), np.zeros(count, bool)
     # Each sample turns its round outline by its own scramble, so missed caps do not align.
     rotation = (lamp.scrambles[0] >> np.uint32(8)) * (2.0 * np.pi * 2.0 ** -24)
-    probes = [(to_light, distance, None) for to_light, distance in outline_probes(light, samples.position, rotation)]
     footprint = lamp.footprint
-    if lamp.point_lamp:
-        probes = [] if footprint is not None else probes[:1]
+    if not lamp.point_lamp:
+        probes = [(to_light, distance, None)
+                  for to_light, distance in outline_probes(light, samples.position, rotation)]
+    else:
+        # A lamp without extent has no outline: its centre, from the sample or from the corners.
+        probes = [] if footprint is not None else [(*centre_probe(light, samples.position), None)]
     if footprint is not None and samples.footprint_corners is not None:
         for corner in range(FOOTPRINT_PROBES):
             moved = samples.position + samples.footprint_corners[:, corner]
-            to_light, distance = outline_probes(light, moved, rotation)[0]
+            to_light, distance = centre_probe(light, moved)
             probes.append((to_light, distance, moved))
     rays = 0
     for to_light, distance, moved in probes:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from .rays import RayScene
 
@@ -32,8 +33,12 @@ DISTANCE_CODES_PER_OCTAVE = 2048
 DISTANCE_LOWEST_OCTAVE = -16
 NO_HIT_DISTANCE_CODE = 65535
 # Every code's distance: decoding is one lookup (the kernels use the same table).
-DISTANCE_VALUES = np.append(np.exp2(np.arange(NO_HIT_DISTANCE_CODE, dtype=np.float64) / DISTANCE_CODES_PER_OCTAVE
-                                    + DISTANCE_LOWEST_OCTAVE), np.inf).astype(np.float32)
+_DISTANCE_VALUES64 = np.exp2(np.arange(NO_HIT_DISTANCE_CODE, dtype=np.float64) / DISTANCE_CODES_PER_OCTAVE
+                             + DISTANCE_LOWEST_OCTAVE)
+DISTANCE_VALUES = np.append(_DISTANCE_VALUES64, np.inf).astype(np.float32)
+# Encoding finds the code by comparisons against the geometric midpoints between neighbouring
+# codes (no logarithm), so numpy and the compiled kernels encode bitwise alike on every platform.
+DISTANCE_SPLITS = np.sqrt(_DISTANCE_VALUES64[:-1] * _DISTANCE_VALUES64[1:])
 
 
 def encode_uv(uv: np.ndarray) -> np.ndarray:
@@ -50,13 +55,8 @@ def decode_uv(codes: np.ndarray) -> np.ndarray:
 def encode_distance(distance: np.ndarray) -> np.ndarray:
     """Hit distances (float, inf: nothing hit) -> uint16 codes of the nearest stored distance."""
     distance = np.asarray(distance, np.float64)
-    finite = np.isfinite(distance)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        steps = (np.log2(np.where(finite & (distance > 0), distance, 1.0)) - DISTANCE_LOWEST_OCTAVE) \
-            * DISTANCE_CODES_PER_OCTAVE
-    codes = np.clip(np.rint(steps), 0, NO_HIT_DISTANCE_CODE - 1)
-    codes = np.where(finite & (distance <= 0), 0, codes)
-    return np.where(finite, codes, NO_HIT_DISTANCE_CODE).astype(np.uint16)
+    codes = np.searchsorted(DISTANCE_SPLITS, distance)
+    return np.where(np.isfinite(distance), codes, NO_HIT_DISTANCE_CODE).astype(np.uint16)
 
 
 def decode_distance(codes: np.ndarray) -> np.ndarray:
@@ -260,6 +260,29 @@ def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows
     ``hit_geometry`` holds object indices (-1: miss). With ``where`` given, only
     those rays are written (an update that keeps the old entry elsewhere).
     """
+    module = kernels.compiled()
+    if module is not None:
+        triangles = table.get("hit_triangle")
+        vertex_object = (np.zeros(len(geometry.triangle_offset), bool) if geometry.vertex_object is None
+                         else np.ascontiguousarray(geometry.vertex_object, bool))
+        kernels.run(module.record, 0, table["hit_object"], table["hit_uv_code"], table["hit_distance_code"],
+                    np.zeros((0, 0), np.int32) if triangles is None else triangles,
+                    np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64),
+                    np.ascontiguousarray(hit_geometry, np.int32), np.ascontiguousarray(triangle, np.int32),
+                    np.ascontiguousarray(bary, np.float32), np.ascontiguousarray(distance, np.float32),
+                    np.ascontiguousarray(ray_directions, np.float32),
+                    np.ascontiguousarray(geometry.triangle_offset, np.int64),
+                    np.ascontiguousarray(geometry.face_normals, np.float64),
+                    np.ascontiguousarray(geometry.corner_uv, np.float32), vertex_object,
+                    np.zeros(0, bool) if where is None else np.ascontiguousarray(where, bool), DISTANCE_SPLITS)
+        return
+    _record_numpy(table, geometry, ray_directions, rows, cols, hit_geometry, triangle, bary, distance, where)
+
+
+def _record_numpy(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows: np.ndarray,
+                  cols: np.ndarray, hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray,
+                  distance: np.ndarray, where: np.ndarray | None = None) -> None:
+    """:func:`_record` in numpy, where the compiled kernels cannot load."""
     if where is None:
         missed = hit_geometry < 0
         table["hit_object"][rows[missed], cols[missed]] = MISS

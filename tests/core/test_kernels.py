@@ -158,3 +158,34 @@ def test_configure_chooses_the_cache_folder_only_before_the_first_load(tmp_path)
     result = _run_python(code, VISIBAKE_KERNELS="numba")
     assert result["cache_dir"] == str(tmp_path / "mine")
     assert os.listdir(tmp_path / "mine")
+
+
+@pytest.mark.parametrize("vertex", [False, True])
+@pytest.mark.parametrize("masked", [False, True])
+def test_compiled_table_writes_are_bitwise_those_of_numpy(vertex, masked):
+    from core.visibility import table as table_module
+
+    rng = np.random.default_rng(7)
+    count, samples, objects, triangles_per_object = 9, 200, 3, 5
+    geometry = table_module.HitGeometry(
+        corner_uv=rng.uniform(-0.05, 1.05, (objects * triangles_per_object, 3, 2)).astype(np.float32),
+        triangle_offset=np.arange(objects, dtype=np.int64) * triangles_per_object,
+        face_normals=rng.normal(size=(objects * triangles_per_object, 3)),
+        vertex_object=np.array([False, True, False]) if vertex else None)
+    rows, cols = np.nonzero(rng.random((count, samples)) < 0.7)
+    n = len(rows)
+    hit_geometry = rng.integers(-1, objects, n).astype(np.int32)
+    triangle = rng.integers(0, triangles_per_object, n).astype(np.int32)
+    bary = rng.random((n, 2), dtype=np.float32)
+    distance = np.where(rng.random(n) < 0.05, np.inf, rng.lognormal(0, 3, n)).astype(np.float32)
+    directions = rng.normal(size=(n, 3)).astype(np.float32)
+    where = rng.random(n) < 0.5 if masked else None
+    written = []
+    for record in (table_module._record, table_module._record_numpy):
+        arrays = table_module._empty_arrays(count, samples, vertex)
+        arrays["hit_object"][:] = 1  # an old table, partly overwritten when masked
+        record(arrays, geometry, directions, rows, cols, hit_geometry, triangle, bary, distance, where)
+        written.append(arrays)
+    for name in written[0]:
+        np.testing.assert_array_equal(written[0][name], written[1][name], err_msg=name)
+    assert np.any(written[0]["hit_object"] == -3) and np.any(written[0]["hit_uv_code"] > 0)

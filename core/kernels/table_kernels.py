@@ -1,0 +1,86 @@
+"""Compiled (numba) kernel that writes traced rays into the visibility table.
+
+Imported only through :mod:`core.kernels`. It computes what :func:`core.visibility.table._record_numpy`
+computes, in the same float32 and float64 operations, so that both write bitwise the same
+entries; it runs in parallel over rays, each of which owns its table entry.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..visibility.table import BACKFACE, MISS, NO_HIT_DISTANCE_CODE, UV_CODE_SCALE
+
+_F32 = np.float32
+
+
+@nb.njit(inline="always")
+def _uv_code(value):
+    """encode_uv of one float32 coordinate: NaN -> 0, clamped to [0, 1], rounded half to even."""
+    x = np.float64(value)
+    if x != x:
+        x = 0.0
+    x = min(max(x, 0.0), 1.0)
+    return np.uint16(np.rint(x * UV_CODE_SCALE))
+
+
+@nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)
+def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols, hit_geometry, triangle, bary,
+           distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_object, where,
+           distance_splits):
+    """Write rays (rows[r], cols[r]) into the table arrays: hits, backfaces and misses.
+
+    hit_object : (N, K) int16; hit_uv_code : (N, K, 2) uint16; hit_distance_code : (N, K)
+        uint16; hit_triangle : (N, K) int32, or (0, 0) without vertex-mode objects
+    rows, cols : (n,) int64 the rays' directions and samples
+    hit_geometry, triangle : (n,) int32 (embree's geomID, -1 for a miss, and primID)
+    bary : (n, 2) float32; distance : (n,) float32; ray_directions : (n, 3) float32
+    triangle_offset : (O,) int64; face_normals : (T, 3) float64; corner_uv : (T, 3, 2) float32
+    vertex_object : (O,) bool (all False without vertex-mode objects)
+    where : (n,) bool, or (0,) for every ray; with it only those rays are written, and misses never
+    distance_splits : core.visibility.table.DISTANCE_SPLITS
+    """
+    has_where = where.shape[0] > 0
+    has_triangles = hit_triangle.shape[0] > 0
+    for r in nb.prange(rows.shape[0]):
+        row = rows[r]
+        col = cols[r]
+        geometry = hit_geometry[r]
+        if has_where:
+            if not where[r] or geometry < 0:
+                continue
+        elif geometry < 0:
+            hit_object[row, col] = MISS
+            hit_uv_code[row, col, 0] = 0
+            hit_uv_code[row, col, 1] = 0
+            hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE
+            continue
+        t = triangle_offset[geometry] + triangle[r]
+        facing = (face_normals[t, 0] * np.float64(ray_directions[r, 0])
+                  + face_normals[t, 1] * np.float64(ray_directions[r, 1])) \
+            + face_normals[t, 2] * np.float64(ray_directions[r, 2])
+        back = facing > 0.0
+        u = bary[r, 0]
+        v = bary[r, 1]
+        on_vertices = vertex_object[geometry]
+        if back:
+            hit_object[row, col] = BACKFACE
+            hit_uv_code[row, col, 0] = 0
+            hit_uv_code[row, col, 1] = 0
+        else:
+            hit_object[row, col] = geometry
+            if on_vertices:
+                hit_uv_code[row, col, 0] = _uv_code(u)
+                hit_uv_code[row, col, 1] = _uv_code(v)
+            else:
+                w = (_F32(1.0) - u) - v
+                for axis in range(2):
+                    landing = (w * corner_uv[t, 0, axis] + u * corner_uv[t, 1, axis]) + v * corner_uv[t, 2, axis]
+                    hit_uv_code[row, col, axis] = _uv_code(landing)
+        if has_triangles:
+            hit_triangle[row, col] = triangle[r] if (on_vertices and not back) else 0
+        d = np.float64(distance[r])
+        if d - d != 0.0:  # inf or NaN
+            hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE
+        else:
+            hit_distance_code[row, col] = np.uint16(np.searchsorted(distance_splits, d))
