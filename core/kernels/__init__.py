@@ -144,7 +144,13 @@ def _warm_up(module, table_module) -> int:
                         np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
                         np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32),
                         np.zeros(1, bool), np.zeros(0, bool), DISTANCE_SPLITS)
-    kernels = (module.gather, module.open_cosine_sum, module.open_weight, module.bare_lookup, table_module.record)
+    three = np.zeros((1, 3))
+    table_module.ray_setup(index, index, three, np.zeros((1, 0, 3), np.float32), three,
+                           np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
+                           np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
+                           np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
+    kernels = (module.gather, module.open_cosine_sum, module.open_weight, module.bare_lookup, table_module.record,
+               table_module.ray_setup)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

@@ -84,3 +84,48 @@ def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols,
             hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE
         else:
             hit_distance_code[row, col] = np.uint16(np.searchsorted(distance_splits, d))
+
+
+@nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)
+def ray_setup(direction_index, sample_index, positions, footprint, geometric, frame_directions, group, centre,
+              int_scale, float_scale, origin_limit, origins, directions, offsets, nearby):
+    """The rays (direction_index[r], sample_index[r]) as embree takes them, computed as
+    ``TraceRequest.ray_origins`` and ``ray_directions`` followed by ``RayScene`` moving them
+    into its frame compute them (core.visibility.rays.offset_ray_origins), bitwise.
+
+    positions, geometric : (K, 3) float64; footprint : (K, P, 3) float32, or (K, 0, 3) for none
+    frame_directions : (G, N, 3) float32 each rotation's directions (G = 1 without rotations);
+    group : (K,) int64 each sample's rotation
+    centre : (3,) float64 the ray scene's centre (the caller makes the round trip through world
+        space that RayScene's queries make, where it is not zero)
+    int_scale, float_scale, origin_limit : float32, core.tolerances' RAY_OFFSET_* constants
+    origins : (n, 3) float32, out: in the ray scene's frame; directions : (n, 3) float32, out
+    offsets : (n, 3) int32 and nearby : (n, 3) float32, scratch
+    """
+    points = footprint.shape[1]
+    for r in nb.prange(direction_index.shape[0]):
+        i = direction_index[r]
+        s = sample_index[r]
+        for axis in range(3):
+            x = positions[s, axis]
+            if points > 0:
+                x = x + np.float64(footprint[s, i % points, axis])
+            x = x - centre[axis]
+            p = np.float32(x)
+            n = np.float32(geometric[s, axis])
+            origins[r, axis] = p
+            offsets[r, axis] = np.int32(int_scale * n)
+            nearby[r, axis] = p + float_scale * n
+            directions[r, axis] = frame_directions[group[s], i, axis]
+    # Each element is read, then written once through one of the two views: no read follows a
+    # write through the other view (which the compiler could reorder).
+    bits = origins.view(np.int32)
+    for r in nb.prange(direction_index.shape[0]):
+        for axis in range(3):
+            p = origins[r, axis]
+            if abs(p) < origin_limit:
+                origins[r, axis] = nearby[r, axis]
+            elif p < _F32(0.0):
+                bits[r, axis] = np.int32(bits[r, axis] - offsets[r, axis])
+            else:
+                bits[r, axis] = np.int32(bits[r, axis] + offsets[r, axis])

@@ -69,7 +69,7 @@ class RayScene:
         self._triangles = []
         self.centre = np.zeros(3) if centre is None else np.asarray(centre, np.float64).reshape(3)
         for positions, triangles in meshes:
-            vertices = np.ascontiguousarray(self._local(positions), dtype=np.float32)
+            vertices = np.ascontiguousarray(self.local(positions), dtype=np.float32)
             indices = np.ascontiguousarray(triangles, dtype=np.int32)
             if len(indices) == 0:
                 # embree rejects empty buffers; a single degenerate triangle keeps
@@ -98,7 +98,7 @@ class RayScene:
         """(n, 3) float32 vertices of geometry ``index`` as embree holds them (relative to :attr:`centre`)."""
         return self._positions[index]
 
-    def _local(self, points) -> np.ndarray:
+    def local(self, points) -> np.ndarray:
         """World-space ``points`` in the frame embree traces in (float64 until the caller casts)."""
         if not self.centre.any():
             return points
@@ -114,7 +114,7 @@ class RayScene:
         """
         if not self.centre.any():
             return offset_ray_origins(points, normals)
-        return offset_ray_origins(self._local(points), normals).astype(np.float64) + self.centre
+        return offset_ray_origins(self.local(points), normals).astype(np.float64) + self.centre
 
     def _split(self, count: int):
         parts = min(self.threads, max(1, count // 4096))
@@ -131,6 +131,12 @@ class RayScene:
         barycentric_uv : (n, 2) float32, embree's (u, v): hit = (1-u-v) p0 + u p1 + v p2
         distance : (n,) float32 along the (unit) direction, inf for a miss
         """
+        return self.intersect_local(np.ascontiguousarray(self.local(origins), np.float32),
+                                    np.ascontiguousarray(directions, np.float32))
+
+    def intersect_local(self, origins: np.ndarray, directions: np.ndarray):
+        """:meth:`intersect` of rays whose ``origins`` (n, 3) float32 are in this scene's frame
+        already (core.visibility.table.TraceRequest.rays)."""
         count = len(origins)
         geometry = np.empty(count, np.int32)
         triangle = np.empty(count, np.int32)
@@ -139,8 +145,7 @@ class RayScene:
 
         def run(span):
             a, b = span
-            out = self._scene.run(np.ascontiguousarray(self._local(origins[a:b]), np.float32),
-                                  np.ascontiguousarray(directions[a:b], np.float32), output=1)
+            out = self._scene.run(origins[a:b], directions[a:b], output=1)
             geometry[a:b] = out["geomID"]
             triangle[a:b] = out["primID"]
             bary[a:b, 0] = out["u"]
@@ -165,7 +170,7 @@ class RayScene:
             kwargs = {}
             if distances is not None:
                 kwargs["dists"] = np.ascontiguousarray(distances[a:b], np.float32)
-            hits = self._scene.run(np.ascontiguousarray(self._local(origins[a:b]), np.float32),
+            hits = self._scene.run(np.ascontiguousarray(self.local(origins[a:b]), np.float32),
                                    np.ascontiguousarray(directions[a:b], np.float32),
                                    query="OCCLUDED", **kwargs)
             result[a:b] = hits >= 0

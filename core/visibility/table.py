@@ -243,6 +243,44 @@ class TraceRequest:
             position = position + self.footprint[sample_index, direction_index % self.footprint.shape[1]]
         return ray_scene.ray_origins(position, self.geometric_normals[sample_index])
 
+    def rays(self, ray_scene: RayScene, direction_index: np.ndarray, sample_index: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """The rays (direction_index, sample_index) (n,) each as ``ray_scene`` traces them:
+        origins (n, 3) float32 in its frame (:meth:`RayScene.intersect_local`) and directions
+        (n, 3) float32; the same numbers as :meth:`ray_origins` and :meth:`ray_directions`."""
+        module = kernels.compiled()
+        if module is None:
+            origins = self.ray_origins(ray_scene, direction_index, sample_index)
+            return (np.ascontiguousarray(ray_scene.local(origins), np.float32),
+                    self.ray_directions(direction_index, sample_index))
+        count = len(direction_index)
+        origins, directions = np.empty((count, 3), np.float32), np.empty((count, 3), np.float32)
+        footprint = (np.zeros((len(self.positions), 0, 3), np.float32) if self.footprint is None
+                     else np.ascontiguousarray(self.footprint, np.float32))
+        kernels.run(module.ray_setup, ray_scene.threads, np.ascontiguousarray(direction_index, np.int64),
+                    np.ascontiguousarray(sample_index, np.int64), np.ascontiguousarray(self.positions, np.float64),
+                    footprint, np.ascontiguousarray(self.geometric_normals, np.float64), self._frame_directions(),
+                    self._frame_group(), ray_scene.centre, np.float32(tol.RAY_OFFSET_INT_SCALE),
+                    np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
+                    np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions, np.empty((count, 3), np.int32),
+                    np.empty((count, 3), np.float32))
+        if ray_scene.centre.any():
+            # RayScene.ray_origins returns world positions, which its queries move back: the same rounding.
+            origins = ((origins.astype(np.float64) + ray_scene.centre) - ray_scene.centre).astype(np.float32)
+        return origins, directions
+
+    def _frame_directions(self) -> np.ndarray:
+        """(G, N, 3) float32 the directions of each rotation (G = 1 without rotations), as
+        :meth:`ray_directions` rounds them."""
+        if self.rotations is None:
+            return self.directions.astype(np.float32)[None]
+        return np.einsum("gab,nb->gna", self.rotations, self.directions).astype(np.float32)
+
+    def _frame_group(self) -> np.ndarray:
+        if self.group is None:
+            return np.zeros(len(self.positions), np.int64)
+        return np.ascontiguousarray(self.group, np.int64)
+
     def footprint_reach(self) -> float:
         """How far any ray starts from its sample's position (0 without a footprint)."""
         if self.footprint is None or not self.footprint.size:
@@ -252,20 +290,21 @@ class TraceRequest:
 
 def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
             hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
-            where: np.ndarray | None = None) -> None:
+            where: np.ndarray | None = None, threads: int = 0) -> None:
     """Write traced rays into the table arrays: hits, backfaces, and (unless ``where``) misses.
 
     ``ray_directions`` (n, 3) are the rays' world directions, in the order of ``rows``/``cols``.
 
     ``hit_geometry`` holds object indices (-1: miss). With ``where`` given, only
-    those rays are written (an update that keeps the old entry elsewhere).
+    those rays are written (an update that keeps the old entry elsewhere). ``threads``: the
+    compiled kernel's (0: all cores).
     """
     module = kernels.compiled()
     if module is not None:
         triangles = table.get("hit_triangle")
         vertex_object = (np.zeros(len(geometry.triangle_offset), bool) if geometry.vertex_object is None
                          else np.ascontiguousarray(geometry.vertex_object, bool))
-        kernels.run(module.record, 0, table["hit_object"], table["hit_uv_code"], table["hit_distance_code"],
+        kernels.run(module.record, threads, table["hit_object"], table["hit_uv_code"], table["hit_distance_code"],
                     np.zeros((0, 0), np.int32) if triangles is None else triangles,
                     np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64),
                     np.ascontiguousarray(hit_geometry, np.int32), np.ascontiguousarray(triangle, np.int32),
@@ -360,14 +399,13 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     -------
     VisibilityTable
     """
-    directions, positions, geometric_normals = request.directions, request.positions, request.geometric_normals
+    directions, positions = request.directions, request.positions
     chunk_rays = request.chunk_rays
     count = len(directions)
     samples = len(positions)
     hits = request.hits
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
     arrays = _empty_arrays(count, samples, geometry.vertex_object is not None)
-    origins_all = ray_scene.ray_origins(positions, geometric_normals)
     horizon = request.horizon_normals()
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
@@ -379,12 +417,10 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
         above = (directions @ horizon[start:stop].T) > 0.0
         direction_index, sample_index = np.nonzero(above)
         if len(sample_index):
-            origins = (origins_all[start:stop][sample_index] if request.footprint is None
-                       else request.ray_origins(ray_scene, direction_index, sample_index + start))
-            ray_directions = request.ray_directions(direction_index, sample_index + start)
-            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins, ray_directions)
+            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
+            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(origins, ray_directions)
             _record(arrays, geometry, ray_directions, direction_index, sample_index + start, hit_geometry, triangle,
-                    bary, distance)
+                    bary, distance, threads=ray_scene.threads)
             rays_cast += len(sample_index)
         if progress is not None:
             progress(stop / samples)
@@ -518,24 +554,22 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
             direction_index, sample_index = np.nonzero(probe)
             if len(sample_index):
-                origins = (origins_all[cols][sample_index] if request.footprint is None
-                           else request.ray_origins(ray_scene, direction_index, sample_index + start))
-                ray_directions = request.ray_directions(direction_index, sample_index + start)
-                found, triangle, bary, distance = changed_scene.intersect(origins, ray_directions)
+                # The changed objects' scene shares the whole scene's frame (its centre).
+                origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
+                found, triangle, bary, distance = changed_scene.intersect_local(origins, ray_directions)
                 rows, where = direction_index, sample_index + start
                 nearer = (found >= 0) & (encode_distance(distance) < arrays["hit_distance_code"][rows, where])
                 mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
-                _record(arrays, geometry, ray_directions, rows, where, mapped, triangle, bary, distance, where=nearer)
+                _record(arrays, geometry, ray_directions, rows, where, mapped, triangle, bary, distance, where=nearer,
+                        threads=ray_scene.threads)
                 counts.changed_only += len(sample_index)
                 counts.kept += len(sample_index) - int(np.count_nonzero(nearer))
         direction_index, sample_index = np.nonzero(redo)
         if len(sample_index):
-            origins = (origins_all[cols][sample_index] if request.footprint is None
-                       else request.ray_origins(ray_scene, direction_index, sample_index + start))
-            ray_directions = request.ray_directions(direction_index, sample_index + start)
-            hit_geometry, triangle, bary, distance = ray_scene.intersect(origins, ray_directions)
+            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
+            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(origins, ray_directions)
             _record(arrays, geometry, ray_directions, direction_index, sample_index + start, hit_geometry, triangle,
-                    bary, distance)
+                    bary, distance, threads=ray_scene.threads)
             counts.full += len(sample_index)
         if progress is not None:
             progress((done + 1) / len(spans))

@@ -189,3 +189,36 @@ def test_compiled_table_writes_are_bitwise_those_of_numpy(vertex, masked):
     for name in written[0]:
         np.testing.assert_array_equal(written[0][name], written[1][name], err_msg=name)
     assert np.any(written[0]["hit_object"] == -3) and np.any(written[0]["hit_uv_code"] > 0)
+
+
+@pytest.mark.parametrize("footprint, rotated, centre", [(False, False, 0.0), (True, True, 0.0),
+                                                        (True, False, 1000.0), (False, True, -3.5)])
+def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotated, centre):
+    from core.visibility import table as table_module
+    from core.visibility.rays import RayScene
+
+    rng = np.random.default_rng(11)
+    samples, count = 300, 40
+    # Points near the origin, on it, and far from it: every branch of the origin offset.
+    positions = rng.normal(scale=rng.choice([1e-3, 1.0, 1e3], samples)[:, None], size=(samples, 3))
+    positions[:5] = 0.0
+    positions += centre
+    normals = rng.normal(size=(samples, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    quad = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64) + centre
+    scene = RayScene([(quad, np.array([[0, 1, 2], [0, 2, 3]], np.int32))], 2, np.full(3, centre))
+    rotations = None
+    if rotated:
+        rotations = np.stack([np.eye(3), np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])])
+    request = table_module.TraceRequest(
+        spherical_fibonacci(count), positions, normals,
+        table_module.HitGeometry(np.zeros((2, 3, 2), np.float32), np.zeros(1, np.int64), np.zeros((2, 3))),
+        footprint=rng.normal(scale=0.01, size=(samples, 4, 3)).astype(np.float32) if footprint else None,
+        rotations=rotations, group=rng.integers(0, 2, samples) if rotated else None)
+    direction_index, sample_index = np.nonzero(rng.random((count, samples)) < 0.5)
+    compiled = request.rays(scene, direction_index, sample_index)
+    monkeypatch.setattr(kernels, "_module", None)
+    reference = request.rays(scene, direction_index, sample_index)
+    for ours, theirs in zip(compiled, reference):
+        assert ours.dtype == theirs.dtype == np.float32
+        np.testing.assert_array_equal(ours, theirs)
