@@ -9,6 +9,9 @@ image write-back), each step timed on its own:
 1. cold: no cache; the table is traced and written (``miss``)
 2. warm: same scene; the table is read back (``hit``)
 3. relight: the lamp's power doubled; transport only, from the warm preparation
+3b. resident relight: the Relight button's path in a running session (core.pipeline.resident):
+   the preparation kept in memory by the bake is reused, then the same relight; split into
+   direct light (lamps, exact shadows over the footprints) and the gathers (table lookups)
 4. moved: one object moved; the table is updated (``updated``), compared entry by
    entry with a fresh trace of the moved scene, and timed against that trace.
 
@@ -49,6 +52,7 @@ def main(argv=None) -> int:
     extraction = importlib.import_module(f"{extension.__name__}.operators.adapter.extraction")
     adapter_settings = importlib.import_module(f"{extension.__name__}.operators.adapter.settings")
     pipeline = importlib.import_module(f"{extension.__name__}.core.pipeline.relight")
+    resident = importlib.import_module(f"{extension.__name__}.core.pipeline.resident")
     VisibilityCache = importlib.import_module(f"{extension.__name__}.core.visibility.cache").VisibilityCache
 
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -84,6 +88,24 @@ def main(argv=None) -> int:
         _, seconds = timed(lambda prepared=warm: pipeline.relight(prepared, lights, scene.world))
         results["relight_seconds"] = seconds
         del warm
+
+        kept, seconds = timed(lambda: resident.prepare_or_reuse(scene, settings, table_needed=True, cache=cache,
+                                                                keep_bytes=1 << 34, reuse=False))
+        reused, reuse_seconds = timed(lambda: resident.prepare_or_reuse(scene, settings, table_needed=True,
+                                                                        cache=cache, keep_bytes=1 << 34))
+        assert reused is kept and reused.cache_status.state == "resident", reused.cache_status
+        reused.cache = None
+        outcome, relight_seconds = timed(lambda prepared=reused: pipeline.relight(prepared, lights, scene.world))
+        passes = outcome.report["passes"]
+        results["resident_relight"] = {
+            "bake_seconds": seconds, "reuse_seconds": reuse_seconds, "relight_seconds": relight_seconds,
+            "total_seconds": reuse_seconds + relight_seconds,
+            "kept_bytes": resident.prepared_bytes(kept),
+            "direct_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("direct light")),
+            "gather_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("gather")),
+            "stage_seconds": outcome.report["stage_seconds"]}
+        del kept, reused, outcome
+        resident.forget()
 
         moved = next(o for o in objects if o.name == args.move)
         moved.location.x += 0.15

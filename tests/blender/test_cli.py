@@ -108,7 +108,7 @@ def test_an_unexpected_failure_is_a_bug_exit_1_where_bad_input_is_exit_2(visibak
 
     # A failure inside the bake, where the visibility is computed. A plain ValueError
     # there is a bug too (numpy raises them), not the user's error.
-    monkeypatch.setattr(visibake.operators.adapter.job, "prepare", broken_prepare)
+    monkeypatch.setattr(visibake.operators.adapter.job, "prepare_or_reuse", broken_prepare)
     assert visibake.cli.main(["bake", str(small_blend), *options]) == 1
     err = capfd.readouterr().err
     lines = err.strip().splitlines()
