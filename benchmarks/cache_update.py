@@ -95,11 +95,19 @@ def main(argv=None) -> int:
                                                                         cache=cache, keep_bytes=1 << 34))
         assert reused is kept and reused.cache_status.state == "resident", reused.cache_status
         reused.cache = None
-        outcome, relight_seconds = timed(lambda prepared=reused: pipeline.relight(prepared, lights, scene.world))
+        # The first relight of a preparation reads a cached table and finds what depends on geometry
+        # alone (short and near hits, exposed shares, filter pairs); every later one reuses them.
+        _, first_seconds = timed(lambda prepared=reused: pipeline.relight(prepared, lights, scene.world))
+        again = [dataclasses.replace(light, strength=light.strength * 0.5) if light.kind == "POINT" else light
+                 for light in lights]
+        reused, reuse_seconds = timed(lambda: resident.prepare_or_reuse(scene, settings, table_needed=True,
+                                                                        cache=cache, keep_bytes=1 << 34))
+        reused.cache = None
+        outcome, relight_seconds = timed(lambda prepared=reused: pipeline.relight(prepared, again, scene.world))
         passes = outcome.report["passes"]
         results["resident_relight"] = {
-            "bake_seconds": seconds, "reuse_seconds": reuse_seconds, "relight_seconds": relight_seconds,
-            "total_seconds": reuse_seconds + relight_seconds,
+            "bake_seconds": seconds, "first_relight_seconds": first_seconds, "reuse_seconds": reuse_seconds,
+            "relight_seconds": relight_seconds, "total_seconds": reuse_seconds + relight_seconds,
             "kept_bytes": resident.prepared_bytes(kept),
             "direct_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("direct light")),
             "gather_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("gather")),

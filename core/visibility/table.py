@@ -558,12 +558,23 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                 origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
                 found, triangle, bary, distance = changed_scene.intersect_local(origins, ray_directions)
                 rows, where = direction_index, sample_index + start
-                nearer = (found >= 0) & (encode_distance(distance) < arrays["hit_distance_code"][rows, where])
+                new_code, old_code = encode_distance(distance), arrays["hit_distance_code"][rows, where]
+                nearer = (found >= 0) & (new_code < old_code)
                 mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
                 _record(arrays, geometry, ray_directions, rows, where, mapped, triangle, bary, distance, where=nearer,
                         threads=ray_scene.threads)
                 counts.changed_only += len(sample_index)
                 counts.kept += len(sample_index) - int(np.count_nonzero(nearer))
+                # A changed object as far as the old hit, within one distance code: which is nearer
+                # only the whole scene can tell, as a fresh trace would.
+                tied = np.nonzero((found >= 0) & (new_code == old_code))[0]
+                if len(tied):
+                    hit_geometry, triangle, bary, distance = ray_scene.intersect_local(origins[tied],
+                                                                                       ray_directions[tied])
+                    _record(arrays, geometry, ray_directions[tied], rows[tied], where[tied], hit_geometry, triangle,
+                            bary, distance, threads=ray_scene.threads)
+                    counts.full += len(tied)
+                    counts.kept -= len(tied)
         direction_index, sample_index = np.nonzero(redo)
         if len(sample_index):
             origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
