@@ -144,7 +144,8 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
     """The table entries of prepared scene ``p`` (core.pipeline.prepare.Prepared) that land
     within ``max_texels`` of their target's texel size; None when there are none.
 
-    Nothing is traced: a landing point is the entry's ray origin plus its stored distance,
+    Nothing is traced: a landing point is the entry's ray origin plus its stored distance (the
+    least the distance code allows, so that the point is never beyond the surface it lies on),
     and its normals are those of the sample owning the texel it landed in (a covered
     neighbour where that texel is outside the chart; an entry with none is left to the lookup).
     """
@@ -166,7 +167,7 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
         start = start + points[sample, direction % points.shape[1]]
     unit = p.sample_directions(direction, sample)
     origins = np.asarray(p.ray_scene.ray_origins(start, p.geometric[sample]), np.float64)
-    position = origins + unit * table.hit_distance(direction, sample)[:, None].astype(np.float64)
+    position = origins + unit * table.hit_distance_floor(direction, sample)[:, None]
     geometric, shading = p.geometric[owner].copy(), p.normal[owner].copy()
     # The side the ray came from is the side that is lit (the table keeps front-face hits only).
     facing = np.where(np.einsum("kd,kd->k", geometric, unit) > 0, -1.0, 1.0)[:, None]

@@ -64,6 +64,16 @@ def decode_distance(codes: np.ndarray) -> np.ndarray:
     return DISTANCE_VALUES[codes]
 
 
+# The least distance each code stands for (float64): a point that far along the ray lies on the
+# ray's side of the surface it hit, never behind it.
+_DISTANCE_FLOORS = np.concatenate([[0.0], DISTANCE_SPLITS, [np.inf]])
+
+
+def decode_distance_floor(codes: np.ndarray) -> np.ndarray:
+    """uint16 codes -> the least float64 distance that has that code (inf where nothing was hit)."""
+    return _DISTANCE_FLOORS[codes]
+
+
 @dataclass
 class VisibilityTable:
     """S_i[p] for all samples of all objects, one row per direction.
@@ -119,6 +129,12 @@ class VisibilityTable:
         """The decoded distances (float32, inf: nothing hit) of the entries ``hit_distance_code[index]``."""
         return decode_distance(self.hit_distance_code[index])
 
+    def hit_distance_floor(self, *index) -> np.ndarray:
+        """The least distances (float64) the entries ``hit_distance_code[index]`` allow: where a
+        point is placed on a surface from the stored distance (a code spans 3.4e-4 of it, and a
+        point beyond the surface would be shadowed by it)."""
+        return decode_distance_floor(self.hit_distance_code[index])
+
 
 class DeferredTable:
     """A valid cached table whose large arrays (per sample and direction) are read from
@@ -163,6 +179,7 @@ class DeferredTable:
 
     hit_uv = VisibilityTable.hit_uv
     hit_distance = VisibilityTable.hit_distance
+    hit_distance_floor = VisibilityTable.hit_distance_floor
 
     @property
     def nbytes(self) -> int:

@@ -114,3 +114,22 @@ def test_rays_look_up_a_box_s_foot_without_the_dark_beneath_it():
 def _texel_centres(samples, resolution):
     x, y = samples.pixel % resolution, samples.pixel // resolution
     return (np.stack([x, y], axis=1).astype(np.float32) + np.float32(0.5)) / np.float32(resolution)
+
+
+def test_a_landing_point_is_never_beyond_the_surface_it_landed_on():
+    """A stored distance is a 16-bit code spanning 3.4e-4 of it: the landing point takes the
+    least distance of its code, on the ray's side of the surface, or the surface would shadow
+    its own contact light."""
+    from core.pipeline.prepare import prepare
+
+    settings = BakeSettings(directions=64, bounces=1, passes=("indirect",))
+    p = prepare(_wall_on_floor(16), settings)
+    short = p.short_hits()
+    assert short is not None
+    position = short.points.position
+    # Floor (object 0): z = 0, lit from above; wall front (object 1): y = 0, lit from -y.
+    on_floor, on_wall = short.obj == 0, short.obj == 1
+    assert on_floor.any() and on_wall.any()
+    # Within embree's float32 distance (1e-9 here) of the surface, or in front of it.
+    assert np.all(position[on_floor, 2] >= -1e-7) and np.all(position[on_floor, 2] < 1e-3)
+    assert np.all(position[on_wall, 1] <= 1e-7) and np.all(position[on_wall, 1] > -1e-3)
