@@ -1,4 +1,5 @@
-"""The CPU backend: the numpy passes of :mod:`core.transport`, behind the transport
+"""The CPU backend: the passes of :mod:`core.transport` (table lookups in the compiled
+kernels of :mod:`core.kernels`, or in numpy where those cannot load), behind the transport
 contract. It is the twin every GPU pass is tested against."""
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from .passes import accumulate_passes
 
 
 class NumpyBackend:
-    """:class:`core.transport.contract.TransportBackend` in numpy (and embree for shadow rays)."""
+    """:class:`core.transport.contract.TransportBackend` on the CPU: compiled lookups, numpy
+    and embree (shadow rays)."""
 
     name = "cpu"
 
