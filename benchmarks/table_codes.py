@@ -26,16 +26,11 @@ import numpy as np  # noqa: E402
 
 def bake_all(tree: str, out: str, resolution: int, directions: int, bounces: int, size: str) -> None:
     """Bake every benchmark scene with the extension in ``tree``; save the lighting to ``out`` (.npz)."""
-    import importlib.util
+    from tools.visibake import load_extension
 
+    load_extension(tree)
     import bpy
 
-    spec = importlib.util.spec_from_file_location("visibake", os.path.join(tree, "__init__.py"),
-                                                  submodule_search_locations=[tree])
-    extension = importlib.util.module_from_spec(spec)
-    sys.modules["visibake"] = extension
-    spec.loader.exec_module(extension)
-    extension.register()
     from benchmarks import scenes
 
     job = sys.modules["visibake.operators.adapter.job"]

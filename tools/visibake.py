@@ -11,12 +11,12 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def load_extension():
-    """Import the repository as the package ``visibake`` and register it."""
+def load_extension(root: str = ROOT):
+    """Import the repository at ``root`` (this one by default) as the package ``visibake`` and register it."""
     import bpy  # noqa: F401  (bpy must be imported before the extension)
 
-    spec = importlib.util.spec_from_file_location("visibake", os.path.join(ROOT, "__init__.py"),
-                                                  submodule_search_locations=[ROOT])
+    spec = importlib.util.spec_from_file_location("visibake", os.path.join(root, "__init__.py"),
+                                                  submodule_search_locations=[root])
     module = importlib.util.module_from_spec(spec)
     sys.modules["visibake"] = module
     spec.loader.exec_module(module)

@@ -135,8 +135,9 @@ def _warm_up(module, table_module) -> int:
     module.gather(objects, uv, triangles, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
                   np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32), np.zeros(1, np.int64),
                   False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool), np.zeros((1, 3)))
-    module.open_cosine_sum(objects, directions, normals, np.int16(-2), np.zeros(1))
-    module.open_weight(objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1), np.zeros(1))
+    module.cosine_sum(objects, directions, normals, one32, np.int16(-2), False, np.zeros(1))
+    module.cosine_sum(objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1), np.int16(-1),
+                      True, np.zeros(1))
     module.bare_lookup(objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros((1, 3)))
     from ..visibility.table import DISTANCE_SPLITS
     index = np.zeros(1, np.int64)
@@ -149,8 +150,7 @@ def _warm_up(module, table_module) -> int:
                            np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
                            np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
                            np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
-    kernels = (module.gather, module.open_cosine_sum, module.open_weight, module.bare_lookup, table_module.record,
-               table_module.ray_setup)
+    kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

@@ -127,12 +127,16 @@ def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples
 
 
 @nb.njit(**_KERNEL)
-def open_cosine_sum(hit_object, directions, normals, below, out):
-    """out[k] = sum_i max(0, d_i . n_k) (float32 cosines, float64 sum) over directions whose
-    entry is not ``below`` (BELOW_HORIZON): the weight sum the gathers normalise to pi.
+def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
+    """out[k] = sum_i max(0, d_i . n_k) scale[k], summed in float64, over the directions i whose
+    entry is ``code`` (``counted``) or is not (not ``counted``); the cosines in the dtype of
+    ``normals`` and ``directions``.
 
-    hit_object : (N, K) int16; directions : (N, 3) float32; normals : (K, 3) float32;
-    out : (K,) float64, overwritten
+    The gathers' normalisation: float32, scale 1, every entry not BELOW_HORIZON. AO: float64,
+    the entries that MISS.
+
+    hit_object : (N, K) int16; directions : (N, 3) and normals : (K, 3), float32 or float64;
+    scale : (K,) the same dtype; code : int16; counted : bool; out : (K,) float64, overwritten
     """
     count = normals.shape[0]
     blocks = (count + BLOCK - 1) // BLOCK
@@ -143,38 +147,12 @@ def open_cosine_sum(hit_object, directions, normals, below, out):
         for i in range(directions.shape[0]):
             for j in range(end - start):
                 s = start + j
-                if hit_object[i, s] == below:
-                    continue
-                cosine = normals[s, 0] * directions[i, 0] + normals[s, 1] * directions[i, 1] \
-                    + normals[s, 2] * directions[i, 2]
-                if cosine > _F32(0.0):
-                    acc[j] += np.float64(cosine)
-        for j in range(end - start):
-            out[start + j] = acc[j]
-
-
-@nb.njit(**_KERNEL)
-def open_weight(hit_object, directions, normals, scale, out):
-    """out[k] = sum_i max(0, d_i . n_k) scale[k] over the directions whose ray missed (float64).
-
-    hit_object : (N, K) int16; directions : (N, 3) float64; normals : (K, 3) float64;
-    scale : (K,) float64; out : (K,) float64, overwritten
-    """
-    count = normals.shape[0]
-    blocks = (count + BLOCK - 1) // BLOCK
-    for block in nb.prange(blocks):
-        start = block * BLOCK
-        end = min(count, start + BLOCK)
-        acc = np.zeros(end - start, np.float64)
-        for i in range(directions.shape[0]):
-            for j in range(end - start):
-                s = start + j
-                if hit_object[i, s] != MISS:
+                if (hit_object[i, s] == code) != counted:
                     continue
                 cosine = normals[s, 0] * directions[i, 0] + normals[s, 1] * directions[i, 1] \
                     + normals[s, 2] * directions[i, 2]
                 if cosine > 0.0:
-                    acc[j] += cosine * scale[s]
+                    acc[j] += np.float64(cosine * scale[s])
         for j in range(end - start):
             out[start + j] = acc[j]
 

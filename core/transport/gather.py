@@ -145,8 +145,8 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: i
     if module is not None:
         total = np.zeros(len(normals))
         if len(normals):
-            kernels.run(module.open_cosine_sum, threads, _hit_objects(table), directions32, normals32,
-                        np.int16(BELOW_HORIZON), total)
+            kernels.run(module.cosine_sum, threads, _hit_objects(table), directions32, normals32,
+                        np.ones(len(normals32), np.float32), np.int16(BELOW_HORIZON), False, total)
     else:
         total = _open_cosine_sum_numpy(table, directions32, normals32)
     return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
@@ -319,9 +319,9 @@ def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.nda
     open_weight = np.zeros(len(normals))
     if module is not None:
         if len(normals):
-            kernels.run(module.open_weight, threads, _hit_objects(table),
+            kernels.run(module.cosine_sum, threads, _hit_objects(table),
                         np.ascontiguousarray(table.directions, np.float64), np.ascontiguousarray(normals, np.float64),
-                        np.ascontiguousarray(scale, np.float64), open_weight)
+                        np.ascontiguousarray(scale, np.float64), np.int16(MISS), True, open_weight)
     else:
         for i, direction in enumerate(table.directions):
             weight = np.clip(normals @ direction, 0.0, None) * scale
