@@ -243,9 +243,10 @@ OBJECT_SETTINGS = _table(
 # scene set nothing.
 PREFERENCE_SETTINGS = _table(
     Setting("device", str, "auto", "Device", help="Where the transport passes (the gathers) run",
-            choices=(("auto", "Auto", "The GPU passes on a real GPU; numpy on a software renderer or without a GPU"),
+            choices=(("auto", "Auto", "The GPU passes on a real GPU; the CPU passes on a software renderer or "
+                                      "without a GPU"),
                      ("gpu", "GPU", "Always run the transport passes on the GPU (Blender's gpu module)"),
-                     ("cpu", "CPU", "Always run the transport passes in numpy"))),
+                     ("cpu", "CPU", "Always run the transport passes on the CPU (compiled kernels)"))),
     Setting("cache_dir", str, "", "Cache Folder",
             help="Where visibility caches go when a scene sets no folder of its own (e.g. a fast disk); "
                  "empty: beside the saved .blend, else VisiBake's user folder"),

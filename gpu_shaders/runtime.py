@@ -158,7 +158,7 @@ def choose_device(requested: str) -> tuple[str, str, DeviceInfo | None]:
     """('gpu' or 'cpu', the reason, device facts or None) for 'auto', 'gpu' or 'cpu'.
 
     'gpu' raises GPUUnavailable if there is no context; 'auto' falls back to the CPU
-    then, and on software renderers, where numpy is faster.
+    then, and on software renderers, where the CPU kernels are faster.
     """
     if requested == "cpu":
         return "cpu", "asked for", None
@@ -171,7 +171,7 @@ def choose_device(requested: str) -> tuple[str, str, DeviceInfo | None]:
     if requested == "gpu":
         return "gpu", "asked for", info
     if info.software:
-        return "cpu", f"auto: {info.renderer} renders on the CPU, where numpy is faster", info
+        return "cpu", f"auto: {info.renderer} renders on the CPU, where the CPU kernels are faster", info
     return "gpu", f"auto: {info.renderer}", info
 
 

@@ -9,7 +9,14 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..visibility.table import BACKFACE, MISS, NO_HIT_DISTANCE_CODE, UV_CODE_SCALE
+from ..visibility.table import (
+    BACKFACE,
+    DISTANCE_CODES_PER_OCTAVE,
+    DISTANCE_LOWEST_OCTAVE,
+    MISS,
+    NO_HIT_DISTANCE_CODE,
+    UV_CODE_SCALE,
+)
 
 _F32 = np.float32
 
@@ -22,6 +29,22 @@ def _uv_code(value):
         x = 0.0
     x = min(max(x, 0.0), 1.0)
     return np.uint16(np.rint(x * UV_CODE_SCALE))
+
+
+@nb.njit(inline="always")
+def _distance_code(d, splits):
+    """encode_distance of one finite float64 distance: the number of ``splits`` below ``d``
+    (numpy's searchsorted), found from the logarithm's guess and a step or two, not a
+    16-step binary search."""
+    if d <= 0.0:
+        return np.uint16(0)
+    code = np.int64(np.floor((np.log2(d) - DISTANCE_LOWEST_OCTAVE) * DISTANCE_CODES_PER_OCTAVE + 0.5))
+    code = min(max(code, 0), splits.shape[0])
+    while code > 0 and d <= splits[code - 1]:
+        code -= 1
+    while code < splits.shape[0] and d > splits[code]:
+        code += 1
+    return np.uint16(code)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)
@@ -83,7 +106,7 @@ def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols,
         if d - d != 0.0:  # inf or NaN
             hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE
         else:
-            hit_distance_code[row, col] = np.uint16(np.searchsorted(distance_splits, d))
+            hit_distance_code[row, col] = _distance_code(d, distance_splits)
 
 
 @nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)

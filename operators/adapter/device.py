@@ -1,6 +1,6 @@
 """Where the transport passes run: the preference (or --device) turned into a transport backend.
 
-``auto`` runs the GPU passes on a real GPU and numpy on a software renderer (Mesa
+``auto`` runs the GPU passes on a real GPU and the CPU passes on a software renderer (Mesa
 llvmpipe) or where no GPU context can be made; ``gpu`` and ``cpu`` force one.
 """
 from __future__ import annotations

@@ -178,6 +178,10 @@ def test_compiled_table_writes_are_bitwise_those_of_numpy(vertex, masked):
     triangle = rng.integers(0, triangles_per_object, n).astype(np.int32)
     bary = rng.random((n, 2), dtype=np.float32)
     distance = np.where(rng.random(n) < 0.05, np.inf, rng.lognormal(0, 3, n)).astype(np.float32)
+    # Distances on and next to the codes' boundaries, beyond both ends of the code range, and zero.
+    splits = table_module.DISTANCE_SPLITS[rng.integers(0, len(table_module.DISTANCE_SPLITS), 60)]
+    edges = np.concatenate([splits, np.nextafter(splits, np.inf), np.nextafter(splits, 0), [0.0, 1e-30, 1e30]])
+    distance[:len(edges)] = edges.astype(np.float32)
     directions = rng.normal(size=(n, 3)).astype(np.float32)
     where = rng.random(n) < 0.5 if masked else None
     written = []
