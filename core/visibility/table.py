@@ -290,8 +290,9 @@ class TraceRequest:
         """(G, N, 3) float32 the directions of each rotation (G = 1 without rotations), as
         :meth:`ray_directions` rounds them."""
         if self.rotations is None:
-            return self.directions.astype(np.float32)[None]
-        return np.einsum("gab,nb->gna", self.rotations, self.directions).astype(np.float32)
+            return np.ascontiguousarray(self.directions, np.float32)[None]
+        # C order: the kernel is compiled for it (another layout would compile it again).
+        return np.ascontiguousarray(np.einsum("gab,nb->gna", self.rotations, self.directions), np.float32)
 
     def _frame_group(self) -> np.ndarray:
         if self.group is None:
