@@ -27,6 +27,9 @@ import numpy as np
 
 # Which implementation runs the lookups: 'numba' (default) or 'numpy' (the fallback).
 ENVIRONMENT_SWITCH = "VISIBAKE_KERNELS"
+# How every kernel is compiled: in parallel, cached on disk, without the GIL; numpy's
+# semantics for division, no bounds checks (the callers pass arrays of checked shapes).
+KERNEL_OPTIONS = {"parallel": True, "cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
 
 _lock = threading.RLock()
 _cache_dir: str | None = None

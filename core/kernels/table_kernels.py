@@ -1,8 +1,10 @@
-"""Compiled (numba) kernel that writes traced rays into the visibility table.
+"""Compiled (numba) kernels of the visibility bake: the rays' set-up, and writing traced rays
+into the table.
 
-Imported only through :mod:`core.kernels`. It computes what :func:`core.visibility.table._record_numpy`
-computes, in the same float32 and float64 operations, so that both write bitwise the same
-entries; it runs in parallel over rays, each of which owns its table entry.
+Imported only through :mod:`core.kernels`. They compute what ``TraceRequest.ray_origins`` /
+``ray_directions`` and :func:`core.visibility.table._record_numpy` compute, in the same float32
+and float64 operations, so both give bitwise the same rays and entries; they run in parallel
+over rays, each of which owns its output and its table entry.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from ..visibility.table import (
     NO_HIT_DISTANCE_CODE,
     UV_CODE_SCALE,
 )
+from . import KERNEL_OPTIONS
 
 _F32 = np.float32
 
@@ -47,7 +50,7 @@ def _distance_code(d, splits):
     return np.uint16(code)
 
 
-@nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)
+@nb.njit(**KERNEL_OPTIONS)
 def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols, hit_geometry, triangle, bary,
            distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_object, where,
            distance_splits):
@@ -109,7 +112,7 @@ def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols,
             hit_distance_code[row, col] = _distance_code(d, distance_splits)
 
 
-@nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)
+@nb.njit(**KERNEL_OPTIONS)
 def ray_setup(direction_index, sample_index, positions, footprint, geometric, frame_directions, group, centre,
               int_scale, float_scale, origin_limit, origins, directions, offsets, nearby):
     """The rays (direction_index[r], sample_index[r]) as embree takes them, computed as

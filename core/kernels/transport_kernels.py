@@ -2,8 +2,8 @@
 
 Imported only through :mod:`core.kernels`, which sets numba's cache folder and threading
 layer first. Every kernel runs in parallel over blocks of samples and sums each sample's
-directions in ascending order, starting from what ``out`` already holds, so a result is
-bitwise the same for any thread count and any split of the directions into calls.
+directions in ascending order (the gather starting from what ``out`` already holds), so a
+result is bitwise the same for any thread count and any split of the directions into calls.
 
 The arithmetic follows the numpy twin (:mod:`core.transport.gather`): float32 weights and
 bilinear lookups, as the GLSL gather computes them; only the per-sample sums are float64.
@@ -14,6 +14,7 @@ import numba as nb
 import numpy as np
 
 from ..visibility.table import MISS, UV_CODE_SCALE
+from . import KERNEL_OPTIONS
 
 # Samples per parallel task: the block's float64 sums stay in the L1 cache while the
 # block's slice of every direction's table row is read once, in order.
@@ -22,7 +23,6 @@ BLOCK = 256
 _F32 = np.float32
 # As core.visibility.table.decode_uv computes it (the GPU pass reads the decoded floats).
 _UV_STEP = np.float32(1.0 / UV_CODE_SCALE)
-_KERNEL = {"parallel": True, "cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
 
 
 @nb.njit(inline="always")
@@ -66,7 +66,7 @@ def _vertex_add(acc, j, radiance, weight, corners, u, v, nearest):
         acc[j, c] += np.float64(mixed * weight)
 
 
-@nb.njit(**_KERNEL)
+@nb.njit(**KERNEL_OPTIONS)
 def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples, first, stop,
            radiance, widths, heights, offsets, is_vertex, corner_flat, corner_base, nearest_vertex,
            world, exclude, out):
@@ -126,7 +126,7 @@ def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples
                 out[start + j, c] = acc[j, c]
 
 
-@nb.njit(**_KERNEL)
+@nb.njit(**KERNEL_OPTIONS)
 def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
     """out[k] = sum_i max(0, d_i . n_k) scale[k], summed in float64, over the directions i whose
     entry is ``code`` (``counted``) or is not (not ``counted``); the cosines in the dtype of
@@ -157,7 +157,7 @@ def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
             out[start + j] = acc[j]
 
 
-@nb.njit(**_KERNEL)
+@nb.njit(**KERNEL_OPTIONS)
 def bare_lookup(hit_object, hit_uv, samples, first, stop, radiance, widths, heights, offsets, out):
     """The ceiling a gather is measured against: one nearest-texel read per hit entry, summed.
 

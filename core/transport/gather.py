@@ -188,14 +188,20 @@ def gather(geometry: GatherGeometry, source: GatherSource, progress=None, sample
     -------
     irradiance : (K, C) float64
     """
-    count = len(geometry.table.directions)
-    chosen_directions = range(count) if directions is None else directions
-    if chosen_directions.step != 1 or chosen_directions.start < 0 or chosen_directions.stop > count:
-        raise ValueError(f"gather: directions must be a contiguous range within 0..{count}, got {directions!r}")
+    chosen_directions = _direction_range(len(geometry.table.directions), directions)
     module = kernels.compiled()
     if module is None:
         return gather_numpy(geometry, source, progress, samples, directions)
     return _gather_compiled(module, geometry, source, progress, samples, chosen_directions)
+
+
+def _direction_range(count: int, directions: range | None) -> range:
+    """The gather's directions: all ``count`` for None, else ``directions`` checked to be a
+    contiguous range within the set."""
+    chosen = range(count) if directions is None else directions
+    if chosen.step != 1 or chosen.start < 0 or chosen.stop > count:
+        raise ValueError(f"gather: directions must be a contiguous range within 0..{count}, got {directions!r}")
+    return chosen
 
 
 def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, progress, samples, directions: range
@@ -245,7 +251,7 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
     table, normals, scale, layout = geometry.table, geometry.normals, geometry.scale, geometry.layout
     radiance, world, exclude = source.radiance, source.world, source.exclude
     threads = geometry.threads
-    chosen_directions = range(len(table.directions)) if directions is None else directions
+    chosen_directions = _direction_range(len(table.directions), directions)
     count = len(table.directions)
     channels = radiance.shape[1]
     world = np.broadcast_to(np.asarray(world, np.float64), (count, channels))
@@ -290,8 +296,6 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
                 irradiance += (weight * (row == MISS))[:, None] * world32[i]
 
     first, stop = chosen_directions.start, chosen_directions.stop
-    if chosen_directions.step != 1 or first < 0 or stop > count:
-        raise ValueError(f"gather: directions must be a contiguous range within 0..{count}, got {directions!r}")
     block = 8 * workers
     with ThreadPoolExecutor(workers) as pool:
         for start in range(first, stop, block):

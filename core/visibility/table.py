@@ -32,12 +32,13 @@ _UV_STEP = np.float32(1.0 / UV_CODE_SCALE)
 DISTANCE_CODES_PER_OCTAVE = 2048
 DISTANCE_LOWEST_OCTAVE = -16
 NO_HIT_DISTANCE_CODE = 65535
-# Every code's distance: decoding is one lookup (the kernels use the same table).
+# Every code's distance: decoding is one lookup.
 _DISTANCE_VALUES64 = np.exp2(np.arange(NO_HIT_DISTANCE_CODE, dtype=np.float64) / DISTANCE_CODES_PER_OCTAVE
                              + DISTANCE_LOWEST_OCTAVE)
 DISTANCE_VALUES = np.append(_DISTANCE_VALUES64, np.inf).astype(np.float32)
-# Encoding finds the code by comparisons against the geometric midpoints between neighbouring
-# codes (no logarithm), so numpy and the compiled kernels encode bitwise alike on every platform.
+# A distance's code is decided by comparisons against the geometric midpoints between
+# neighbouring codes (a logarithm at most guesses where to start), so numpy and the compiled
+# kernels encode bitwise alike on every platform.
 DISTANCE_SPLITS = np.sqrt(_DISTANCE_VALUES64[:-1] * _DISTANCE_VALUES64[1:])
 
 
