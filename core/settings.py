@@ -250,6 +250,10 @@ PREFERENCE_SETTINGS = _table(
     Setting("cache_dir", str, "", "Cache Folder",
             help="Where visibility caches go when a scene sets no folder of its own (e.g. a fast disk); "
                  "empty: beside the saved .blend, else VisiBake's user folder"),
+    Setting("cache_limit_mib", int, 10240, "Cache Limit (MiB)", minimum=0, soft_max=1048576,
+            help="Most disk space a cache folder may take: before a table is written, the least recently used "
+                 "cached tables in its folder are removed to make room, and a table larger than this is not "
+                 "cached; 0: no limit"),
     Setting("default_preset", str, "NONE", "Default Preset",
             help="The preset a scene gets when VisiBake first sees it with no settings of its own (a new "
                  "file or scene, or a file saved without VisiBake); scenes with settings are never changed",

@@ -48,6 +48,7 @@ OPERATOR_COMMANDS = {
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
     "gpu_memory_mib": None,  # a property of the machine: the command uses the preference as it is
+    "cache_limit_mib": None,  # the same: the disk's room does not change per run
     # Kept between bakes of one session; a command is one bake, so there is nothing to keep.
     "resident_memory_mib": None,
     "default_preset": "--preset",  # the command takes a preset per run
@@ -234,6 +235,15 @@ class _Progress:
                 print(f"visibake: {stage} ...", file=sys.stderr, flush=True)
         if self.bar is not None:
             self.bar.update(int(100 * fraction) - self.bar.n)
+
+    def note(self, text: str) -> None:
+        """What the running stage is doing (core Stages.note): beside the bar, or a line of its own."""
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.set_postfix_str(text)
+        elif text:
+            print(f"visibake: {self.stage}: {text}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self.bar is not None:

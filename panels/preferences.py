@@ -15,6 +15,7 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
     resident_memory_mib: setting_property(PREFERENCE_SETTINGS["resident_memory_mib"])
 
     cache_dir: setting_property(PREFERENCE_SETTINGS["cache_dir"], subtype="DIR_PATH")
+    cache_limit_mib: setting_property(PREFERENCE_SETTINGS["cache_limit_mib"])
     default_preset: setting_property(PREFERENCE_SETTINGS["default_preset"])
     threads: setting_property(PREFERENCE_SETTINGS["threads"])
 
@@ -25,6 +26,7 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
         layout.prop(self, "gpu_memory_mib")
         layout.prop(self, "resident_memory_mib")
         layout.prop(self, "cache_dir")
+        layout.prop(self, "cache_limit_mib")
         layout.prop(self, "default_preset")
         layout.prop(self, "threads")
 

@@ -105,11 +105,11 @@ def _load() -> KernelStatus:
         import numba
         numba.config.CACHE_DIR = cache_dir
         numba.config.THREADING_LAYER = "workqueue"
-        from . import table_kernels, transport_kernels
-        misses = _warm_up(transport_kernels, table_kernels)
+        from . import sample_kernels, table_kernels, transport_kernels
+        misses = _warm_up(transport_kernels, table_kernels, sample_kernels)
     except Exception as error:  # noqa: BLE001 - any failure to load means: use numpy, and say why
         return KernelStatus("numpy", cache_dir=cache_dir, reason=f"{type(error).__name__}: {error}")
-    _module = _Kernels(transport_kernels, table_kernels)
+    _module = _Kernels(transport_kernels, table_kernels, sample_kernels)
     return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir)
 
 
@@ -123,7 +123,7 @@ class _Kernels:
                     setattr(self, name, value)
 
 
-def _warm_up(module, table_module) -> int:
+def _warm_up(module, table_module, sample_module) -> int:
     """Compile (or read from the cache) every kernel for the one signature the callers use,
     by running each on a tiny input. Returns how many kernels had to be compiled."""
     objects = np.zeros((1, 1), np.int16)
@@ -153,7 +153,21 @@ def _warm_up(module, table_module) -> int:
                            np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
                            np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
                            np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
-    kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup)
+    one = np.ones((1, 1), bool)
+    for dtype in (np.int16, np.uint16, np.int32):  # the table's per-entry dtypes (core.visibility.cache)
+        packed = np.zeros((1, 1), dtype)
+        table_module.pack_rows(np.zeros((1, 1, 1), dtype), one, index, packed)
+        table_module.unpack_rows(packed, one, index, dtype(0), np.zeros((1, 1, 1), dtype))
+    uv = np.zeros((1, 3, 2))
+    centre = np.zeros((1, 2))
+    corners = np.zeros((1, 3, 3))
+    sample_module.footprint_first_draw(uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)), corners, 0.5,
+                                       1e-4, np.zeros((1, 1, 3)), np.zeros((1, 1), bool))
+    sample_module.footprint_corners(uv, centre, np.zeros(1), corners, np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32),
+                                    0.25, 1e-4, np.zeros((1, 4, 3), np.float32))
+    kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
+               table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
+               sample_module.footprint_corners)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

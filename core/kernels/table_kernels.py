@@ -1,5 +1,5 @@
-"""Compiled (numba) kernels of the visibility bake: the rays' set-up, and writing traced rays
-into the table.
+"""Compiled (numba) kernels of the visibility bake: the rays' set-up, writing traced rays
+into the table, and the table's stored form (only the entries above the horizon).
 
 Imported only through :mod:`core.kernels`. They compute what ``TraceRequest.ray_origins`` /
 ``ray_directions`` and :func:`core.visibility.table._record_numpy` compute, in the same float32
@@ -155,3 +155,36 @@ def ray_setup(direction_index, sample_index, positions, footprint, geometric, fr
                 bits[r, axis] = np.int32(bits[r, axis] - offsets[r, axis])
             else:
                 bits[r, axis] = np.int32(bits[r, axis] + offsets[r, axis])
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def pack_rows(values, above, row_offset, packed):
+    """The entries of ``values`` where ``above``, row by row in row-major order, as
+    ``core.visibility.cache.pack_entries`` stores them; in parallel over rows.
+
+    values (N, K, C) of any dtype; above (N, K) bool; row_offset (N,) int64, the first packed
+    index of each row; packed (A, C) of values' dtype (A: the number of True in ``above``).
+    """
+    for row in nb.prange(values.shape[0]):
+        at = row_offset[row]
+        for col in range(values.shape[1]):
+            if above[row, col]:
+                for channel in range(values.shape[2]):
+                    packed[at, channel] = values[row, col, channel]
+                at += 1
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def unpack_rows(packed, above, row_offset, fill, values):
+    """:func:`pack_rows` undone: ``values`` (N, K, C) from ``packed`` (A, C) where ``above``,
+    ``fill`` (of values' dtype) elsewhere; in parallel over rows."""
+    for row in nb.prange(values.shape[0]):
+        at = row_offset[row]
+        for col in range(values.shape[1]):
+            if above[row, col]:
+                for channel in range(values.shape[2]):
+                    values[row, col, channel] = packed[at, channel]
+                at += 1
+            else:
+                for channel in range(values.shape[2]):
+                    values[row, col, channel] = fill

@@ -85,6 +85,10 @@ def summary_lines(report: Report | dict) -> list[str]:
     if report.cache_state != "off":
         lines.append("  " + _cache_phrase(cache)
                      + (f", {cache.bytes_on_disk / 2**20:.1f} MiB at {cache.path}" if cache.path else ""))
+        if cache.evicted:
+            freed = sum(entry["bytes"] for entry in cache.evicted) / 2**20
+            lines.append(f"  cache limit: removed {len(cache.evicted)} least recently used cached tables "
+                         f"({freed:.1f} MiB) to make room")
     for setup in report.setups or []:
         lines.append(f"  setup {setup.name}: {len(setup.lights)} lights, {setup.gathers} gathers"
                      + (f", reused {', '.join(setup.lighting_reused)}" if setup.lighting_reused else ""))

@@ -21,7 +21,16 @@ from ..transport.contract import GatherGeometry, SampleSet, Shadowing
 from ..transport.gather import AtlasLayout, gather_normalisation
 from ..transport.groups import LightGroup, light_key_parts
 from ..transport.interleave import filter_pairs, find_near_hits
-from ..visibility.cache import CacheStatus, CorruptCache, VisibilityCache, arrays_key, object_key, table_key
+from ..visibility.cache import (
+    CacheFull,
+    CacheStatus,
+    CorruptCache,
+    VisibilityCache,
+    arrays_key,
+    object_key,
+    packed_bytes,
+    table_key,
+)
 from ..visibility.directions import direction_set, interleaved_rotations
 from ..visibility.rays import RayScene
 from ..visibility.table import (
@@ -303,7 +312,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     object_samples: list[ObjectSamples] = []
     for index, mesh in enumerate(meshes):
         object_samples.append(build_vertex_samples(mesh, centre) if mesh.mode == "vertex"
-                              else build_samples(mesh, settings.footprint_samples))
+                              else build_samples(mesh, settings.footprint_samples, settings.threads))
         stages.report((index + 1) / len(meshes))
     for mesh, samples in zip(meshes, object_samples):
         if len(samples) == 0 and mesh.output:
@@ -502,11 +511,20 @@ def _cached_or_traced_table(job: TableJob):
         return trace_table(ray_scene, job.request, report)
 
     def save(table):
+        status.estimated_bytes = packed_bytes(table)
+        stages.note(f"writing about {status.estimated_bytes / 2**20:.0f} MiB to the visibility cache")
         try:
             status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)
+        except CacheFull as error:
+            status.not_cached = str(error)
+            warnings.append(f"visibility table not cached: {error}; raise the Cache Limit preference, or the next "
+                            "bake traces the table again")
         except OSError as error:
             warnings.append(f"visibility cache {status.path} could not be written ({error}); the next bake "
                             "traces the table again")
+        finally:
+            stages.note("")
+        status.evicted = [{"slot": slot, "bytes": size} for slot, size in cache.evicted]
 
     def damaged(error):
         """The deferred table's large arrays are damaged: trace them again (never for a relight)."""

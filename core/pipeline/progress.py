@@ -40,6 +40,13 @@ class Stages:
         if expect is not None:
             expect(name, float(share))
 
+    def note(self, text: str) -> None:
+        """Tell the progress callback, if it has a ``note`` method, what the running stage is
+        doing in words ('' clears it), e.g. how much the cache stage is about to write."""
+        note = getattr(self.progress, "note", None)
+        if note is not None:
+            note(text)
+
     def report(self, fraction: float) -> None:
         if self.progress is not None and self._name is not None:
             self.progress(self._name, float(fraction))
@@ -87,6 +94,7 @@ class Progress:
         self._anchor = None  # (time, fraction) of the running stage's first step
         self._reported_at = self.started
         self._highest_percent = 0
+        self.detail = ""  # what the running stage is doing, in words (Stages.note)
 
     def __call__(self, stage: str, fraction: float) -> None:
         if self.cancelled:
@@ -104,6 +112,7 @@ class Progress:
                 self.work[self.stage] *= 1.0 - self.fraction
             self.stage, self.stage_started = stage, time.perf_counter()
             self._anchor = None
+            self.detail = ""
         fraction = min(max(float(fraction), 0.0), 1.0)
         if stage_changed or fraction != self.fraction:
             self._reported_at = time.perf_counter()  # progress made (a cancel check is not)
@@ -115,6 +124,9 @@ class Progress:
 
     def cancel(self) -> None:
         self.cancelled = True
+
+    def note(self, text: str) -> None:
+        self.detail = text
 
     def plan(self, work: dict) -> None:
         """The bake's known work per stage (see ``BakeJob.expected_work``); a stage left out costs nothing."""
@@ -181,4 +193,6 @@ class Progress:
             eta = f", about {left:.0f} s left in this stage" if left is not None else ""
         else:
             eta = f", about {left:.0f} s left"
-        return f"VisiBake: {self.stage} {int(100 * self.fraction)}% ({self.percent}% of the bake{eta}) - Esc to cancel"
+        detail = f": {self.detail}" if self.detail else ""
+        return (f"VisiBake: {self.stage}{detail} {int(100 * self.fraction)}% ({self.percent}% of the bake{eta})"
+                " - Esc to cancel")

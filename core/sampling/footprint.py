@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from ..lights.sampler import hash32, owen_scramble, sobol_point
 
@@ -47,7 +48,8 @@ def _scrambled_points(count: int, seeds: np.ndarray) -> np.ndarray:
 
 
 def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
-                      corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray, count: int) -> np.ndarray:
+                      corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray, count: int,
+                      threads: int = 0) -> np.ndarray:
     """Offsets of each sample's footprint points from its position.
 
     Parameters
@@ -58,6 +60,7 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     corners : (T, 3, 3) float64 the world positions of every triangle's corners
     position : (k, 3) float64 each sample's own position (on its triangle)
     count : points per sample (1: the sample itself, offset 0)
+    threads : the compiled kernels' thread count (0: all cores); the result does not depend on it
 
     Returns
     -------
@@ -98,11 +101,19 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     tri_corners = np.asarray(corners, np.float64)[triangle]  # (k, 3, 3)
     # The first draw of every slot at once: most land inside at once, and only the rest
     # (border texels, triangles smaller than the box) loop over their redraws.
-    first = barycentric_of_slots(centre[:, None, :] + (jitter - 0.5) * BOX_WIDTH)  # (k, count, 3)
-    inside = np.all(first >= tol.SAMPLE_BARYCENTRIC_INSET, axis=2) & usable[:, None]
-    chosen = (first[..., 0:1] * tri_corners[:, None, 0] + first[..., 1:2] * tri_corners[:, None, 1]
-              + first[..., 2:3] * tri_corners[:, None, 2])
-    chosen[~inside] = np.nan
+    module = kernels.compiled()
+    if module is not None:
+        chosen = np.empty((samples, count, 3))
+        inside = np.empty((samples, count), bool)
+        kernels.run(module.footprint_first_draw, threads, np.ascontiguousarray(uv), centre, inverse, usable,
+                    jitter, np.ascontiguousarray(tri_corners), BOX_WIDTH, tol.SAMPLE_BARYCENTRIC_INSET, chosen, inside)
+    else:
+        first = barycentric_of_slots(centre[:, None, :] + (jitter - 0.5) * BOX_WIDTH)  # (k, count, 3)
+        inside = np.all(first >= tol.SAMPLE_BARYCENTRIC_INSET, axis=2) & usable[:, None]
+        chosen = (first[..., 0:1] * tri_corners[:, None, 0] + first[..., 1:2] * tri_corners[:, None, 1]
+                  + first[..., 2:3] * tri_corners[:, None, 2])
+        del first
+        chosen[~inside] = np.nan
     rows, slots = np.nonzero(~inside & usable[:, None])
     u = jitter[rows, slots]
     for attempt in range(1, REDRAWS):
@@ -125,7 +136,7 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
 
 def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
                       corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray,
-                      offsets: np.ndarray) -> np.ndarray:
+                      offsets: np.ndarray, threads: int = 0) -> np.ndarray:
     """(k, 4, 3) float32 offsets from each sample's position to the four corners of its box
     (BOX_WIDTH texels wide), or where a corner lies beyond the texel's own triangle, to the
     texel's footprint point (``offsets`` (k, P, 3), :func:`footprint_offsets`) nearest to it.
@@ -147,6 +158,12 @@ def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     tri_corners = np.asarray(corners, np.float64)[triangle]
     result = np.empty((len(pixel), 4, 3), np.float32)
     half = BOX_WIDTH / 2
+    module = kernels.compiled()
+    if module is not None:
+        kernels.run(module.footprint_corners, threads, np.ascontiguousarray(uv), centre, inverse, tri_corners,
+                    np.ascontiguousarray(position, np.float64), np.ascontiguousarray(offsets, np.float32), half,
+                    tol.SAMPLE_BARYCENTRIC_INSET, result)
+        return result
     for index, (sx, sy) in enumerate(((-1, -1), (1, -1), (-1, 1), (1, 1))):
         point = centre + np.array([sx * half, sy * half])
         w1 = ((point[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (point[:, 1] - a[:, 1])) * inverse

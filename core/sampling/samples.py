@@ -77,9 +77,10 @@ def _on_smooth_faces(mesh: Mesh, triangle: np.ndarray, geometric: np.ndarray) ->
     return cosines.min(axis=1) < 1.0 - tol.FLAT_NORMAL_SLACK
 
 
-def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
+def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> ObjectSamples:
     """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel, with
-    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples)."""
+    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples).
+    ``threads``: the compiled kernels' thread count (0: all cores); the samples do not depend on it."""
     width, height = mesh.resolution
     corner_uv = mesh.uv_maps[mesh.bake_uv_map]
     # Only triangles with UV area can hold texels: the others need no normal (an occluder
@@ -138,8 +139,9 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1) -> ObjectSamples:
     if footprint_samples > 1:
         corners = mesh.positions[mesh.triangles].astype(np.float64)
         footprint = footprint_offsets(raster.pixel, tri, width, height, raster_uv, corners, position,
-                                      footprint_samples)
-        box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint)
+                                      footprint_samples, threads)
+        box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint,
+                                        threads)
         if np.any(smooth):
             point_normals = footprint_normals(footprint, position, tri, corners, mesh.corner_normals, shading, smooth)
     terminator = None

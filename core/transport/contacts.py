@@ -214,7 +214,15 @@ def contact_correction(short: ShortHits, layout, reflected_atlas: np.ndarray, at
     albedo = layout.bilinear(albedo_atlas, short.obj, short.uv).astype(np.float64)
     groups = at_hits.shape[1] // 3
     difference = (np.tile(albedo, groups) / np.pi * at_hits - looked_up) * short.weight[:, None]
-    correction = np.zeros((samples, at_hits.shape[1]))
-    np.add.at(correction, short.sample, difference)
-    return correction
+    return sum_by_sample(short.sample, difference, samples)
+
+
+def sum_by_sample(sample: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
+    """(count, C) float64: the rows of ``values`` (m, C) summed per ``sample`` (m,) int, in the
+    order given (bitwise ``np.add.at``'s sums, at a fraction of its cost: one bincount a column)."""
+    values = np.asarray(values)
+    total = np.empty((count, values.shape[1]))
+    for column in range(values.shape[1]):
+        total[:, column] = np.bincount(sample, weights=values[:, column], minlength=count)
+    return total
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..sampling.samples import VertexSamples
-from .contacts import close_entries, texel_sizes
+from .contacts import close_entries, sum_by_sample, texel_sizes
 
 # Neighbours whose shading normals differ by more than this (cosine) are another surface.
 SAME_SURFACE_COSINE = 0.995
@@ -78,14 +78,12 @@ def find_near_hits(p) -> NearHits | None:
 def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
     """(K, C) what the near entries contributed to a gather of the packed ``atlas`` (size, C)
     (``exclude`` (K, O) as the gather's)."""
-    total = np.zeros((len(p.position), atlas.shape[1]))
     if near is None:
-        return total
+        return np.zeros((len(p.position), atlas.shape[1]))
     weight = near.weight.astype(np.float64)
     if exclude is not None:
         weight = np.where(exclude[near.sample, near.obj], 0.0, weight)
-    np.add.at(total, near.sample, p.layout.bilinear(atlas, near.obj, near.uv) * weight[:, None])
-    return total
+    return sum_by_sample(near.sample, p.layout.bilinear(atlas, near.obj, near.uv) * weight[:, None], len(p.position))
 
 
 def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
@@ -159,8 +157,7 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     texels, neighbours = p.filter_pairs()
     keep = usable[texels] & usable[neighbours]
     texels, neighbours = texels[keep], neighbours[keep]
-    total = np.zeros_like(far, dtype=np.float64)
-    np.add.at(total, texels, radiance[neighbours])
+    total = sum_by_sample(texels, radiance[neighbours], len(far))
     count = np.bincount(texels, minlength=len(far)).astype(np.float64)
     filtered = np.where(count[:, None] > 0, total / np.maximum(count, 1.0)[:, None] * far_weight[:, None], far)
     return filtered + near

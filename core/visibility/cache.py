@@ -15,6 +15,15 @@ again.
 Files are numpy ``.npz`` archives with a JSON header and a CRC-32 of every array (on
 top of the zip's own); a file that is truncated, fails its check or has another
 format version is reported and rebuilt, never trusted. Keys are BLAKE2 hashes.
+
+A table file holds only the entries above their sample's horizon (about half of them):
+a bit per entry says which are there, and the per-entry arrays list those in row-major
+order (:func:`pack_entries`). Every entry left out is BELOW_HORIZON with the codes of
+no hit, so the table reads back bitwise as it was traced.
+
+The folder's total size can be capped (``VisibilityCache(limit_bytes=)``): before a table
+is written, the least recently used slots of any scene are removed until it fits, and a
+table larger than the cap is not written at all (the bake says so).
 """
 from __future__ import annotations
 
@@ -26,10 +35,12 @@ import tempfile
 import time
 import zipfile
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 
 try:
@@ -38,12 +49,14 @@ except ImportError:  # Windows: an open file cannot be removed, which serves as 
     fcntl = None
 from ..scene import Mesh
 from ..settings import BakeSettings
+from .table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
 # 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations;
 # 5: a footprint point that finds no place on its triangle starts from the texel's centre;
-# 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances).
-FORMAT_VERSION = 6
+# 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances);
+# 7: only the entries above the horizon, with a bit per entry saying which (pack_entries).
+FORMAT_VERSION = 7
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
@@ -53,8 +66,124 @@ LIGHTING_ENTRIES_KEPT = 16
 # ones (per sample and direction) only when the table is used.
 _SMALL_TABLE_ARRAYS = ("directions", "traced_per_sample", "backface_per_sample")
 _LARGE_TABLE_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code")
-_TABLE_ARRAYS = _SMALL_TABLE_ARRAYS + _LARGE_TABLE_ARRAYS
 _OPTIONAL_TABLE_ARRAYS = ("hit_triangle",)
+# The bits of the entries above the horizon (np.packbits, row-major over (directions, samples)).
+ABOVE_HORIZON_BITS = "above_horizon_bits"
+
+
+# Each per-entry array's dtype, the shape of one entry, and the value of an entry not stored.
+_ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.uint16, (2,), 0),
+                 "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE), "hit_triangle": (np.int32, (), 0)}
+
+
+def entry_packers(table, threads: int = 0) -> dict:
+    """The table's per-entry arrays as stored, each made only when called (name -> callable
+    returning the array), so that writing a table never holds more than one of them:
+
+    - ``ABOVE_HORIZON_BITS``: (ceil(N K / 8),) uint8, a bit per entry (row-major, np.packbits),
+      set where the entry is above its sample's horizon;
+    - hit_object (A,) int16, hit_uv_code (A, 2) uint16, hit_distance_code (A,) uint16 and
+      hit_triangle (A,) int32 (where the table has it): those A entries only, row-major.
+
+    ``threads``: the kernels' thread count (0: all cores)."""
+    above = table.hit_object != BELOW_HORIZON
+    row_offset, stored = _row_offsets(above)
+    module = kernels.compiled()
+
+    def packer(name):
+        values = getattr(table, name)
+        if module is None:
+            return values[above]
+        tail = _ENTRY_ARRAYS[name][1]
+        packed = np.empty((stored, *tail), values.dtype)
+        kernels.run(module.pack_rows, threads, values.reshape(*above.shape, -1), above, row_offset,
+                    packed.reshape(stored, -1))
+        return packed
+
+    packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(above, axis=None)}
+    for name in _ENTRY_ARRAYS:
+        if getattr(table, name) is not None:
+            packers[name] = lambda name=name: packer(name)
+    return packers
+
+
+def pack_entries(table, threads: int = 0) -> dict:
+    """:func:`entry_packers`' arrays, all made at once."""
+    return {name: make() for name, make in entry_packers(table, threads).items()}
+
+
+def _row_offsets(above: np.ndarray) -> tuple[np.ndarray, int]:
+    """(N,) int64 index of each row's first stored entry, and the number stored."""
+    counts = np.count_nonzero(above, axis=1)
+    row_offset = np.zeros(len(counts), np.int64)
+    np.cumsum(counts[:-1], out=row_offset[1:])
+    return row_offset, int(counts.sum())
+
+
+def packed_bytes(table) -> int:
+    """Bytes :func:`pack_entries` makes of ``table`` (what its file will hold, less a few
+    kilobytes of header and small arrays), counted without packing."""
+    directions, samples = table.hit_object.shape
+    above = int(np.count_nonzero(table.hit_object != BELOW_HORIZON))
+    per_entry = 8 + (4 if table.hit_triangle is not None else 0)
+    return -(-directions * samples // 8) + above * per_entry
+
+
+def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
+    """The (directions, samples) per-entry arrays back from :func:`pack_entries`' form
+    (``packed``: a mapping, read one array at a time); every entry that is not stored is
+    BELOW_HORIZON with no hit's codes. Raises CorruptCache where the arrays do not fit
+    together (a checksum guards against damage, this against a file made by hand)."""
+    count = int(shape[0]) * int(shape[1])
+    bits = packed[ABOVE_HORIZON_BITS] if ABOVE_HORIZON_BITS in packed else None
+    if bits is None or bits.dtype != np.uint8 or bits.shape != (-(-count // 8),):
+        raise CorruptCache("its entry bits do not match its table's size")
+    above = np.unpackbits(bits, count=count).view(bool).reshape(shape)
+    del bits
+    row_offset, stored = _row_offsets(above)
+    module = kernels.compiled()
+    arrays = {}
+    for name, (dtype, tail, fill) in _ENTRY_ARRAYS.items():
+        if name not in packed:
+            if name != "hit_triangle":
+                raise CorruptCache(f"it has no {name}")
+            continue
+        values = packed[name]
+        if values.dtype != dtype or values.shape != (stored, *tail):
+            raise CorruptCache(f"its {name} does not match its entry bits")
+        if module is None:
+            arrays[name] = np.full((*shape, *tail), fill, dtype)
+            arrays[name][above] = values
+        else:
+            arrays[name] = np.empty((*shape, *tail), dtype)
+            kernels.run(module.unpack_rows, threads, values.reshape(stored, -1), above, row_offset, dtype(fill),
+                        arrays[name].reshape(*shape, -1))
+        del values
+    return arrays
+
+
+class _ArraysOnDemand(Mapping):
+    """A table file's arrays, each read (and checked) when it is asked for and not kept."""
+
+    def __init__(self, path: str, meta: dict, names):
+        self.path, self.meta, self.names = path, meta, tuple(names)
+
+    def __getitem__(self, name):
+        if name not in self.names:
+            raise KeyError(name)
+        return _read_arrays(self.path, self.meta, (name,))[name]
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self):
+        return len(self.names)
+
+
+def _stored_entry_arrays(meta: dict) -> tuple:
+    """The names of a table file's per-entry arrays (:func:`pack_entries`)."""
+    return (ABOVE_HORIZON_BITS,) + _LARGE_TABLE_ARRAYS + tuple(
+        name for name in _OPTIONAL_TABLE_ARRAYS if name in meta.get("arrays", ()))
 
 
 def _hasher():
@@ -125,6 +254,10 @@ class CorruptCache(Exception):
     """A cache file that cannot be trusted; the message says why."""
 
 
+class CacheFull(Exception):
+    """A table that the cache folder's cap leaves no room for; the message says why."""
+
+
 WRITING_PREFIX = ".writing-"
 
 
@@ -171,26 +304,36 @@ def remove_abandoned_writes(folder: str, before: float) -> int:
     return removed
 
 
-def _save_npz(stream, arrays: dict) -> None:
-    """``np.savez`` with the archive closed on every exit: numpy leaves its ZipFile open when
-    interrupted (Ctrl+C), and its finaliser then prints 'Exception ignored in ZipFile.__del__'."""
+def _save_npz(stream, arrays: dict, meta: dict) -> None:
+    """``np.savez`` of ``arrays`` and then the header ``meta`` with every array's digest,
+    the archive closed on every exit (numpy leaves its ZipFile open when interrupted, and its
+    finaliser then prints 'Exception ignored in ZipFile.__del__'). An array given as a callable
+    is made when its turn comes and dropped once written, so a table's large arrays are never
+    all in memory at once; the header goes last because the digests are known only then."""
+    digests = {}
     with zipfile.ZipFile(stream, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
         for name, array in arrays.items():
+            array = np.asanyarray(array() if callable(array) else array)
+            digests[name] = _digest(name, array)
             with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
+                np.lib.format.write_array(member, array, allow_pickle=False)
+            del array
+        header = {**meta, "format": FORMAT_VERSION, "digests": digests}
+        with archive.open("meta.npy", "w", force_zip64=True) as member:
+            np.lib.format.write_array(member, np.frombuffer(json.dumps(header).encode(), np.uint8),
+                                      allow_pickle=False)
 
 
 def _write(path: str, meta: dict, arrays: dict) -> int:
-    """Write atomically (a reader never sees half a file); returns the size in bytes."""
-    meta = {**meta, "format": FORMAT_VERSION, "digests": {name: _digest(name, a) for name, a in arrays.items()}}
-    header = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    """Write atomically (a reader never sees half a file); returns the size in bytes.
+    ``arrays``: name -> array, or a callable making it (see :func:`_save_npz`)."""
     folder = os.path.dirname(path)
     os.makedirs(folder, exist_ok=True)
     handle, temporary = tempfile.mkstemp(prefix=WRITING_PREFIX, suffix=".npz", dir=folder)
     try:
         with os.fdopen(handle, "wb") as stream:
             _lock(stream)
-            _save_npz(stream, {"meta": header, **arrays})
+            _save_npz(stream, arrays, meta)
         os.replace(temporary, path)
     except BaseException:
         if os.path.exists(temporary):
@@ -289,6 +432,9 @@ class CacheStatus:
     save_seconds: float = 0.0
     lighting_reused: list = field(default_factory=list)
     abandoned_writes_removed: int = 0  # half-written files of killed bakes removed
+    estimated_bytes: int = 0  # the table's size on disk, known before it is written
+    not_cached: str = ""  # why the table was not written, where the folder's cap left no room
+    evicted: list = field(default_factory=list)  # [{"slot", "bytes"}] removed by the cap to make room
 
 
 @dataclass
@@ -309,9 +455,13 @@ def _safe_label(label: str) -> str:
 class VisibilityCache:
     """The cache folder of one scene; see the module docstring for what it holds."""
 
-    def __init__(self, folder: str, label: str = "untitled", read_only: bool = False):
+    def __init__(self, folder: str, label: str = "untitled", read_only: bool = False, limit_bytes: int = 0):
         self.folder = os.path.abspath(folder)
         self.label = _safe_label(label)
+        # The folder's total size may not exceed this (0: no cap); see make_room.
+        self.limit_bytes = max(int(limit_bytes), 0)
+        # Slots removed by the cap in this bake: [(slot folder, bytes)], for the report.
+        self.evicted: list[tuple[str, int]] = []
         # Nothing is written or removed (a folder this process cannot write; the bake says so).
         self.read_only = read_only
         # A half-written file older than this cache's first use is no live bake's own.
@@ -345,42 +495,103 @@ class VisibilityCache:
 
         path = self.table_path(settings)
         small = _read_arrays(path, meta, _SMALL_TABLE_ARRAYS)
-        large = _LARGE_TABLE_ARRAYS + tuple(n for n in _OPTIONAL_TABLE_ARRAYS if n in meta.get("arrays", ()))
+        shape = (len(small["directions"]), len(small["traced_per_sample"]))
 
         def read_large():
             try:
-                return _read_arrays(path, meta, large)
+                return unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), shape, settings.threads)
             except CorruptCache as error:
                 if damaged is None:
                     raise
                 return damaged(error)
 
-        return DeferredTable(small, meta["counters"], "hit_triangle" in large, read_large)
+        self._touch(path)
+        return DeferredTable(small, meta["counters"], "hit_triangle" in meta.get("arrays", ()), read_large)
 
     def load_table(self, settings: BakeSettings, meta: dict) -> CachedTable:
-        names = _TABLE_ARRAYS + tuple(n for n in _OPTIONAL_TABLE_ARRAYS if n in meta.get("arrays", ()))
-        arrays = _read_arrays(self.table_path(settings), meta, names)
-        return CachedTable(arrays=arrays, object_names=list(meta["object_names"]),
+        path = self.table_path(settings)
+        arrays = _read_arrays(path, meta, _SMALL_TABLE_ARRAYS)
+        shape = (len(arrays["directions"]), len(arrays["traced_per_sample"]))
+        entries = unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), shape, settings.threads)
+        self._touch(path)
+        return CachedTable(arrays={**arrays, **entries}, object_names=list(meta["object_names"]),
                            object_keys=list(meta["object_keys"]),
                            sample_offset=np.asarray(meta["sample_offset"], np.int64), counters=meta["counters"])
 
+    def _touch(self, path: str) -> None:
+        """Mark a file as just used: the folder's cap removes the least recently used slots first."""
+        if not self.read_only:
+            try:
+                os.utime(path)
+            except OSError:
+                pass
+
     def save_table(self, settings: BakeSettings, key: str, object_names: list, object_keys: list,
                    sample_offset: np.ndarray, table) -> int:
+        """Write the slot's table; returns its size in bytes, 0 where nothing was written (a
+        read-only cache). Raises :class:`CacheFull` where the folder's cap leaves it no room."""
         if self.read_only:
             return 0
         self._remove_abandoned(settings)
+        self.make_room(settings, packed_bytes(table))
         meta = {"kind": "table", "key": key, "object_names": list(object_names), "object_keys": list(object_keys),
                 "sample_offset": [int(x) for x in sample_offset],
                 "counters": {"rays_cast": int(table.rays_cast), "rays_below_horizon": int(table.rays_below_horizon),
                              "backface_hits": int(table.backface_hits)},
                 "written": time.strftime("%Y-%m-%dT%H:%M:%S")}
-        arrays = {name: getattr(table, name) for name in _TABLE_ARRAYS}
-        arrays.update({name: getattr(table, name) for name in _OPTIONAL_TABLE_ARRAYS
-                       if getattr(table, name) is not None})
+        arrays = {name: getattr(table, name) for name in _SMALL_TABLE_ARRAYS}
+        arrays.update(entry_packers(table, settings.threads))
         meta["arrays"] = sorted(arrays)
         size = _write(self.table_path(settings), meta, arrays)
         self.clear_lighting(settings)  # results of the old table are of no use any more
         return size
+
+    def make_room(self, settings: BakeSettings, incoming: int) -> None:
+        """Remove the least recently used slots (of any scene in the folder) until a table of
+        ``incoming`` bytes fits under the cap; raise :class:`CacheFull`, removing nothing, where
+        it cannot fit. This bake's own slot is never removed: its old files are replaced.
+
+        Only VisiBake's own files are removed (tables and lighting results in slot folders),
+        never a slot that a live bake is writing into, and never anything else in the folder.
+        """
+        if self.limit_bytes <= 0:
+            return
+        own = self.slot(settings)
+        replaced = sum(_size(path) for path in _slot_files(own))
+        total = folder_size(self.folder)
+        excess = total - replaced + incoming - self.limit_bytes
+        if excess <= 0:
+            return
+        candidates = []
+        for slot in _slot_folders(self.folder):
+            if slot == own or _being_written(slot, self.opened):
+                continue
+            files = _slot_files(slot)
+            if files:
+                candidates.append((max(_mtime(path) for path in files), slot, sum(_size(path) for path in files)))
+        candidates.sort()
+        chosen, freed = [], 0
+        for _, slot, size in candidates:
+            if freed >= excess:
+                break
+            chosen.append((slot, size))
+            freed += size
+        if freed < excess:
+            raise CacheFull(f"the table's {incoming / 2**20:.0f} MiB do not fit under the cache folder's cap of "
+                            f"{self.limit_bytes / 2**20:.0f} MiB (the folder holds {total / 2**20:.0f} MiB, "
+                            f"{(total - replaced - freed) / 2**20:.0f} MiB of it not removable: this table's "
+                            "other files, bakes being written, or files that are not VisiBake's)")
+        for slot, size in chosen:
+            for path in _slot_files(slot):
+                try:
+                    os.remove(path)
+                except OSError:
+                    pass
+            try:
+                os.rmdir(slot)  # only if nothing else is left in it
+            except OSError:
+                pass
+            self.evicted.append((slot, size))
 
     def discard_table(self, settings: BakeSettings) -> None:
         path = self.table_path(settings)
@@ -428,6 +639,52 @@ class VisibilityCache:
     def clear_lighting(self, settings: BakeSettings) -> None:
         for path in self._lighting_files(settings):
             os.remove(path)
+
+
+_SLOT_NAME = re.compile(r"^[A-Za-z0-9._-]+-[0-9a-f]{12}$")
+
+
+def _slot_folders(folder: str) -> list[str]:
+    """The slot folders (VisibilityCache.slot's names) directly in ``folder``."""
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return []
+    return [os.path.join(folder, name) for name in names
+            if _SLOT_NAME.match(name) and os.path.isdir(os.path.join(folder, name))]
+
+
+def _slot_files(slot: str) -> list[str]:
+    """The files VisiBake keeps in a slot folder (its table and lighting results), existing ones only."""
+    try:
+        names = os.listdir(slot)
+    except OSError:
+        return []
+    return [os.path.join(slot, name) for name in names
+            if name == TABLE_FILE or (name.startswith(LIGHTING_PREFIX) and name.endswith(".npz"))]
+
+
+def _being_written(slot: str, before: float) -> bool:
+    """Whether a live bake is writing into ``slot`` (a half-written file that is not abandoned)."""
+    try:
+        names = [n for n in os.listdir(slot) if n.startswith(WRITING_PREFIX)]
+    except OSError:
+        return False
+    return any(not _abandoned(os.path.join(slot, name), before) for name in names)
+
+
+def _size(path: str) -> int:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return 0
+
+
+def _mtime(path: str) -> float:
+    try:
+        return os.path.getmtime(path)
+    except OSError:
+        return 0.0
 
 
 def folder_size(folder: str) -> int:

@@ -405,6 +405,17 @@ def _empty_arrays(count: int, samples: int, vertex_objects: bool = False) -> dic
     return arrays
 
 
+def directions_above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int) -> np.ndarray:
+    """(K,) int32: how many of ``directions`` (N, 3) are above each sample's horizon (``horizon``
+    (K, 3), TraceRequest.horizon_normals), in batches of about ``chunk_rays`` entries (the whole
+    (K, N) product would take 8 bytes an entry: gigabytes at Production settings)."""
+    counts = np.zeros(len(horizon), np.int32)
+    chunk = max(1, chunk_rays // max(len(directions), 1))
+    for start in range(0, len(horizon), chunk):
+        counts[start:start + chunk] = np.count_nonzero(directions @ horizon[start:start + chunk].T > 0.0, axis=0)
+    return counts
+
+
 def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> VisibilityTable:
     """Trace every (sample, direction) pair above the sample's horizon.
 
@@ -428,12 +439,13 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     horizon = request.horizon_normals()
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
-    traced_per_sample = np.count_nonzero(horizon @ directions.T > 0.0, axis=1).astype(np.int32)
+    traced_per_sample = np.zeros(samples, np.int32)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
         # Direction-major order: consecutive rays share a direction (coherent for
         # embree) and land in one row of the table (contiguous writes).
         above = (directions @ horizon[start:stop].T) > 0.0
+        traced_per_sample[start:stop] = np.count_nonzero(above, axis=0)
         direction_index, sample_index = np.nonzero(above)
         if len(sample_index):
             origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
@@ -531,7 +543,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, vertex_object)
     origins_all = ray_scene.ray_origins(positions, geometric_normals)
     horizon = request.horizon_normals()
-    traced_per_sample = np.count_nonzero(horizon @ directions.T > 0.0, axis=1).astype(np.int32)
+    traced_per_sample = directions_above_horizon(directions, horizon, chunk_rays)
     is_changed = np.zeros(objects, bool)
     is_changed[list(changed)] = True
     changed_map = np.asarray(changed, np.int32)

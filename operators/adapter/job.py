@@ -32,7 +32,7 @@ from ...core.visibility.cache import VisibilityCache
 from ...core.visibility.table import table_bytes
 from . import device, extract, refine, writeback
 from .extraction import complete_extraction, plan_extraction, run_unwraps
-from .settings import cache_folder, resolve
+from .settings import cache_folder, cache_limit_bytes, resolve
 
 
 @dataclass
@@ -166,7 +166,7 @@ def visibility_cache(scene) -> VisibilityCache | None:
     """The cache of this scene (named after the .blend), or None when caching is off."""
     if not scene.visibake.use_cache:
         return None
-    return VisibilityCache(cache_folder(scene), cache_label(scene))
+    return VisibilityCache(cache_folder(scene), cache_label(scene), limit_bytes=cache_limit_bytes())
 
 
 def output_objects(context, props) -> list[bpy.types.Object]:

@@ -87,6 +87,11 @@ def kernel_cache_folder() -> str | None:
         return None
 
 
+def cache_limit_bytes(context=None) -> int:
+    """The most bytes a cache folder may hold (the preference; 0: no limit)."""
+    return int(_preference(context or bpy.context, "cache_limit_mib")) * 2**20
+
+
 def cache_folder(scene) -> str:
     """The cache folder: the scene's setting, the preference, beside the saved .blend, the user folder."""
     props = scene.visibake

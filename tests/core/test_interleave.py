@@ -81,3 +81,15 @@ def test_fractions_count_each_sample_s_rotated_directions_in_their_own_regions()
         np.testing.assert_array_equal(fractions.traced[k], np.bincount(region[traced], minlength=8))
         lit = p.table.hit_object[:, k] == MISS
         np.testing.assert_array_equal(fractions.lit[k], np.bincount(region[lit], minlength=8))
+
+
+def test_sums_by_sample_are_bitwise_numpy_s_unbuffered_sums():
+    from core.transport.contacts import sum_by_sample
+
+    rng = np.random.default_rng(5)
+    sample = rng.integers(0, 50, 4000)
+    values = rng.normal(size=(4000, 6)) * 10.0 ** rng.integers(-8, 8, (4000, 1))
+    expected = np.zeros((60, 6))
+    np.add.at(expected, sample, values)
+    np.testing.assert_array_equal(sum_by_sample(sample, values, 60), expected)
+    np.testing.assert_array_equal(sum_by_sample(sample[:0], values[:0], 3), np.zeros((3, 6)))

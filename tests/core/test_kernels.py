@@ -226,3 +226,61 @@ def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotate
     for ours, theirs in zip(compiled, reference):
         assert ours.dtype == theirs.dtype == np.float32
         np.testing.assert_array_equal(ours, theirs)
+
+
+@pytest.mark.parametrize("vertex", [False, True], ids=["atlas", "vertex"])
+def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypatch, vertex):
+    from core.visibility import cache as cache_module
+    from core.visibility.table import BELOW_HORIZON, VisibilityTable
+
+    rng = np.random.default_rng(7)
+    shape = (37, 101)
+    hit_object = rng.integers(-3, 4, shape).astype(np.int16)
+    hit_object[5] = BELOW_HORIZON  # a row with nothing stored
+    hit_object[:, 0] = 2  # a column with everything stored
+    table = VisibilityTable(np.zeros((shape[0], 3)), hit_object, rng.integers(0, 65536, (*shape, 2), np.uint16),
+                            rng.integers(0, 65536, shape, np.uint16),
+                            rng.integers(0, 1000, shape).astype(np.int32) if vertex else None)
+    below = hit_object == BELOW_HORIZON  # as every table holds them: no hit's codes
+    table.hit_uv_code[below] = 0
+    table.hit_distance_code[below] = 65535
+    if vertex:
+        table.hit_triangle[below] = 0
+    compiled = cache_module.pack_entries(table, threads=3)
+    monkeypatch.setattr(kernels, "_module", None)
+    fallback = cache_module.pack_entries(table)
+    assert compiled.keys() == fallback.keys()
+    for name in compiled:
+        np.testing.assert_array_equal(compiled[name], fallback[name], err_msg=name)
+    unpacked_numpy = cache_module.unpack_entries(fallback, shape)
+    monkeypatch.undo()
+    unpacked = cache_module.unpack_entries(compiled, shape, threads=2)
+    for name in ("hit_object", "hit_uv_code", "hit_distance_code") + (("hit_triangle",) if vertex else ()):
+        np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
+        np.testing.assert_array_equal(unpacked_numpy[name], getattr(table, name), err_msg=name)
+
+
+def test_compiled_footprints_are_bitwise_those_of_numpy_and_their_corners_agree(monkeypatch):
+    from core.sampling import footprint as footprint_module
+
+    # An irregular mesh with small and sliver triangles, seams and UVs off its faces' shapes:
+    # many first draws miss, redraw, or fall back to the centre.
+    rng = np.random.default_rng(11)
+    count = 300
+    corners = rng.normal(size=(count, 3, 3))
+    corner_uv = rng.uniform(0, 1, (count, 3, 2)).astype(np.float32)
+    corner_uv[::7, 2] = corner_uv[::7, 1]  # degenerate in UV
+    width = height = 64
+    triangle = rng.integers(0, count, 5000).astype(np.int32)
+    pixel = rng.integers(0, width * height, 5000)
+    position = corners[triangle].mean(axis=1)
+    arguments = (pixel, triangle, width, height, corner_uv, corners, position)
+    offsets = footprint_module.footprint_offsets(*arguments, 16, threads=3)
+    box = footprint_module.footprint_corners(*arguments, offsets, threads=2)
+    monkeypatch.setattr(kernels, "_module", None)
+    np.testing.assert_array_equal(offsets, footprint_module.footprint_offsets(*arguments, 16))
+    numpy_box = footprint_module.footprint_corners(*arguments, offsets)
+    # The corners steer exact-shadow probes only (never the table): equal to float rounding,
+    # or where two footprint points are equally near a corner outside the triangle, either.
+    close = np.all(np.isclose(box, numpy_box, rtol=1e-5, atol=1e-6), axis=2)
+    assert close.mean() > 0.999, close.mean()

@@ -8,31 +8,7 @@ from core.sampling.samples import build_vertex_samples
 from core.scene import Light, Material, Mesh, Scene, World
 from core.settings import BakeSettings
 from core.visibility.cache import VisibilityCache
-from core_scenes import quad_mesh
-
-
-def grid_mesh(name, size=2.0, segments=8, z=0.0, material=None, mode="vertex", flip=False, resolution=32):
-    """A square grid in the plane z, facing +z (or -z with ``flip``), smooth normals."""
-    coords = np.linspace(-size / 2, size / 2, segments + 1)
-    xs, ys = np.meshgrid(coords, coords)
-    positions = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, z)], axis=1)
-    triangles = []
-    for row in range(segments):
-        for col in range(segments):
-            a = row * (segments + 1) + col
-            b, c, d = a + 1, a + segments + 2, a + segments + 1
-            triangles += [[a, b, c], [a, c, d]]
-    triangles = np.array(triangles, np.int32)
-    if flip:
-        triangles = triangles[:, ::-1].copy()
-    normal = np.array([0.0, 0.0, -1.0 if flip else 1.0], np.float32)
-    uv = ((positions[:, :2] / size) + 0.5).astype(np.float32)
-    return Mesh(name=name, positions=positions, triangles=triangles,
-                corner_normals=np.tile(normal, (len(triangles), 3, 1)),
-                material_index=np.zeros(len(triangles), np.int32), materials=[material or Material()],
-                uv_maps={"UVMap": uv[triangles]}, bake_uv_map="UVMap", resolution=(resolution, resolution),
-                mode=mode, vertex_count=len(positions), corner_loops=np.arange(3 * len(triangles)).reshape(-1, 3),
-                loop_count=3 * len(triangles))
+from core_scenes import grid_mesh, quad_mesh
 
 
 def inward_sphere(material, rings=12, segments=24):

@@ -1,0 +1,101 @@
+"""Compiled (numba) kernels of sample placement: the texel footprints' first draw and the
+texel boxes' corners (core.sampling.footprint), in parallel over samples.
+
+Imported only through :mod:`core.kernels`. The first draw computes what the numpy code
+computes, in the same float64 operations and order, so the footprints (from which the
+visibility table's rays start) are bitwise the same with either.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from . import KERNEL_OPTIONS
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_first_draw(uv, centre, inverse, usable, jitter, tri_corners, box_width, inset, chosen, inside):
+    """Every footprint slot's first draw: the jittered point of the texel's box, where it lies
+    inside the texel's triangle, else NaN (``inside`` False).
+
+    uv : (k, 3, 2) float64 the triangle's corners in texel units; centre : (k, 2) float64 the
+    texel's centre; inverse : (k,) float64 1 / twice the triangle's signed area (0: degenerate);
+    usable : (k,) bool; jitter : (k, P, 2) float64 in [0, 1); tri_corners : (k, 3, 3) float64
+    world corners; box_width, inset : float. Outputs chosen (k, P, 3) float64, inside (k, P) bool.
+    """
+    for k in nb.prange(uv.shape[0]):
+        a0, a1 = uv[k, 0, 0], uv[k, 0, 1]
+        b0, b1 = uv[k, 1, 0], uv[k, 1, 1]
+        c0, c1 = uv[k, 2, 0], uv[k, 2, 1]
+        scale = inverse[k]
+        for slot in range(jitter.shape[1]):
+            x = (centre[k, 0] + (jitter[k, slot, 0] - 0.5) * box_width) - a0
+            y = (centre[k, 1] + (jitter[k, slot, 1] - 0.5) * box_width) - a1
+            w1 = (x * (c1 - a1) - (c0 - a0) * y) * scale
+            w2 = ((b0 - a0) * y - x * (b1 - a1)) * scale
+            w0 = 1.0 - w1 - w2
+            ok = usable[k] and w0 >= inset and w1 >= inset and w2 >= inset
+            inside[k, slot] = ok
+            for axis in range(3):
+                if ok:
+                    chosen[k, slot, axis] = (w0 * tri_corners[k, 0, axis] + w1 * tri_corners[k, 1, axis]) \
+                        + w2 * tri_corners[k, 2, axis]
+                else:
+                    chosen[k, slot, axis] = np.nan
+
+
+@nb.njit(inline="always")
+def _nan_to_num(value):
+    """numpy's nan_to_num of one float64: NaN -> 0, infinities -> the largest finite values."""
+    if value != value:
+        return 0.0
+    if value == np.inf:
+        return 1.7976931348623157e308
+    if value == -np.inf:
+        return -1.7976931348623157e308
+    return value
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_corners(uv, centre, inverse, tri_corners, position, offsets, half, inset, result):
+    """The four corners of each texel's box as offsets from its position, or where a corner
+    is not inside the triangle, the footprint point nearest to it (core.sampling.footprint).
+
+    uv, centre, inverse, tri_corners : as :func:`footprint_first_draw`; position : (k, 3)
+    float64; offsets : (k, P, 3) float32 the footprint; half : half the box's width;
+    inset : float. Output result (k, 4, 3) float32.
+    """
+    for k in nb.prange(uv.shape[0]):
+        a0, a1 = uv[k, 0, 0], uv[k, 0, 1]
+        b0, b1 = uv[k, 1, 0], uv[k, 1, 1]
+        c0, c1 = uv[k, 2, 0], uv[k, 2, 1]
+        scale = inverse[k]
+        for corner in range(4):
+            p0 = centre[k, 0] + (half if corner & 1 else -half)
+            p1 = centre[k, 1] + (half if corner & 2 else -half)
+            w1 = ((p0 - a0) * (c1 - a1) - (c0 - a0) * (p1 - a1)) * scale
+            w2 = ((b0 - a0) * (p1 - a1) - (p0 - a0) * (b1 - a1)) * scale
+            w0 = 1.0 - w1 - w2
+            m0 = (w0 * tri_corners[k, 0, 0] + w1 * tri_corners[k, 1, 0] + w2 * tri_corners[k, 2, 0]) - position[k, 0]
+            m1 = (w0 * tri_corners[k, 0, 1] + w1 * tri_corners[k, 1, 1] + w2 * tri_corners[k, 2, 1]) - position[k, 1]
+            m2 = (w0 * tri_corners[k, 0, 2] + w1 * tri_corners[k, 1, 2] + w2 * tri_corners[k, 2, 2]) - position[k, 2]
+            finite = (m0 - m0 == 0.0) and (m1 - m1 == 0.0) and (m2 - m2 == 0.0)
+            if finite and w0 >= inset and w1 >= inset and w2 >= inset:
+                result[k, corner, 0] = np.float32(m0)
+                result[k, corner, 1] = np.float32(m1)
+                result[k, corner, 2] = np.float32(m2)
+                continue
+            m0, m1, m2 = _nan_to_num(m0), _nan_to_num(m1), _nan_to_num(m2)
+            best, nearest = np.inf, 0
+            for slot in range(offsets.shape[1]):
+                gap = 0.0
+                step = np.float64(offsets[k, slot, 0]) - m0
+                gap += step * step
+                step = np.float64(offsets[k, slot, 1]) - m1
+                gap += step * step
+                step = np.float64(offsets[k, slot, 2]) - m2
+                gap += step * step
+                if gap < best:
+                    best, nearest = gap, slot
+            for axis in range(3):
+                result[k, corner, axis] = offsets[k, nearest, axis]
