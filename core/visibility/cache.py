@@ -546,10 +546,11 @@ class VisibilityCache:
         self.clear_lighting(settings)  # results of the old table are of no use any more
         return size
 
-    def make_room(self, settings: BakeSettings, incoming: int) -> None:
-        """Remove the least recently used slots (of any scene in the folder) until a table of
+    def make_room(self, settings: BakeSettings, incoming: int, replacing: bool = True) -> None:
+        """Remove the least recently used slots (of any scene in the folder) until a file of
         ``incoming`` bytes fits under the cap; raise :class:`CacheFull`, removing nothing, where
-        it cannot fit. This bake's own slot is never removed: its old files are replaced.
+        it cannot fit. This bake's own slot is never removed: with ``replacing`` (a new table)
+        its old files are about to be replaced, and count as free.
 
         Only VisiBake's own files are removed (tables and lighting results in slot folders),
         never a slot that a live bake is writing into, and never anything else in the folder.
@@ -557,7 +558,7 @@ class VisibilityCache:
         if self.limit_bytes <= 0:
             return
         own = self.slot(settings)
-        replaced = sum(_size(path) for path in _slot_files(own))
+        replaced = sum(_size(path) for path in _slot_files(own)) if replacing else 0
         total = folder_size(self.folder)
         excess = total - replaced + incoming - self.limit_bytes
         if excess <= 0:
@@ -623,6 +624,10 @@ class VisibilityCache:
         if self.read_only:
             return
         self._remove_abandoned(settings)
+        try:
+            self.make_room(settings, sum(np.asarray(a).nbytes for a in arrays.values()), replacing=False)
+        except CacheFull:
+            return  # a lighting result only saves a later bake some transport: skip it, as without a cache
         _write(self._lighting_path(settings, key), {"kind": "lighting", "key": key, "arrays": sorted(arrays)}, arrays)
         entries = self._lighting_files(settings)
         entries.sort(key=os.path.getmtime)

@@ -156,3 +156,18 @@ def test_a_used_table_counts_as_recent(tmp_path):
     os.utime(path, (1.0, 1.0))
     again = prepare(_scene(), SETTINGS, cache=VisibilityCache(str(tmp_path), "first"))
     assert again.cache_status.state == "hit" and os.path.getmtime(path) > 1.0
+
+
+def test_lighting_results_respect_the_cap_too(tmp_path):
+    now = time.time()
+    other = _slot(tmp_path, "a-111111111111", {"visibility.npz": 4000}, now - 100)
+    cache = VisibilityCache(str(tmp_path), "scene", limit_bytes=6000)
+    settings = BakeSettings(directions=16)
+    own = _slot(tmp_path, os.path.basename(cache.slot(settings)), {"visibility.npz": 1500}, now)
+    # 5500 in the folder and 800 coming: 300 over the cap, so the other scene's table goes.
+    cache.save_lighting(settings, "k" * 32, {"direct": np.zeros(100)})
+    assert not os.path.exists(other) and os.path.exists(os.path.join(own, "visibility.npz"))
+    assert cache.load_lighting(settings, "k" * 32) is not None
+    cache.save_lighting(settings, "m" * 32, {"direct": np.zeros(1000)})  # 8 KB: never fits, skipped
+    assert cache.load_lighting(settings, "m" * 32) is None
+    assert os.path.exists(os.path.join(own, "visibility.npz"))
