@@ -55,7 +55,8 @@ from .table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE
 # 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations;
 # 5: a footprint point that finds no place on its triangle starts from the texel's centre;
 # 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances);
-# 7: only the entries above the horizon, with a bit per entry saying which (pack_entries).
+# 7: only the entries above the horizon, with a bit per entry saying which, and triangles only
+#    of the entries that hit a vertex-mode object (pack_entries).
 FORMAT_VERSION = 7
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
@@ -71,9 +72,41 @@ _OPTIONAL_TABLE_ARRAYS = ("hit_triangle",)
 ABOVE_HORIZON_BITS = "above_horizon_bits"
 
 
+# The objects whose entries store a triangle (int16, sorted): those of the vertex-mode objects.
+TRIANGLE_OBJECTS = "triangle_objects"
 # Each per-entry array's dtype, the shape of one entry, and the value of an entry not stored.
 _ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.uint16, (2,), 0),
                  "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE), "hit_triangle": (np.int32, (), 0)}
+# Rows of the table looked at together where a whole-table mask would take gigabytes.
+_ROWS_AT_ONCE = 8
+
+
+def _triangle_objects(table) -> np.ndarray:
+    """(V,) int16 the hit_object codes of the entries whose triangle is not 0: every other entry's
+    triangle is 0, so only the entries of these V codes (a vertex-mode object's hits) need storing."""
+    found = set()
+    for start in range(0, len(table.hit_object), _ROWS_AT_ONCE):
+        rows = slice(start, start + _ROWS_AT_ONCE)
+        found.update(np.unique(table.hit_object[rows][table.hit_triangle[rows] != 0]).tolist())
+    return np.array(sorted(found), np.int16)
+
+
+def _triangle_mask(hit_object: np.ndarray, triangle_objects: np.ndarray) -> np.ndarray:
+    """(...) bool: the entries of ``hit_object`` above the horizon whose code is one of
+    ``triangle_objects``, by one lookup per entry (no whole-table temporaries)."""
+    lookup = np.zeros(1 << 16, bool)
+    lookup[triangle_objects.view(np.uint16)] = True
+    lookup[np.array([BELOW_HORIZON], np.int16).view(np.uint16)] = False
+    return lookup[hit_object.view(np.uint16)]
+
+
+def _stored_masks(hit_object: np.ndarray, triangle_objects: np.ndarray | None) -> dict:
+    """Which entries each per-entry array stores: (N, K) bool per name (the same mask shared)."""
+    above = hit_object != BELOW_HORIZON
+    masks = dict.fromkeys(("hit_object", "hit_uv_code", "hit_distance_code"), above)
+    if triangle_objects is not None:
+        masks["hit_triangle"] = _triangle_mask(hit_object, triangle_objects)
+    return masks
 
 
 def entry_packers(table, threads: int = 0) -> dict:
@@ -82,28 +115,35 @@ def entry_packers(table, threads: int = 0) -> dict:
 
     - ``ABOVE_HORIZON_BITS``: (ceil(N K / 8),) uint8, a bit per entry (row-major, np.packbits),
       set where the entry is above its sample's horizon;
-    - hit_object (A,) int16, hit_uv_code (A, 2) uint16, hit_distance_code (A,) uint16 and
-      hit_triangle (A,) int32 (where the table has it): those A entries only, row-major.
+    - hit_object (A,) int16, hit_uv_code (A, 2) uint16, hit_distance_code (A,) uint16: those
+      A entries only, row-major;
+    - where the table has triangles: ``TRIANGLE_OBJECTS`` (V,) int16, the hit_object codes whose
+      entries keep a triangle (:func:`_triangle_objects`), and hit_triangle (T,) int32 at the T
+      entries above the horizon with one of those codes (every other entry's triangle is 0).
+      Without it every entry above the horizon would take 12 bytes instead of 8 as soon as the
+      scene has one vertex-mode object.
 
     ``threads``: the kernels' thread count (0: all cores)."""
-    above = table.hit_object != BELOW_HORIZON
-    row_offset, stored = _row_offsets(above)
+    triangle_objects = _triangle_objects(table) if table.hit_triangle is not None else None
+    masks = _stored_masks(table.hit_object, triangle_objects)
+    offsets = {name: _row_offsets(mask) for name, mask in masks.items()}
     module = kernels.compiled()
 
     def packer(name):
-        values = getattr(table, name)
+        values, mask = getattr(table, name), masks[name]
         if module is None:
-            return values[above]
-        tail = _ENTRY_ARRAYS[name][1]
-        packed = np.empty((stored, *tail), values.dtype)
-        kernels.run(module.pack_rows, threads, values.reshape(*above.shape, -1), above, row_offset,
+            return values[mask]
+        row_offset, stored = offsets[name]
+        packed = np.empty((stored, *_ENTRY_ARRAYS[name][1]), values.dtype)
+        kernels.run(module.pack_rows, threads, values.reshape(*mask.shape, -1), mask, row_offset,
                     packed.reshape(stored, -1))
         return packed
 
-    packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(above, axis=None)}
-    for name in _ENTRY_ARRAYS:
-        if getattr(table, name) is not None:
-            packers[name] = lambda name=name: packer(name)
+    packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(masks["hit_object"], axis=None)}
+    if triangle_objects is not None:
+        packers[TRIANGLE_OBJECTS] = lambda: triangle_objects
+    for name in masks:
+        packers[name] = lambda name=name: packer(name)
     return packers
 
 
@@ -112,9 +152,9 @@ def pack_entries(table, threads: int = 0) -> dict:
     return {name: make() for name, make in entry_packers(table, threads).items()}
 
 
-def _row_offsets(above: np.ndarray) -> tuple[np.ndarray, int]:
+def _row_offsets(mask: np.ndarray) -> tuple[np.ndarray, int]:
     """(N,) int64 index of each row's first stored entry, and the number stored."""
-    counts = np.count_nonzero(above, axis=1)
+    counts = np.count_nonzero(mask, axis=1)
     row_offset = np.zeros(len(counts), np.int64)
     np.cumsum(counts[:-1], out=row_offset[1:])
     return row_offset, int(counts.sum())
@@ -125,22 +165,26 @@ def packed_bytes(table) -> int:
     kilobytes of header and small arrays), counted without packing."""
     directions, samples = table.hit_object.shape
     above = int(np.count_nonzero(table.hit_object != BELOW_HORIZON))
-    per_entry = 8 + (4 if table.hit_triangle is not None else 0)
-    return -(-directions * samples // 8) + above * per_entry
+    size = -(-directions * samples // 8) + above * 8
+    if table.hit_triangle is not None:
+        triangle_objects = _triangle_objects(table)
+        size += triangle_objects.nbytes + 4 * sum(
+            int(np.count_nonzero(_triangle_mask(table.hit_object[start:start + _ROWS_AT_ONCE], triangle_objects)))
+            for start in range(0, directions, _ROWS_AT_ONCE))
+    return size
 
 
 def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
     """The (directions, samples) per-entry arrays back from :func:`pack_entries`' form
     (``packed``: a mapping, read one array at a time); every entry that is not stored is
-    BELOW_HORIZON with no hit's codes. Raises CorruptCache where the arrays do not fit
-    together (a checksum guards against damage, this against a file made by hand)."""
+    BELOW_HORIZON with no hit's codes, and triangle 0. Raises CorruptCache where the arrays do
+    not fit together (a checksum guards against damage, this against a file made by hand)."""
     count = int(shape[0]) * int(shape[1])
     bits = packed[ABOVE_HORIZON_BITS] if ABOVE_HORIZON_BITS in packed else None
     if bits is None or bits.dtype != np.uint8 or bits.shape != (-(-count // 8),):
         raise CorruptCache("its entry bits do not match its table's size")
     above = np.unpackbits(bits, count=count).view(bool).reshape(shape)
     del bits
-    row_offset, stored = _row_offsets(above)
     module = kernels.compiled()
     arrays = {}
     for name, (dtype, tail, fill) in _ENTRY_ARRAYS.items():
@@ -148,15 +192,23 @@ def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
             if name != "hit_triangle":
                 raise CorruptCache(f"it has no {name}")
             continue
+        if name == "hit_triangle":
+            objects = packed[TRIANGLE_OBJECTS] if TRIANGLE_OBJECTS in packed else None
+            if objects is None or objects.dtype != np.int16 or objects.ndim != 1:
+                raise CorruptCache("its triangle objects are missing or malformed")
+            mask = _triangle_mask(arrays["hit_object"], objects)
+        else:
+            mask = above
+        row_offset, stored = _row_offsets(mask)
         values = packed[name]
         if values.dtype != dtype or values.shape != (stored, *tail):
             raise CorruptCache(f"its {name} does not match its entry bits")
         if module is None:
             arrays[name] = np.full((*shape, *tail), fill, dtype)
-            arrays[name][above] = values
+            arrays[name][mask] = values
         else:
             arrays[name] = np.empty((*shape, *tail), dtype)
-            kernels.run(module.unpack_rows, threads, values.reshape(stored, -1), above, row_offset, dtype(fill),
+            kernels.run(module.unpack_rows, threads, values.reshape(stored, -1), mask, row_offset, dtype(fill),
                         arrays[name].reshape(*shape, -1))
         del values
     return arrays
@@ -182,8 +234,8 @@ class _ArraysOnDemand(Mapping):
 
 def _stored_entry_arrays(meta: dict) -> tuple:
     """The names of a table file's per-entry arrays (:func:`pack_entries`)."""
-    return (ABOVE_HORIZON_BITS,) + _LARGE_TABLE_ARRAYS + tuple(
-        name for name in _OPTIONAL_TABLE_ARRAYS if name in meta.get("arrays", ()))
+    optional = tuple(name for name in _OPTIONAL_TABLE_ARRAYS if name in meta.get("arrays", ()))
+    return (ABOVE_HORIZON_BITS,) + _LARGE_TABLE_ARRAYS + optional + ((TRIANGLE_OBJECTS,) if optional else ())
 
 
 def _hasher():
