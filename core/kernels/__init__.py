@@ -18,6 +18,7 @@ kernels from its worker thread; the lock also covers a script calling from anoth
 from __future__ import annotations
 
 import os
+import re
 import sys
 import threading
 import time
@@ -95,7 +96,13 @@ def _load() -> KernelStatus:
         return KernelStatus("numpy", reason=f"{ENVIRONMENT_SWITCH}=numpy")
     if wanted != "numba":
         return KernelStatus("numpy", reason=f"{ENVIRONMENT_SWITCH}={wanted!r} is neither 'numba' nor 'numpy'")
-    cache_dir = _cache_dir or os.environ.get("NUMBA_CACHE_DIR") or default_cache_dir()
+    # numba's cache records the kernels' module by its import name, and a cached kernel read
+    # under another name fails to load (ModuleNotFoundError) instead of compiling again: the
+    # same sources imported as `visibake.core` (tools/visibake.py) and as `core` (tests,
+    # benchmarks) keep their kernels apart, one folder per name.
+    package = __name__.rpartition(".")[0] or "core"
+    cache_dir = os.path.join(_cache_dir or os.environ.get("NUMBA_CACHE_DIR") or default_cache_dir(),
+                             re.sub(r"[^A-Za-z0-9._-]+", "_", package))
     started = time.perf_counter()
     try:
         os.makedirs(cache_dir, exist_ok=True)
@@ -154,10 +161,9 @@ def _warm_up(module, table_module, sample_module) -> int:
                            np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
                            np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
-    for dtype in (np.int16, np.uint16, np.int32):  # the table's per-entry dtypes (core.visibility.cache)
-        packed = np.zeros((1, 1), dtype)
-        table_module.pack_rows(np.zeros((1, 1, 1), dtype), one, index, packed)
-        table_module.unpack_rows(packed, one, index, dtype(0), np.zeros((1, 1, 1), dtype))
+    words = np.zeros((1, 1), np.uint16)  # every per-entry array is packed as 16-bit words (core.visibility.cache)
+    table_module.pack_rows(np.zeros((1, 1, 1), np.uint16), one, index, words)
+    table_module.unpack_rows(words, one, index, np.zeros(1, np.uint16), np.zeros((1, 1, 1), np.uint16))
     uv = np.zeros((1, 3, 2))
     centre = np.zeros((1, 2))
     corners = np.zeros((1, 3, 3))

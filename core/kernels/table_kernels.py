@@ -160,31 +160,34 @@ def ray_setup(direction_index, sample_index, positions, footprint, geometric, fr
 @nb.njit(**KERNEL_OPTIONS)
 def pack_rows(values, above, row_offset, packed):
     """The entries of ``values`` where ``above``, row by row in row-major order, as
-    ``core.visibility.cache.pack_entries`` stores them; in parallel over rows.
+    ``core.visibility.cache.TablePacking`` stores them; in parallel over rows.
 
     values (N, K, C) of any dtype; above (N, K) bool; row_offset (N,) int64, the first packed
     index of each row; packed (A, C) of values' dtype (A: the number of True in ``above``).
+
+    Branch-free on ``above`` (a table's horizon pattern is irregular enough to defeat branch
+    prediction): every entry is copied to the next free slot, which only a stored entry takes.
     """
     for row in nb.prange(values.shape[0]):
         at = row_offset[row]
+        end = row_offset[row + 1] if row + 1 < values.shape[0] else packed.shape[0]
         for col in range(values.shape[1]):
-            if above[row, col]:
+            if at < end:
                 for channel in range(values.shape[2]):
                     packed[at, channel] = values[row, col, channel]
-                at += 1
+            at += np.int64(above[row, col])
 
 
 @nb.njit(**KERNEL_OPTIONS)
 def unpack_rows(packed, above, row_offset, fill, values):
     """:func:`pack_rows` undone: ``values`` (N, K, C) from ``packed`` (A, C) where ``above``,
-    ``fill`` (of values' dtype) elsewhere; in parallel over rows."""
+    ``fill`` (C,) elsewhere (of values' dtype); in parallel over rows, branch-free on ``above``."""
+    last = packed.shape[0] - 1
     for row in nb.prange(values.shape[0]):
         at = row_offset[row]
         for col in range(values.shape[1]):
-            if above[row, col]:
-                for channel in range(values.shape[2]):
-                    values[row, col, channel] = packed[at, channel]
-                at += 1
-            else:
-                for channel in range(values.shape[2]):
-                    values[row, col, channel] = fill
+            stored = above[row, col]
+            source = min(at, last)
+            for channel in range(values.shape[2]):
+                values[row, col, channel] = packed[source, channel] if stored and last >= 0 else fill[channel]
+            at += np.int64(stored)

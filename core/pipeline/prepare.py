@@ -28,7 +28,6 @@ from ..visibility.cache import (
     VisibilityCache,
     arrays_key,
     object_key,
-    packed_bytes,
     table_key,
 )
 from ..visibility.directions import direction_set, interleaved_rotations
@@ -510,11 +509,13 @@ def _cached_or_traced_table(job: TableJob):
     def trace(report):
         return trace_table(ray_scene, job.request, report)
 
+    def announce(size):
+        status.estimated_bytes = size
+        stages.note(f"writing about {size / 2**20:.0f} MiB to the visibility cache")
+
     def save(table):
-        status.estimated_bytes = packed_bytes(table)
-        stages.note(f"writing about {status.estimated_bytes / 2**20:.0f} MiB to the visibility cache")
         try:
-            status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table)
+            status.bytes_on_disk = cache.save_table(settings, key, names, object_keys, sample_offset, table, announce)
         except CacheFull as error:
             status.not_cached = str(error)
             warnings.append(f"visibility table not cached: {error}; raise the Cache Limit preference, or the next "

@@ -18,7 +18,7 @@ format version is reported and rebuilt, never trusted. Keys are BLAKE2 hashes.
 
 A table file holds only the entries above their sample's horizon (about half of them):
 a bit per entry says which are there, and the per-entry arrays list those in row-major
-order (:func:`pack_entries`). Every entry left out is BELOW_HORIZON with the codes of
+order (:class:`TablePacking`). Every entry left out is BELOW_HORIZON with the codes of
 no hit, so the table reads back bitwise as it was traced.
 
 The folder's total size can be capped (``VisibilityCache(limit_bytes=)``): before a table
@@ -109,9 +109,10 @@ def _stored_masks(hit_object: np.ndarray, triangle_objects: np.ndarray | None) -
     return masks
 
 
-def entry_packers(table, threads: int = 0) -> dict:
-    """The table's per-entry arrays as stored, each made only when called (name -> callable
-    returning the array), so that writing a table never holds more than one of them:
+class TablePacking:
+    """How a table's per-entry arrays are stored, worked out once per write: which entries
+    each array keeps, the file's size, and the arrays themselves, each made only when called
+    (:meth:`packers`), so that writing a table never holds more than one of them:
 
     - ``ABOVE_HORIZON_BITS``: (ceil(N K / 8),) uint8, a bit per entry (row-major, np.packbits),
       set where the entry is above its sample's horizon;
@@ -123,33 +124,61 @@ def entry_packers(table, threads: int = 0) -> dict:
       Without it every entry above the horizon would take 12 bytes instead of 8 as soon as the
       scene has one vertex-mode object.
 
-    ``threads``: the kernels' thread count (0: all cores)."""
-    triangle_objects = _triangle_objects(table) if table.hit_triangle is not None else None
-    masks = _stored_masks(table.hit_object, triangle_objects)
-    offsets = {name: _row_offsets(mask) for name, mask in masks.items()}
-    module = kernels.compiled()
+    ``threads``: the kernels' thread count (0: all cores).
+    """
 
-    def packer(name):
-        values, mask = getattr(table, name), masks[name]
-        if module is None:
-            return values[mask]
-        row_offset, stored = offsets[name]
-        packed = np.empty((stored, *_ENTRY_ARRAYS[name][1]), values.dtype)
-        kernels.run(module.pack_rows, threads, values.reshape(*mask.shape, -1), mask, row_offset,
-                    packed.reshape(stored, -1))
-        return packed
+    def __init__(self, table, threads: int = 0):
+        self.table, self.threads = table, threads
+        self.triangle_objects = _triangle_objects(table) if table.hit_triangle is not None else None
+        self.masks = _stored_masks(table.hit_object, self.triangle_objects)
+        self.offsets, counted = {}, {}  # the three arrays that share one mask count it once
+        for name, mask in self.masks.items():
+            if id(mask) not in counted:
+                counted[id(mask)] = _row_offsets(mask)
+            self.offsets[name] = counted[id(mask)]
 
-    packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(masks["hit_object"], axis=None)}
-    if triangle_objects is not None:
-        packers[TRIANGLE_OBJECTS] = lambda: triangle_objects
-    for name in masks:
-        packers[name] = lambda name=name: packer(name)
-    return packers
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the stored arrays: what the file will hold, less a few kilobytes of header
+        and per-sample arrays."""
+        size = -(-self.table.hit_object.size // 8)
+        for name, (_, stored) in self.offsets.items():
+            size += stored * np.dtype(_ENTRY_ARRAYS[name][0]).itemsize * int(np.prod(_ENTRY_ARRAYS[name][1]))
+        return size + (self.triangle_objects.nbytes if self.triangle_objects is not None else 0)
+
+    def packers(self) -> dict:
+        """name -> callable returning the stored array (see the class)."""
+        module = kernels.compiled()
+
+        def packer(name):
+            values, mask = getattr(self.table, name), self.masks[name]
+            if module is None:
+                return values[mask]
+            row_offset, stored = self.offsets[name]
+            packed = np.empty((stored, *_ENTRY_ARRAYS[name][1]), values.dtype)
+            kernels.run(module.pack_rows, self.threads, _as_uint16(values, mask.shape), mask, row_offset,
+                        _as_uint16(packed, (stored,)))
+            return packed
+
+        packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(self.masks["hit_object"], axis=None)}
+        if self.triangle_objects is not None:
+            packers[TRIANGLE_OBJECTS] = lambda: self.triangle_objects
+        for name in self.masks:
+            packers[name] = lambda name=name: packer(name)
+        return packers
+
+
+def _as_uint16(array: np.ndarray, leading: tuple) -> np.ndarray:
+    """``array`` (leading..., ...) seen as (leading..., C) uint16 words, its bytes unchanged: the
+    packing kernels move 16-bit words, so one compiled kernel serves every per-entry dtype."""
+    array = np.ascontiguousarray(array)
+    words = array.itemsize // 2 * int(np.prod(array.shape[len(leading):], dtype=np.int64))
+    return array.view(np.uint16).reshape(*leading, words)
 
 
 def pack_entries(table, threads: int = 0) -> dict:
-    """:func:`entry_packers`' arrays, all made at once."""
-    return {name: make() for name, make in entry_packers(table, threads).items()}
+    """:class:`TablePacking`'s arrays, all made at once."""
+    return {name: make() for name, make in TablePacking(table, threads).packers().items()}
 
 
 def _row_offsets(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -161,17 +190,8 @@ def _row_offsets(mask: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def packed_bytes(table) -> int:
-    """Bytes :func:`pack_entries` makes of ``table`` (what its file will hold, less a few
-    kilobytes of header and small arrays), counted without packing."""
-    directions, samples = table.hit_object.shape
-    above = int(np.count_nonzero(table.hit_object != BELOW_HORIZON))
-    size = -(-directions * samples // 8) + above * 8
-    if table.hit_triangle is not None:
-        triangle_objects = _triangle_objects(table)
-        size += triangle_objects.nbytes + 4 * sum(
-            int(np.count_nonzero(_triangle_mask(table.hit_object[start:start + _ROWS_AT_ONCE], triangle_objects)))
-            for start in range(0, directions, _ROWS_AT_ONCE))
-    return size
+    """Bytes :func:`pack_entries` makes of ``table`` (:attr:`TablePacking.nbytes`)."""
+    return TablePacking(table).nbytes
 
 
 def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
@@ -208,8 +228,8 @@ def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
             arrays[name][mask] = values
         else:
             arrays[name] = np.empty((*shape, *tail), dtype)
-            kernels.run(module.unpack_rows, threads, values.reshape(stored, -1), mask, row_offset, dtype(fill),
-                        arrays[name].reshape(*shape, -1))
+            kernels.run(module.unpack_rows, threads, _as_uint16(values, (stored,)), mask, row_offset,
+                        _as_uint16(np.full((1, *tail), fill, dtype), (1,))[0], _as_uint16(arrays[name], shape))
         del values
     return arrays
 
@@ -579,20 +599,24 @@ class VisibilityCache:
                 pass
 
     def save_table(self, settings: BakeSettings, key: str, object_names: list, object_keys: list,
-                   sample_offset: np.ndarray, table) -> int:
+                   sample_offset: np.ndarray, table, announce=None) -> int:
         """Write the slot's table; returns its size in bytes, 0 where nothing was written (a
-        read-only cache). Raises :class:`CacheFull` where the folder's cap leaves it no room."""
+        read-only cache). ``announce(bytes)``, if given, is told the stored arrays' size before
+        anything is written. Raises :class:`CacheFull` where the folder's cap leaves it no room."""
         if self.read_only:
             return 0
         self._remove_abandoned(settings)
-        self.make_room(settings, packed_bytes(table))
+        packing = TablePacking(table, settings.threads)
+        if announce is not None:
+            announce(packing.nbytes)
+        self.make_room(settings, packing.nbytes)
         meta = {"kind": "table", "key": key, "object_names": list(object_names), "object_keys": list(object_keys),
                 "sample_offset": [int(x) for x in sample_offset],
                 "counters": {"rays_cast": int(table.rays_cast), "rays_below_horizon": int(table.rays_below_horizon),
                              "backface_hits": int(table.backface_hits)},
                 "written": time.strftime("%Y-%m-%dT%H:%M:%S")}
         arrays = {name: getattr(table, name) for name in _SMALL_TABLE_ARRAYS}
-        arrays.update(entry_packers(table, settings.threads))
+        arrays.update(packing.packers())
         meta["arrays"] = sorted(arrays)
         size = _write(self.table_path(settings), meta, arrays)
         self.clear_lighting(settings)  # results of the old table are of no use any more
@@ -701,33 +725,31 @@ class VisibilityCache:
 _SLOT_NAME = re.compile(r"^[A-Za-z0-9._-]+-[0-9a-f]{12}$")
 
 
-def _slot_folders(folder: str) -> list[str]:
-    """The slot folders (VisibilityCache.slot's names) directly in ``folder``."""
+def _listed(folder: str, keep) -> list[str]:
+    """The paths of the entries of ``folder`` whose name passes ``keep(folder, name)`` ([] if unreadable)."""
     try:
         names = os.listdir(folder)
     except OSError:
         return []
-    return [os.path.join(folder, name) for name in names
-            if _SLOT_NAME.match(name) and os.path.isdir(os.path.join(folder, name))]
+    return [os.path.join(folder, name) for name in names if keep(folder, name)]
+
+
+def _slot_folders(folder: str) -> list[str]:
+    """The slot folders (VisibilityCache.slot's names) directly in ``folder``."""
+    return _listed(folder, lambda where, name: bool(_SLOT_NAME.match(name))
+                   and os.path.isdir(os.path.join(where, name)))
 
 
 def _slot_files(slot: str) -> list[str]:
     """The files VisiBake keeps in a slot folder (its table and lighting results), existing ones only."""
-    try:
-        names = os.listdir(slot)
-    except OSError:
-        return []
-    return [os.path.join(slot, name) for name in names
-            if name == TABLE_FILE or (name.startswith(LIGHTING_PREFIX) and name.endswith(".npz"))]
+    return _listed(slot, lambda _, name: name == TABLE_FILE
+                   or (name.startswith(LIGHTING_PREFIX) and name.endswith(".npz")))
 
 
 def _being_written(slot: str, before: float) -> bool:
     """Whether a live bake is writing into ``slot`` (a half-written file that is not abandoned)."""
-    try:
-        names = [n for n in os.listdir(slot) if n.startswith(WRITING_PREFIX)]
-    except OSError:
-        return False
-    return any(not _abandoned(os.path.join(slot, name), before) for name in names)
+    return any(not _abandoned(path, before)
+               for path in _listed(slot, lambda _, name: name.startswith(WRITING_PREFIX)))
 
 
 def _size(path: str) -> int:

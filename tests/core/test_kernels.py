@@ -148,7 +148,8 @@ def test_first_use_compiles_into_the_cache_folder_and_later_loads_read_it(tmp_pa
     assert first["status"]["backend"] == second["status"]["backend"] == "numba"
     assert first["status"]["compiled"] and not second["status"]["compiled"]
     assert "compiled on first use" in first["line"] and "from the kernel cache" in second["line"]
-    assert first["status"]["cache_dir"] == cache and os.listdir(cache)
+    # One folder per import name of the package (here `core`), inside the one asked for.
+    assert first["status"]["cache_dir"] == os.path.join(cache, "core") and os.listdir(first["status"]["cache_dir"])
     assert first["furnace"] < 1e-5 and second["furnace"] < 1e-5
 
 
@@ -156,8 +157,8 @@ def test_configure_chooses_the_cache_folder_only_before_the_first_load(tmp_path)
     code = ("import json; from core import kernels; kernels.configure(%r); s = kernels.status(); "
             "kernels.configure('/elsewhere'); print(json.dumps(s.as_dict()))") % str(tmp_path / "mine")
     result = _run_python(code, VISIBAKE_KERNELS="numba")
-    assert result["cache_dir"] == str(tmp_path / "mine")
-    assert os.listdir(tmp_path / "mine")
+    assert result["cache_dir"] == str(tmp_path / "mine" / "core")
+    assert os.listdir(tmp_path / "mine" / "core")
 
 
 @pytest.mark.parametrize("vertex", [False, True])
@@ -284,3 +285,17 @@ def test_compiled_footprints_are_bitwise_those_of_numpy_and_their_corners_agree(
     # or where two footprint points are equally near a corner outside the triangle, either.
     close = np.all(np.isclose(box, numpy_box, rtol=1e-5, atol=1e-6), axis=2)
     assert close.mean() > 0.999, close.mean()
+
+
+def test_a_table_with_nothing_above_the_horizon_packs_to_nothing_and_back():
+    from core.visibility import cache as cache_module
+    from core.visibility.table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE, VisibilityTable
+
+    shape = (3, 9)
+    table = VisibilityTable(np.zeros((3, 3)), np.full(shape, BELOW_HORIZON, np.int16), np.zeros((*shape, 2), np.uint16),
+                            np.full(shape, NO_HIT_DISTANCE_CODE, np.uint16), np.zeros(shape, np.int32))
+    packed = cache_module.pack_entries(table, threads=2)
+    assert len(packed["hit_object"]) == len(packed["hit_triangle"]) == 0
+    unpacked = cache_module.unpack_entries(packed, shape, threads=2)
+    for name in ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle"):
+        np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
