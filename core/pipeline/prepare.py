@@ -114,7 +114,7 @@ class Prepared:
             if mesh.mode == "vertex" or getattr(samples, "footprint", None) is None:
                 continue
             local = rows[chosen] - self.sample_offset[index]
-            offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count)
+            offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count, self.settings.threads)
             if point_normals is not None:
                 if normals is None:
                     normals = np.broadcast_to(self.normal[rows].astype(np.float32)[:, None, :],

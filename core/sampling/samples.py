@@ -281,10 +281,10 @@ def build_vertex_samples(mesh: Mesh, centre: np.ndarray | None = None) -> Vertex
         element_sample=element_sample)
 
 
-def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count: int):
+def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count: int, threads: int = 0):
     """``count`` footprint points of samples ``rows`` (r,) of ``samples`` (built from ``mesh``),
     drawn as build_samples draws them, so that the first footprint_samples of them are the
-    samples' own (the same scrambled Sobol sequence, longer).
+    samples' own (the same scrambled Sobol sequence, longer). ``threads``: the kernels' (0: all cores).
 
     Returns (offsets (r, count, 3) float32, normals (r, count, 3) float32 or None where no
     face of ``rows`` is smooth).
@@ -294,7 +294,8 @@ def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count:
     corners = mesh.positions[mesh.triangles].astype(np.float64)
     position = samples.position[rows]
     offsets = footprint_offsets(samples.pixel[rows], triangle, width, height,
-                                np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64), corners, position, count)
+                                np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64), corners, position, count,
+                                threads)
     smooth = _on_smooth_faces(mesh, triangle, samples.geometric_normal[rows])
     if not smooth.any():
         return offsets, None
