@@ -56,14 +56,20 @@ def preparation_key(scene: Scene, settings: BakeSettings, table_needed: bool | N
 
 def prepared_bytes(p: Prepared) -> int:
     """Memory a preparation holds in arrays (a cached table counted as loaded: the relight reads it)."""
-    total = p.table.nbytes if p.table is not None else 0
+    arrays = []
     for spec in fields(p):
         value = getattr(p, spec.name)
-        values = value if isinstance(value, tuple) else (value,)
-        total += sum(v.nbytes for v in values if isinstance(v, np.ndarray))
+        arrays.extend(value if isinstance(value, tuple) else (value,))
     for samples in p.object_samples:
-        total += sum(v.nbytes for v in vars(samples).values() if isinstance(v, np.ndarray))
-    return int(total)
+        arrays.extend(vars(samples).values())
+    # Each buffer once: the objects' footprints are views into the concatenated ones.
+    owners = {}
+    for array in arrays:
+        if isinstance(array, np.ndarray):
+            while isinstance(array.base, np.ndarray):
+                array = array.base
+            owners[id(array)] = array.nbytes
+    return int((p.table.nbytes if p.table is not None else 0) + sum(owners.values()))
 
 
 def prepare_or_reuse(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None,

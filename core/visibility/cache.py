@@ -56,7 +56,7 @@ from .table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE
 # 5: a footprint point that finds no place on its triangle starts from the texel's centre;
 # 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances);
 # 7: only the entries above the horizon, with a bit per entry saying which, and triangles only
-#    of the entries that hit a vertex-mode object (pack_entries).
+#    of the entries that hit a vertex-mode object (TablePacking).
 FORMAT_VERSION = 7
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
