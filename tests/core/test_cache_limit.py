@@ -171,3 +171,22 @@ def test_lighting_results_respect_the_cap_too(tmp_path):
     cache.save_lighting(settings, "m" * 32, {"direct": np.zeros(1000)})  # 8 KB: never fits, skipped
     assert cache.load_lighting(settings, "m" * 32) is None
     assert os.path.exists(os.path.join(own, "visibility.npz"))
+
+
+def test_the_progress_shows_the_table_s_size_before_it_is_written(tmp_path):
+    from core.pipeline.progress import Progress
+
+    cache = VisibilityCache(str(tmp_path), "noted")
+    path = cache.table_path(SETTINGS)
+    seen = []
+
+    class Watching(Progress):
+        def note(self, text):
+            super().note(text)
+            seen.append((self.stage, text, os.path.exists(path), self.status_text()))
+
+    prepared = prepare(_scene(), SETTINGS, Watching(), cache=cache, table_needed=True)
+    mib = f"{prepared.cache_status.estimated_bytes / 2**20:.0f} MiB"
+    stage, text, written, status = seen[0]
+    assert stage == "cache" and mib in text and not written and text in status
+    assert seen[-1][1] == "" and os.path.exists(path)  # cleared once written
