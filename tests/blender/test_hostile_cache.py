@@ -104,18 +104,17 @@ def _command(*arguments):
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=str(REPO_ROOT))
 
 
-def _signal_during_cache_write(process, signal_number, delay=0.2) -> str:
-    """Send ``signal_number`` just after the bake starts writing its table (its second 'cache'
-    stage: read, trace, write); returns everything the process printed on stderr."""
-    lines, caches = [], 0
+def _signal_during_cache_write(process, signal_number, delay=0.05) -> str:
+    """Send ``signal_number`` just after the bake announces the table it is about to pack and
+    write (the cache stage's 'writing about N MiB'); returns everything the process printed on
+    stderr. The table of BAKE is packed and written in a few tenths of a second."""
+    lines = []
     for line in process.stderr:
         lines.append(line)
-        if "visibake: cache ..." in line:
-            caches += 1
-            if caches == 2:
-                time.sleep(delay)
-                process.send_signal(signal_number)
-                break
+        if "visibake: cache: writing about" in line:
+            time.sleep(delay)
+            process.send_signal(signal_number)
+            break
     rest = process.stderr.read()
     process.wait(timeout=300)
     return "".join(lines) + rest
@@ -137,7 +136,7 @@ def test_ctrl_c_during_a_bake_prints_no_stray_exception_and_leaves_no_half_file(
 def test_a_bake_killed_while_writing_its_table_leaves_nothing_the_next_bake_keeps(tmp_path):
     cache = tmp_path / "cache"
     process = _command(*BAKE, "--cache-dir", str(cache))
-    _signal_during_cache_write(process, signal.SIGKILL, delay=0.1)
+    _signal_during_cache_write(process, signal.SIGKILL)
     assert process.returncode == -signal.SIGKILL
     report = tmp_path / "report.json"
     after = _command(*BAKE, "--cache-dir", str(cache), "--report", str(report))
