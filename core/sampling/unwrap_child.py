@@ -63,14 +63,21 @@ def child_main(request_path: str, answer_path: str) -> None:
     os.replace(temporary, answer_path)
 
 
+class UnwrapHung(RuntimeError):
+    """The unwrap process ran past its deadline (it was killed)."""
+
+
 def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: int, cancelled=None,
-                    poll_seconds: float = 0.05, python: str | None = None) -> UnwrapResult:
+                    poll_seconds: float = 0.05, python: str | None = None,
+                    deadline_seconds: float | None = None) -> UnwrapResult:
     """:func:`core.sampling.atlas.unwrap` in a child process; the same result, bit for bit.
 
     ``cancelled`` () -> bool is asked every ``poll_seconds``; when it says yes the child
     is killed and :class:`core.errors.Cancelled` raised. Raises ``ValueError`` where
-    ``unwrap`` would, ``RuntimeError`` if the child dies (a crash in xatlas), and
-    :class:`ChildUnavailable` if no child can run the unwrap at all.
+    ``unwrap`` would, ``RuntimeError`` if the child dies (a crash in xatlas),
+    :class:`UnwrapHung` if it runs past ``deadline_seconds`` (killed), and
+    :class:`ChildUnavailable` if no child can run the unwrap at all. A child whose answer is
+    written is done, even if it has not exited yet.
     """
     core_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     paths = [path for path in sys.path if path and os.path.isdir(path)]
@@ -86,10 +93,13 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
                                          env=environment)
             except OSError as error:
                 raise ChildUnavailable(f"cannot start {python or sys.executable}: {error}") from None
+            started = time.monotonic()
             try:
-                while child.poll() is None:
+                while child.poll() is None and not os.path.exists(answer):
                     if cancelled is not None and cancelled():
                         raise Cancelled()
+                    if deadline_seconds is not None and time.monotonic() - started > deadline_seconds:
+                        raise UnwrapHung(f"the unwrap process ran past its {deadline_seconds:.0f} s")
                     time.sleep(poll_seconds)
             finally:
                 if child.poll() is None:
@@ -100,7 +110,7 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
         last = message[-1] if message else f"exit status {child.returncode}"
         if child.returncode == _CANNOT_IMPORT:
             raise ChildUnavailable(f"the unwrap process cannot import what it needs: {last}")
-        if child.returncode != 0 or not os.path.exists(answer):
+        if not os.path.exists(answer):
             raise RuntimeError(f"the unwrap process failed: {last}")
         with np.load(answer) as data:
             if "error" in data:

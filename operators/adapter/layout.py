@@ -20,7 +20,7 @@ from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_pro
 
 # Kept importable from here for the tests that name the policy's limits through the adapter.
 from ...core.sampling.layout import TYPICAL_PACKED_UV_AREA
-from ...core.sampling.unwrap_child import ChildUnavailable, unwrap_in_child
+from ...core.sampling.unwrap_child import ChildUnavailable, UnwrapHung, unwrap_in_child
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -42,17 +42,33 @@ class PendingUnwrap:
     error: str | None = None
 
     def run(self, in_child: bool = False, cancelled=None) -> None:
-        """Unwrap, in this process or (cancellable, leaving the UI free) in a child process."""
+        """Unwrap in a child process: cancellable (``cancelled``, asked while it runs, with
+        ``in_child``), leaving the UI free, and safe from xatlas's rare hang. xatlas's task
+        scheduler can miss its shutdown signal and wait forever when an atlas is destroyed
+        (seen in this project's test runs, a few times in a thousand unwraps); a child that
+        runs far past its expected time is killed and the unwrap tried once more. Where no
+        child can run, the unwrap runs here, blocking but correct."""
+        deadline = UNWRAP_DEADLINE_SECONDS + UNWRAP_DEADLINE_FACTOR * policy.unwrap_seconds(len(self.triangles))
         try:
-            if in_child:
+            for attempt in range(2):
                 try:
-                    self.result = unwrap_in_child(self.positions, self.triangles, self.resolution, cancelled)
+                    self.result = unwrap_in_child(self.positions, self.triangles, self.resolution,
+                                                  cancelled if in_child else None, deadline_seconds=deadline)
                     return
+                except UnwrapHung:
+                    if attempt:
+                        raise
                 except ChildUnavailable:
-                    pass  # no interpreter to run it: unwrap here, blocking but correct
+                    break  # no interpreter to run it: unwrap here, blocking but correct
             self.result = unwrap(self.positions, self.triangles, self.resolution)
         except (RuntimeError, ValueError) as error:
             self.error = str(error)
+
+
+# A child unwrap is killed (and tried once more) when it runs longer than this plus
+# UNWRAP_DEADLINE_FACTOR times its expected time (core.sampling.layout.unwrap_seconds).
+UNWRAP_DEADLINE_SECONDS = 60.0
+UNWRAP_DEADLINE_FACTOR = 10.0
 
 
 @dataclass

@@ -2,6 +2,7 @@
 import signal
 import subprocess
 import sys
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -92,3 +93,13 @@ def test_a_cancel_kills_the_child_mid_unwrap_and_leaves_nothing(monkeypatch, tmp
     # folder with its request (and any answer) is gone.
     assert children[0].returncode == -signal.SIGKILL
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_child_past_its_deadline_is_killed_and_says_so():
+    from core.sampling.unwrap_child import UnwrapHung
+
+    positions, triangles = _sphere(24, 12)
+    started = time.monotonic()
+    with pytest.raises(UnwrapHung, match="ran past"):
+        unwrap_in_child(positions, triangles, 64, deadline_seconds=0.01)
+    assert time.monotonic() - started < 30  # killed, not waited for
