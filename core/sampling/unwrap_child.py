@@ -1,4 +1,5 @@
-"""Unwrapping in a child process, so that a long xatlas unwrap can be cancelled.
+"""Unwrapping in a child process, so that a long xatlas unwrap can be cancelled, and a hung
+one killed (xatlas's task scheduler can miss its shutdown signal and wait forever).
 
 xatlas keeps Python's GIL for the whole unwrap: on this 2-core machine, a 65k-triangle
 sphere takes 12.6 s, and no other Python thread runs in that time. On a worker thread it
