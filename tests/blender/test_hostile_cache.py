@@ -100,8 +100,11 @@ def test_half_written_files_of_a_killed_bake_are_removed_by_the_next_and_counted
 
 
 def _command(*arguments):
+    # SIGINT back to its default in the child: a test run started in the background of a
+    # shell without job control inherits it ignored, and Python then never sees a Ctrl+C.
     return subprocess.Popen([sys.executable, str(REPO_ROOT / "tools" / "visibake.py"), *arguments],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=str(REPO_ROOT))
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=str(REPO_ROOT),
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _signal_during_cache_write(process, signal_number, delay=0.05) -> str:
