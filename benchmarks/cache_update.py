@@ -11,7 +11,9 @@ image write-back), each step timed on its own:
 3. relight: the lamp's power doubled; transport only, from the warm preparation
 3b. resident relight: the Relight button's path in a running session (core.pipeline.resident):
    the preparation kept in memory by the bake is reused, then the same relight; split into
-   direct light (lamps, exact shadows over the footprints) and the gathers (table lookups)
+   direct light (lamps, exact shadows over the footprints) and the gathers (table lookups).
+   Only the point lamp's power changes, so its direct light is scaled from the memo
+   (core.pipeline.light_memo); 3c moves the lamp instead, so its direct light is computed again
 4. moved: one object moved; the table is updated (``updated``), compared entry by
    entry with a fresh trace of the moved scene, and timed against that trace.
 
@@ -109,6 +111,19 @@ def main(argv=None) -> int:
             "bake_seconds": seconds, "first_relight_seconds": first_seconds, "reuse_seconds": reuse_seconds,
             "relight_seconds": relight_seconds, "total_seconds": reuse_seconds + relight_seconds,
             "kept_bytes": resident.prepared_bytes(kept),
+            "shadow_rays": outcome.report["rays"]["shadow_rays"],
+            "passes": passes,
+            "direct_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("direct light")),
+            "gather_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("gather")),
+            "stage_seconds": outcome.report["stage_seconds"]}
+        # A moved lamp: its direct light is computed again, the other lamps' is scaled from the memo.
+        moved_lamp = [dataclasses.replace(light, position=np.asarray(light.position) + np.array([0.1, 0.0, 0.0]))
+                      if light.kind == "POINT" else light for light in again]
+        outcome, moved_seconds = timed(lambda prepared=reused: pipeline.relight(prepared, moved_lamp, scene.world))
+        passes = outcome.report["passes"]
+        results["resident_relight_moved_lamp"] = {
+            "relight_seconds": moved_seconds,
+            "shadow_rays": outcome.report["rays"]["shadow_rays"],
             "direct_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("direct light")),
             "gather_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("gather")),
             "stage_seconds": outcome.report["stage_seconds"]}

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -77,6 +77,37 @@ def surface_to_point(position: np.ndarray, normal: np.ndarray, point: np.ndarray
     cos_patch = np.clip(-(to_point @ np.asarray(point_normal, np.float64)), 0.0, None)
     transfer = np.where(distance > 1e-12, cos_receiver * cos_patch / (safe * safe), 0.0)
     return to_point, distance, transfer
+
+
+# What a lamp's direct light is proportional to rather than shaped by.
+_SCALE_FIELDS = ("strength", "color", "group")
+
+
+def lamp_shape_key(light: Light) -> tuple:
+    """A hashable key of everything about ``light`` except its power, colour and light group.
+
+    A lamp's direct light (shadows, sampler points and all) is its :func:`unit_lamp`'s
+    times :func:`lamp_scale`, so two lamps with equal keys differ only by that factor.
+    """
+    parts = []
+    for spec in fields(light):
+        if spec.name in _SCALE_FIELDS:
+            continue
+        value = getattr(light, spec.name)
+        if isinstance(value, np.ndarray):
+            value = tuple(np.asarray(value, np.float64).ravel().tolist())
+        parts.append((spec.name, value))
+    return tuple(parts)
+
+
+def unit_lamp(light: Light) -> Light:
+    """``light`` with power 1 and white colour (its light group dropped): see :func:`lamp_shape_key`."""
+    return replace(light, strength=1.0, color=np.ones(3), group="")
+
+
+def lamp_scale(light: Light) -> np.ndarray:
+    """(3,) float64: what a lamp's direct light is its :func:`unit_lamp`'s times (power x colour)."""
+    return max(float(light.strength), 0.0) * np.asarray(light.color, np.float64)[:3]
 
 
 def lamp_points(light: Light, area_light_samples: int) -> int:
@@ -198,15 +229,14 @@ class LampPoints:
     def __init__(self, light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
                  sample_ids: np.ndarray | None = None, seed: int = 0, footprint: np.ndarray | None = None,
                  points: int | None = None, footprint_normals: np.ndarray | None = None):
-        strength = max(float(light.strength), 0.0)
-        if not np.isfinite(strength):
+        if not np.isfinite(float(light.strength)):
             raise ValueError(f"light {light.name!r} has a non-finite strength")
         if light.kind not in ("SUN", "POINT", "SPOT", "AREA"):
             raise ValueError(f"light {light.name!r}: unsupported kind {light.kind!r}")
         self.light, self.position, self.normal, self.footprint = light, position, normal, footprint
         # (K, P, 3) the shading normal at each footprint point, or None: the sample's own for all.
         self.footprint_normals = footprint_normals if footprint is not None else None
-        self.scale = strength * np.asarray(light.color, np.float64)[:3]
+        self.scale = lamp_scale(light)
         self.count = lamp_points(light, area_light_samples) if points is None else max(1, int(points))
         # A lamp without extent is one exact point; over a footprint it is that point seen from each footprint point.
         self.point_lamp = lamp_points(light, area_light_samples) == 1 and light.kind != "AREA"

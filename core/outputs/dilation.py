@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels
+
 
 def check_dilate_arguments(image, coverage, margin) -> tuple[np.ndarray, np.ndarray, int]:
     """The arguments of :func:`dilate` (and of its GPU twin) checked: (image, coverage bool, margin int)."""
@@ -48,6 +50,10 @@ def dilate(image: np.ndarray, coverage: np.ndarray, margin: int) -> tuple[np.nda
     # Only the ring next to the filled region changes in a pass, so work on that
     # ring's texel indices rather than on whole-image shifted copies.
     frontier = np.flatnonzero(_grow8(coverage).ravel() & ~known) if margin else np.zeros(0, np.int64)
+    module = kernels.compiled()
+    if module is not None:
+        module.dilate_rings(values, known, frontier.astype(np.int64), width, height, margin)
+        margin = 0
     for _ in range(margin):
         if frontier.size == 0:
             break

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
+
 __all__ = ["Seams", "StitchResult", "find_seams", "stitch"]
 
 # Weight of one seam point's disagreement against keeping one covered texel's value.
@@ -191,7 +193,13 @@ def stitch(image: np.ndarray, seams: Seams) -> StitchResult:
     keep = seams.keep[:, None]
     rows = seams.index.reshape(-1)
 
+    module = kernels.compiled()
+
     def normal_matrix(x):
+        if module is not None:
+            product = np.empty_like(x)
+            module.seam_product(seams.weight, seams.index, seams.keep, SEAM_WEIGHT, np.ascontiguousarray(x), product)
+            return product
         residual = seams.disagreement(x)  # (s, C)
         spread = seams.weight[:, :, None] * residual[:, None, :]
         back = np.stack([np.bincount(rows, spread[..., c].reshape(-1), n) for c in range(channels)], axis=1)

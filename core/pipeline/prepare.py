@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,6 +42,7 @@ from ..visibility.table import (
     update_table,
 )
 from .budget import check_budget
+from .light_memo import LightMemo
 from .progress import Stages
 
 
@@ -88,6 +89,10 @@ class Prepared:
     _near_hits: object = False
     _filter_pairs: tuple | None = None
     _exposed: np.ndarray | None = None
+    # Light a later relight can reuse (core.pipeline.light_memo), bounded on its own.
+    light_memo: LightMemo = field(default_factory=LightMemo)
+    # Kept for later relights (core.pipeline.resident): its transport is split into parts they can reuse.
+    resident: bool = False
 
     def exposed(self) -> np.ndarray:
         """(K,) float64 each sample's share of footprint points not buried inside other geometry

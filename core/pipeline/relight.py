@@ -23,10 +23,10 @@ from ..settings import LIGHTING_PASSES, BakeSettings
 from ..transport.contract import TransportBackend
 from ..transport.cpu import CPU_BACKEND
 from ..transport.gather import ambient_occlusion
-from ..transport.groups import MAX_GROUPS_PER_GATHER, Transported, light_groups
+from ..transport.groups import Transported, light_groups
 from .prepare import Prepared, prepare, read_deferred_table
 from .progress import Stages
-from .transport import transport_groups
+from .transport import transport_pending
 
 
 @dataclass
@@ -157,23 +157,19 @@ def relight_many(prepared: Prepared, lightings, progress=None,
     if total_groups:
         stages.expect("transport", len(pending) / total_groups)
     read_deferred_table(p, stages, needed=bool(pending) or "ao" in wants)
-    gathers = 0
-    batches = [pending[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(pending), MAX_GROUPS_PER_GATHER)]
     shared_skips: list[str] = []
-    for number, batch in enumerate(batches):
-        results, count = transport_groups(p, backend, [group for _, group, _ in batch], stages, shared_skips, dilation,
-                                          (number / len(batches), (number + 1) / len(batches)))
-        gathers += count
-        for (index, group, key), result in zip(batch, results):
-            transported[index, group.name] = result
-            # Interactive relighting revisits its lightings; a batch of setups rarely
-            # does, and would fill the cache with results nobody reads again.
-            if key and len(lightings) == 1:
-                try:
-                    p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
-                except OSError as error:
-                    plans[index]["warnings"].append(f"lighting cache in {p.cache.folder} could not be written "
-                                                    f"({error.strerror or error}); nothing else is affected")
+    results, gathers = transport_pending(p, backend, [group for _, group, _ in pending], stages, shared_skips,
+                                         dilation)
+    for (index, group, key), result in zip(pending, results):
+        transported[index, group.name] = result
+        # Interactive relighting revisits its lightings; a batch of setups rarely
+        # does, and would fill the cache with results nobody reads again.
+        if key and len(lightings) == 1:
+            try:
+                p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
+            except OSError as error:
+                plans[index]["warnings"].append(f"lighting cache in {p.cache.folder} could not be written "
+                                                f"({error.strerror or error}); nothing else is affected")
 
     stages.start("outputs")
     per_lighting = []

@@ -114,6 +114,7 @@ def prepare_or_reuse(scene: Scene, settings: BakeSettings, progress=None, table_
     if keep_bytes > 0:
         size = prepared_bytes(p)
         if size <= keep_bytes:
+            p.resident = True
             with _lock:
                 _kept = (key, p, size)
         else:

@@ -8,13 +8,20 @@ import time
 import numpy as np
 
 from ..lights.emitters import emitter_irradiance, find_emitters, sampled_directly
+from ..lights.lamps import lamp_scale, lamp_shape_key, unit_lamp
 from ..transport.contacts import contact_correction
 from ..transport.contract import GatherSource, TransportBackend
 from ..transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
-from ..transport.groups import LightGroup, Transported
+from ..transport.groups import MAX_GROUPS_PER_GATHER, LightGroup, Transported
 from ..transport.interleave import near_light, reconstruct_interleaved
+from ..visibility.cache import arrays_key
 from .prepare import Prepared
 from .progress import Stages
+
+# A kept preparation transports each lamp on its own (transport_lamp_parts) when the parts
+# are at most this many: 3 channels a part, and a gather of 12 channels costs about 1.45x
+# one of 3 on the demo (9: 1.34x), which the first relight that changes a power repays.
+MAX_LAMP_PARTS = 4
 
 
 def _direct_share(p, lamp_rays: float, emitter_rays: float) -> float:
@@ -72,18 +79,30 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     direct_share = _direct_share(p, lamp_rays, emitter_rays)
     lamp_share = direct_share * lamp_rays / max(lamp_rays + emitter_rays, 1)
     results = []
+    reused = set()  # names of lamps and emitters whose light was kept from an earlier relight
     for index, group in enumerate(groups):
-        irradiance, rays = backend.lamp_irradiance(
-            p.sample_set(), p.shadowing(), group.lights, lambda f, i=index: report(lamp_share * (i + f) / count))
+        irradiance, rays = lamp_light(p, backend, "samples", p.sample_set(), group.lights, reused,
+                                      lambda f, i=index: report(lamp_share * (i + f) / count))
         results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
-    contacts = _contact_light(p, backend, groups, results, stages, skipped)
+    contacts = _contact_light(p, backend, groups, results, stages, skipped, reused)
     for number, (owner, emitter, chosen) in enumerate(sampled):
-        irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen],
-                                              p.geometric[chosen], p.origins[chosen], p.ray_scene)
+        name = p.meshes[emitter.object_index].name
+        key = ("emitter", emitter.object_index)
+        kept = p.light_memo.get(key)
+        if kept is None:
+            irradiance, rays = emitter_irradiance(emitter, p.position[chosen], p.normal[chosen],
+                                                  p.geometric[chosen], p.origins[chosen], p.ray_scene)
+            p.light_memo.put(key, irradiance)
+        else:
+            irradiance, rays = kept, 0
+            reused.add(name)
         results[owner].direct[chosen] += irradiance
         results[owner].emitter_rays += rays
-        results[owner].emitters_sampled += (p.meshes[emitter.object_index].name,)
+        results[owner].emitters_sampled += (name,)
         report(lamp_share + (direct_share - lamp_share) * (number + 1) / len(sampled))
+    if reused:
+        skipped.append(f"direct light of {', '.join(sorted(reused))}: only power or colour changed since an "
+                       "earlier relight of this preparation; its kept light was scaled, no shadow ray traced")
     stages.book("direct", time.perf_counter() - direct_started)
     stages.record_pass(f"direct light ({count} groups)", backend.name, time.perf_counter() - direct_started)
 
@@ -117,12 +136,21 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         return result
 
     if gathers_emission:
-        emitting_atlas = p.to_atlas(wide(emissions), dilate)
-        emitted = _gather_emission(p, timed_gather, emitting_atlas, np.concatenate(worlds, axis=-1), exclude,
-                                   step_progress(0), outputs if bounces == 0 else None)
-        emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude))
-        np.maximum(emitted, 0.0, out=emitted)  # the filter's subtraction may leave -1e-10
-        gathers += 1
+        # Emission is fixed with the preparation's materials: only the groups' emitters and worlds vary.
+        key = ("emitted", backend.name, arrays_key(np.stack([g.emitting for g in groups]),
+                                                   *[np.asarray(w, np.float64) for w in worlds]))
+        emitted = p.light_memo.get(key)
+        if emitted is None:
+            emitting_atlas = p.to_atlas(wide(emissions), dilate)
+            emitted = _gather_emission(p, timed_gather, emitting_atlas, np.concatenate(worlds, axis=-1), exclude,
+                                       step_progress(0), outputs if bounces == 0 else None)
+            emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude))
+            np.maximum(emitted, 0.0, out=emitted)  # the filter's subtraction may leave -1e-10
+            p.light_memo.put(key, emitted)
+            gathers += 1
+        else:
+            skipped.append("gather of emitted and world light: emitters and world unchanged since an earlier "
+                           "relight of this preparation; its result was kept")
         for result, part in zip(results, narrow(emitted)):
             result.direct += part
     gathered = np.zeros((len(p.position), 3 * count))
@@ -175,8 +203,37 @@ def _gather_emission(p: Prepared, timed_gather, atlas: np.ndarray, world: np.nda
     return total
 
 
+def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, lights, reused: set,
+               report=None) -> tuple[np.ndarray, int]:
+    """(K, 3) float64 direct light of ``lights`` at ``samples`` (a SampleSet, ``where`` naming
+    which of the preparation's: "samples" or "short hits"), and the shadow rays traced.
+
+    Each lamp's light is its unit lamp's (core.lights.lamps.unit_lamp) times its power and
+    colour. The unit light is kept in the preparation's memo, so a later relight in which a
+    lamp changed only power or colour takes it from there (and adds the lamp's name to
+    ``reused``). A first bake computes it the same way, so both give bitwise the same light.
+    """
+    total = np.zeros((len(samples.position), 3))
+    rays = 0
+    for number, light in enumerate(lights):
+        key = ("lamp", backend.name, where, lamp_shape_key(light))
+        unit = p.light_memo.get(key)
+        if unit is None:
+            part = None if report is None else (lambda f, n=number: report((n + f) / len(lights)))
+            irradiance, traced = backend.lamp_irradiance(samples, p.shadowing(), [unit_lamp(light)], part)
+            unit = np.ascontiguousarray(irradiance[:, 0], dtype=np.float64)
+            rays += traced
+            p.light_memo.put(key, unit)
+        else:
+            reused.add(light.name)
+        total += unit[:, None] * lamp_scale(light)
+        if report is not None:
+            report((number + 1) / len(lights))
+    return total, rays
+
+
 def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGroup], results: list[Transported],
-                   stages: Stages, skipped: list):
+                   stages: Stages, skipped: list, reused: set):
     """The lamps' direct light where short rays land (core.transport.contacts), per group, for
     every bounce's correction: (short hits, (K, 3G) the samples' lamp light, (m, 3G) the
     hits' lamp light), or None when the bake needs none (say why in ``skipped``). The pass
@@ -195,9 +252,92 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         return None
     at_hits = []
     for group, result in zip(groups, results):
-        irradiance, rays = backend.lamp_irradiance(short.points, p.shadowing(), group.lights)
+        irradiance, rays = lamp_light(p, backend, "short hits", short.points, group.lights, reused)
         at_hits.append(irradiance)
         result.shadow_rays += rays
     at_hits = np.concatenate(at_hits, axis=1)
     stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
     return short, np.concatenate([r.direct for r in results], axis=1).copy(), at_hits
+
+
+def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,
+                         skipped: list, dilate, share=(0.0, 1.0)) -> tuple[list[Transported], int] | None:
+    """:func:`transport_groups` for a kept preparation, by parts that a later relight can reuse;
+    None where the parts would be more than MAX_LAMP_PARTS (then transport the groups whole).
+
+    Transport is linear in the emitted light, so a group's light is the sum of each lamp's
+    unit transport (direct light and every bounce of core.lights.lamps.unit_lamp) times its
+    power and colour, plus the transport of its emitters and world. Each part is kept in the
+    preparation's memo (core.pipeline.light_memo) and only the parts not kept are transported:
+    a relight that changes powers and colours gathers nothing. Returns the groups' light and
+    the gathers run.
+    """
+    parts: dict = {}
+    recipes = []  # per group: [(part key, (3,) scale or None for the emitters and world)]
+    for group in groups:
+        recipe = []
+        for light in group.lights:
+            key = ("part", backend.name, lamp_shape_key(light))
+            parts.setdefault(key, (light.name, LightGroup(f"lamp {light.name}", [unit_lamp(light)],
+                                                          np.zeros_like(group.world),
+                                                          np.zeros_like(group.emitting))))
+            recipe.append((key, lamp_scale(light)))
+        if np.any(group.emitting) or np.any(np.asarray(group.world) > 0):
+            key = ("part", backend.name, arrays_key(np.asarray(group.emitting), np.asarray(group.world, np.float64)))
+            parts.setdefault(key, ("emitted and world light", LightGroup("emitted and world light", [], group.world,
+                                                                         group.emitting)))
+            recipe.append((key, None))
+        recipes.append(recipe)
+    if len(parts) > MAX_LAMP_PARTS:
+        return None
+    available = {key: p.light_memo.get(key) for key in parts}
+    missing = [key for key, kept in available.items() if kept is None]
+    reused = sorted(parts[key][0] for key in parts if key not in missing)
+    if reused:
+        skipped.append(f"transport of {', '.join(reused)}: only power or colour changed since an earlier relight "
+                       "of this preparation; its kept light (direct and every bounce) was scaled")
+    gathers = 0
+    rays = {}
+    if missing:
+        results, gathers = transport_groups(p, backend, [parts[key][1] for key in missing], stages, skipped, dilate,
+                                            share)
+        for key, result in zip(missing, results):
+            kept = (result.direct, result.gathered, result.emitters_sampled)
+            p.light_memo.put(key, kept)
+            available[key] = kept
+            rays[key] = (result.shadow_rays, result.emitter_rays)
+    transported = []
+    for recipe in recipes:
+        direct = np.zeros((len(p.position), 3))
+        gathered = np.zeros((len(p.position), 3))
+        result = Transported(direct, gathered)
+        for key, scale in recipe:
+            part_direct, part_gathered, emitters = available[key]
+            weight = np.ones(3) if scale is None else scale
+            direct += part_direct * weight
+            gathered += part_gathered * weight
+            shadow, emitter = rays.pop(key, (0, 0))  # a part shared by two groups was traced once
+            result.shadow_rays += shadow
+            result.emitter_rays += emitter
+            result.emitters_sampled += tuple(emitters)
+        transported.append(result)
+    return transported, gathers
+
+
+def transport_pending(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,
+                      skipped: list, dilate) -> tuple[list[Transported], int]:
+    """Every group's light: by lamp parts where the preparation is kept for relights and the
+    parts are few (:func:`transport_lamp_parts`), else in batches of MAX_GROUPS_PER_GATHER
+    groups gathered together (:func:`transport_groups`). Returns the groups' light and the gathers run."""
+    if p.resident and groups:
+        by_parts = transport_lamp_parts(p, backend, groups, stages, skipped, dilate)
+        if by_parts is not None:
+            return by_parts
+    results, gathers = [], 0
+    batches = [groups[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(groups), MAX_GROUPS_PER_GATHER)]
+    for number, batch in enumerate(batches):
+        batch_results, count = transport_groups(p, backend, batch, stages, skipped, dilate,
+                                                (number / len(batches), (number + 1) / len(batches)))
+        results += batch_results
+        gathers += count
+    return results, gathers

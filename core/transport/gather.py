@@ -91,9 +91,17 @@ class AtlasLayout:
     def bilinear(self, flat: np.ndarray, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Bilinear lookup at atlas coordinates ``uv`` (n, 2) of objects ``obj`` (n,).
 
-        Clamped to the texel centres at the atlas border. float32 and int32 through
-        out: this runs once per table entry and gather, the innermost loop of a bake.
+        Clamped to the texel centres at the atlas border. Returns (n, C) float64 (the
+        texel position is float32, the blend float64 as numpy promotes it). Compiled
+        (bitwise the same) where the kernels load.
         """
+        module = kernels.compiled()
+        if module is not None and flat.ndim == 2 and flat.dtype == np.float32:
+            result = np.empty((len(obj), flat.shape[1]))
+            module.bilinear_points(flat, self.widths.astype(np.int32), self.heights.astype(np.int32),
+                                   self._offsets32, np.asarray(obj, np.int32),
+                                   np.ascontiguousarray(uv, np.float32), result)
+            return result
         width = self.widths.astype(np.float32)[obj]
         height = self.heights.astype(np.float32)[obj]
         x = np.minimum(np.maximum(uv[:, 0] * width - np.float32(0.5), np.float32(0.0)), width - 1)

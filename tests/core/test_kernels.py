@@ -299,3 +299,58 @@ def test_a_table_with_nothing_above_the_horizon_packs_to_nothing_and_back():
     unpacked = cache_module.unpack_entries(packed, shape, threads=2)
     for name in ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle"):
         np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
+
+
+def test_compiled_bilinear_points_are_bitwise_those_of_numpy(monkeypatch):
+    rng = np.random.default_rng(11)
+    layout = AtlasLayout.from_sizes([(5, 3), (7, 9), (1, 1)])
+    flat = rng.uniform(0.0, 4.0, size=(layout.size, 4)).astype(np.float32)
+    obj = rng.integers(0, 3, size=5000).astype(np.int16)
+    uv = rng.uniform(-0.2, 1.2, size=(5000, 2)).astype(np.float32)
+    compiled = layout.bilinear(flat, obj, uv)
+    monkeypatch.setattr(kernels, "_module", None)
+    expected = layout.bilinear(flat, obj, uv)
+    assert compiled.dtype == expected.dtype == np.float64
+    np.testing.assert_array_equal(compiled, expected)
+
+
+def test_compiled_seam_stitch_and_dilation_match_numpy(monkeypatch):
+    from core.outputs import dilation, seams
+    rng = np.random.default_rng(5)
+    size = 48
+    coverage = np.zeros((size, size), bool)
+    coverage[4:20, 5:22] = True
+    coverage[26:44, 24:45] = True
+    coverage[30:34, 2:6] = True
+    image = rng.uniform(0.0, 2.0, size=(size, size, 3)).astype(np.float32)
+    # Two islands with a shared edge: the same edge of two triangles placed in each.
+    triangles = np.array([[0, 1, 2], [2, 1, 3]])
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    uvs = np.array([[[0.1, 0.1], [0.4, 0.1], [0.1, 0.4]], [[0.6, 0.9], [0.9, 0.6], [0.9, 0.9]]])
+    normals = np.tile([0.0, 0.0, 1.0], (2, 3, 1))
+    found = seams.find_seams(positions, triangles, uvs, normals, size, size, coverage)
+    assert found is not None and found.edges > 0
+    results = []
+    for module in (kernels.compiled(), None):
+        monkeypatch.setattr(kernels, "_module", module)
+        dilated, filled = dilation.dilate(image, coverage, 4)
+        stitched = seams.stitch(dilated, found)
+        results.append((dilated, filled, stitched))
+    (dilated, filled, stitched), (dilated_np, filled_np, stitched_np) = results
+    np.testing.assert_array_equal(filled, filled_np)
+    assert filled.sum() > 0
+    np.testing.assert_allclose(dilated, dilated_np, rtol=1e-6, atol=0)
+    assert stitched.after < 0.5 * stitched.before
+    np.testing.assert_allclose(stitched.image, stitched_np.image, rtol=1e-5, atol=1e-6)
+    assert abs(stitched.after - stitched_np.after) <= 1e-4 * stitched_np.before
+
+
+def test_compiled_sums_per_sample_are_bitwise_those_of_bincount(monkeypatch):
+    from core.transport.contacts import sum_by_sample
+    rng = np.random.default_rng(3)
+    sample = rng.integers(0, 50, size=20000)
+    values = rng.normal(size=(20000, 9)) * 10.0 ** rng.integers(-8, 8, size=(20000, 1))
+    compiled = sum_by_sample(sample, values, 60)
+    monkeypatch.setattr(kernels, "_module", None)
+    np.testing.assert_array_equal(compiled, sum_by_sample(sample, values, 60))
+    assert not compiled[50:].any()
