@@ -11,6 +11,8 @@ the most common relight, then pays for the bounce gathers alone.
 
 Kept per :class:`core.pipeline.prepare.Prepared`, so it lives as long as the preparation
 (the Relight button's resident one) and never outlives a change of geometry or materials.
+At most DEFAULT_LIMIT_BYTES; a kept preparation's memo gets what the preference Resident
+Memory leaves beside the preparation, if less.
 """
 from __future__ import annotations
 
@@ -18,6 +20,8 @@ import threading
 from collections import OrderedDict
 
 import numpy as np
+
+DEFAULT_LIMIT_BYTES = 256 << 20
 
 
 class LightMemo:
@@ -27,7 +31,7 @@ class LightMemo:
     as they are, so callers never write into them.
     """
 
-    def __init__(self, limit_bytes: int = 256 << 20):
+    def __init__(self, limit_bytes: int = DEFAULT_LIMIT_BYTES):
         self.limit_bytes = int(limit_bytes)
         self._entries: OrderedDict = OrderedDict()
         self._lock = threading.Lock()

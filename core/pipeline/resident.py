@@ -115,6 +115,8 @@ def prepare_or_reuse(scene: Scene, settings: BakeSettings, progress=None, table_
         size = prepared_bytes(p)
         if size <= keep_bytes:
             p.resident = True
+            # What relights keep (core.pipeline.light_memo) stays within the same bound.
+            p.light_memo.limit_bytes = min(p.light_memo.limit_bytes, keep_bytes - size)
             with _lock:
                 _kept = (key, p, size)
         else:

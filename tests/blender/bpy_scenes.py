@@ -98,6 +98,20 @@ def image_pixels(name):
     return pixels.reshape(height, width, 4)
 
 
+def assert_same_light(actual, expected, err_msg=""):
+    """The same light up to float32 rounding: a bake whose preparation is kept for relights
+    adds each lamp's transported light, scaled by its power, where one that is not
+    transports the lamps' sum (core.pipeline.transport.transport_pending); the two orders
+    of the same sums differ in the last bits only (a few float32 ulps). Any difference of
+    settings, samples or light is orders of magnitude above this bound.
+    """
+    actual, expected = np.asarray(actual), np.asarray(expected)
+    assert actual.shape == expected.shape, (actual.shape, expected.shape)
+    assert np.isfinite(actual).all() and np.isfinite(expected).all(), err_msg
+    scale = float(np.abs(expected).max()) if expected.size else 0.0
+    np.testing.assert_allclose(actual, expected, rtol=1e-6, atol=1e-6 * scale, err_msg=err_msg)
+
+
 def bake_uv_map(obj):
     """The UV map VisiBake baked ``obj`` on: its own map if it made one, else the render map."""
     layers = obj.data.uv_layers

@@ -178,3 +178,17 @@ def test_emitters_and_the_emitted_gather_are_kept_until_the_world_changes():
     _, report = _lit(kept, [brighter], World(color=np.array([0.3, 0.2, 0.1])))
     assert report["gathers"] == 2
     assert not any(s.startswith("gather of emitted and world light: emitters") for s in report["skipped"])
+
+
+def test_what_relights_keep_stays_within_resident_memory():
+    first = resident.prepare_or_reuse(_scene(sun=POINT), MEMO_SETTINGS, keep_bytes=PLENTY)
+    size = resident.prepared_bytes(first)
+    resident.forget()
+    tight = resident.prepare_or_reuse(_scene(sun=POINT), MEMO_SETTINGS, keep_bytes=size + 1000)
+    assert tight.resident and tight.light_memo.limit_bytes == 1000
+    _lit(tight, [POINT])
+    assert tight.light_memo.nbytes() <= 1000
+    # Nothing fits, so a relight that changes only the power transports again, with the same light.
+    images, report = _lit(tight, [dataclasses.replace(POINT, strength=7.0)])
+    assert report["gathers"] == 1 and report["rays"]["shadow_rays"] > 0
+    np.testing.assert_array_equal(images, _lit(first, [dataclasses.replace(POINT, strength=7.0)])[0])
