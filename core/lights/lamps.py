@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from ..errors import BakeRefused
 from ..scene import Light
@@ -35,12 +36,15 @@ class LightContribution:
     distance : (K,) float64 (inf for a sun)
     position : (K, 3) float64 where in its footprint each sample received it; None: at the
         sample itself (shadow rays then start from the sample's own origin)
+    lit : (K,) bool the point is above the horizon of the normal it is received with and
+        gives some light, where the compiled kernel computed it; None: the caller tests it
     """
 
     irradiance: np.ndarray
     to_light: np.ndarray
     distance: np.ndarray
     position: np.ndarray | None = None
+    lit: np.ndarray | None = None
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
@@ -228,7 +232,7 @@ class LampPoints:
 
     def __init__(self, light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,
                  sample_ids: np.ndarray | None = None, seed: int = 0, footprint: np.ndarray | None = None,
-                 points: int | None = None, footprint_normals: np.ndarray | None = None):
+                 points: int | None = None, footprint_normals: np.ndarray | None = None, threads: int = 0):
         if not np.isfinite(float(light.strength)):
             raise ValueError(f"light {light.name!r} has a non-finite strength")
         if light.kind not in ("SUN", "POINT", "SPOT", "AREA"):
@@ -241,6 +245,7 @@ class LampPoints:
         # A lamp without extent is one exact point; over a footprint it is that point seen from each footprint point.
         self.point_lamp = lamp_points(light, area_light_samples) == 1 and light.kind != "AREA"
         self.hard = self.count == 1 and footprint is None and self.point_lamp
+        self.threads = threads
         if not self.hard:
             self.sampler = DirectSampler(self.count, seed)
             ids = np.arange(len(position)) if sample_ids is None else np.asarray(sample_ids)
@@ -268,6 +273,10 @@ class LampPoints:
     def contribution(self, point: int) -> LightContribution:
         """Point ``point``'s share (weighted 1 / count) at every sample."""
         position, normal = self.position, self.normal
+        if self.point_lamp and len(position):
+            compiled = _compiled_point(self, point)
+            if compiled is not None:
+                return compiled
         if self.hard:
             return _hard_contribution(self.light, position, normal, self.scale)
         receiver = position if self.footprint is None else position + self.footprint[:, point % self.footprint.shape[1]]
@@ -280,6 +289,42 @@ class LampPoints:
         if self.footprint is not None:
             part.position = receiver
         return part
+
+
+_KERNEL_KINDS = {"SUN": 0, "POINT": 1, "SPOT": 2}
+# Stand-ins for the kernel's footprint arrays where there are none (one signature for all calls).
+_NO_FOOTPRINT = np.zeros((1, 1, 3), np.float32)
+
+
+def _compiled_point(lamp: LampPoints, point: int) -> LightContribution | None:
+    """Point ``point`` of a lamp without extent through the compiled kernel
+    (core.kernels.light_kernels.hard_lamp_point), with ``lit`` set; None where the kernels
+    do not run (the numpy code then does the same)."""
+    module = kernels.compiled()
+    if module is None:
+        return None
+    light, count = lamp.light, len(lamp.position)
+    offsets, offset_slot = _NO_FOOTPRINT, -1
+    if lamp.footprint is not None:
+        offsets, offset_slot = lamp.footprint, point % lamp.footprint.shape[1]
+    point_normals, normal_slot = _NO_FOOTPRINT, -1
+    if lamp.footprint_normals is not None:
+        point_normals, normal_slot = lamp.footprint_normals, point % lamp.footprint_normals.shape[1]
+    cos_half = float(np.cos(light.spot_size / 2.0))
+    band = (1.0 - cos_half) * float(light.spot_blend)
+    part = LightContribution(np.empty((count, 3)), np.empty((count, 3)), np.empty(count),
+                             np.empty((count, 3)) if offset_slot >= 0 else None, np.empty(count, bool))
+    kernels.run(module.hard_lamp_point, lamp.threads, _KERNEL_KINDS[light.kind],
+                np.asarray(light.position, np.float64), np.asarray(light.direction, np.float64), cos_half, band,
+                np.ascontiguousarray(lamp.position, np.float64), np.ascontiguousarray(lamp.normal, np.float64),
+                np.ascontiguousarray(offsets, np.float32), offset_slot,
+                np.ascontiguousarray(point_normals, np.float32), normal_slot,
+                lamp.scale / (1 if lamp.hard else lamp.count), part.irradiance, part.to_light, part.distance,
+                part.position if part.position is not None else _NO_RECEIVER, part.lit)
+    return part
+
+
+_NO_RECEIVER = np.zeros((0, 3))
 
 
 def _hard_contribution(light: Light, position: np.ndarray, normal: np.ndarray, scale: np.ndarray

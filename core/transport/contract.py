@@ -51,6 +51,8 @@ class SampleSet:
     dense_footprint : callable (rows (r,) int64, count) -> (offsets (r, count, 3) float32,
         normals (r, count, 3) float32 or None): a denser footprint of samples ``rows``, of
         which the first P points are ``footprint``'s; None: there is none
+    derived : light-independent arrays the passes derive from the samples, kept with them
+        so that every relight of a preparation reuses them (keyed by the pass's own name)
     """
 
     position: np.ndarray
@@ -64,6 +66,7 @@ class SampleSet:
     terminator_cutoff: np.ndarray | None = None
     footprint_normals: np.ndarray | None = None
     dense_footprint: object = None
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def on_surface(cls, position: np.ndarray, normal: np.ndarray,

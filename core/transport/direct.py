@@ -54,7 +54,8 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         blockers = shadowing.blocker_scene(light) if not fractions_mode else None
         receives = shadowing.receivers(light, samples)
         lamp = LampPoints(light, samples.position, samples.normal, shadowing.area_light_samples, sample_ids,
-                          shadowing.seed, footprint, points[light_index], samples.footprint_normals)
+                          shadowing.seed, footprint, points[light_index], samples.footprint_normals,
+                          _threads(shadowing))
         # Skip what a sample does not need. Rays to the lamp's centre and outline tell each
         # sample whether it is in a penumbra; a sample wholly lit or wholly shadowed traces no
         # more rays, and where the lamp looks small from it (its unshadowed light is nearly
@@ -84,7 +85,11 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
                 if lamp.footprint_normals is not None:
                     # A curved footprint's light changes across it: it needs every point's cosine
                     # (no ray: it is decided).
-                    small &= ~curved_footprints(lamp.footprint_normals, samples.normal)
+                    curved = samples.derived.get("curved_footprints")
+                    if curved is None:
+                        curved = curved_footprints(lamp.footprint_normals, samples.normal)
+                        samples.derived["curved_footprints"] = curved
+                    small &= ~curved
                 lamp_light[small] *= lamp.count / SMALL_LAMP_POINTS
                 rows = np.nonzero(~small)[0]
                 if not len(rows):
@@ -93,9 +98,7 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
             part = lamp.contribution(index)
             # Above the shading normal's horizon, as Cycles lights a smooth face (its shadow rays
             # then start lifted towards the smooth surface: trace_shadow_rays).
-            shading = lamp.point_normal(index)
-            above = np.einsum("kd,kd->k", part.to_light, shading) > 0.0
-            lit = above & np.any(part.irradiance > 0, axis=1)
+            lit = part.lit if part.lit is not None else _lit(part, lamp.point_normal(index))
             if receives is not None:
                 lit &= receives if rows is None else receives[rows]
             visibility = lit.astype(np.float64)
@@ -122,18 +125,22 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
     return irradiance, shadow_rays
 
 
+def _lit(part: LightContribution, shading: np.ndarray) -> np.ndarray:
+    """(K,) bool: the point is above the horizon of ``shading`` (K, 3) and gives some light."""
+    return (np.einsum("kd,kd->k", part.to_light, shading) > 0.0) & np.any(part.irradiance > 0, axis=1)
+
+
 def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, blockers, receives, points: int):
     """(len(edges), 3) the lamp's irradiance at samples ``edges`` over their dense footprints
     (SampleSet.dense_footprint, EDGE_FOOTPRINT_POINTS each), every point traced; and the rays."""
     offsets, normals = samples.dense_footprint(edges, EDGE_FOOTPRINT_POINTS)
     lamp = LampPoints(light, samples.position[edges], samples.normal[edges], shadowing.area_light_samples, edges,
-                      shadowing.seed, offsets, max(points, EDGE_FOOTPRINT_POINTS), normals)
+                      shadowing.seed, offsets, max(points, EDGE_FOOTPRINT_POINTS), normals, _threads(shadowing))
     light_sum = np.zeros((len(edges), 3))
     rays = 0
     for index in range(lamp.count):
         part = lamp.contribution(index)
-        lit = (np.einsum("kd,kd->k", part.to_light, lamp.point_normal(index)) > 0.0) & np.any(part.irradiance > 0,
-                                                                                            axis=1)
+        lit = part.lit.copy() if part.lit is not None else _lit(part, lamp.point_normal(index))
         if receives is not None:
             lit &= receives[edges]
         local = np.nonzero(lit)[0]
@@ -142,6 +149,11 @@ def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, bl
             rays += len(local)
         light_sum += part.irradiance * lit[:, None]
     return light_sum, rays
+
+
+def _threads(shadowing) -> int:
+    """The Threads preference as the preparation's ray scene holds it (0: all cores)."""
+    return getattr(shadowing.ray_scene, "threads", 0) or 0
 
 
 def curved_footprints(footprint_normals: np.ndarray, normal: np.ndarray) -> np.ndarray:

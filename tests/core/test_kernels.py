@@ -339,7 +339,7 @@ def test_compiled_seam_stitch_and_dilation_match_numpy(monkeypatch):
     (dilated, filled, stitched), (dilated_np, filled_np, stitched_np) = results
     np.testing.assert_array_equal(filled, filled_np)
     assert filled.sum() > 0
-    np.testing.assert_allclose(dilated, dilated_np, rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(dilated, dilated_np)  # numpy's summation order, to the bit
     assert stitched.after < 0.5 * stitched.before
     np.testing.assert_allclose(stitched.image, stitched_np.image, rtol=1e-5, atol=1e-6)
     assert abs(stitched.after - stitched_np.after) <= 1e-4 * stitched_np.before
@@ -354,3 +354,63 @@ def test_compiled_sums_per_sample_are_bitwise_those_of_bincount(monkeypatch):
     monkeypatch.setattr(kernels, "_module", None)
     np.testing.assert_array_equal(compiled, sum_by_sample(sample, values, 60))
     assert not compiled[50:].any()
+
+
+def test_compiled_one_channel_dilation_is_bitwise_that_of_numpy(monkeypatch):
+    # One channel is where numpy's einsum sums in SIMD lanes: the kernel follows it, and
+    # outside neighbours clamped into the image keep 0 * inf = NaN as in numpy.
+    from core.outputs import dilation
+    rng = np.random.default_rng(9)
+    coverage = rng.random((40, 37)) < 0.05
+    coverage[0, :] = True
+    image = rng.normal(size=(40, 37)) * 10.0 ** rng.integers(-3, 4, size=(40, 37))
+    image[0, 0] = np.inf
+    results = []
+    for module in (kernels.compiled(), None):
+        monkeypatch.setattr(kernels, "_module", module)
+        results.append(dilation.dilate(image.astype(np.float32), coverage, 6))
+    np.testing.assert_array_equal(results[0][1], results[1][1])
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    assert np.isnan(results[0][0][1, 0])  # its neighbour outside the image clamps onto the inf: 0 * inf
+
+
+@pytest.mark.parametrize("kind, blend", [("SUN", 0.0), ("POINT", 0.0), ("SPOT", 0.0), ("SPOT", 0.3)])
+@pytest.mark.parametrize("footprint", ["none", "offsets", "offsets and normals"])
+def test_compiled_hard_lamp_points_match_numpy(monkeypatch, kind, blend, footprint):
+    from core.lights import lamps
+    from core.scene import Light
+    from core.transport.direct import _lit
+    rng = np.random.default_rng([len(kind), int(blend * 10), len(footprint)])
+    count, points = 4000, 16
+    position = rng.normal(size=(count, 3))
+    normal = rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    offsets = normals = None
+    if footprint != "none":
+        offsets = (rng.normal(size=(count, points, 3)) * 0.01).astype(np.float32)
+    if footprint == "offsets and normals":
+        normals = rng.normal(size=(count, points, 3))
+        normals = (normals / np.linalg.norm(normals, axis=2, keepdims=True)).astype(np.float32)
+    direction = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    light = Light("Lamp", kind, np.array([1.0, 0.8, 0.5]), 100.0, position=np.array([0.2, 0.1, 2.0]),
+                  direction=direction, spot_size=1.2, spot_blend=blend)
+    lamp = lamps.LampPoints(light, position, normal, 8, None, 0, offsets, None if offsets is None else points, normals)
+    for point in (0, 5, 21):
+        got = lamp.contribution(point)
+        assert got.lit is not None
+        monkeypatch.setattr(kernels, "_module", None)
+        expected = lamp.contribution(point)
+        monkeypatch.undo()
+        assert expected.lit is None
+        # Bitwise but for a blended spot's cone, whose cosine numpy takes from BLAS (fused
+        # multiply-adds) where the kernel adds products; the smoothstep's narrow band
+        # amplifies that last bit a thousandfold.
+        np.testing.assert_allclose(got.irradiance, expected.irradiance, rtol=1e-11 if blend else 0, atol=0)
+        np.testing.assert_array_equal(got.to_light, expected.to_light)
+        np.testing.assert_array_equal(got.distance, expected.distance)
+        np.testing.assert_array_equal(got.lit, _lit(expected, lamp.point_normal(point)))
+        assert 0.2 < got.lit.mean() < 0.8
+        if offsets is None:
+            assert got.position is None and expected.position is None
+        else:
+            np.testing.assert_array_equal(got.position, expected.position)

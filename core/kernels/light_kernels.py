@@ -1,0 +1,88 @@
+"""Compiled (numba) kernels of direct light: one point of a lamp without extent (a sun of
+angle 0, a point or spot of radius 0) at every sample, received at the sample or at one of
+its footprint points (core.lights.lamps.LampPoints), in parallel over samples.
+
+Imported only through :mod:`core.kernels`. Every value is computed in float64 from the
+same inputs as the numpy code (core.lights.lamps._hard_contribution), so the two agree to
+float rounding; the numpy code stays as the fallback and is what the kernel is tested
+against.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from . import KERNEL_OPTIONS
+
+# Lamp kinds as the kernel takes them.
+SUN, POINT, SPOT = 0, 1, 2
+
+
+@nb.njit(inline="always")
+def _dot(a0, a1, a2, b0, b1, b2):
+    """A 3-vector dot product summed as numpy's einsum("kd,kd->k") sums it on x86-64
+    (numpy 1.26: two SIMD lanes, (0 + 2) + 1), so the cosines match the numpy code's bits there."""
+    return (a0 * b0 + a2 * b2) + a1 * b1
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def hard_lamp_point(kind, centre, direction, cos_half, band, position, normal, offsets, offset_slot,
+                    point_normals, normal_slot, scale, irradiance, to_light, distance, receiver, lit):
+    """One point of a hard lamp at every sample, and whether it can light the sample.
+
+    kind : SUN, POINT or SPOT; centre : (3,) float64 the lamp's position; direction : (3,)
+    float64 the unit direction the light travels along; cos_half, band : float64 a spot's
+    cone (cosine of the half angle, and the blend band in cosine; band <= 0: a hard edge).
+    position, normal : (K, 3) float64 the samples and their shading normals.
+    offsets : (K, P, 3) float32 footprint offsets, received at slot ``offset_slot`` (< 0:
+    at the sample itself). point_normals : (K, P, 3) float32 the shading normals at the
+    footprint points, slot ``normal_slot`` (< 0: ``normal``). scale : (3,) float64 power x
+    colour over the point count.
+
+    Outputs: irradiance (K, 3) float64 unshadowed; to_light (K, 3) float64 unit; distance
+    (K,) float64 (inf for a sun); receiver (K, 3) float64 where the point is received
+    (written only with ``offset_slot`` >= 0); lit (K,) bool: the lamp is above the shading
+    normal's horizon and gives some light (a shadow ray decides the rest).
+    """
+    four_pi = 4.0 * np.pi
+    for k in nb.prange(position.shape[0]):
+        r0, r1, r2 = position[k, 0], position[k, 1], position[k, 2]
+        if offset_slot >= 0:
+            r0 += np.float64(offsets[k, offset_slot, 0])
+            r1 += np.float64(offsets[k, offset_slot, 1])
+            r2 += np.float64(offsets[k, offset_slot, 2])
+            receiver[k, 0], receiver[k, 1], receiver[k, 2] = r0, r1, r2
+        if normal_slot >= 0:
+            n0 = np.float64(point_normals[k, normal_slot, 0])
+            n1 = np.float64(point_normals[k, normal_slot, 1])
+            n2 = np.float64(point_normals[k, normal_slot, 2])
+        else:
+            n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        if kind == SUN:
+            t0, t1, t2 = -direction[0], -direction[1], -direction[2]
+            far = np.inf
+            cosine = max(_dot(n0, n1, n2, t0, t1, t2), 0.0)
+            value = cosine
+        else:
+            o0, o1, o2 = centre[0] - r0, centre[1] - r1, centre[2] - r2
+            far = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+            safe = max(far, 1e-12)
+            t0, t1, t2 = o0 / safe, o1 / safe, o2 / safe
+            cosine = max(_dot(n0, n1, n2, t0, t1, t2), 0.0)
+            value = cosine / (four_pi * safe * safe)
+            if kind == SPOT:
+                cos_angle = -t0 * direction[0] - t1 * direction[1] - t2 * direction[2]
+                if band <= 0.0:
+                    value = value if cos_angle > cos_half else 0.0
+                else:
+                    x = min(max((cos_angle - cos_half) / band, 0.0), 1.0)
+                    value = value * (x * x * (3.0 - 2.0 * x))
+            if not far > 1e-12:
+                value = 0.0
+        to_light[k, 0], to_light[k, 1], to_light[k, 2] = t0, t1, t2
+        distance[k] = far
+        gives = False
+        for c in range(3):
+            irradiance[k, c] = value * scale[c]
+            gives = gives or irradiance[k, c] > 0.0
+        lit[k] = gives and _dot(t0, t1, t2, n0, n1, n2) > 0.0
