@@ -140,7 +140,9 @@ def dilate_rings(values, known, frontier, width, height, margin):
             known[frontier[f]] = True
             for c in range(channels):
                 values[frontier[f], c] = fresh[f, c]
-        # The next ring: empty neighbours of this one, each once, in texel order.
+        # The next ring: empty neighbours of this one, each once (a queued texel is filled by
+        # the next pass, so its flag never needs clearing), in texel order.
+        following = np.empty(frontier.shape[0] * 8, np.int64)
         size = 0
         for f in range(frontier.shape[0]):
             texel = frontier[f]
@@ -155,22 +157,6 @@ def dilate_rings(values, known, frontier, width, height, margin):
                     neighbour = y * width + x
                     if not known[neighbour] and not queued[neighbour]:
                         queued[neighbour] = True
-                        size += 1
-        following = np.empty(size, np.int64)
-        size = 0
-        for f in range(frontier.shape[0]):
-            texel = frontier[f]
-            tx = texel % width
-            ty = texel // width
-            for dy in range(-1, 2):
-                for dx in range(-1, 2):
-                    x = tx + dx
-                    y = ty + dy
-                    if x < 0 or x >= width or y < 0 or y >= height:
-                        continue
-                    neighbour = y * width + x
-                    if queued[neighbour]:
-                        queued[neighbour] = False
                         following[size] = neighbour
                         size += 1
-        frontier = np.sort(following)
+        frontier = np.sort(following[:size])
