@@ -291,9 +291,13 @@ class LampPoints:
         return part
 
 
+# Lamp kinds numbered as core.kernels.light_kernels numbers them (that module imports numba,
+# so it is not imported here).
 _KERNEL_KINDS = {"SUN": 0, "POINT": 1, "SPOT": 2}
-# Stand-ins for the kernel's footprint arrays where there are none (one signature for all calls).
+# Stand-ins for the kernel's footprint and receiver arrays where there are none (one
+# signature for all calls).
 _NO_FOOTPRINT = np.zeros((1, 1, 3), np.float32)
+_NO_RECEIVER = np.zeros((0, 3))
 
 
 def _compiled_point(lamp: LampPoints, point: int) -> LightContribution | None:
@@ -319,12 +323,9 @@ def _compiled_point(lamp: LampPoints, point: int) -> LightContribution | None:
                 np.ascontiguousarray(lamp.position, np.float64), np.ascontiguousarray(lamp.normal, np.float64),
                 np.ascontiguousarray(offsets, np.float32), offset_slot,
                 np.ascontiguousarray(point_normals, np.float32), normal_slot,
-                lamp.scale / (1 if lamp.hard else lamp.count), part.irradiance, part.to_light, part.distance,
+                lamp.scale / lamp.count, part.irradiance, part.to_light, part.distance,
                 part.position if part.position is not None else _NO_RECEIVER, part.lit)
     return part
-
-
-_NO_RECEIVER = np.zeros((0, 3))
 
 
 def _hard_contribution(light: Light, position: np.ndarray, normal: np.ndarray, scale: np.ndarray

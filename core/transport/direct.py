@@ -140,7 +140,7 @@ def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, bl
     rays = 0
     for index in range(lamp.count):
         part = lamp.contribution(index)
-        lit = part.lit.copy() if part.lit is not None else _lit(part, lamp.point_normal(index))
+        lit = part.lit if part.lit is not None else _lit(part, lamp.point_normal(index))
         if receives is not None:
             lit &= receives[edges]
         local = np.nonzero(lit)[0]
