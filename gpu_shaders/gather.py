@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import DeviceError
+from ..core.transport.gather import vertex_cells_of
 from . import runtime
 
 # Channel layers (4 channels each) one dispatch accumulates: 12 x 4 = 48 channels,
@@ -25,9 +26,9 @@ RADIANCE_WIDTH = 4096
 DEFAULT_BUDGET_BYTES = 1 << 30
 TABLE_BYTES_PER_ENTRY = 4 + 8  # hit object (R32F) and hit uv (RG32F)
 VERTEX_BYTES_PER_ENTRY = 4  # hit triangle (R32F), when the layout has vertex-mode objects
-# Integers travel as exact floats: below 2^24 whole, larger ones (offsets, flat
+# Integers travel as exact floats: below 2^24 whole (a triangle within its object: vertex mode
+# takes at most core.visibility.table.MAX_VERTEX_TRIANGLES = 2^24), larger ones (offsets, flat
 # indices, corner rows) split into index // SPLIT and index % SPLIT.
-EXACT_INTEGERS = 1 << 24
 SPLIT = 4096  # the shader's split_index
 CORNER_WIDTH = 4096  # texels per row of the corner texture (two texels per triangle)
 
@@ -132,11 +133,7 @@ def gather(geometry, source, progress=None, samples: np.ndarray | None = None, d
     radiance = np.asarray(radiance, np.float32)
     count = len(table.directions)
     if _has_vertex(layout):
-        if table.hit_triangle is None:
-            raise ValueError("the layout has vertex-mode objects but the table has no hit triangles")
-        if table.hit_triangle.size and int(np.max(table.hit_triangle)) >= EXACT_INTEGERS:
-            raise DeviceError(f"hit triangle indices reach {int(np.max(table.hit_triangle))}; the GPU gather "
-                              f"takes them below 2^24 (use the CPU device)")
+        vertex_cells_of(table, layout)  # raises where table and layout disagree
     total_samples = len(normals)
     channels = radiance.shape[1]
     result = np.zeros((total_samples, channels))
@@ -212,11 +209,15 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
             codes[:, :total_samples] = table.hit_object[start:stop]
             uvs = np.zeros((stop - start, height * width, 2), np.float32)
             uvs[:, :total_samples] = table.hit_uv(slice(start, stop))
+            if has_vertex:
+                # The shader takes a vertex-mode hit's triangle and barycentrics apart.
+                triangles = np.zeros((stop - start, height * width), np.float32)
+                objects = table.hit_object[start:stop]
+                rows, columns = np.nonzero((objects >= 0) & layout.is_vertex[np.maximum(objects, 0)])
+                triangles[rows, columns], uvs[rows, columns] = table.hit_vertex(rows + start, columns)
             codes_texture, codes_data = runtime.float_texture(codes.reshape(-1, height, width, 1), True)
             uvs_texture, uvs_data = runtime.float_texture(uvs.reshape(-1, height, width, 2), True)
             if has_vertex:
-                triangles = np.zeros((stop - start, height * width), np.float32)
-                triangles[:, :total_samples] = table.hit_triangle[start:stop]
                 triangles_texture, triangles_data = runtime.float_texture(triangles.reshape(-1, height, width, 1),
                                                                           True)
             else:

@@ -135,14 +135,14 @@ def _warm_up(module, table_module, sample_module, image_module, light_module) ->
     by running each on a tiny input. Returns how many kernels had to be compiled."""
     objects = np.zeros((1, 1), np.int16)
     uv = np.zeros((1, 1, 2), np.uint16)
-    triangles = np.zeros((1, 1), np.int32)
+    cells = np.zeros(1, np.int64)
     directions = np.zeros((1, 3), np.float32)
     normals = np.zeros((1, 3), np.float32)
     one32 = np.ones(1, np.float32)
     samples = np.zeros(1, np.int64)
     radiance = np.zeros((4, 3), np.float32)
     sizes = np.ones(1, np.int64)
-    module.gather(objects, uv, triangles, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
+    module.gather(objects, uv, cells, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
                   np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32), np.zeros(1, np.int64),
                   False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool), np.zeros((1, 3)))
     module.cosine_sum(objects, directions, normals, one32, np.int16(-2), False, np.zeros(1))
@@ -151,10 +151,10 @@ def _warm_up(module, table_module, sample_module, image_module, light_module) ->
     module.bare_lookup(objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros((1, 3)))
     from ..visibility.table import DISTANCE_SPLITS
     index = np.zeros(1, np.int64)
-    table_module.record(objects, uv, np.zeros((1, 1), np.uint16), triangles, index, index, np.zeros(1, np.int32),
+    table_module.record(objects, uv, np.zeros((1, 1), np.uint16), index, index, np.zeros(1, np.int32),
                         np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
                         np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32),
-                        np.zeros(1, bool), np.zeros(0, bool), DISTANCE_SPLITS)
+                        cells, np.zeros(0, bool), DISTANCE_SPLITS)
     three = np.zeros((1, 3))
     table_module.ray_setup(index, index, three, np.zeros((1, 0, 3), np.float32), three,
                            np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
@@ -177,7 +177,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module) ->
     image_module.seam_product(np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0, np.zeros((1, 3)),
                               np.zeros((1, 3)))
     image_module.dilate_rings(np.zeros((1, 3), np.float32), np.ones(1, bool), np.zeros(0, np.int64), 1, 1, 1)
-    image_module.sum_rows(np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)))
+    image_module.sum_rows(np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros(0, np.int64), np.zeros((1, 3)))
     three = np.zeros((1, 3))
     footprint = np.zeros((1, 1, 3), np.float32)
     light_module.hard_lamp_point(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,

@@ -53,13 +53,16 @@ def bilinear_points(flat, widths, heights, offsets, obj, uv, result):
 
 
 @nb.njit(**SERIAL_OPTIONS)
-def sum_rows(sample, values, result):
-    """Rows of ``values`` (m, C) float64 added into ``result`` (count, C) float64 (zeroed by
-    the caller) at rows ``sample`` (m,) int64, in the order given."""
+def sum_rows(sample, values, rows, result):
+    """Rows ``rows`` (m,) int64 of ``values`` (n, C) float64 (with ``rows`` of length 0: its m
+    rows in order) added into ``result`` (count, C) float64 (zeroed by the caller) at rows
+    ``sample`` (m,) int64, in the order given."""
+    indexed = rows.shape[0] > 0
     for row in range(sample.shape[0]):
         target = sample[row]
+        source = rows[row] if indexed else row
         for c in range(values.shape[1]):
-            result[target, c] += values[row, c]
+            result[target, c] += values[source, c]
 
 
 @nb.njit(**SERIAL_OPTIONS)

@@ -50,24 +50,35 @@ def _distance_code(d, splits):
     return np.uint16(code)
 
 
+@nb.njit(inline="always")
+def _vertex_code(triangle, value, cells, axis):
+    """encode_vertex_hit of one float32 barycentric along ``axis`` (0: u, 1: v)."""
+    steps = 65536 // cells
+    x = np.float64(value)
+    if x != x:
+        x = 0.0
+    x = min(max(x, 0.0), 1.0)
+    cell = triangle % cells if axis == 0 else triangle // cells
+    return np.uint16(cell * steps + np.int64(np.rint(x * (steps - 1))))
+
+
 @nb.njit(**KERNEL_OPTIONS)
-def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols, hit_geometry, triangle, bary,
-           distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_object, where,
+def record(hit_object, hit_uv_code, hit_distance_code, rows, cols, hit_geometry, triangle, bary,
+           distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_cells, where,
            distance_splits):
     """Write rays (rows[r], cols[r]) into the table arrays: hits, backfaces and misses.
 
     hit_object : (N, K) int16; hit_uv_code : (N, K, 2) uint16; hit_distance_code : (N, K)
-        uint16; hit_triangle : (N, K) int32, or (0, 0) without vertex-mode objects
+        uint16
     rows, cols : (n,) int64 the rays' directions and samples
     hit_geometry, triangle : (n,) int32 (embree's geomID, -1 for a miss, and primID)
     bary : (n, 2) float32; distance : (n,) float32; ray_directions : (n, 3) float32
     triangle_offset : (O,) int64; face_normals : (T, 3) float64; corner_uv : (T, 3, 2) float32
-    vertex_object : (O,) bool (all False without vertex-mode objects)
+    vertex_cells : (O,) int64 core.visibility.table.vertex_cells (all 0 without vertex-mode objects)
     where : (n,) bool, or (0,) for every ray; with it only those rays are written, and misses never
     distance_splits : core.visibility.table.DISTANCE_SPLITS
     """
     has_where = where.shape[0] > 0
-    has_triangles = hit_triangle.shape[0] > 0
     for r in nb.prange(rows.shape[0]):
         row = rows[r]
         col = cols[r]
@@ -88,23 +99,22 @@ def record(hit_object, hit_uv_code, hit_distance_code, hit_triangle, rows, cols,
         back = facing > 0.0
         u = bary[r, 0]
         v = bary[r, 1]
-        on_vertices = vertex_object[geometry]
+        cells = vertex_cells[geometry]
         if back:
             hit_object[row, col] = BACKFACE
             hit_uv_code[row, col, 0] = 0
             hit_uv_code[row, col, 1] = 0
         else:
             hit_object[row, col] = geometry
-            if on_vertices:
-                hit_uv_code[row, col, 0] = _uv_code(u)
-                hit_uv_code[row, col, 1] = _uv_code(v)
+            if cells > 0:
+                local = np.int64(triangle[r])
+                hit_uv_code[row, col, 0] = _vertex_code(local, u, cells, 0)
+                hit_uv_code[row, col, 1] = _vertex_code(local, v, cells, 1)
             else:
                 w = (_F32(1.0) - u) - v
                 for axis in range(2):
                     landing = (w * corner_uv[t, 0, axis] + u * corner_uv[t, 1, axis]) + v * corner_uv[t, 2, axis]
                     hit_uv_code[row, col, axis] = _uv_code(landing)
-        if has_triangles:
-            hit_triangle[row, col] = triangle[r] if (on_vertices and not back) else 0
         d = np.float64(distance[r])
         if d - d != 0.0:  # inf or NaN
             hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE

@@ -67,13 +67,13 @@ def _vertex_add(acc, j, radiance, weight, corners, u, v, nearest):
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples, first, stop,
+def gather(hit_object, hit_uv, vertex_cells, directions, normals, scale, samples, first, stop,
            radiance, widths, heights, offsets, is_vertex, corner_flat, corner_base, nearest_vertex,
            world, exclude, out):
     """out[j] += sum_{i in [first, stop)} w_i(s) L(S_i[s]) for s = samples[j].
 
-    hit_object : (N, K) int16; hit_uv : (N, K, 2) uint16 codes; hit_triangle : (N, K) int32,
-        or (1, 1) when no object is in vertex mode
+    hit_object : (N, K) int16; hit_uv : (N, K, 2) uint16 codes (of triangle and barycentrics
+        on vertex-mode objects); vertex_cells : (O,) int64 core.visibility.table.vertex_cells
     directions : (N, 3) float32; normals : (K, 3) float32 (the frame normals); scale : (K,) float32
     samples : (k,) int64 sample indices; first, stop : the direction range
     radiance : (size, C) float32 packed atlases; widths, heights, offsets : (O,) int64
@@ -114,12 +114,19 @@ def gather(hit_object, hit_uv, hit_triangle, directions, normals, scale, samples
                     continue
                 if has_exclude and exclude[s, obj]:
                     continue
-                u = _F32(hit_uv[i, s, 0]) * _UV_STEP
-                v = _F32(hit_uv[i, s, 1]) * _UV_STEP
                 if is_vertex[obj]:
-                    corners = corner_flat[corner_base[obj] + hit_triangle[i, s]]
-                    _vertex_add(acc, j, radiance, weight, corners, u, v, nearest_vertex)
+                    cells = vertex_cells[obj]
+                    steps = 65536 // cells
+                    cu = np.int64(hit_uv[i, s, 0])
+                    cv = np.int64(hit_uv[i, s, 1])
+                    last = _F32(steps - 1)
+                    triangle = cu // steps + cells * (cv // steps)
+                    corners = corner_flat[corner_base[obj] + triangle]
+                    _vertex_add(acc, j, radiance, weight, corners, _F32(cu % steps) / last, _F32(cv % steps) / last,
+                                nearest_vertex)
                 else:
+                    u = _F32(hit_uv[i, s, 0]) * _UV_STEP
+                    v = _F32(hit_uv[i, s, 1]) * _UV_STEP
                     _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v)
         for j in range(end - start):
             for c in range(channels):

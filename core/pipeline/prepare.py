@@ -33,6 +33,7 @@ from ..visibility.cache import (
 from ..visibility.directions import direction_set, interleaved_rotations
 from ..visibility.rays import RayScene
 from ..visibility.table import (
+    MAX_VERTEX_TRIANGLES,
     DeferredTable,
     HitGeometry,
     TraceRequest,
@@ -281,6 +282,10 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     # A vertex-mode object has at most one sample per triangle corner.
     check_budget([m.resolution if m.mode == "atlas" else (3 * len(m.triangles), 1) for m in scene.meshes],
                  settings.directions)
+    for mesh in scene.meshes:
+        if mesh.mode == "vertex" and len(mesh.triangles) > MAX_VERTEX_TRIANGLES:
+            raise BakeRefused(f"object {mesh.name!r} has {len(mesh.triangles)} triangles; vertex mode takes at most "
+                              f"{MAX_VERTEX_TRIANGLES} per object: bake it as an atlas")
     stages = Stages(progress)
     skipped: list[str] = []
     warnings: list[str] = []

@@ -55,16 +55,24 @@ def exposed_share(table, slots: int) -> np.ndarray:
     geometry, among the points with any ray above the horizon (1 where none has)."""
     samples = table.hit_object.shape[1]
     slots = max(int(slots), 1)
-    traced = np.zeros((samples, slots), np.int32)
-    backface = np.zeros((samples, slots), np.int32)
+    # 16-bit counts (a set has at most 65535 directions), and the shares taken a block of
+    # samples at a time: this runs near the bake's memory peak, where whole (K, slots) float
+    # temporaries cost a hundred megabytes at the demo's size.
+    traced = np.zeros((samples, slots), np.uint16)
+    backface = np.zeros((samples, slots), np.uint16)
     for direction in range(table.hit_object.shape[0]):
         row = table.hit_object[direction]
         traced[:, direction % slots] += row != BELOW_HORIZON
         backface[:, direction % slots] += row == BACKFACE
-    with_rays = traced > 0
-    buried = with_rays & (backface >= BURIED_POINT_SHARE * traced)
-    counted = with_rays.sum(axis=1)
-    return np.where(counted > 0, 1.0 - buried.sum(axis=1) / np.maximum(counted, 1), 1.0)
+    share = np.ones(samples)
+    block = 1 << 16
+    for start in range(0, samples, block):
+        rows = slice(start, start + block)
+        with_rays = traced[rows] > 0
+        buried = with_rays & (backface[rows] >= BURIED_POINT_SHARE * traced[rows])
+        counted = with_rays.sum(axis=1)
+        share[rows] = np.where(counted > 0, 1.0 - buried.sum(axis=1) / np.maximum(counted, 1), 1.0)
+    return share
 
 
 def lookup_scale(exposed: np.ndarray) -> np.ndarray:
@@ -218,16 +226,20 @@ def contact_correction(short: ShortHits, layout, reflected_atlas: np.ndarray, at
     return sum_by_sample(short.sample, difference, samples)
 
 
-def sum_by_sample(sample: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
+def sum_by_sample(sample: np.ndarray, values: np.ndarray, count: int, rows: np.ndarray | None = None) -> np.ndarray:
     """(count, C) float64: the rows of ``values`` (m, C) summed per ``sample`` (m,) int, in the
     order given (bitwise ``np.add.at``'s sums, at a fraction of its cost: compiled, or one bincount a
-    column)."""
+    column). With ``rows`` (m,) int, the sums take ``values[rows]`` ((n, C) values), without
+    making that copy where the kernels run."""
     values = np.asarray(values)
     module = kernels.compiled()
     if module is not None:
         total = np.zeros((count, values.shape[1]))
-        module.sum_rows(np.asarray(sample, np.int64), np.ascontiguousarray(values, np.float64), total)
+        module.sum_rows(np.asarray(sample, np.int64), np.ascontiguousarray(values, np.float64),
+                        np.zeros(0, np.int64) if rows is None else np.asarray(rows, np.int64), total)
         return total
+    if rows is not None:
+        values = values[rows]
     total = np.empty((count, values.shape[1]))
     for column in range(values.shape[1]):
         total[:, column] = np.bincount(sample, weights=values[:, column], minlength=count)

@@ -159,7 +159,7 @@ class Shadowing:
 class GatherGeometry:
     """What every gather over one prepared scene shares: it depends on no light.
 
-    table : VisibilityTable (hit_object, hit_uv, hit_triangle per direction and sample)
+    table : VisibilityTable (hit_object, hit_uv_code per direction and sample, vertex_cells)
     normals : (K, 3) float64 shading normals
     scale : (K,) float64 per-sample normalisation of the weights (sum to pi)
     layout : core.transport.gather.AtlasLayout of the radiance atlases

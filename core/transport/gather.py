@@ -17,7 +17,7 @@ import numpy as np
 
 from .. import kernels
 from .. import tolerances as tol
-from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable, decode_uv
+from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable, decode_uv, decode_vertex_hit
 from .contract import GatherGeometry, GatherSource
 
 
@@ -203,6 +203,15 @@ def gather(geometry: GatherGeometry, source: GatherSource, progress=None, sample
     return _gather_compiled(module, geometry, source, progress, samples, chosen_directions)
 
 
+def vertex_cells_of(table, layout) -> np.ndarray:
+    """(O,) int64 the table's vertex_cells, checked against the layout's vertex-mode objects
+    (``layout.is_vertex`` not None): a table traced for other objects would be misread."""
+    cells = table.vertex_cells
+    if cells is None or not np.array_equal(np.asarray(cells) > 0, np.asarray(layout.is_vertex, bool)):
+        raise ValueError("the table's vertex-mode objects differ from the layout's")
+    return np.ascontiguousarray(cells, np.int64)
+
+
 def _direction_range(count: int, directions: range | None) -> range:
     """The gather's directions: all ``count`` for None, else ``directions`` checked to be a
     contiguous range within the set."""
@@ -226,12 +235,12 @@ def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, pro
     exclude = (np.zeros((0, 0), bool) if source.exclude is None
                else np.ascontiguousarray(source.exclude, bool))
     if layout.is_vertex is None:
-        triangles, is_vertex = np.zeros((1, 1), np.int32), np.zeros(len(layout.widths), bool)
+        cells, is_vertex = np.zeros(len(layout.widths), np.int64), np.zeros(len(layout.widths), bool)
         corner_flat, corner_base = np.zeros((1, 3), np.int32), np.zeros(len(layout.widths), np.int64)
     else:
-        triangles, is_vertex = np.ascontiguousarray(table.hit_triangle, np.int32), layout.is_vertex
+        cells, is_vertex = vertex_cells_of(table, layout), layout.is_vertex
         corner_flat, corner_base = layout.corner_flat, np.maximum(layout.corner_base, 0)
-    arguments = (_hit_objects(table), np.ascontiguousarray(table.hit_uv_code, np.uint16), triangles,
+    arguments = (_hit_objects(table), np.ascontiguousarray(table.hit_uv_code, np.uint16), cells,
                  np.ascontiguousarray(table.directions, np.float32),
                  np.ascontiguousarray(geometry.normals, np.float32), np.ascontiguousarray(geometry.scale, np.float32),
                  chosen)
@@ -274,6 +283,7 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
     directions = np.asarray(table.directions, np.float32)
     world32 = world.astype(np.float32)
     chosen_exclude = None if exclude is None else exclude[chosen]
+    cells = None if layout.is_vertex is None else vertex_cells_of(table, layout)
     sums = [np.zeros((len(chosen_normals), channels), np.float32) for _ in range(workers)]
 
     def accumulate(worker, indices):
@@ -286,18 +296,17 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
             if chosen_exclude is not None and len(hit):
                 hit = hit[~chosen_exclude[hit, row[hit]]]
             if len(hit):
-                uv = decode_uv(table.hit_uv_code[i][chosen][hit] if samples is not None else table.hit_uv_code[i, hit])
+                codes = table.hit_uv_code[i][chosen][hit] if samples is not None else table.hit_uv_code[i, hit]
                 objects = row[hit].astype(np.int64)
                 if layout.is_vertex is None:
-                    looked_up = layout.bilinear(radiance, objects, uv)
+                    looked_up = layout.bilinear(radiance, objects, decode_uv(codes))
                 else:
                     on_vertices = layout.is_vertex[objects]
                     looked_up = np.empty((len(hit), channels), np.float32)
                     atlas = ~on_vertices
-                    looked_up[atlas] = layout.bilinear(radiance, objects[atlas], uv[atlas])
-                    triangles = table.hit_triangle[i][chosen][hit[on_vertices]]
-                    looked_up[on_vertices] = layout.vertex_lookup(radiance, objects[on_vertices], triangles,
-                                                                  uv[on_vertices])
+                    looked_up[atlas] = layout.bilinear(radiance, objects[atlas], decode_uv(codes[atlas]))
+                    triangles, bary = decode_vertex_hit(codes[on_vertices], cells[objects[on_vertices]])
+                    looked_up[on_vertices] = layout.vertex_lookup(radiance, objects[on_vertices], triangles, bary)
                 looked_up *= weight[hit, None]
                 irradiance[hit] += looked_up
             if has_world and np.any(world[i] != 0):

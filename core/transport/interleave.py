@@ -157,7 +157,7 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     texels, neighbours = p.filter_pairs()
     keep = usable[texels] & usable[neighbours]
     texels, neighbours = texels[keep], neighbours[keep]
-    total = sum_by_sample(texels, radiance[neighbours], len(far))
+    total = sum_by_sample(texels, radiance, len(far), rows=neighbours)
     count = np.bincount(texels, minlength=len(far)).astype(np.float64)
     filtered = np.where(count[:, None] > 0, total / np.maximum(count, 1.0)[:, None] * far_weight[:, None], far)
     return filtered + near

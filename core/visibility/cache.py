@@ -56,8 +56,9 @@ from .table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE
 # 5: a footprint point that finds no place on its triangle starts from the texel's centre;
 # 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances);
 # 7: only the entries above the horizon, with a bit per entry saying which, and triangles only
-#    of the entries that hit a vertex-mode object (TablePacking).
-FORMAT_VERSION = 7
+#    of the entries that hit a vertex-mode object (TablePacking);
+# 8: a vertex-mode hit's triangle packed with its barycentrics in hit_uv_code (vertex_cells).
+FORMAT_VERSION = 8
 TABLE_FILE = "visibility.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
@@ -66,47 +67,21 @@ LIGHTING_ENTRIES_KEPT = 16
 # A table's small arrays (a few bytes per sample) are read with its header; the large
 # ones (per sample and direction) only when the table is used.
 _SMALL_TABLE_ARRAYS = ("directions", "traced_per_sample", "backface_per_sample")
+# Tables with vertex-mode objects also keep how those objects' hits are coded.
+_OPTIONAL_SMALL_ARRAYS = ("vertex_cells",)
 _LARGE_TABLE_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code")
-_OPTIONAL_TABLE_ARRAYS = ("hit_triangle",)
 # The bits of the entries above the horizon (np.packbits, row-major over (directions, samples)).
 ABOVE_HORIZON_BITS = "above_horizon_bits"
 
 
-# The objects whose entries store a triangle (int16, sorted): those of the vertex-mode objects.
-TRIANGLE_OBJECTS = "triangle_objects"
 # Each per-entry array's dtype, the shape of one entry, and the value of an entry not stored.
 _ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.uint16, (2,), 0),
-                 "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE), "hit_triangle": (np.int32, (), 0)}
-# Rows of the table looked at together where a whole-table mask would take gigabytes.
-_ROWS_AT_ONCE = 8
+                 "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE)}
 
 
-def _triangle_objects(table) -> np.ndarray:
-    """(V,) int16 the hit_object codes of the entries whose triangle is not 0: every other entry's
-    triangle is 0, so only the entries of these V codes (a vertex-mode object's hits) need storing."""
-    found = set()
-    for start in range(0, len(table.hit_object), _ROWS_AT_ONCE):
-        rows = slice(start, start + _ROWS_AT_ONCE)
-        found.update(np.unique(table.hit_object[rows][table.hit_triangle[rows] != 0]).tolist())
-    return np.array(sorted(found), np.int16)
-
-
-def _triangle_mask(hit_object: np.ndarray, triangle_objects: np.ndarray) -> np.ndarray:
-    """(...) bool: the entries of ``hit_object`` above the horizon whose code is one of
-    ``triangle_objects``, by one lookup per entry (no whole-table temporaries)."""
-    lookup = np.zeros(1 << 16, bool)
-    lookup[triangle_objects.view(np.uint16)] = True
-    lookup[np.array([BELOW_HORIZON], np.int16).view(np.uint16)] = False
-    return lookup[hit_object.view(np.uint16)]
-
-
-def _stored_masks(hit_object: np.ndarray, triangle_objects: np.ndarray | None) -> dict:
-    """Which entries each per-entry array stores: (N, K) bool per name (the same mask shared)."""
-    above = hit_object != BELOW_HORIZON
-    masks = dict.fromkeys(("hit_object", "hit_uv_code", "hit_distance_code"), above)
-    if triangle_objects is not None:
-        masks["hit_triangle"] = _triangle_mask(hit_object, triangle_objects)
-    return masks
+def _stored_masks(hit_object: np.ndarray) -> dict:
+    """Which entries each per-entry array stores: (N, K) bool per name (one mask shared)."""
+    return dict.fromkeys(_ENTRY_ARRAYS, hit_object != BELOW_HORIZON)
 
 
 class TablePacking:
@@ -117,20 +92,14 @@ class TablePacking:
     - ``ABOVE_HORIZON_BITS``: (ceil(N K / 8),) uint8, a bit per entry (row-major, np.packbits),
       set where the entry is above its sample's horizon;
     - hit_object (A,) int16, hit_uv_code (A, 2) uint16, hit_distance_code (A,) uint16: those
-      A entries only, row-major;
-    - where the table has triangles: ``TRIANGLE_OBJECTS`` (V,) int16, the hit_object codes whose
-      entries keep a triangle (:func:`_triangle_objects`), and hit_triangle (T,) int32 at the T
-      entries above the horizon with one of those codes (every other entry's triangle is 0).
-      Without it every entry above the horizon would take 12 bytes instead of 8 as soon as the
-      scene has one vertex-mode object.
+      A entries only, row-major.
 
     ``threads``: the kernels' thread count (0: all cores).
     """
 
     def __init__(self, table, threads: int = 0):
         self.table, self.threads = table, threads
-        self.triangle_objects = _triangle_objects(table) if table.hit_triangle is not None else None
-        self.masks = _stored_masks(table.hit_object, self.triangle_objects)
+        self.masks = _stored_masks(table.hit_object)
         self.offsets, counted = {}, {}  # the three arrays that share one mask count it once
         for name, mask in self.masks.items():
             if id(mask) not in counted:
@@ -144,7 +113,7 @@ class TablePacking:
         size = -(-self.table.hit_object.size // 8)
         for name, (_, stored) in self.offsets.items():
             size += stored * np.dtype(_ENTRY_ARRAYS[name][0]).itemsize * int(np.prod(_ENTRY_ARRAYS[name][1]))
-        return size + (self.triangle_objects.nbytes if self.triangle_objects is not None else 0)
+        return size
 
     def packers(self) -> dict:
         """name -> callable returning the stored array (see the class)."""
@@ -161,8 +130,6 @@ class TablePacking:
             return packed
 
         packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(self.masks["hit_object"], axis=None)}
-        if self.triangle_objects is not None:
-            packers[TRIANGLE_OBJECTS] = lambda: self.triangle_objects
         for name in self.masks:
             packers[name] = lambda name=name: packer(name)
         return packers
@@ -197,7 +164,7 @@ def packed_bytes(table) -> int:
 def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
     """The (directions, samples) per-entry arrays back from :func:`pack_entries`' form
     (``packed``: a mapping, read one array at a time); every entry that is not stored is
-    BELOW_HORIZON with no hit's codes, and triangle 0. Raises CorruptCache where the arrays do
+    BELOW_HORIZON with no hit's codes. Raises CorruptCache where the arrays do
     not fit together (a checksum guards against damage, this against a file made by hand)."""
     count = int(shape[0]) * int(shape[1])
     bits = packed[ABOVE_HORIZON_BITS] if ABOVE_HORIZON_BITS in packed else None
@@ -209,16 +176,8 @@ def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
     arrays = {}
     for name, (dtype, tail, fill) in _ENTRY_ARRAYS.items():
         if name not in packed:
-            if name != "hit_triangle":
-                raise CorruptCache(f"it has no {name}")
-            continue
-        if name == "hit_triangle":
-            objects = packed[TRIANGLE_OBJECTS] if TRIANGLE_OBJECTS in packed else None
-            if objects is None or objects.dtype != np.int16 or objects.ndim != 1:
-                raise CorruptCache("its triangle objects are missing or malformed")
-            mask = _triangle_mask(arrays["hit_object"], objects)
-        else:
-            mask = above
+            raise CorruptCache(f"it has no {name}")
+        mask = above
         row_offset, stored = _row_offsets(mask)
         values = packed[name]
         if values.dtype != dtype or values.shape != (stored, *tail):
@@ -254,8 +213,12 @@ class _ArraysOnDemand(Mapping):
 
 def _stored_entry_arrays(meta: dict) -> tuple:
     """The names of a table file's per-entry arrays (:func:`pack_entries`)."""
-    optional = tuple(name for name in _OPTIONAL_TABLE_ARRAYS if name in meta.get("arrays", ()))
-    return (ABOVE_HORIZON_BITS,) + _LARGE_TABLE_ARRAYS + optional + ((TRIANGLE_OBJECTS,) if optional else ())
+    return (ABOVE_HORIZON_BITS,) + _LARGE_TABLE_ARRAYS
+
+
+def _small_arrays(meta: dict) -> tuple:
+    """The names of a table file's small arrays (read with its header)."""
+    return _SMALL_TABLE_ARRAYS + tuple(name for name in _OPTIONAL_SMALL_ARRAYS if name in meta.get("arrays", ()))
 
 
 def _hasher():
@@ -566,7 +529,7 @@ class VisibilityCache:
         from .table import DeferredTable
 
         path = self.table_path(settings)
-        small = _read_arrays(path, meta, _SMALL_TABLE_ARRAYS)
+        small = _read_arrays(path, meta, _small_arrays(meta))
         shape = (len(small["directions"]), len(small["traced_per_sample"]))
 
         def read_large():
@@ -578,11 +541,11 @@ class VisibilityCache:
                 return damaged(error)
 
         self._touch(path)
-        return DeferredTable(small, meta["counters"], "hit_triangle" in meta.get("arrays", ()), read_large)
+        return DeferredTable(small, meta["counters"], read_large)
 
     def load_table(self, settings: BakeSettings, meta: dict) -> CachedTable:
         path = self.table_path(settings)
-        arrays = _read_arrays(path, meta, _SMALL_TABLE_ARRAYS)
+        arrays = _read_arrays(path, meta, _small_arrays(meta))
         shape = (len(arrays["directions"]), len(arrays["traced_per_sample"]))
         entries = unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), shape, settings.threads)
         self._touch(path)
@@ -616,6 +579,8 @@ class VisibilityCache:
                              "backface_hits": int(table.backface_hits)},
                 "written": time.strftime("%Y-%m-%dT%H:%M:%S")}
         arrays = {name: getattr(table, name) for name in _SMALL_TABLE_ARRAYS}
+        if table.vertex_cells is not None:
+            arrays["vertex_cells"] = np.asarray(table.vertex_cells, np.int64)
         arrays.update(packing.packers())
         meta["arrays"] = sorted(arrays)
         size = _write(self.table_path(settings), meta, arrays)

@@ -53,6 +53,60 @@ def decode_uv(codes: np.ndarray) -> np.ndarray:
     return np.asarray(codes).astype(np.float32) * _UV_STEP
 
 
+# A vertex-mode hit keeps its triangle and barycentrics in the same two 16-bit codes: the
+# object's triangles are laid out as cells of a square grid (``vertex_cells`` per row), each
+# cell ``65536 // cells`` codes wide, and the barycentrics (u, v) are rounded to that cell's
+# steps. A table with vertex-mode objects then costs 8 bytes an entry like any other, where a
+# separate int32 triangle would add 4 bytes to every entry of the table (most of which never hit
+# that object). A barycentric step is 1/1819 of the triangle at 1280 triangles, 1/64 at a million
+# (a million-triangle object's triangle is as small as a texel of a 1024^2 atlas, whose code step
+# is 1/64 texel), and never coarser than 1/15.
+VERTEX_MIN_STEPS = 16
+MAX_VERTEX_TRIANGLES = (65536 // VERTEX_MIN_STEPS) ** 2
+
+
+def vertex_cells(triangle_counts: np.ndarray, vertex_object: np.ndarray | None) -> np.ndarray | None:
+    """(O,) int64 cells per grid row of each vertex-mode object (0 for atlas objects), from the
+    objects' triangle counts (O,); None when no object is in vertex mode.
+
+    Raises ValueError for a vertex-mode object of more than MAX_VERTEX_TRIANGLES triangles."""
+    if vertex_object is None or not np.any(vertex_object):
+        return None
+    counts = np.asarray(triangle_counts, np.int64)
+    vertex_object = np.asarray(vertex_object, bool)
+    too_many = vertex_object & (counts > MAX_VERTEX_TRIANGLES)
+    if np.any(too_many):
+        raise ValueError(f"a vertex-mode object has {int(counts[too_many].max())} triangles; vertex mode takes at "
+                         f"most {MAX_VERTEX_TRIANGLES} per object (bake it as an atlas)")
+    cells = np.ceil(np.sqrt(np.maximum(counts, 1))).astype(np.int64)
+    cells = np.where(cells * cells < counts, cells + 1, cells)  # sqrt's rounding at perfect squares
+    return np.where(vertex_object, cells, 0)
+
+
+def encode_vertex_hit(triangle: np.ndarray, bary: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(n,) triangle indices within their object, (n, 2) float barycentrics (u, v) and (n,) the
+    object's cells per row (:func:`vertex_cells`) -> (n, 2) uint16 codes."""
+    cells = np.asarray(cells, np.int64)
+    steps = 65536 // cells
+    triangle = np.asarray(triangle, np.int64)
+    with np.errstate(invalid="ignore"):
+        rounded = np.rint(np.clip(np.nan_to_num(np.asarray(bary, np.float64)), 0.0, 1.0)
+                          * (steps - 1)[:, None]).astype(np.int64)
+    cell = np.stack([triangle % cells, triangle // cells], axis=1)
+    return (cell * steps[:, None] + rounded).astype(np.uint16)
+
+
+def decode_vertex_hit(codes: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) uint16 codes of vertex-mode hits and (n,) their objects' cells per row -> the
+    triangles (n,) int64 and barycentrics (n, 2) float32, computed as the kernels compute them."""
+    cells = np.asarray(cells, np.int64)
+    steps = (65536 // cells)[:, None]
+    codes = np.asarray(codes, np.int64)
+    cell, rounded = codes // steps, codes % steps
+    bary = rounded.astype(np.float32) / (steps - 1).astype(np.float32)
+    return cell[:, 0] + cells * cell[:, 1], bary
+
+
 def encode_distance(distance: np.ndarray) -> np.ndarray:
     """Hit distances (float, inf: nothing hit) -> uint16 codes of the nearest stored distance."""
     distance = np.asarray(distance, np.float64)
@@ -87,15 +141,17 @@ class VisibilityTable:
     hit_distance_code : (N, K) uint16, distance to the hit (:func:`encode_distance`;
         NO_HIT_DISTANCE_CODE where nothing was hit), so shadow fractions can ignore
         occluders beyond a local light
-    hit_triangle : (N, K) int32, the hit triangle (of its object) where the hit object
-        is in vertex mode; None when the scene has no vertex-mode object
+    vertex_cells : (O,) int64 per object, cells per row of a vertex-mode object's triangle
+        grid (:func:`vertex_cells`; 0 for atlas objects), whose hits' ``hit_uv_code`` hold
+        triangle and barycentrics (:func:`encode_vertex_hit`); None when the scene has no
+        vertex-mode object
     """
 
     directions: np.ndarray
     hit_object: np.ndarray
     hit_uv_code: np.ndarray
     hit_distance_code: np.ndarray
-    hit_triangle: np.ndarray | None = None
+    vertex_cells: np.ndarray | None = None
     rays_cast: int = 0
     rays_below_horizon: int = 0
     backface_hits: int = 0
@@ -111,20 +167,34 @@ class VisibilityTable:
         return 2 * self.backface_per_sample > self.traced_per_sample
 
     @classmethod
-    def from_values(cls, directions, hit_object, hit_uv, hit_distance, hit_triangle=None, **counters
-                    ) -> "VisibilityTable":
-        """A table from float coordinates (N, K, 2) and distances (N, K), encoded as stored."""
-        return cls(directions, np.asarray(hit_object, np.int16), encode_uv(hit_uv), encode_distance(hit_distance),
-                   hit_triangle, **counters)
+    def from_values(cls, directions, hit_object, hit_uv, hit_distance, hit_triangle=None, vertex_cells=None,
+                    **counters) -> "VisibilityTable":
+        """A table from float coordinates (N, K, 2) and distances (N, K), encoded as stored; with
+        ``vertex_cells`` (O,), the entries that hit a vertex-mode object take their triangle from
+        ``hit_triangle`` (N, K) and their barycentrics from ``hit_uv``."""
+        hit_object = np.asarray(hit_object, np.int16)
+        codes = encode_uv(hit_uv)
+        if vertex_cells is not None:
+            vertex_cells = np.asarray(vertex_cells, np.int64)
+            on_vertices = (hit_object >= 0) & (vertex_cells[np.maximum(hit_object, 0)] > 0)
+            codes[on_vertices] = encode_vertex_hit(np.asarray(hit_triangle)[on_vertices],
+                                                   np.asarray(hit_uv)[on_vertices],
+                                                   vertex_cells[hit_object[on_vertices]])
+        return cls(directions, hit_object, codes, encode_distance(hit_distance), vertex_cells, **counters)
 
     @property
     def nbytes(self) -> int:
-        extra = self.hit_triangle.nbytes if self.hit_triangle is not None else 0
-        return self.hit_object.nbytes + self.hit_uv_code.nbytes + self.hit_distance_code.nbytes + extra
+        return self.hit_object.nbytes + self.hit_uv_code.nbytes + self.hit_distance_code.nbytes
 
     def hit_uv(self, *index) -> np.ndarray:
         """The decoded atlas coordinates (float32) of the entries ``table.hit_uv_code[index]``."""
         return decode_uv(self.hit_uv_code[index])
+
+    def hit_vertex(self, *index) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles (n,) int64 and barycentrics (n, 2) float32 of the entries
+        ``hit_uv_code[index]``, every one of which must have hit a vertex-mode object."""
+        objects = np.asarray(self.hit_object[index], np.int64).reshape(-1)
+        return decode_vertex_hit(np.asarray(self.hit_uv_code[index]).reshape(-1, 2), self.vertex_cells[objects])
 
     def hit_distance(self, *index) -> np.ndarray:
         """The decoded distances (float32, inf: nothing hit) of the entries ``hit_distance_code[index]``."""
@@ -145,16 +215,16 @@ class DeferredTable:
     counts, counters) are there at once, ``buried`` and ``nbytes`` need no read.
     """
 
-    LARGE = ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle")
+    LARGE = ("hit_object", "hit_uv_code", "hit_distance_code")
 
-    def __init__(self, small: dict, counters: dict, has_triangles: bool, read_large):
+    def __init__(self, small: dict, counters: dict, read_large):
         self.directions = small["directions"]
+        self.vertex_cells = small.get("vertex_cells")
         self.traced_per_sample = small["traced_per_sample"]
         self.backface_per_sample = small["backface_per_sample"]
         self.rays_cast = int(counters["rays_cast"])
         self.rays_below_horizon = int(counters["rays_below_horizon"])
         self.backface_hits = int(self.backface_per_sample.sum())
-        self._has_triangles = has_triangles
         self._read_large = read_large
         self._large = None
         self.read_seconds = 0.0
@@ -179,17 +249,18 @@ class DeferredTable:
         return 2 * self.backface_per_sample > self.traced_per_sample
 
     hit_uv = VisibilityTable.hit_uv
+    hit_vertex = VisibilityTable.hit_vertex
     hit_distance = VisibilityTable.hit_distance
     hit_distance_floor = VisibilityTable.hit_distance_floor
 
     @property
     def nbytes(self) -> int:
-        return table_bytes(len(self.directions), len(self.traced_per_sample), self._has_triangles)
+        return table_bytes(len(self.directions), len(self.traced_per_sample))
 
 
-def table_bytes(directions: int, samples: int, vertex_objects: bool = False) -> int:
+def table_bytes(directions: int, samples: int) -> int:
     """Memory the table of ``samples`` samples needs, for refusing before allocating."""
-    return directions * samples * (2 + 4 + 2 + (4 if vertex_objects else 0))
+    return directions * samples * (2 + 4 + 2)
 
 
 @dataclass(frozen=True)
@@ -200,13 +271,18 @@ class HitGeometry:
     triangle_offset : (objects,) int64 index of each object's first triangle in corner_uv
     face_normals : (T, 3) float64 unit face normals, concatenated like corner_uv
     vertex_object : (objects,) bool or None, objects whose hits keep triangle and
-        barycentrics (``hit_triangle``) instead of an atlas coordinate
+        barycentrics (:func:`encode_vertex_hit`) instead of an atlas coordinate
     """
 
     corner_uv: np.ndarray
     triangle_offset: np.ndarray
     face_normals: np.ndarray
     vertex_object: np.ndarray | None = None
+
+    def vertex_cells(self) -> np.ndarray | None:
+        """(objects,) int64 :func:`vertex_cells` of the objects (None without vertex-mode objects)."""
+        counts = np.diff(np.append(self.triangle_offset, len(self.corner_uv)))
+        return vertex_cells(counts, self.vertex_object)
 
 
 def frame_vectors(vectors: np.ndarray, rotations: np.ndarray | None, group: np.ndarray | None) -> np.ndarray:
@@ -320,18 +396,16 @@ def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows
     """
     module = kernels.compiled()
     if module is not None:
-        triangles = table.get("hit_triangle")
-        vertex_object = (np.zeros(len(geometry.triangle_offset), bool) if geometry.vertex_object is None
-                         else np.ascontiguousarray(geometry.vertex_object, bool))
+        cells = geometry.vertex_cells()
+        cells = np.zeros(len(geometry.triangle_offset), np.int64) if cells is None else cells
         kernels.run(module.record, threads, table["hit_object"], table["hit_uv_code"], table["hit_distance_code"],
-                    np.zeros((0, 0), np.int32) if triangles is None else triangles,
                     np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64),
                     np.ascontiguousarray(hit_geometry, np.int32), np.ascontiguousarray(triangle, np.int32),
                     np.ascontiguousarray(bary, np.float32), np.ascontiguousarray(distance, np.float32),
                     np.ascontiguousarray(ray_directions, np.float32),
                     np.ascontiguousarray(geometry.triangle_offset, np.int64),
                     np.ascontiguousarray(geometry.face_normals, np.float64),
-                    np.ascontiguousarray(geometry.corner_uv, np.float32), vertex_object,
+                    np.ascontiguousarray(geometry.corner_uv, np.float32), cells,
                     np.zeros(0, bool) if where is None else np.ascontiguousarray(where, bool), DISTANCE_SPLITS)
         return
     _record_numpy(table, geometry, ray_directions, rows, cols, hit_geometry, triangle, bary, distance, where)
@@ -356,21 +430,25 @@ def _record_numpy(table: dict, geometry: HitGeometry, ray_directions: np.ndarray
     v = bary[hit, 1:2]
     uv = geometry.corner_uv[global_triangle]
     landing = (1.0 - u - v) * uv[:, 0] + u * uv[:, 1] + v * uv[:, 2]
-    if geometry.vertex_object is not None:
+    codes = encode_uv(np.where(back[:, None], 0.0, landing))
+    cells = geometry.vertex_cells()
+    if cells is not None:
         # A vertex-mode object keeps where in the triangle the ray landed, not an atlas
         # coordinate: its light is the mix of the triangle's three samples.
-        on_vertices = geometry.vertex_object[hit_geometry[hit]]
-        landing = np.where(on_vertices[:, None], bary[hit], landing)
-        table["hit_triangle"][rows[hit], cols[hit]] = np.where(on_vertices & ~back, triangle[hit], 0)
+        hit_cells = cells[hit_geometry[hit]]
+        on_vertices = (hit_cells > 0) & ~back
+        codes[on_vertices] = encode_vertex_hit(triangle[hit][on_vertices], bary[hit][on_vertices],
+                                               hit_cells[on_vertices])
     table["hit_object"][rows[hit], cols[hit]] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
-    table["hit_uv_code"][rows[hit], cols[hit]] = encode_uv(np.where(back[:, None], 0.0, landing))
+    table["hit_uv_code"][rows[hit], cols[hit]] = codes
     table["hit_distance_code"][rows[hit], cols[hit]] = encode_distance(distance[hit])
 
 
-def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int) -> VisibilityTable:
+def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int,
+            geometry: HitGeometry) -> VisibilityTable:
     backface_per_sample = np.count_nonzero(arrays["hit_object"] == BACKFACE, axis=0).astype(np.int32)
     count, samples = arrays["hit_object"].shape
-    return VisibilityTable(directions=directions, **arrays, rays_cast=rays_cast,
+    return VisibilityTable(directions=directions, **arrays, vertex_cells=geometry.vertex_cells(), rays_cast=rays_cast,
                            rays_below_horizon=count * samples - int(traced_per_sample.sum()),
                            backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
                            traced_per_sample=traced_per_sample)
@@ -383,7 +461,7 @@ def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
     if backface_per_sample is None:
         backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
     return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv_code=arrays["hit_uv_code"],
-                           hit_distance_code=arrays["hit_distance_code"], hit_triangle=arrays.get("hit_triangle"),
+                           hit_distance_code=arrays["hit_distance_code"], vertex_cells=arrays.get("vertex_cells"),
                            rays_cast=int(counters["rays_cast"]),
                            rays_below_horizon=int(counters["rays_below_horizon"]),
                            backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
@@ -396,13 +474,10 @@ def _vertex_mask(vertex_object) -> np.ndarray | None:
     return np.asarray(vertex_object, bool)
 
 
-def _empty_arrays(count: int, samples: int, vertex_objects: bool = False) -> dict:
-    arrays = {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
-              "hit_uv_code": np.zeros((count, samples, 2), np.uint16),
-              "hit_distance_code": np.full((count, samples), NO_HIT_DISTANCE_CODE, np.uint16)}
-    if vertex_objects:
-        arrays["hit_triangle"] = np.zeros((count, samples), np.int32)
-    return arrays
+def _empty_arrays(count: int, samples: int) -> dict:
+    return {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
+            "hit_uv_code": np.zeros((count, samples, 2), np.uint16),
+            "hit_distance_code": np.full((count, samples), NO_HIT_DISTANCE_CODE, np.uint16)}
 
 
 def directions_above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int) -> np.ndarray:
@@ -435,7 +510,7 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     samples = len(positions)
     hits = request.hits
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
-    arrays = _empty_arrays(count, samples, geometry.vertex_object is not None)
+    arrays = _empty_arrays(count, samples)
     horizon = request.horizon_normals()
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
@@ -455,7 +530,7 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
             rays_cast += len(sample_index)
         if progress is not None:
             progress(stop / samples)
-    return _finish(directions, arrays, traced_per_sample, rays_cast)
+    return _finish(directions, arrays, traced_per_sample, rays_cast, geometry)
 
 
 @dataclass
@@ -536,10 +611,8 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
         # Same layout (a moved object keeps its samples): update the old arrays where they are.
         arrays = {"hit_object": old.hit_object, "hit_uv_code": old.hit_uv_code,
                   "hit_distance_code": old.hit_distance_code}
-        if vertex_object is not None:
-            arrays["hit_triangle"] = old.hit_triangle
     else:
-        arrays = _empty_arrays(count, samples, vertex_object is not None)
+        arrays = _empty_arrays(count, samples)
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, vertex_object)
     origins_all = ray_scene.ray_origins(positions, geometric_normals)
     horizon = request.horizon_normals()
@@ -565,16 +638,12 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                 arrays["hit_object"][:, cols] = BELOW_HORIZON
                 arrays["hit_uv_code"][:, cols] = 0
                 arrays["hit_distance_code"][:, cols] = NO_HIT_DISTANCE_CODE
-                if "hit_triangle" in arrays:
-                    arrays["hit_triangle"][:, cols] = 0
         else:
             if not in_place:
                 old_start = int(old_offset[index]) + start - int(sample_offset[index])
                 old_cols = slice(old_start, old_start + stop - start)
                 for name in arrays:
-                    previous = getattr(old, name)
-                    if previous is not None:  # no hit_triangle before: nothing hit a vertex object
-                        arrays[name][:, cols] = previous[:, old_cols]
+                    arrays[name][:, cols] = getattr(old, name)[:, old_cols]
             code = arrays["hit_object"][:, cols]
             hit_changed = np.zeros(code.shape, bool)
             hits = code >= 0
@@ -615,5 +684,5 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             counts.full += len(sample_index)
         if progress is not None:
             progress((done + 1) / len(spans))
-    table = _finish(directions, arrays, traced_per_sample, int(traced_per_sample.sum()))
+    table = _finish(directions, arrays, traced_per_sample, int(traced_per_sample.sum()), geometry)
     return table, counts

@@ -375,8 +375,7 @@ class BakeJob:
                 "transport": rays * gathers + SHADOW_RAY_IN_LOOKUPS * shadow_rays, "outputs": samples}
         if self.context.scene.visibake.use_cache:
             # The table is written after a trace or read on a hit: one pass over its bytes.
-            vertex = any(self.planned.plans[m.name].mode == "vertex" for m in self.planned.meshes)
-            work["cache"] = 2 * table_bytes(1, int(rays), vertex_objects=vertex)
+            work["cache"] = 2 * table_bytes(1, int(rays))
         if self.planned.unwraps:
             # In seconds of the measured machine: xatlas grows faster than linearly.
             work["unwrap"] = sum(layout_policy.unwrap_seconds(len(p.triangles)) for p in self.planned.unwraps)

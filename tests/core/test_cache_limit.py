@@ -24,7 +24,7 @@ from core_scenes import grid_mesh, quad_mesh
 
 SUN = Light("Sun", "SUN", np.ones(3), 3.0, direction=np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, 1.0]))
 SETTINGS = BakeSettings(directions=32, bounces=1)
-ENTRY_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle")
+ENTRY_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code", "vertex_cells")
 
 
 def _scene(vertex: bool = False) -> Scene:
@@ -40,7 +40,7 @@ def _scene(vertex: bool = False) -> Scene:
 def test_a_table_read_back_from_its_file_is_bitwise_the_traced_one(tmp_path, vertex):
     cache = VisibilityCache(str(tmp_path), "packed")
     traced = prepare(_scene(vertex), SETTINGS, cache=cache, table_needed=True)
-    assert (traced.table.hit_triangle is not None) == vertex
+    assert (traced.table.vertex_cells is not None) == vertex
     below = int(np.count_nonzero(traced.table.hit_object == BELOW_HORIZON))
     assert below > 0, "a scene with no entry below the horizon tests nothing here"
     read = prepare(_scene(vertex), SETTINGS, cache=cache, table_needed=True)

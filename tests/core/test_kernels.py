@@ -13,7 +13,7 @@ from core.transport import gather as gather_module
 from core.transport.contract import GatherGeometry, GatherSource
 from core.transport.gather import AtlasLayout, ambient_occlusion, gather, gather_normalisation, gather_numpy
 from core.visibility.directions import spherical_fibonacci
-from core.visibility.table import BELOW_HORIZON, VisibilityTable
+from core.visibility.table import BELOW_HORIZON, VisibilityTable, vertex_cells
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -45,7 +45,8 @@ def _random_scene(seed, samples=300, count=97, channels=6, vertex=True, nearest=
         uv = np.where(on_vertex[..., None], bary, uv).astype(np.float32)
         sizes.append((vertex_samples, 1))
         corner_samples = [None, None, corners]
-    table = VisibilityTable.from_values(d, hit, uv, np.ones((count, samples), np.float32), hit_triangle=triangles)
+    table = VisibilityTable.from_values(d, hit, uv, np.ones((count, samples), np.float32), hit_triangle=triangles,
+                                        vertex_cells=None if triangles is None else vertex_cells([1, 1, 12], [0, 0, 1]))
     layout = AtlasLayout.from_sizes(sizes, corner_samples, nearest_vertex=nearest)
     radiance = rng.uniform(0, 3, size=(layout.size, channels)).astype(np.float32)
     world = rng.uniform(0, 1, size=(count, channels))
@@ -187,13 +188,23 @@ def test_compiled_table_writes_are_bitwise_those_of_numpy(vertex, masked):
     where = rng.random(n) < 0.5 if masked else None
     written = []
     for record in (table_module._record, table_module._record_numpy):
-        arrays = table_module._empty_arrays(count, samples, vertex)
+        arrays = table_module._empty_arrays(count, samples)
         arrays["hit_object"][:] = 1  # an old table, partly overwritten when masked
         record(arrays, geometry, directions, rows, cols, hit_geometry, triangle, bary, distance, where)
         written.append(arrays)
     for name in written[0]:
         np.testing.assert_array_equal(written[0][name], written[1][name], err_msg=name)
     assert np.any(written[0]["hit_object"] == -3) and np.any(written[0]["hit_uv_code"] > 0)
+    if vertex:
+        # The vertex-mode hits' triangles and barycentrics come back from their codes.
+        on_vertices = written[0]["hit_object"][rows, cols] == 1
+        if masked:
+            on_vertices &= where & (hit_geometry >= 0)
+        table = VisibilityTable(np.zeros((count, 3)), **written[0], vertex_cells=geometry.vertex_cells())
+        back, barycentric = table.hit_vertex(rows[on_vertices], cols[on_vertices])
+        np.testing.assert_array_equal(back, triangle[on_vertices])
+        steps = 65536 // geometry.vertex_cells()[1] - 1
+        assert np.max(np.abs(barycentric - bary[on_vertices])) <= 0.5 / steps + 1e-7
 
 
 @pytest.mark.parametrize("footprint, rotated, centre", [(False, False, 0.0), (True, True, 0.0),
@@ -229,8 +240,7 @@ def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotate
         np.testing.assert_array_equal(ours, theirs)
 
 
-@pytest.mark.parametrize("vertex", [False, True], ids=["atlas", "vertex"])
-def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypatch, vertex):
+def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypatch):
     from core.visibility import cache as cache_module
     from core.visibility.table import BELOW_HORIZON, VisibilityTable
 
@@ -240,13 +250,10 @@ def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypat
     hit_object[5] = BELOW_HORIZON  # a row with nothing stored
     hit_object[:, 0] = 2  # a column with everything stored
     table = VisibilityTable(np.zeros((shape[0], 3)), hit_object, rng.integers(0, 65536, (*shape, 2), np.uint16),
-                            rng.integers(0, 65536, shape, np.uint16),
-                            rng.integers(0, 1000, shape).astype(np.int32) if vertex else None)
+                            rng.integers(0, 65536, shape, np.uint16))
     below = hit_object == BELOW_HORIZON  # as every table holds them: no hit's codes
     table.hit_uv_code[below] = 0
     table.hit_distance_code[below] = 65535
-    if vertex:
-        table.hit_triangle[below] = 0
     compiled = cache_module.pack_entries(table, threads=3)
     monkeypatch.setattr(kernels, "_module", None)
     fallback = cache_module.pack_entries(table)
@@ -256,7 +263,7 @@ def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypat
     unpacked_numpy = cache_module.unpack_entries(fallback, shape)
     monkeypatch.undo()
     unpacked = cache_module.unpack_entries(compiled, shape, threads=2)
-    for name in ("hit_object", "hit_uv_code", "hit_distance_code") + (("hit_triangle",) if vertex else ()):
+    for name in ("hit_object", "hit_uv_code", "hit_distance_code"):
         np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
         np.testing.assert_array_equal(unpacked_numpy[name], getattr(table, name), err_msg=name)
 
@@ -293,11 +300,11 @@ def test_a_table_with_nothing_above_the_horizon_packs_to_nothing_and_back():
 
     shape = (3, 9)
     table = VisibilityTable(np.zeros((3, 3)), np.full(shape, BELOW_HORIZON, np.int16), np.zeros((*shape, 2), np.uint16),
-                            np.full(shape, NO_HIT_DISTANCE_CODE, np.uint16), np.zeros(shape, np.int32))
+                            np.full(shape, NO_HIT_DISTANCE_CODE, np.uint16))
     packed = cache_module.pack_entries(table, threads=2)
-    assert len(packed["hit_object"]) == len(packed["hit_triangle"]) == 0
+    assert len(packed["hit_object"]) == len(packed["hit_uv_code"]) == 0
     unpacked = cache_module.unpack_entries(packed, shape, threads=2)
-    for name in ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle"):
+    for name in ("hit_object", "hit_uv_code", "hit_distance_code"):
         np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
 
 
@@ -351,8 +358,12 @@ def test_compiled_sums_per_sample_are_bitwise_those_of_bincount(monkeypatch):
     sample = rng.integers(0, 50, size=20000)
     values = rng.normal(size=(20000, 9)) * 10.0 ** rng.integers(-8, 8, size=(20000, 1))
     compiled = sum_by_sample(sample, values, 60)
+    rows = rng.integers(0, 20000, size=30000)
+    indexed = sum_by_sample(sample[rows], values, 60, rows=rows)
     monkeypatch.setattr(kernels, "_module", None)
     np.testing.assert_array_equal(compiled, sum_by_sample(sample, values, 60))
+    np.testing.assert_array_equal(indexed, sum_by_sample(sample[rows], values[rows], 60))
+    np.testing.assert_array_equal(indexed, sum_by_sample(sample[rows], values, 60, rows=rows))
     assert not compiled[50:].any()
 
 

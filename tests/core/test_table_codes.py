@@ -6,14 +6,18 @@ from hypothesis import strategies as st
 
 from core.visibility.table import (
     DISTANCE_CODES_PER_OCTAVE,
+    MAX_VERTEX_TRIANGLES,
     NO_HIT_DISTANCE_CODE,
     UV_CODE_SCALE,
     VisibilityTable,
     decode_distance,
     decode_uv,
+    decode_vertex_hit,
     encode_distance,
     encode_uv,
+    encode_vertex_hit,
     table_bytes,
+    vertex_cells,
 )
 
 # Half a code step, relative: the worst rounding of a distance.
@@ -55,15 +59,50 @@ def test_distance_codes_keep_order_and_mark_what_was_not_hit():
     assert back[5] == 1.0 and back[4] == 0.5  # powers of two are stored exactly
 
 
-def test_an_entry_takes_eight_bytes_and_twelve_with_vertex_triangles():
+def test_an_entry_takes_eight_bytes_also_with_vertex_mode_objects():
     assert table_bytes(10, 100) == 8 * 1000
-    assert table_bytes(10, 100, vertex_objects=True) == 12 * 1000
     d = np.eye(3)
     table = VisibilityTable.from_values(d, np.zeros((3, 100), np.int16), np.full((3, 100, 2), 0.25),
                                         np.ones((3, 100)))
     assert table.nbytes == table_bytes(3, 100)
     np.testing.assert_allclose(table.hit_uv(1, np.arange(4)), 0.25, atol=1e-5)
     assert np.all(table.hit_distance(2) == 1.0)
+    # Object 1 in vertex mode, 7 triangles: its hits keep triangle and barycentrics in the same codes.
+    objects = np.tile(np.array([0, 1], np.int16), (3, 50))
+    triangles = np.tile(np.arange(100) % 7, (3, 1))
+    mixed = VisibilityTable.from_values(d, objects, np.full((3, 100, 2), 0.25), np.ones((3, 100)), triangles,
+                                        vertex_cells([4, 7], [False, True]))
+    assert mixed.nbytes == table_bytes(3, 100)
+    rows, columns = np.nonzero(objects == 1)
+    triangle, bary = mixed.hit_vertex(rows, columns)
+    np.testing.assert_array_equal(triangle, triangles[rows, columns])
+    np.testing.assert_allclose(bary, 0.25, atol=0.5 / (65536 // 3 - 1) + 1e-7)
+    np.testing.assert_allclose(mixed.hit_uv(0, 0), 0.25, atol=1e-5)
+
+
+@pytest.mark.parametrize("count", [1, 2, 4, 5, 1280, 65536, 1_000_003, MAX_VERTEX_TRIANGLES])
+def test_every_triangle_and_its_barycentrics_come_back_from_the_codes(count):
+    cells = vertex_cells([count], [True])
+    assert cells[0] ** 2 >= count and (cells[0] - 1) ** 2 < count
+    steps = 65536 // int(cells[0])
+    assert steps >= 16  # a barycentric step of at most 1/15 of the triangle
+    rng = np.random.default_rng(count)
+    triangle = np.unique(np.concatenate([[0, count - 1], rng.integers(0, count, 2000)]))
+    bary = rng.uniform(0, 1, (len(triangle), 2)).astype(np.float32)
+    bary[0], bary[-1] = (0.0, 0.0), (1.0, 1.0)
+    codes = encode_vertex_hit(triangle, bary, np.repeat(cells, len(triangle)))
+    assert codes.dtype == np.uint16
+    back, decoded = decode_vertex_hit(codes, np.repeat(cells, len(triangle)))
+    np.testing.assert_array_equal(back, triangle)
+    assert decoded.dtype == np.float32
+    assert np.max(np.abs(decoded - bary)) <= 0.5 / (steps - 1) + 1e-7
+
+
+def test_a_vertex_mode_object_beyond_the_codes_is_refused_and_atlas_objects_have_no_grid():
+    assert vertex_cells([10, 20], None) is None
+    np.testing.assert_array_equal(vertex_cells([10, 20], [False, True]), [0, 5])
+    with pytest.raises(ValueError, match="at most"):
+        vertex_cells([MAX_VERTEX_TRIANGLES + 1], [True])
 
 
 @pytest.mark.parametrize("resolution", [512, 4096])

@@ -121,16 +121,17 @@ def test_vertex_tables_are_cached_and_updated_like_atlas_tables(tmp_path):
     # answer depends on the BVH it traverses (the update's and a fresh trace's differ).
     settings = BakeSettings(directions=48, bounces=1, rotate=True, seed=3)
     first = prepare(_bounce_scene("vertex", segments=8), settings, cache=cache, table_needed=True)
-    assert first.table.hit_triangle is not None
+    assert first.table.vertex_cells is not None
     again = prepare(_bounce_scene("vertex", segments=8), settings, cache=cache, table_needed=True)
     assert again.cache_status.state == "hit"
-    np.testing.assert_array_equal(first.table.hit_triangle, again.table.hit_triangle)
+    np.testing.assert_array_equal(first.table.vertex_cells, again.table.vertex_cells)
+    np.testing.assert_array_equal(first.table.hit_uv_code, again.table.hit_uv_code)
     moved = _bounce_scene("vertex", segments=8)
     moved.meshes[1].positions = moved.meshes[1].positions + [0.0, 0.0, 0.2]
     updated = prepare(moved, settings, cache=cache, table_needed=True)
     assert updated.cache_status.state == "updated"
     fresh = prepare(moved, settings, table_needed=True)
-    for name in ("hit_object", "hit_uv_code", "hit_distance_code", "hit_triangle"):
+    for name in ("hit_object", "hit_uv_code", "hit_distance_code", "vertex_cells"):
         np.testing.assert_array_equal(getattr(updated.table, name), getattr(fresh.table, name), err_msg=name)
     lights = moved.lights
     a, b = relight(updated, lights, World()), relight(fresh, lights, World())

@@ -28,9 +28,9 @@ def _random_codes(core, rng, samples, directions, objects):
     return dirs, normals, codes, uv
 
 
-def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None):
+def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None, vertex_cells=None):
     table = core.visibility.table.VisibilityTable.from_values(dirs, codes, uv, np.ones(codes.shape, np.float32),
-                                                          triangles)
+                                                          triangles, vertex_cells)
     scale = core.transport.gather.gather_normalisation(table, normals)
     radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
     world = rng.uniform(0, 1, size=(len(dirs), channels))
@@ -79,7 +79,9 @@ def _vertex_case(core, samples=3000, directions=96, objects=6, channels=3, neare
         tied = rng.random(len(bary)) < 0.2
         bary[tied] = np.array(TIES)[rng.integers(0, len(TIES), size=int(tied.sum()))]
         uv[on] = bary.astype(np.float32)
-    return _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles)
+    cells = core.visibility.table.vertex_cells([1 if c is None else len(c) for c in corner_samples],
+                                               [c is not None for c in corner_samples])
+    return _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles, cells)
 
 
 
@@ -175,14 +177,6 @@ def test_vertex_objects_with_exclusions_samples_and_small_batches_match_numpy(vi
     np.testing.assert_allclose(ours, twin, rtol=RTOL, atol=ATOL)
     assert np.abs(twin).max() > 0.1
     assert np.all(ours[np.setdiff1d(np.arange(len(normals)), chosen)] == 0)
-
-
-def test_triangle_indices_beyond_exact_floats_are_refused(visibake, gpu_shaders):
-    core = visibake.core
-    table, normals, scale, layout, radiance, world = _vertex_case(core, samples=300, directions=8)
-    table.hit_triangle[0, 0] = 1 << 24
-    with pytest.raises(ValueError, match="2\\^24"):
-        _gather(gpu_shaders.gather.gather, visibake, table, normals, scale, layout, radiance, world)
 
 
 def test_vertex_objects_add_the_hit_triangle_to_each_batch(visibake):
