@@ -129,12 +129,12 @@ def _base_triangles(mesh: bpy.types.Mesh):
     mesh.calc_loop_triangles()
     count = len(mesh.loop_triangles)
     triangles = np.empty(count * 3, np.int32)
-    loops = np.empty(count * 3, np.int64)
+    loops = np.empty(count * 3, np.int32)  # Blender's own dtypes: foreach_get then only copies
     mesh.loop_triangles.foreach_get("vertices", triangles)
     mesh.loop_triangles.foreach_get("loops", loops)
-    positions = np.empty(len(mesh.vertices) * 3, np.float64)
+    positions = np.empty(len(mesh.vertices) * 3, np.float32)
     mesh.vertices.foreach_get("co", positions)
-    return positions.reshape(-1, 3), triangles.reshape(-1, 3), loops.reshape(-1, 3)
+    return positions.astype(np.float64).reshape(-1, 3), triangles.reshape(-1, 3), loops.astype(np.int64).reshape(-1, 3)
 
 
 def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndarray, loops: np.ndarray,

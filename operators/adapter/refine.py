@@ -70,7 +70,7 @@ def _refine_in_place(copy: bpy.types.Object, triangles: np.ndarray) -> bpy.types
 def _refined_mesh(mesh: bpy.types.Mesh, triangles: np.ndarray, name: str) -> bpy.types.Mesh:
     """A new mesh ``name``: ``mesh`` with the faces of its loop ``triangles`` subdivided once."""
     mesh.calc_loop_triangles()
-    polygon_of = np.empty(len(mesh.loop_triangles), np.int64)
+    polygon_of = np.empty(len(mesh.loop_triangles), np.int32)
     mesh.loop_triangles.foreach_get("polygon_index", polygon_of)
     faces = set(int(p) for p in polygon_of[np.asarray(triangles, np.int64)])
     bm = bmesh.new()

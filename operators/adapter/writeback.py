@@ -159,12 +159,15 @@ def vertex_geometry(obj: bpy.types.Object, domain: str) -> tuple[np.ndarray, np.
     try:
         mesh.calc_loop_triangles()
         count = len(mesh.loop_triangles)
-        positions = np.empty(len(mesh.vertices) * 3, np.float64)
+        # Blender's own dtypes: foreach_get then only copies.
+        positions = np.empty(len(mesh.vertices) * 3, np.float32)
         mesh.vertices.foreach_get("co", positions)
+        positions = positions.astype(np.float64)
         triangles = np.empty(count * 3, np.int32)
         mesh.loop_triangles.foreach_get("vertices", triangles)
-        loops = np.empty(count * 3, np.int64)
+        loops = np.empty(count * 3, np.int32)
         mesh.loop_triangles.foreach_get("loops", loops)
+        loops = loops.astype(np.int64)
         loop_count = len(mesh.loops)
     finally:
         evaluated.to_mesh_clear()
