@@ -12,7 +12,9 @@ extension's ``__init__`` (which needs bpy) is never imported there.
 """
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -25,9 +27,11 @@ from .atlas import UnwrapResult, unwrap
 
 _CHILD_PACKAGE = "_visibake_core_child"
 _CANNOT_IMPORT = 3  # the child's exit status when it cannot import what it needs
+# The child unwraps one request per line of its standard input (a JSON [request, answer] pair
+# of paths) until that closes.
 _BOOTSTRAP = f"""
-import importlib.util, os, sys
-core_dir, request, answer = sys.argv[1:4]
+import importlib.util, json, os, sys
+core_dir = sys.argv[1]
 try:
     import numpy, xatlas
     spec = importlib.util.spec_from_file_location(
@@ -39,8 +43,12 @@ try:
 except ImportError as error:
     print(error, file=sys.stderr)
     sys.exit({_CANNOT_IMPORT})
-child.child_main(request, answer)
+for line in sys.stdin:
+    child.child_main(*json.loads(line))
 """
+# How long a worker's child may take to exit once its input is closed before it is killed
+# (xatlas can hang in its shutdown; the answers are written by then).
+_EXIT_SECONDS = 2.0
 
 
 class ChildUnavailable(RuntimeError):
@@ -68,32 +76,89 @@ class UnwrapHung(RuntimeError):
     """The unwrap process ran past its deadline (it was killed)."""
 
 
-def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: int, cancelled=None,
-                    poll_seconds: float = 0.05, python: str | None = None,
-                    deadline_seconds: float | None = None) -> UnwrapResult:
-    """:func:`core.sampling.atlas.unwrap` in a child process; the same result, bit for bit.
+class UnwrapWorker:
+    """A child process that unwraps one request after another: starting a child (Python and its
+    imports) takes about 0.3 s, paid once for all of a scene's unwraps instead of once per
+    object. A cancel or a hang kills the child; the next request starts a new one.
 
-    ``cancelled`` () -> bool is asked every ``poll_seconds``; when it says yes the child
-    is killed and :class:`core.errors.Cancelled` raised. Raises ``ValueError`` where
-    ``unwrap`` would, ``RuntimeError`` if the child dies (a crash in xatlas),
-    :class:`UnwrapHung` if it runs past ``deadline_seconds`` (killed), and
-    :class:`ChildUnavailable` if no child can run the unwrap at all. A child whose answer is
-    written is done, even if it has not exited yet.
+    Use as a context manager (``with UnwrapWorker() as worker: worker.unwrap(...)``): leaving it
+    ends the child and removes its folder. ``python``: the interpreter (default this one).
     """
-    core_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    paths = [path for path in sys.path if path and os.path.isdir(path)]
-    environment = dict(os.environ, PYTHONPATH=os.pathsep.join(paths))
-    with tempfile.TemporaryDirectory(prefix="visibake-unwrap-") as folder:
-        request, answer = os.path.join(folder, "request.npz"), os.path.join(folder, "answer.npz")
+
+    def __init__(self, python: str | None = None):
+        self.python = python or sys.executable
+        self._child = None
+        self._errors = None
+        self._folder = None
+        self._requests = 0
+
+    def __enter__(self) -> UnwrapWorker:
+        self._folder = tempfile.mkdtemp(prefix="visibake-unwrap-")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop(graceful=True)
+        if self._folder is not None:
+            shutil.rmtree(self._folder, ignore_errors=True)
+            self._folder = None
+
+    def _start(self) -> None:
+        core_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        paths = [path for path in sys.path if path and os.path.isdir(path)]
+        environment = dict(os.environ, PYTHONPATH=os.pathsep.join(paths))
+        self._errors = open(os.path.join(self._folder, f"stderr-{self._requests}.txt"), "w+b")
+        try:
+            self._child = subprocess.Popen([self.python, "-c", _BOOTSTRAP, core_dir], stdin=subprocess.PIPE,
+                                           stdout=subprocess.DEVNULL, stderr=self._errors, env=environment)
+        except OSError as error:
+            self._errors.close()
+            raise ChildUnavailable(f"cannot start {self.python}: {error}") from None
+
+    def _stop(self, graceful: bool = False) -> None:
+        child, self._child = self._child, None
+        if child is not None:
+            if graceful and child.poll() is None:
+                try:
+                    child.stdin.close()
+                    child.wait(_EXIT_SECONDS)
+                except (OSError, subprocess.TimeoutExpired):
+                    pass
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+            try:
+                child.stdin.close()
+            except OSError:
+                pass
+        if self._errors is not None:
+            self._errors.close()
+            self._errors = None
+
+    def _last_error(self, child) -> str:
+        self._errors.seek(0)
+        message = self._errors.read().decode("utf-8", "replace").strip().splitlines()
+        return message[-1] if message else f"exit status {child.returncode}"
+
+    def unwrap(self, positions: np.ndarray, triangles: np.ndarray, resolution: int, cancelled=None,
+               poll_seconds: float = 0.05, deadline_seconds: float | None = None) -> UnwrapResult:
+        """:func:`unwrap_in_child` in this worker's child (parameters and errors as there)."""
+        if self._folder is None:
+            raise RuntimeError("UnwrapWorker is used outside its with block")
+        self._requests += 1
+        request = os.path.join(self._folder, f"request-{self._requests}.npz")
+        answer = os.path.join(self._folder, f"answer-{self._requests}.npz")
         np.savez(request, positions=np.asarray(positions, np.float64), triangles=np.asarray(triangles, np.int64),
                  resolution=int(resolution))
-        with open(os.path.join(folder, "stderr.txt"), "w+b") as errors:
+        try:
+            if self._child is None or self._child.poll() is not None:
+                self._stop()
+                self._start()
+            child = self._child
             try:
-                child = subprocess.Popen([python or sys.executable, "-c", _BOOTSTRAP, core_dir, request, answer],
-                                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errors,
-                                         env=environment)
-            except OSError as error:
-                raise ChildUnavailable(f"cannot start {python or sys.executable}: {error}") from None
+                child.stdin.write((json.dumps([request, answer]) + "\n").encode())
+                child.stdin.flush()
+            except OSError:
+                pass  # the child has exited: said below
             started = time.monotonic()
             try:
                 while child.poll() is None and not os.path.exists(answer):
@@ -102,20 +167,45 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
                     if deadline_seconds is not None and time.monotonic() - started > deadline_seconds:
                         raise UnwrapHung(f"the unwrap process ran past its {deadline_seconds:.0f} s")
                     time.sleep(poll_seconds)
-            finally:
-                if child.poll() is None:
-                    child.kill()
-                    child.wait()
-            errors.seek(0)
-            message = errors.read().decode("utf-8", "replace").strip().splitlines()
-        last = message[-1] if message else f"exit status {child.returncode}"
-        if child.returncode == _CANNOT_IMPORT:
-            raise ChildUnavailable(f"the unwrap process cannot import what it needs: {last}")
-        if not os.path.exists(answer):
-            raise RuntimeError(f"the unwrap process failed: {last}")
-        with np.load(answer) as data:
-            if "error" in data:
-                raise UnwrapFailed(str(data["error"]))
-            return UnwrapResult(corner_uv=data["corner_uv"], width=int(data["width"]), height=int(data["height"]),
-                                degenerate=data["degenerate"], texels_per_unit=float(data["texels_per_unit"]),
-                                chart_count=int(data["chart_count"]))
+            except BaseException:
+                self._stop()
+                raise
+            if not os.path.exists(answer):
+                child.wait()
+                last = self._last_error(child)
+                self._stop()
+                if child.returncode == _CANNOT_IMPORT:
+                    raise ChildUnavailable(f"the unwrap process cannot import what it needs: {last}")
+                raise RuntimeError(f"the unwrap process failed: {last}")
+            with np.load(answer) as data:
+                if "error" in data:
+                    raise UnwrapFailed(str(data["error"]))
+                return UnwrapResult(corner_uv=data["corner_uv"], width=int(data["width"]),
+                                    height=int(data["height"]), degenerate=data["degenerate"],
+                                    texels_per_unit=float(data["texels_per_unit"]),
+                                    chart_count=int(data["chart_count"]))
+        finally:
+            for path in (request, answer):
+                if os.path.exists(path):
+                    os.remove(path)
+
+
+def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: int, cancelled=None,
+                    poll_seconds: float = 0.05, python: str | None = None,
+                    deadline_seconds: float | None = None, worker: UnwrapWorker | None = None) -> UnwrapResult:
+    """:func:`core.sampling.atlas.unwrap` in a child process; the same result, bit for bit.
+
+    ``cancelled`` () -> bool is asked every ``poll_seconds``; when it says yes the child
+    is killed and :class:`core.errors.Cancelled` raised. Raises ``ValueError`` where
+    ``unwrap`` would, ``RuntimeError`` if the child dies (a crash in xatlas),
+    :class:`UnwrapHung` if it runs past ``deadline_seconds`` (killed), and
+    :class:`ChildUnavailable` if no child can run the unwrap at all. A child whose answer is
+    written is done, even if it has not exited yet.
+
+    ``worker``: an open :class:`UnwrapWorker` whose child runs it (``python`` is then the
+    worker's); without one, a child is started for this unwrap alone.
+    """
+    if worker is not None:
+        return worker.unwrap(positions, triangles, resolution, cancelled, poll_seconds, deadline_seconds)
+    with UnwrapWorker(python) as own:
+        return own.unwrap(positions, triangles, resolution, cancelled, poll_seconds, deadline_seconds)

@@ -15,6 +15,7 @@ from ...core.errors import BakeRefused, Cancelled
 from ...core.geometry import face_normals
 from ...core.pipeline.budget import check_budget
 from ...core.sampling import layout as layout_policy
+from ...core.sampling.unwrap_child import UnwrapWorker
 from ...core.scene import Scene
 from . import extract, layout
 from .settings import layout_settings
@@ -143,22 +144,23 @@ def run_unwraps(planned: Planned, progress=None, in_child: bool = False) -> None
     unwraps = planned.unwraps
     # Progress by expected time: one large mesh takes longer than many small ones.
     costs = np.cumsum([0.0] + [layout_policy.unwrap_seconds(len(p.triangles)) for p in unwraps])
-    for index, pending in enumerate(unwraps):
-        fraction = costs[index] / costs[-1]
+    with UnwrapWorker() as worker:  # one child process for all the unwraps
+        for index, pending in enumerate(unwraps):
+            fraction = costs[index] / costs[-1]
 
-        def cancelled() -> bool:
-            try:
-                if progress:
-                    progress("unwrap", fraction)
-            except Cancelled:
-                return True
-            return False
+            def cancelled() -> bool:
+                try:
+                    if progress:
+                        progress("unwrap", fraction)
+                except Cancelled:
+                    return True
+                return False
 
-        if cancelled():
-            raise Cancelled()
-        pending.run(in_child, cancelled)
-        if in_child and cancelled():
-            raise Cancelled()
+            if cancelled():
+                raise Cancelled()
+            pending.run(in_child, cancelled, worker)
+            if in_child and cancelled():
+                raise Cancelled()
     if unwraps and progress:
         progress("unwrap", 1.0)
     planned.seconds["unwrap"] = time.perf_counter() - started

@@ -20,7 +20,7 @@ from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_pro
 
 # Kept importable from here for the tests that name the policy's limits through the adapter.
 from ...core.sampling.layout import TYPICAL_PACKED_UV_AREA
-from ...core.sampling.unwrap_child import ChildUnavailable, UnwrapHung, unwrap_in_child
+from ...core.sampling.unwrap_child import ChildUnavailable, UnwrapHung, UnwrapWorker, unwrap_in_child
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -41,19 +41,21 @@ class PendingUnwrap:
     result: UnwrapResult | None = None
     error: str | None = None
 
-    def run(self, in_child: bool = False, cancelled=None) -> None:
+    def run(self, in_child: bool = False, cancelled=None, worker: UnwrapWorker | None = None) -> None:
         """Unwrap in a child process: cancellable (``cancelled``, asked while it runs, with
         ``in_child``), leaving the UI free, and safe from xatlas's rare hang. xatlas's task
         scheduler can miss its shutdown signal and wait forever when an atlas is destroyed
         (seen in this project's test runs, a few times in a thousand unwraps); a child that
         runs far past its expected time is killed and the unwrap tried once more. Where no
-        child can run, the unwrap runs here, blocking but correct."""
+        child can run, the unwrap runs here, blocking but correct. ``worker``: an open
+        UnwrapWorker whose child runs it (one child for all of a scene's unwraps)."""
         deadline = UNWRAP_DEADLINE_SECONDS + UNWRAP_DEADLINE_FACTOR * policy.unwrap_seconds(len(self.triangles))
         try:
             for attempt in range(2):
                 try:
                     self.result = unwrap_in_child(self.positions, self.triangles, self.resolution,
-                                                  cancelled if in_child else None, deadline_seconds=deadline)
+                                                  cancelled if in_child else None, deadline_seconds=deadline,
+                                                  worker=worker)
                     return
                 except UnwrapHung:
                     if attempt:

@@ -76,7 +76,9 @@ def test_a_cancel_kills_the_child_mid_unwrap_and_leaves_nothing(monkeypatch, tmp
         return children[-1]
 
     # The unwrap module's Popen keeps its child for the checks; its folder goes in tmp_path.
-    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL))
+    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL,
+                                                                    PIPE=subprocess.PIPE,
+                                                                    TimeoutExpired=subprocess.TimeoutExpired))
     monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
     asked = []
 
@@ -103,3 +105,35 @@ def test_a_child_past_its_deadline_is_killed_and_says_so():
     with pytest.raises(UnwrapHung, match="ran past"):
         unwrap_in_child(positions, triangles, 64, deadline_seconds=0.01)
     assert time.monotonic() - started < 30  # killed, not waited for
+
+
+def test_one_worker_unwraps_many_meshes_in_one_child_and_starts_another_after_a_kill(monkeypatch, tmp_path):
+    from core.sampling.unwrap_child import UnwrapHung, UnwrapWorker
+
+    children = []
+
+    def recording_popen(*args, **kwargs):
+        children.append(subprocess.Popen(*args, **kwargs))
+        return children[-1]
+
+    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL,
+                                                                    PIPE=subprocess.PIPE,
+                                                                    TimeoutExpired=subprocess.TimeoutExpired))
+    monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
+    meshes = [_sphere(8 + 4 * i, 4 + 2 * i) for i in range(4)]
+    with UnwrapWorker() as worker:
+        for positions, triangles in meshes[:3]:
+            ours = unwrap_in_child(positions, triangles, 64, worker=worker)
+            np.testing.assert_array_equal(ours.corner_uv, unwrap(positions, triangles, 64).corner_uv)
+        assert len(children) == 1 and children[0].poll() is None  # one child for all three
+        with pytest.raises(ValueError, match="too small"):
+            unwrap_in_child(*meshes[0], 4, worker=worker)  # an error answer keeps the child
+        assert len(children) == 1
+        with pytest.raises(UnwrapHung):
+            unwrap_in_child(*meshes[3], 64, worker=worker, deadline_seconds=0.0)
+        assert children[0].returncode == -signal.SIGKILL
+        again = unwrap_in_child(*meshes[3], 64, worker=worker)  # a new child
+        np.testing.assert_array_equal(again.corner_uv, unwrap(*meshes[3], 64).corner_uv)
+        assert len(children) == 2
+    assert children[1].poll() is not None  # ended with the worker
+    assert list(tmp_path.iterdir()) == []
