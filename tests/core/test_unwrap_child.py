@@ -32,6 +32,22 @@ def _sphere(segments: int, rings: int):
     return positions, np.array(triangles)
 
 
+def _record_children(monkeypatch, tmp_path) -> list:
+    """The unwrap module's child processes, kept for the checks (filled as they start); its
+    folders go in ``tmp_path``."""
+    children = []
+
+    def recording_popen(*args, **kwargs):
+        children.append(subprocess.Popen(*args, **kwargs))
+        return children[-1]
+
+    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL,
+                                                                    PIPE=subprocess.PIPE,
+                                                                    TimeoutExpired=subprocess.TimeoutExpired))
+    monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
+    return children
+
+
 def test_the_child_gives_the_in_process_unwrap_bit_for_bit():
     positions, triangles = _sphere(24, 12)
     here = unwrap(positions, triangles, 64)
@@ -69,17 +85,7 @@ def test_without_a_usable_interpreter_the_child_says_so(tmp_path):
 
 def test_a_cancel_kills_the_child_mid_unwrap_and_leaves_nothing(monkeypatch, tmp_path):
     positions, triangles = _sphere(256, 128)  # ~65k triangles: about 12 s of xatlas on 2 cores
-    children = []
-
-    def recording_popen(*args, **kwargs):
-        children.append(subprocess.Popen(*args, **kwargs))
-        return children[-1]
-
-    # The unwrap module's Popen keeps its child for the checks; its folder goes in tmp_path.
-    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL,
-                                                                    PIPE=subprocess.PIPE,
-                                                                    TimeoutExpired=subprocess.TimeoutExpired))
-    monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
+    children = _record_children(monkeypatch, tmp_path)
     asked = []
 
     def cancelled():
@@ -110,16 +116,7 @@ def test_a_child_past_its_deadline_is_killed_and_says_so():
 def test_one_worker_unwraps_many_meshes_in_one_child_and_starts_another_after_a_kill(monkeypatch, tmp_path):
     from core.sampling.unwrap_child import UnwrapHung, UnwrapWorker
 
-    children = []
-
-    def recording_popen(*args, **kwargs):
-        children.append(subprocess.Popen(*args, **kwargs))
-        return children[-1]
-
-    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL,
-                                                                    PIPE=subprocess.PIPE,
-                                                                    TimeoutExpired=subprocess.TimeoutExpired))
-    monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
+    children = _record_children(monkeypatch, tmp_path)
     meshes = [_sphere(8 + 4 * i, 4 + 2 * i) for i in range(4)]
     with UnwrapWorker() as worker:
         for positions, triangles in meshes[:3]:
