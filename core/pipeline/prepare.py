@@ -573,6 +573,7 @@ def _cached_or_traced_table(job: TableJob):
                 table = cache.deferred_table(settings, meta, damaged)
                 if not np.array_equal(table.directions, job.request.directions):
                     raise CorruptCache("its directions do not match its key")
+                _check_vertex_cells(table, job.request)
                 status.state, status.message = "hit", "the cached visibility is valid"
                 status.bytes_on_disk = os.path.getsize(status.path)
                 status.load_seconds = time.perf_counter() - started
@@ -609,6 +610,7 @@ def _cached_or_traced_table(job: TableJob):
             stages.start("cache")
             old = cache.load_table(settings, meta)
             old_table = table_from_arrays(old.arrays, old.counters)
+            _check_vertex_cells(old_table, job.request, changed)
             stages.report(0.5)  # read; writing the updated table is the other half
             stages.start("visibility")
             changed_scene = RayScene([(meshes[i].positions, meshes[i].triangles) for i in changed], settings.threads,
@@ -634,6 +636,19 @@ def _cached_or_traced_table(job: TableJob):
         status.save_seconds = time.perf_counter() - started
         stages.report(1.0)
     return table, status, rays
+
+
+def _check_vertex_cells(table, request: TraceRequest, changed=()) -> None:
+    """Raise CorruptCache where a cached table codes the vertex-mode hits of an object (other than
+    the ``changed`` ones, which are traced again) otherwise than this scene does."""
+    objects = len(request.hits.triangle_offset)
+    expected, stored = request.hits.vertex_cells(), table.vertex_cells
+    expected = np.zeros(objects, np.int64) if expected is None else expected
+    stored = np.zeros(objects, np.int64) if stored is None else np.asarray(stored)
+    kept = np.ones(objects, bool)
+    kept[list(changed)] = False
+    if stored.shape != expected.shape or not np.array_equal(stored[kept], expected[kept]):
+        raise CorruptCache("its vertex-mode hits are coded for other meshes")
 
 
 def read_deferred_table(p: Prepared, stages: Stages, needed: bool) -> None:

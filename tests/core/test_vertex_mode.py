@@ -202,3 +202,21 @@ def test_the_lighting_cache_tells_the_vertex_lookups_apart(tmp_path):
     assert results["interpolate"][1].report["cache"]["lighting_reused"] == ["all"]
     ceiling = {k: v[0].objects[1].images["indirect"] for k, v in results.items()}
     assert np.any(ceiling["nearest"] != ceiling["interpolate"])
+
+
+def test_a_cached_table_coding_vertex_hits_for_other_meshes_is_rebuilt(tmp_path):
+    from core.visibility import cache as cache_module
+
+    cache = VisibilityCache(str(tmp_path))
+    settings = BakeSettings(directions=16, bounces=1)
+    first = prepare(_bounce_scene("vertex", segments=4), settings, cache=cache, table_needed=True)
+    path = first.cache_status.path
+    meta = cache_module._read_meta(path, "table")
+    arrays = cache_module._read_arrays(path, meta, meta["arrays"])
+    assert arrays["vertex_cells"].max() > 0
+    arrays["vertex_cells"] = arrays["vertex_cells"] + (arrays["vertex_cells"] > 0)  # valid checksums, other grid
+    cache_module._write(path, {k: v for k, v in meta.items() if k != "digests"}, arrays)
+    again = prepare(_bounce_scene("vertex", segments=4), settings, cache=cache, table_needed=True)
+    assert again.cache_status.state == "corrupt" and "vertex-mode hits" in again.cache_status.message
+    np.testing.assert_array_equal(again.table.hit_uv_code, first.table.hit_uv_code)
+    np.testing.assert_array_equal(again.table.vertex_cells, first.table.vertex_cells)
