@@ -252,7 +252,7 @@ def test_a_cancel_stops_a_long_unwrap_at_once(visibake, clean_scene, monkeypatch
         return children[-1]
 
     unwrap_child = visibake.core.sampling.unwrap_child
-    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL))
+    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(**{**vars(subprocess), "Popen": recording_popen}))
     sphere = mesh_object("Sphere", uv_sphere(1.0, segments=256, rings=128), material("W", (0.8, 0.8, 0.8)),
                          uv_map=None)
     sphere.visibake.mode = "atlas"

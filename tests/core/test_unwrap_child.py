@@ -41,9 +41,7 @@ def _record_children(monkeypatch, tmp_path) -> list:
         children.append(subprocess.Popen(*args, **kwargs))
         return children[-1]
 
-    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(Popen=recording_popen, DEVNULL=subprocess.DEVNULL,
-                                                                    PIPE=subprocess.PIPE,
-                                                                    TimeoutExpired=subprocess.TimeoutExpired))
+    monkeypatch.setattr(unwrap_child, "subprocess", SimpleNamespace(**{**vars(subprocess), "Popen": recording_popen}))
     monkeypatch.setattr(unwrap_child.tempfile, "tempdir", str(tmp_path))
     return children
 
