@@ -117,19 +117,18 @@ class UnwrapWorker:
     def _stop(self, graceful: bool = False) -> None:
         child, self._child = self._child, None
         if child is not None:
-            if graceful and child.poll() is None:
+            try:
+                child.stdin.close()  # the end of its requests: a live child exits
+            except OSError:
+                pass
+            if graceful:
                 try:
-                    child.stdin.close()
                     child.wait(_EXIT_SECONDS)
-                except (OSError, subprocess.TimeoutExpired):
+                except subprocess.TimeoutExpired:
                     pass
             if child.poll() is None:
                 child.kill()
                 child.wait()
-            try:
-                child.stdin.close()
-            except OSError:
-                pass
         if self._errors is not None:
             self._errors.close()
             self._errors = None

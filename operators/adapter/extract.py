@@ -19,17 +19,17 @@ def _matrix(matrix) -> np.ndarray:
     return np.array([list(row) for row in matrix], dtype=np.float64)
 
 
-def native_dtype(dtype) -> np.dtype:
+def _native_dtype(dtype) -> np.dtype:
     """The dtype Blender stores a property of ``dtype``'s kind in (32-bit floats and ints):
     foreach_get into it is a copy, into any other a conversion per value, 5-20x slower."""
     kind = np.dtype(dtype).kind
     return np.dtype(np.float32 if kind == "f" else np.int32 if kind in "iu" else dtype)
 
 
-def _read(collection, attribute: str, count: int, width: int, dtype) -> np.ndarray:
+def read_values(collection, attribute: str, count: int, width: int, dtype) -> np.ndarray:
     """(count, width) (or (count,) for width 1) ``dtype`` values of ``attribute`` of every item
     of a bpy collection; read in Blender's own dtype, so the values are exactly Blender's."""
-    data = np.empty(count * width, dtype=native_dtype(dtype))
+    data = np.empty(count * width, dtype=_native_dtype(dtype))
     if count:
         collection.foreach_get(attribute, data)
     data = data.astype(dtype, copy=False)
@@ -40,7 +40,7 @@ def mesh_corner_uv(mesh: bpy.types.Mesh, loops: np.ndarray) -> dict[str, np.ndar
     """UV maps of ``mesh`` per triangle corner: name -> (m, 3, 2) float32."""
     maps = {}
     for layer in mesh.uv_layers:
-        uv = _read(layer.uv, "vector", len(mesh.loops), 2, np.float32)
+        uv = read_values(layer.uv, "vector", len(mesh.loops), 2, np.float32)
         maps[layer.name] = uv[loops]
     return maps
 
@@ -153,11 +153,11 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
     try:
         mesh.calc_loop_triangles()
         count = len(mesh.loop_triangles)
-        positions = _read(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
-        triangles = _read(mesh.loop_triangles, "vertices", count, 3, np.int32)
-        loops = _read(mesh.loop_triangles, "loops", count, 3, np.int64)
-        material_index = _read(mesh.loop_triangles, "material_index", count, 1, np.int32)
-        normals = _read(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float64)
+        positions = read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
+        triangles = read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
+        loops = read_values(mesh.loop_triangles, "loops", count, 3, np.int64)
+        material_index = read_values(mesh.loop_triangles, "material_index", count, 1, np.int32)
+        normals = read_values(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float64)
         uv_maps = mesh_corner_uv(mesh, loops)
         vertex_count, loop_count = len(mesh.vertices), len(mesh.loops)
         default_uv = next((layer.name for layer in mesh.uv_layers if layer.active_render), "")
@@ -694,7 +694,7 @@ def _read_prototype(name: str, mesh: bpy.types.Mesh, material_slots, materials_r
                     warnings: list[str]) -> _Prototype:
     """The triangles of an evaluated mesh (read, never changed: it belongs to the depsgraph)."""
     count = len(mesh.loop_triangles)
-    loops = _read(mesh.loop_triangles, "loops", count, 3, np.int64)
+    loops = read_values(mesh.loop_triangles, "loops", count, 3, np.int64)
     materials = []
     for slot in material_slots:
         key = slot.material.as_pointer() if slot.material is not None else 0
@@ -702,11 +702,11 @@ def _read_prototype(name: str, mesh: bpy.types.Mesh, material_slots, materials_r
             default_uv = next((layer.name for layer in mesh.uv_layers if layer.active_render), "")
             materials_read[key] = read_material(slot.material, default_uv, warnings)
         materials.append(materials_read[key])
-    normals = _read(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float32)
-    return _Prototype(name=name, positions=_read(mesh.vertices, "co", len(mesh.vertices), 3, np.float64),
-                      triangles=_read(mesh.loop_triangles, "vertices", count, 3, np.int32),
-                      normals=normals[loops], material_index=_read(mesh.loop_triangles, "material_index", count, 1,
-                                                                   np.int32),
+    normals = read_values(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float32)
+    return _Prototype(name=name, positions=read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64),
+                      triangles=read_values(mesh.loop_triangles, "vertices", count, 3, np.int32),
+                      normals=normals[loops],
+                      material_index=read_values(mesh.loop_triangles, "material_index", count, 1, np.int32),
                       uv_maps=mesh_corner_uv(mesh, loops), materials=materials)
 
 

@@ -21,6 +21,7 @@ from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_pro
 # Kept importable from here for the tests that name the policy's limits through the adapter.
 from ...core.sampling.layout import TYPICAL_PACKED_UV_AREA
 from ...core.sampling.unwrap_child import ChildUnavailable, UnwrapHung, UnwrapWorker, unwrap_in_child
+from .extract import read_values
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -130,13 +131,9 @@ def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarr
 def _base_triangles(mesh: bpy.types.Mesh):
     mesh.calc_loop_triangles()
     count = len(mesh.loop_triangles)
-    triangles = np.empty(count * 3, np.int32)
-    loops = np.empty(count * 3, np.int32)  # Blender's own dtypes: foreach_get then only copies
-    mesh.loop_triangles.foreach_get("vertices", triangles)
-    mesh.loop_triangles.foreach_get("loops", loops)
-    positions = np.empty(len(mesh.vertices) * 3, np.float32)
-    mesh.vertices.foreach_get("co", positions)
-    return positions.astype(np.float64).reshape(-1, 3), triangles.reshape(-1, 3), loops.astype(np.int64).reshape(-1, 3)
+    return (read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64),
+            read_values(mesh.loop_triangles, "vertices", count, 3, np.int32),
+            read_values(mesh.loop_triangles, "loops", count, 3, np.int64))
 
 
 def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndarray, loops: np.ndarray,

@@ -21,6 +21,7 @@ import numpy as np
 
 from ...core.outputs import names
 from . import compat
+from .extract import read_values
 
 REFINED_FROM_KEY = "visibake_refined_from"  # on the copy: the original object's name
 PREVIOUS_MESH_KEY = "visibake_refined_previous_mesh"  # on a copy refined again, until the bake is kept
@@ -70,8 +71,7 @@ def _refine_in_place(copy: bpy.types.Object, triangles: np.ndarray) -> bpy.types
 def _refined_mesh(mesh: bpy.types.Mesh, triangles: np.ndarray, name: str) -> bpy.types.Mesh:
     """A new mesh ``name``: ``mesh`` with the faces of its loop ``triangles`` subdivided once."""
     mesh.calc_loop_triangles()
-    polygon_of = np.empty(len(mesh.loop_triangles), np.int32)
-    mesh.loop_triangles.foreach_get("polygon_index", polygon_of)
+    polygon_of = read_values(mesh.loop_triangles, "polygon_index", len(mesh.loop_triangles), 1, np.int32)
     faces = set(int(p) for p in polygon_of[np.asarray(triangles, np.int64)])
     bm = bmesh.new()
     try:

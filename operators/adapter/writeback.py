@@ -13,6 +13,7 @@ from ...core.outputs import names
 from ...core.outputs.images import tonemap, write_exr
 from ...core.outputs.vertex_files import element_geometry, write_ply
 from . import compat
+from .extract import read_values
 
 OWNED_IMAGE_KEY = "visibake_image"
 # On every image VisiBake writes: the (object, pass) it holds, so readers need not re-derive its name.
@@ -159,22 +160,15 @@ def vertex_geometry(obj: bpy.types.Object, domain: str) -> tuple[np.ndarray, np.
     try:
         mesh.calc_loop_triangles()
         count = len(mesh.loop_triangles)
-        # Blender's own dtypes: foreach_get then only copies.
-        positions = np.empty(len(mesh.vertices) * 3, np.float32)
-        mesh.vertices.foreach_get("co", positions)
-        positions = positions.astype(np.float64)
-        triangles = np.empty(count * 3, np.int32)
-        mesh.loop_triangles.foreach_get("vertices", triangles)
-        loops = np.empty(count * 3, np.int32)
-        mesh.loop_triangles.foreach_get("loops", loops)
-        loops = loops.astype(np.int64)
+        positions = read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
+        triangles = read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
+        loops = read_values(mesh.loop_triangles, "loops", count, 3, np.int64)
         loop_count = len(mesh.loops)
     finally:
         evaluated.to_mesh_clear()
     matrix = np.array(obj.matrix_world, np.float64)
     with np.errstate(invalid="ignore", over="ignore"):
-        positions = positions.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]
-    triangles, loops = triangles.reshape(-1, 3), loops.reshape(-1, 3)
+        positions = positions @ matrix[:3, :3].T + matrix[:3, 3]
     if np.linalg.det(matrix[:3, :3]) < 0:
         # A mirroring transform turns the winding around; keep fronts counter-clockwise.
         triangles, loops = triangles[:, [0, 2, 1]], loops[:, [0, 2, 1]]
