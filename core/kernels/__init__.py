@@ -112,11 +112,13 @@ def _load() -> KernelStatus:
         import numba
         numba.config.CACHE_DIR = cache_dir
         numba.config.THREADING_LAYER = "workqueue"
-        from . import image_kernels, light_kernels, sample_kernels, table_kernels, transport_kernels
-        misses = _warm_up(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels)
+        from . import image_kernels, light_kernels, raster_kernels, sample_kernels, table_kernels, transport_kernels
+        misses = _warm_up(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels,
+                          raster_kernels)
     except Exception as error:  # noqa: BLE001 - any failure to load means: use numpy, and say why
         return KernelStatus("numpy", cache_dir=cache_dir, reason=f"{type(error).__name__}: {error}")
-    _module = _Kernels(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels)
+    _module = _Kernels(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels,
+                       raster_kernels)
     return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir)
 
 
@@ -130,7 +132,7 @@ class _Kernels:
                     setattr(self, name, value)
 
 
-def _warm_up(module, table_module, sample_module, image_module, light_module) -> int:
+def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module) -> int:
     """Compile (or read from the cache) every kernel for the one signature the callers use,
     by running each on a tiny input. Returns how many kernels had to be compiled."""
     objects = np.zeros((1, 1), np.int16)
@@ -183,10 +185,22 @@ def _warm_up(module, table_module, sample_module, image_module, light_module) ->
     light_module.hard_lamp_point(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
                                  footprint, 0, footprint, 0, np.ones(3), np.zeros((1, 3)), np.zeros((1, 3)),
                                  np.zeros(1), np.zeros((1, 3)), np.zeros(1, bool))
+    corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
+    offsets = np.zeros(2, np.int64)
+    no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
+    raster_module.triangle_claims(corner_uv, 1, 1, 1e-7, 1e-6, 1e-12, offsets, *no_claims, False)
+    claims = np.zeros(offsets[1], np.int32), np.zeros(offsets[1], np.int32), np.zeros(offsets[1], bool)
+    weights = np.zeros((offsets[1], 3), np.float32)
+    raster_module.triangle_claims(corner_uv, 1, 1, 1e-7, 1e-6, 1e-12, offsets, *claims, weights, True)
+    chosen = np.zeros(1, np.int64)
+    raster_module.resolve_claims(claims[0], claims[2], chosen, np.zeros(1, np.int8), np.zeros(2, np.int64))
+    raster_module.gather_claims(chosen, claims[1], weights, np.zeros(1, np.int64), np.zeros(1, np.int32),
+                                np.zeros((1, 3), np.float32), np.zeros(1, bool))
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
                table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
                sample_module.footprint_corners, image_module.bilinear_points, image_module.seam_product,
-               image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point)
+               image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point,
+               raster_module.triangle_claims, raster_module.resolve_claims, raster_module.gather_claims)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

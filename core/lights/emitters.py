@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import tolerances as tol
-from ..geometry import face_normals, triangle_areas
+from ..geometry import mesh_face_normals, triangle_areas
 from ..scene import Mesh
 from .lamps import surface_to_point
 
@@ -48,7 +48,7 @@ def find_emitters(meshes: list[Mesh], points_per_emitter: int) -> list[Emitter]:
             continue
         emission = np.array([np.clip(np.nan_to_num(m.emission[:3]), 0.0, None) for m in mesh.materials])
         material = np.clip(mesh.material_index, 0, len(mesh.materials) - 1)
-        normals, valid = face_normals(mesh.positions, mesh.triangles)
+        normals, valid = mesh_face_normals(mesh)
         emissive = valid & np.any(emission[material] > 0, axis=1)
         if not np.any(emissive):
             continue

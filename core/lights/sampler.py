@@ -15,6 +15,7 @@ points is unbiased, and the first 2^m points of each sample stay an elementary n
 """
 from __future__ import annotations
 
+import functools
 import zlib
 from dataclasses import dataclass
 
@@ -47,6 +48,25 @@ _DIRECTIONS = np.stack([np.array([1 << (_BITS - 1 - k) for k in range(_BITS)], n
 
 def sobol_point(index: int) -> np.ndarray:
     """(4,) uint32 point ``index`` of the unscrambled 4D Sobol sequence, as 32-bit fractions."""
+    if index < _KEPT_POINTS:
+        return sobol_points(_KEPT_POINTS)[index]
+    return _sobol_point(index)
+
+
+# The first points, which every texel's footprint and every lamp's sampler use, are
+# computed once per process (each costs ~1 ms of Python).
+_KEPT_POINTS = 256
+
+
+@functools.lru_cache(maxsize=1)
+def sobol_points(count: int) -> np.ndarray:
+    """(count, 4) uint32 points 0 .. count - 1 of :func:`sobol_point`; read-only."""
+    points = np.stack([_sobol_point(index) for index in range(count)]) if count else np.zeros((0, 4), np.uint32)
+    points.flags.writeable = False
+    return points
+
+
+def _sobol_point(index: int) -> np.ndarray:
     bits = np.array([(index >> k) & 1 for k in range(_BITS)], bool)
     point = np.zeros(DIMENSIONS, np.uint64)
     for dimension in range(DIMENSIONS):

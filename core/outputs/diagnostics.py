@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import tolerances as tol
-from ..geometry import face_normals, triangle_areas
+from ..geometry import mesh_face_normals, triangle_areas
 from ..transport.contract import SampleSet, Shadowing
 from ..transport.direct import lamp_irradiance
 
@@ -60,7 +60,7 @@ def check_vertex_objects(meshes, object_samples, sample_offset: np.ndarray, samp
             continue
         object_sample = object_samples[index]
         a = sample_offset[index]
-        normals, valid = face_normals(mesh.positions, mesh.triangles)
+        normals, valid = mesh_face_normals(mesh)
         used = np.nonzero(valid & np.all(object_sample.corner_sample >= 0, axis=1))[0]
         if len(used) == 0:
             continue

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import kernels
 from ..errors import BakeRefused
-from ..geometry import face_normals
+from ..geometry import mesh_face_normals
 from ..lights.environment import has_light
 from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples, dense_footprint
 from ..scene import Scene
@@ -491,7 +491,7 @@ def scene_hit_geometry(meshes) -> HitGeometry:
     corner_uv = np.concatenate([m.uv_maps[m.bake_uv_map] if m.mode == "atlas" else np.zeros((len(m.triangles), 3, 2))
                                 for m in meshes]).astype(np.float32)
     vertex_object = np.array([m.mode == "vertex" for m in meshes], bool)
-    all_face_normals = np.concatenate([face_normals(m.positions, m.triangles)[0] for m in meshes])
+    all_face_normals = np.concatenate([mesh_face_normals(m)[0] for m in meshes])
     return HitGeometry(corner_uv, triangle_offset, all_face_normals, vertex_object)
 
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import tolerances as tol
-from ..geometry import face_normals
+from ..geometry import mesh_face_normals
 from ..outputs.images import bilinear_wrap
 from ..scene import Mesh
 from .footprint import footprint_corners, footprint_normals, footprint_offsets
@@ -83,17 +83,19 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> O
     ``threads``: the compiled kernels' thread count (0: all cores); the samples do not depend on it."""
     width, height = mesh.resolution
     corner_uv = mesh.uv_maps[mesh.bake_uv_map]
-    # Only triangles with UV area can hold texels: the others need no normal (an occluder
-    # whose UVs are all one point, extract's past-the-budget instances, costs nothing here).
+    # Only triangles with UV area can hold texels (an occluder whose UVs are all one point,
+    # extract's past-the-budget instances, holds none). The normals are the mesh's kept ones,
+    # which the table's hit geometry needs for every triangle anyway.
     uv = np.asarray(corner_uv, np.float64)
     uv_area = (uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1]) \
         - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0])
     with_area = np.flatnonzero(uv_area != 0)  # NaN counts: the raster skips it
+    all_normals, all_valid = mesh_face_normals(mesh)
     normals, valid = np.zeros((len(mesh.triangles), 3)), np.zeros(len(mesh.triangles), bool)
-    normals[with_area], valid[with_area] = face_normals(mesh.positions, mesh.triangles[with_area])
+    normals[with_area], valid[with_area] = all_normals[with_area], all_valid[with_area]
     # Degenerate or non-finite triangles get no samples: they have no normal to shade with.
     raster_uv = np.where(valid[:, None, None], uv, 0.0)
-    raster = rasterize(raster_uv, width, height)
+    raster = rasterize(raster_uv, width, height, threads)
     tri = raster.triangle
     bary = np.clip(raster.barycentric.astype(np.float64), tol.SAMPLE_BARYCENTRIC_INSET, None)
     bary /= bary.sum(axis=1, keepdims=True)
@@ -218,7 +220,7 @@ def build_vertex_samples(mesh: Mesh, centre: np.ndarray | None = None) -> Vertex
     of a sample are the mean over its corners (a vertex between two materials gets
     their mix, as an interpolated vertex colour would show it).
     """
-    normals, valid = face_normals(mesh.positions, mesh.triangles)
+    normals, valid = mesh_face_normals(mesh)
     used = np.nonzero(valid)[0]
     corner_vertex = mesh.triangles[used].astype(np.int64)  # (t, 3)
     corner_normal = np.asarray(mesh.corner_normals[used], np.float64).reshape(-1, 3)

@@ -12,7 +12,7 @@ import bpy
 import numpy as np
 
 from ...core.errors import BakeRefused, Cancelled
-from ...core.geometry import face_normals
+from ...core.geometry import any_valid_triangle
 from ...core.pipeline.budget import check_budget
 from ...core.sampling import layout as layout_policy
 from ...core.sampling.unwrap_child import UnwrapWorker
@@ -70,7 +70,7 @@ def plan_extraction(context, objects, progress=None) -> Planned:
     planned = Planned([], [], {}, {}, warnings, {})
     for index, obj in enumerate(all_meshes):
         mesh = extract.read_mesh(obj, depsgraph, "", (0, 0), obj.name in outputs, warnings)
-        if not np.any(face_normals(mesh.positions, mesh.triangles)[1]):
+        if not any_valid_triangle(mesh.positions, mesh.triangles):
             # A scatter's points make instances (extract.scene_geometry) and no faces of their own.
             if mesh.output or not extract.makes_instances(obj):
                 warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")

@@ -236,3 +236,20 @@ def test_texels_a_shadow_edge_crosses_take_the_dense_footprint_and_follow_the_ed
     np.testing.assert_array_equal(dense[:count][~crossed & (np.abs(exact - 0.5) == 0.5)],
                                   sparse[:count][~crossed & (np.abs(exact - 0.5) == 0.5)])
     assert direct.EDGE_FOOTPRINT_POINTS > 16
+
+
+def test_scrambled_points_are_each_points_own_scramble():
+    """The footprints' jitter, computed a block of samples at a time for every point at once,
+    is point j's Sobol pair Owen-scrambled by each sample's own seeds, as one point at a time
+    gives it; across block boundaries and for a shadow edge's 64 points alike."""
+    from core.lights.sampler import _sobol_point, owen_scramble
+    from core.sampling.footprint import _scrambled_points
+    rng = np.random.default_rng(3)
+    for samples, count in ((5, 64), (3000, 16), (1, 2)):
+        seeds = rng.integers(0, 2 ** 32, (2, samples), dtype=np.uint64).astype(np.uint32)
+        points = _scrambled_points(count, seeds)
+        assert points.shape == (samples, count, 2)
+        for index in (0, 1, count - 1):
+            for dimension in range(2):
+                own = owen_scramble(np.array([_sobol_point(index)[dimension]], np.uint32), seeds[dimension])
+                np.testing.assert_array_equal(points[:, index, dimension], (own >> np.uint32(8)) * 2.0 ** -24)

@@ -4,9 +4,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from core import kernels
 from core import tolerances as tol
 from core.outputs.dilation import dilate
-from core.sampling.raster import TexelSamples, degenerate_uv_triangles, rasterize, texel_centres
+from core.sampling.raster import TexelSamples, _rasterize_numpy, degenerate_uv_triangles, rasterize, texel_centres
 
 UNIT_SQUARE = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
 
@@ -183,10 +184,10 @@ def test_tiny_triangle_between_centres_gets_nothing():
 def test_large_triangle_spans_several_chunks(monkeypatch):
     import core.sampling.raster as raster
 
-    reference = rasterize(UNIT_SQUARE, 64, 48)
+    reference = _rasterize_numpy(UNIT_SQUARE, 64, 48)
     monkeypatch.setattr(raster, "RASTER_CHUNK_PAIRS", 100)
     monkeypatch.setattr(raster, "RASTER_CHUNK_ROWS", 7)
-    chunked = rasterize(UNIT_SQUARE, 64, 48)
+    chunked = _rasterize_numpy(UNIT_SQUARE, 64, 48)
     assert np.array_equal(chunked.pixel, reference.pixel)
     assert np.array_equal(chunked.triangle, reference.triangle)
     assert chunked.pixel.size == 64 * 48
@@ -280,6 +281,126 @@ def test_partition_of_the_square_covers_each_texel_exactly_once(partition):
     assert samples.coverage.all()
     assert samples.overlap_count == 0
     np.testing.assert_allclose(interpolate(corner_uv, samples), centres_of(samples), atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------
+# rasterize: the compiled kernels give the numpy code's bits
+
+
+def assert_same_samples(ours: TexelSamples, reference: TexelSamples) -> None:
+    for name in ("pixel", "triangle", "barycentric", "coverage"):
+        a, b = getattr(ours, name), getattr(reference, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        assert a.tobytes() == b.tobytes(), name  # bitwise: -0.0 and NaN payloads too
+    assert ours.overlap_count == reference.overlap_count
+
+
+def compiled_matches_numpy(corner_uv, width, height) -> TexelSamples:
+    if kernels.compiled() is None:
+        pytest.skip(f"compiled kernels unavailable: {kernels.status().reason}")
+    reference = _rasterize_numpy(corner_uv, width, height)
+    for threads in (1, 2):
+        assert_same_samples(rasterize(corner_uv, width, height, threads=threads), reference)
+    return reference
+
+
+def grid_mesh(columns, rows, width, height, mirrored=False):
+    """A watertight grid of 2 * columns * rows triangles over the unit square, diagonals
+    alternating, its lines on texel edges and centres wherever 2 * width / columns (or
+    2 * height / rows) is a whole number."""
+    u = np.linspace(0, 1, columns + 1)
+    v = np.linspace(0, 1, rows + 1)
+    tris = []
+    for j in range(rows):
+        for i in range(columns):
+            a, b, c, d = (u[i], v[j]), (u[i + 1], v[j]), (u[i + 1], v[j + 1]), (u[i], v[j + 1])
+            tris += [(a, b, c), (a, c, d)] if (i + j) % 2 else [(a, b, d), (b, c, d)]
+    tris = np.array(tris)
+    return tris[:, ::-1] if mirrored else tris
+
+
+def random_soup(seed, count, low=-0.1, high=1.1):
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(low, high, size=(count, 1, 2))
+    return centre + rng.normal(scale=rng.uniform(0.005, 0.3, size=(count, 1, 1)), size=(count, 3, 2))
+
+
+def edge_cases():
+    # Corners near the float64 limit differ by 1e292 or nothing: their squared edges overflow.
+    huge, d = 1.2e307, 1e294
+    bad = np.array([
+        [[0.1, 0.1], [0.9, 0.9], [0.5, 0.5]],
+        [[0.2, 0.2], [0.2, 0.2], [0.2, 0.2]],
+        [[np.nan, 0.1], [0.9, 0.1], [0.1, 0.9]],
+        [[np.inf, 0.1], [0.9, 0.1], [0.1, 0.9]],
+        [[0.1, -np.inf], [0.9, 0.1], [0.1, 0.9]],
+        [[1e300, 0.0], [-1e300, 0.0], [0.0, 1e300]],
+        [[huge, huge], [huge + d, huge], [huge, huge + d]],
+        [[-huge, -huge], [-huge - d, -huge], [-huge, -huge - d]],
+        [[1e-3, 1e-3], [1e-3 + 1e-9, 1e-3], [1e-3, 1e-3 + 1e-9]],
+        [[-1e150, -1e150], [1e150, -1e150], [0.0, 1e150]],  # live, edge functions near 1e300
+        [[1e150, 1e150], [2e150, 1e150], [1e150, 2e150]],  # live, far away
+    ])
+    return np.concatenate([bad, UNIT_SQUARE * 0.6 + 0.2, bad[::-1]])
+
+
+def slivers(width, height):
+    # Thin triangles along a row of texel centres, a column of them, and a diagonal.
+    yc = 2.5 / height
+    xc = 3.5 / width
+    return np.array([
+        [[0.0, yc], [1.0, yc], [0.5, yc + 1e-7]],
+        [[0.0, yc], [1.0, yc], [0.5, yc - 1e-9]],
+        [[xc, 0.0], [xc, 1.0], [xc + 1e-8, 0.5]],
+        [[0.0, 0.0], [1.0, 1.0], [0.5, 0.5 + 1e-6]],
+        [[0.0, 0.0], [1.0, 1.0], [0.5 + 1e-12, 0.5]],
+        [[0.05, 0.9], [0.95, 0.1], [0.95, 0.1 + 3e-4]],
+    ])
+
+
+COMPILED_CASES = {
+    "soup": (random_soup(1, 300), 37, 29),
+    "soup, non-square": (random_soup(2, 120), 7, 13),
+    "soup, far outside": (random_soup(3, 200, -1.5, 2.5), 13, 7),
+    "grid on centres and edges": (grid_mesh(16, 12, 8, 6), 8, 6),
+    "grid on centres and edges, mirrored": (grid_mesh(16, 12, 8, 6, mirrored=True), 8, 6),
+    "grid, non-square": (grid_mesh(14, 26, 7, 13), 7, 13),
+    "grid on texel edges": (grid_mesh(8, 8, 16, 16), 16, 16),
+    "grid of copies overlapping": (np.concatenate([grid_mesh(6, 6, 12, 12), grid_mesh(4, 4, 12, 12)]), 12, 12),
+    "non-finite and degenerate": (edge_cases(), 7, 13),
+    "partly outside": (np.array([[[-0.5, -0.3], [1.4, 0.2], [0.3, 1.7]], [[0.5, 0.5], [2.0, 0.5], [0.5, 2.0]]]), 11, 9),
+    "one triangle over everything": (np.concatenate([[[[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]]],
+                                                     random_soup(4, 20)]), 64, 48),
+    "slivers": (slivers(16, 12), 16, 12),
+    "empty": (np.zeros((0, 3, 2)), 7, 13),
+    "nothing claimed": (np.array([[[0.01, 0.01], [0.02, 0.01], [0.01, 0.02]]]), 8, 8),
+    "one texel": (UNIT_SQUARE, 1, 1),
+}
+
+
+@pytest.mark.parametrize("case", list(COMPILED_CASES))
+def test_compiled_rasterize_is_bitwise_the_numpy_code(case):
+    corner_uv, width, height = COMPILED_CASES[case]
+    reference = compiled_matches_numpy(corner_uv, width, height)
+    if case.startswith("grid") and "copies" not in case:
+        assert reference.coverage.all() and reference.overlap_count == 0
+
+
+def test_compiled_rasterize_of_float32_uvs_is_bitwise_the_numpy_code():
+    compiled_matches_numpy(random_soup(5, 100).astype(np.float32), 24, 20)
+    compiled_matches_numpy(np.asfortranarray(random_soup(6, 50)), 20, 24)
+
+
+@settings(max_examples=100, suppress_health_check=[HealthCheck.too_slow])
+@given(triangles, sizes, sizes)
+def test_compiled_rasterize_of_random_triangles_is_bitwise_the_numpy_code(tris, width, height):
+    compiled_matches_numpy(np.array(tris, np.float64), width, height)
+
+
+@settings(max_examples=100, suppress_health_check=[HealthCheck.too_slow])
+@given(partitions())
+def test_compiled_rasterize_of_partitions_is_bitwise_the_numpy_code(partition):
+    compiled_matches_numpy(*partition)
 
 
 # ---------------------------------------------------------------------------------------

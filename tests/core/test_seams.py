@@ -162,3 +162,24 @@ def test_each_lighting_of_a_batch_reports_its_own_seams():
              for t in ([0.5, -0.3, 0.8], [0.9, 0.0, 0.2])]
     assert before[0] != before[1]
     np.testing.assert_allclose(before, alone, rtol=1e-6)
+
+
+def test_welding_by_one_key_groups_and_orders_vertices_as_rows_do():
+    """The welded labels of find_seams (one int64 key per grid cell) are those of np.unique
+    over the cells' rows: the same vertices share a label, in the same order, so seams pair
+    and list their edges the same way. A non-finite vertex welds to nothing and leaves the
+    others apart (its NaN extent once welded the whole mesh into one vertex)."""
+    from core.outputs.seams import WELD_FRACTION, _welded
+    rng = np.random.default_rng(7)
+    for scale in (1e-3, 1.0, 1e5):
+        positions = rng.integers(-50, 50, (400, 3)) * scale * 0.25
+        positions[200:] = positions[:200] + rng.normal(0, scale * 1e-9, (200, 3))  # near-duplicates weld
+        cells = np.round(positions / (np.ptp(positions, axis=0).max() * WELD_FRACTION)).astype(np.int64)
+        _, expected = np.unique(cells, axis=0, return_inverse=True)
+        labels = _welded(positions)
+        np.testing.assert_array_equal(labels, expected.reshape(-1))
+        assert np.array_equal(labels[:200], labels[200:])
+    with_nan = rng.random((50, 3))
+    with_nan[3] = np.nan
+    labels = _welded(with_nan)
+    assert len(labels) == 50 and len(np.unique(labels)) == 50
