@@ -104,7 +104,7 @@ def uv_layout_stats(corner_uv: np.ndarray, width: int, height: int) -> UVLayoutS
     finite = np.isfinite(corners).all(axis=2)
     with np.errstate(invalid="ignore"):
         outside = ((corners < -tol.UV_RANGE_SLACK) | (corners > 1.0 + tol.UV_RANGE_SLACK)).any(axis=2)
-    raster = rasterize(corners, width, height)
+    raster = rasterize(corners, width, height, load_kernels=False)
     return UVLayoutStats(
         triangles=int(corners.shape[0]),
         non_finite_corners=int(np.count_nonzero(~finite)),

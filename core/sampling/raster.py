@@ -115,7 +115,8 @@ def degenerate_uv_triangles(corner_uv: np.ndarray, width: int, height: int) -> n
     return _degenerate(corners)
 
 
-def rasterize(corner_uv: np.ndarray, width: int, height: int, threads: int = 0) -> TexelSamples:
+def rasterize(corner_uv: np.ndarray, width: int, height: int, threads: int = 0,
+              load_kernels: bool = True) -> TexelSamples:
     """Texels whose centre lies inside a UV triangle (see the module doc for the edge rule).
 
     Parameters
@@ -128,13 +129,18 @@ def rasterize(corner_uv: np.ndarray, width: int, height: int, threads: int = 0) 
     threads : int
         The compiled kernels' thread count (0: all cores); the result does not depend on it,
         nor on whether the kernels or the numpy fallback run: both give the same bits.
+    load_kernels : bool
+        False: use the compiled kernels only if this process has loaded them already. The
+        UV layout check runs on Blender's main thread before a bake starts, where a first
+        load (seconds of compiling in a fresh kernel cache) would freeze the interface
+        without progress; the bake loads them as a stage of its own.
 
     Returns
     -------
     TexelSamples
     """
     width, height = _check_size(width, height)
-    module = kernels.compiled()
+    module = kernels.compiled() if load_kernels or kernels.tried() else None
     if module is None:
         return _rasterize_numpy(corner_uv, width, height)
     return _rasterize_compiled(module, corner_uv, width, height, threads)

@@ -279,3 +279,30 @@ def test_unwrap_rejects_bad_sizes():
         unwrap(positions, triangles, 4, padding_texels=2)
     with pytest.raises(ValueError):
         unwrap(positions, triangles, 64, texels_per_unit=-1.0)
+
+
+def test_the_layout_check_never_loads_the_compiled_kernels():
+    """The UV layout check runs on Blender's main thread before a bake starts: it must not be
+    what loads (and in a fresh cache, compiles for many seconds) the kernels. It uses them
+    once the process has them, with the same answer."""
+    import json
+    import os
+    import subprocess
+    import sys
+    code = """
+import json, numpy as np
+from core import kernels
+from core.sampling.atlas import uv_layout_stats
+square = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
+before = uv_layout_stats(square, 16, 16)
+loaded_by_check = kernels.tried()
+backend = kernels.status().backend
+after = uv_layout_stats(square, 16, 16)
+print(json.dumps([loaded_by_check, backend, before == after, before.covered_texels]))
+"""
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    loaded_by_check, backend, same, covered = json.loads(done.stdout.strip().splitlines()[-1])
+    assert not loaded_by_check
+    assert same and covered == 256, backend
