@@ -185,6 +185,10 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     light_module.hard_lamp_point(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
                                  footprint, 0, footprint, 0, np.ones(3), np.zeros((1, 3)), np.zeros((1, 3)),
                                  np.zeros(1), np.zeros((1, 3)), np.zeros(1, bool))
+    flags = np.zeros(1, bool)
+    light_module.hard_lamp_decided(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
+                                   footprint, np.zeros((1, 0, 3), np.float32), np.ones(3), np.zeros(1, np.int64),
+                                   flags, flags, 1, flags, 4, 1.0, np.zeros((1, 3)), np.zeros(1, bool))
     corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
     offsets = np.zeros(2, np.int64)
     no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
@@ -200,7 +204,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
                sample_module.footprint_corners, image_module.bilinear_points, image_module.seam_product,
                image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point,
-               raster_module.triangle_claims, raster_module.resolve_claims, raster_module.gather_claims)
+               light_module.hard_lamp_decided, raster_module.triangle_claims, raster_module.resolve_claims,
+               raster_module.gather_claims)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

@@ -44,41 +44,12 @@ def hard_lamp_point(kind, centre, direction, cos_half, band, position, normal, o
     (written only with ``offset_slot`` >= 0); lit (K,) bool: the lamp is above the shading
     normal's horizon and gives some light (a shadow ray decides the rest).
     """
-    four_pi = 4.0 * np.pi
     for k in nb.prange(position.shape[0]):
-        r0, r1, r2 = position[k, 0], position[k, 1], position[k, 2]
+        r0, r1, r2, n0, n1, n2, t0, t1, t2, far, value = _hard_point(
+            kind, centre, direction, cos_half, band, position, normal, offsets, offset_slot, point_normals,
+            normal_slot, k)
         if offset_slot >= 0:
-            r0 += np.float64(offsets[k, offset_slot, 0])
-            r1 += np.float64(offsets[k, offset_slot, 1])
-            r2 += np.float64(offsets[k, offset_slot, 2])
             receiver[k, 0], receiver[k, 1], receiver[k, 2] = r0, r1, r2
-        if normal_slot >= 0:
-            n0 = np.float64(point_normals[k, normal_slot, 0])
-            n1 = np.float64(point_normals[k, normal_slot, 1])
-            n2 = np.float64(point_normals[k, normal_slot, 2])
-        else:
-            n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
-        if kind == SUN:
-            t0, t1, t2 = -direction[0], -direction[1], -direction[2]
-            far = np.inf
-            cosine = max(_dot(n0, n1, n2, t0, t1, t2), 0.0)
-            value = cosine
-        else:
-            o0, o1, o2 = centre[0] - r0, centre[1] - r1, centre[2] - r2
-            far = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
-            safe = max(far, 1e-12)
-            t0, t1, t2 = o0 / safe, o1 / safe, o2 / safe
-            cosine = max(_dot(n0, n1, n2, t0, t1, t2), 0.0)
-            value = cosine / (four_pi * safe * safe)
-            if kind == SPOT:
-                cos_angle = -t0 * direction[0] - t1 * direction[1] - t2 * direction[2]
-                if band <= 0.0:
-                    value = value if cos_angle > cos_half else 0.0
-                else:
-                    x = min(max((cos_angle - cos_half) / band, 0.0), 1.0)
-                    value = value * (x * x * (3.0 - 2.0 * x))
-            if not far > 1e-12:
-                value = 0.0
         to_light[k, 0], to_light[k, 1], to_light[k, 2] = t0, t1, t2
         distance[k] = far
         gives = False
@@ -86,3 +57,85 @@ def hard_lamp_point(kind, centre, direction, cos_half, band, position, normal, o
             irradiance[k, c] = value * scale[c]
             gives = gives or irradiance[k, c] > 0.0
         lit[k] = gives and _dot(t0, t1, t2, n0, n1, n2) > 0.0
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def hard_lamp_decided(kind, centre, direction, cos_half, band, position, normal, offsets, point_normals, scale,
+                      rows, decided, visible, count, small, first_points, small_factor, light, pending):
+    """Every point of a hard lamp, summed, at the samples that need no shadow ray: what
+    core.transport.direct.lamp_irradiance's loop adds up for them, point by point, in the
+    same order and float operations, without a pass over memory per point.
+
+    Arguments as :func:`hard_lamp_point`, with ``offsets`` (K, P, 3) float32 (point j at slot
+    j % P) and ``point_normals`` (K, Q, 3) float32, or (K, 0, 3) for the samples' own normals.
+    rows : (R,) int64 the samples to do; decided : (K,) bool whose shadow the probes decided,
+    and visible : (K,) bool whether the lamp then reaches it (not shadowed, a receiver);
+    count : the lamp's points; small : (K,) bool decided samples whose first ``first_points``
+    points, times ``small_factor``, stand for all. Outputs, at ``rows`` only: light (K, 3)
+    float64; pending (K,) bool an undecided sample some point of which is lit (it needs shadow
+    rays: its light is not written). An undecided sample no point lights gets 0.
+    """
+    points, normal_points = offsets.shape[1], point_normals.shape[1]
+    for j in nb.prange(rows.shape[0]):
+        k = rows[j]
+        a0, a1, a2 = 0.0, 0.0, 0.0
+        seen = 1.0 if decided[k] and visible[k] else 0.0
+        pending[k] = False
+        for point in range(count):
+            if point == first_points and small[k]:
+                a0, a1, a2 = a0 * small_factor, a1 * small_factor, a2 * small_factor
+                break
+            _, _, _, n0, n1, n2, t0, t1, t2, _, value = _hard_point(
+                kind, centre, direction, cos_half, band, position, normal, offsets, point % points, point_normals,
+                point % normal_points if normal_points > 0 else -1, k)
+            i0, i1, i2 = value * scale[0], value * scale[1], value * scale[2]
+            lit = (i0 > 0.0 or i1 > 0.0 or i2 > 0.0) and _dot(t0, t1, t2, n0, n1, n2) > 0.0
+            if lit and not decided[k]:
+                pending[k] = True
+                break
+            weight = seen if lit else 0.0
+            a0 += i0 * weight
+            a1 += i1 * weight
+            a2 += i2 * weight
+        if not pending[k]:
+            light[k, 0], light[k, 1], light[k, 2] = a0, a1, a2
+
+
+@nb.njit(inline="always")
+def _hard_point(kind, centre, direction, cos_half, band, position, normal, offsets, offset_slot, point_normals,
+                normal_slot, k):
+    """Sample k's receiver (r), shading normal (n), unit direction to the lamp (t), distance and
+    unshadowed irradiance before the lamp's colour and power, as :func:`hard_lamp_point` documents."""
+    r0, r1, r2 = position[k, 0], position[k, 1], position[k, 2]
+    if offset_slot >= 0:
+        r0 += np.float64(offsets[k, offset_slot, 0])
+        r1 += np.float64(offsets[k, offset_slot, 1])
+        r2 += np.float64(offsets[k, offset_slot, 2])
+    if normal_slot >= 0:
+        n0 = np.float64(point_normals[k, normal_slot, 0])
+        n1 = np.float64(point_normals[k, normal_slot, 1])
+        n2 = np.float64(point_normals[k, normal_slot, 2])
+    else:
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+    if kind == SUN:
+        t0, t1, t2 = -direction[0], -direction[1], -direction[2]
+        far = np.inf
+        cosine = max(_dot(n0, n1, n2, t0, t1, t2), 0.0)
+        value = cosine
+    else:
+        o0, o1, o2 = centre[0] - r0, centre[1] - r1, centre[2] - r2
+        far = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        safe = max(far, 1e-12)
+        t0, t1, t2 = o0 / safe, o1 / safe, o2 / safe
+        cosine = max(_dot(n0, n1, n2, t0, t1, t2), 0.0)
+        value = cosine / (4.0 * np.pi * safe * safe)
+        if kind == SPOT:
+            cos_angle = -t0 * direction[0] - t1 * direction[1] - t2 * direction[2]
+            if band <= 0.0:
+                value = value if cos_angle > cos_half else 0.0
+            else:
+                x = min(max((cos_angle - cos_half) / band, 0.0), 1.0)
+                value = value * (x * x * (3.0 - 2.0 * x))
+        if not far > 1e-12:
+            value = 0.0
+    return r0, r1, r2, n0, n1, n2, t0, t1, t2, far, value

@@ -270,6 +270,34 @@ class LampPoints:
             return self.normal
         return self.footprint_normals[:, point % self.footprint_normals.shape[1]].astype(np.float64)
 
+    def add_untraced(self, rows: np.ndarray, decided: np.ndarray, visible: np.ndarray, small: np.ndarray,
+                     first_points: int, light: np.ndarray) -> np.ndarray | None:
+        """Add up, in one compiled pass, every point of a lamp without extent over a footprint
+        at the samples ``rows`` (K,) bool that need no shadow ray: those whose shadows are
+        ``decided`` (K,) bool, and the others where no point is lit. ``light`` (K, 3) float64
+        gets the sum over points of their irradiance where the point is lit and the sample
+        ``visible`` (K,) bool, the first ``first_points`` points times count / first_points
+        where ``small`` (K,) bool: bitwise what adding :meth:`contribution`'s points one by one
+        gives. Returns (K,) bool the rows left to trace (not written), or None, nothing done,
+        where the kernel does not apply (a lamp with extent, no footprint, no compiled kernels)."""
+        module = kernels.compiled()
+        if module is None or not self.point_lamp or self.footprint is None:
+            return None
+        light_kind = self.light
+        cos_half = float(np.cos(light_kind.spot_size / 2.0))
+        point_normals = (np.zeros((len(self.position), 0, 3), np.float32) if self.footprint_normals is None
+                         else np.ascontiguousarray(self.footprint_normals, np.float32))
+        pending = np.zeros(len(self.position), bool)
+        kernels.run(module.hard_lamp_decided, self.threads, _KERNEL_KINDS[light_kind.kind],
+                    np.asarray(light_kind.position, np.float64), np.asarray(light_kind.direction, np.float64),
+                    cos_half, (1.0 - cos_half) * float(light_kind.spot_blend),
+                    np.ascontiguousarray(self.position, np.float64), np.ascontiguousarray(self.normal, np.float64),
+                    np.ascontiguousarray(self.footprint, np.float32), point_normals, self.scale / self.count,
+                    np.nonzero(rows)[0].astype(np.int64), np.ascontiguousarray(decided, bool),
+                    np.ascontiguousarray(visible, bool), self.count, np.ascontiguousarray(small, bool),
+                    first_points, self.count / first_points, light, pending)
+        return pending
+
     def contribution(self, point: int) -> LightContribution:
         """Point ``point``'s share (weighted 1 / count) at every sample."""
         position, normal = self.position, self.normal

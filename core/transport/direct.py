@@ -79,17 +79,21 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
                 decided[edges] = shadowed[edges] = True
         lamp_light = np.zeros_like(irradiance)
         rows = None  # every sample; after the first points only those still needing more
+        small = _small_lamp_samples(light, lamp, samples, decided) if adaptive else None
+        pending = None
+        if adaptive:
+            visible = ~shadowed if receives is None else receives & ~shadowed
+            pending = lamp.add_untraced(~_mask(edges, len(decided)), decided, visible, small, SMALL_LAMP_POINTS,
+                                        lamp_light)
+        if pending is not None:
+            # Summed in one pass where no ray is needed: the loop below traces the rest.
+            rows = np.nonzero(pending)[0]
+            lamp = lamp.subset(rows)
+            adaptive = False
         for index in range(lamp.count):
+            if rows is not None and not len(rows):
+                break
             if adaptive and index == SMALL_LAMP_POINTS:
-                small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION)
-                if lamp.footprint_normals is not None:
-                    # A curved footprint's light changes across it: it needs every point's cosine
-                    # (no ray: it is decided).
-                    curved = samples.derived.get("curved_footprints")
-                    if curved is None:
-                        curved = curved_footprints(lamp.footprint_normals, samples.normal)
-                        samples.derived["curved_footprints"] = curved
-                    small &= ~curved
                 lamp_light[small] *= lamp.count / SMALL_LAMP_POINTS
                 rows = np.nonzero(~small)[0]
                 if not len(rows):
@@ -123,6 +127,29 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         if report is not None:
             report(costs[light_index] / costs[-1])
     return irradiance, shadow_rays
+
+
+def _small_lamp_samples(light, lamp: LampPoints, samples: SampleSet, decided: np.ndarray) -> np.ndarray:
+    """(K,) bool: decided samples whose first SMALL_LAMP_POINTS points stand for all of the
+    lamp's: it looks small from them and their footprint is flat."""
+    small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION)
+    if lamp.footprint_normals is not None:
+        # A curved footprint's light changes across it: it needs every point's cosine (no ray:
+        # it is decided).
+        curved = samples.derived.get("curved_footprints")
+        if curved is None:
+            curved = curved_footprints(lamp.footprint_normals, samples.normal)
+            samples.derived["curved_footprints"] = curved
+        small &= ~curved
+    return small
+
+
+def _mask(indices: np.ndarray | None, count: int) -> np.ndarray:
+    """(count,) bool True at ``indices`` (None: nowhere)."""
+    mask = np.zeros(count, bool)
+    if indices is not None:
+        mask[indices] = True
+    return mask
 
 
 def _lit(part: LightContribution, shading: np.ndarray) -> np.ndarray:

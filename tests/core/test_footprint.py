@@ -253,3 +253,47 @@ def test_scrambled_points_are_each_points_own_scramble():
             for dimension in range(2):
                 own = owen_scramble(np.array([_sobol_point(index)[dimension]], np.uint32), seeds[dimension])
                 np.testing.assert_array_equal(points[:, index, dimension], (own >> np.uint32(8)) * 2.0 ** -24)
+
+
+def test_samples_needing_no_shadow_ray_are_summed_in_one_pass_bitwise(monkeypatch):
+    """A hard lamp over footprints: the samples whose shadows the probes decided, and those no
+    point lights, are summed by one compiled pass (LampPoints.add_untraced) instead of point
+    by point. It gives the loop's bits, for suns, points and blended spots, smooth and flat
+    faces, a partial shadow and light linking, with the same shadow rays."""
+    import pytest
+
+    from core import kernels
+    from core.lights.lamps import LampPoints
+    if kernels.compiled() is None:
+        pytest.skip(f"compiled kernels unavailable: {kernels.status().reason}")
+    ground = _plane(resolution=16, size=2.0)
+    tilted = np.array([[0.5, 0.0, 1.0], [-0.5, 0.2, 1.0], [0.0, -0.5, 1.0]])
+    ground.corner_normals[:] = (tilted / np.linalg.norm(tilted, axis=1, keepdims=True)).astype(np.float32)
+    blocker = quad_mesh("Blocker", [(-2, -2, 0.5), (0.1, -2, 0.5), (0.1, 2, 0.5), (-2, 2, 0.5)], resolution=8)
+    wall = quad_mesh("Wall", [(1, -1, 0), (1, 1, 0), (1, 1, 1), (1, -1, 1)], resolution=8)
+    p = prepare(Scene([ground, blocker, wall], []), BakeSettings(directions=8, bounces=0, footprint_samples=16),
+                table_needed=False)
+    down = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    lamps = [Light("Sun", "SUN", np.ones(3), 2.0, direction=down),
+             Light("Point", "POINT", np.array([1.0, 0.5, 0.2]), 80.0, position=np.array([0.3, 0.2, 0.9])),
+             Light("Spot", "SPOT", np.ones(3), 60.0, position=np.array([0.0, 0.0, 1.5]), direction=down,
+                   spot_size=1.0, spot_blend=0.4),
+             Light("Linked", "POINT", np.ones(3), 50.0, position=np.array([0.5, 0.0, 0.7]), receivers=("Plane",))]
+    summed = []
+    add_untraced = LampPoints.add_untraced
+
+    def recording(self, *args):
+        pending = add_untraced(self, *args)
+        summed.append(None if pending is None else int(np.count_nonzero(~pending)))
+        return pending
+
+    for lamp in lamps:
+        with monkeypatch.context() as patch:
+            patch.setattr(LampPoints, "add_untraced", recording)
+            fused, fused_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [lamp])
+        assert summed[-1], lamp.name  # the one pass ran and took samples
+        with monkeypatch.context() as patch:
+            patch.setattr(LampPoints, "add_untraced", lambda *args: None)
+            looped, looped_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [lamp])
+        assert np.array_equal(fused, looped), lamp.name
+        assert fused_rays == looped_rays and fused.max() > 0, lamp.name
