@@ -44,18 +44,34 @@ def face_normals(positions: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarr
 
 def mesh_face_normals(mesh) -> tuple[np.ndarray, np.ndarray]:
     """:func:`face_normals` of a core.scene.Mesh, kept on it: samples, the hit geometry and
-    the emitters each need them, and a dense mesh's cost 0.1 s each time. Kept only while
-    the mesh still holds the same position and triangle arrays (never written in place).
+    the emitters each need them, and a dense mesh's cost 0.1 s each time.
 
     Returns normals (m, 3) float64 and valid (m,) bool, not to be written into.
     """
-    kept = getattr(mesh, "_face_normals", None)
+    return _kept(mesh, "_face_normals", lambda: face_normals(mesh.positions, mesh.triangles))
+
+
+def mesh_triangle_areas(mesh) -> np.ndarray:
+    """(m,) float64 the world-space area of each triangle of a core.scene.Mesh (NaN where a
+    corner is not finite), kept on it: the contact and near-field passes each need them."""
+    def areas():
+        corners = mesh.positions[mesh.triangles].astype(np.float64)
+        return (0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                                     axis=1),)
+    return _kept(mesh, "_triangle_areas", areas)[0]
+
+
+def _kept(mesh, name: str, compute):
+    """``compute()``'s tuple of arrays, kept on ``mesh`` under ``name`` (read-only) for as long
+    as the mesh holds the same position and triangle arrays (they are never written in place)."""
+    kept = getattr(mesh, name, None)
     if kept is not None and kept[0] is mesh.positions and kept[1] is mesh.triangles:
-        return kept[2], kept[3]
-    normals, valid = face_normals(mesh.positions, mesh.triangles)
-    normals.flags.writeable = valid.flags.writeable = False
-    mesh._face_normals = (mesh.positions, mesh.triangles, normals, valid)
-    return normals, valid
+        return kept[2]
+    values = compute()
+    for value in values:
+        value.flags.writeable = False
+    setattr(mesh, name, (mesh.positions, mesh.triangles, values))
+    return values
 
 
 def any_valid_triangle(positions: np.ndarray, triangles: np.ndarray, block: int = 4096) -> bool:

@@ -112,13 +112,21 @@ def _load() -> KernelStatus:
         import numba
         numba.config.CACHE_DIR = cache_dir
         numba.config.THREADING_LAYER = "workqueue"
-        from . import image_kernels, light_kernels, raster_kernels, sample_kernels, table_kernels, transport_kernels
+        from . import (
+            image_kernels,
+            light_kernels,
+            prep_kernels,
+            raster_kernels,
+            sample_kernels,
+            table_kernels,
+            transport_kernels,
+        )
         misses = _warm_up(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels,
-                          raster_kernels)
+                          raster_kernels, prep_kernels)
     except Exception as error:  # noqa: BLE001 - any failure to load means: use numpy, and say why
         return KernelStatus("numpy", cache_dir=cache_dir, reason=f"{type(error).__name__}: {error}")
     _module = _Kernels(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels,
-                       raster_kernels)
+                       raster_kernels, prep_kernels)
     return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir)
 
 
@@ -132,7 +140,7 @@ class _Kernels:
                     setattr(self, name, value)
 
 
-def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module) -> int:
+def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module, prep_module) -> int:
     """Compile (or read from the cache) every kernel for the one signature the callers use,
     by running each on a tiny input. Returns how many kernels had to be compiled."""
     objects = np.zeros((1, 1), np.int16)
@@ -200,12 +208,25 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     raster_module.resolve_claims(claims[0], claims[2], chosen, np.zeros(1, np.int8), np.zeros(2, np.int64))
     raster_module.gather_claims(chosen, claims[1], weights, np.zeros(1, np.int64), np.zeros(1, np.int32),
                                 np.zeros((1, 3), np.float32), np.zeros(1, bool))
+    from ..visibility.table import DISTANCE_VALUES
+    hits = np.zeros((1, 1), np.int16)
+    prep_module.close_entries(hits, np.zeros((1, 1), np.uint16), DISTANCE_VALUES, np.ones(1, np.float32), np.zeros(0),
+                              np.zeros(2, np.int64), np.zeros(0, np.int64), False)
+    prep_module.exposed_share(hits, 1, 0.9, np.zeros(1))
+    first = np.zeros(1, np.int64)
+    prep_module.texel_owners(first, np.zeros((1, 2), np.float32), first + 1, first + 1, first, first,
+                             np.zeros((1, 2), np.int64), np.zeros(1, np.int64))
+    points = np.zeros((1, 3))
+    prep_module.filter_candidates(first, np.ones(1, bool), first, 0, 1, 1, np.zeros((1, 2), np.int64), 1, points,
+                                  points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
+                                  np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
                table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
                sample_module.footprint_corners, image_module.bilinear_points, image_module.seam_product,
                image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point,
                light_module.hard_lamp_decided, raster_module.triangle_claims, raster_module.resolve_claims,
-               raster_module.gather_claims)
+               raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
+               prep_module.texel_owners, prep_module.filter_candidates)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
 
 

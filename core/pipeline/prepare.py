@@ -103,7 +103,8 @@ class Prepared:
             if self.table is None:
                 self._exposed = np.ones(len(self.position))
             else:
-                self._exposed = exposed_share(self.table, 1 if self.footprint is None else self.footprint[0].shape[1])
+                self._exposed = exposed_share(self.table, 1 if self.footprint is None else self.footprint[0].shape[1],
+                                              self.settings.threads)
         return self._exposed
 
     def dense_footprint(self, rows: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray | None]:

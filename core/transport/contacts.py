@@ -35,7 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import kernels
-from ..visibility.table import BACKFACE, BELOW_HORIZON
+from ..geometry import mesh_triangle_areas
+from ..visibility.table import BACKFACE, BELOW_HORIZON, DISTANCE_VALUES
 from .contract import SampleSet
 
 # A hit nearer than this many of its target's texels is evaluated at its landing point.
@@ -49,10 +50,22 @@ BURIED_POINT_SHARE = 0.9
 MIN_EXPOSED_SHARE = 0.25
 
 
-def exposed_share(table, slots: int) -> np.ndarray:
+def exposed_share(table, slots: int, threads: int = 0) -> np.ndarray:
     """(K,) float64: the share of each sample's footprint points (``slots`` of them; the
     table's direction i starts from point i % slots) that are not buried inside other
-    geometry, among the points with any ray above the horizon (1 where none has)."""
+    geometry, among the points with any ray above the horizon (1 where none has). Compiled
+    on ``threads`` threads (0: all cores) where the kernels load, bitwise the numpy pass."""
+    module = kernels.compiled()
+    if module is None:
+        return _exposed_share_numpy(table, slots)
+    share = np.empty(table.hit_object.shape[1])
+    kernels.run(module.exposed_share, threads, np.ascontiguousarray(table.hit_object, np.int16), max(int(slots), 1),
+                BURIED_POINT_SHARE, share)
+    return share
+
+
+def _exposed_share_numpy(table, slots: int) -> np.ndarray:
+    """:func:`exposed_share` in numpy."""
     samples = table.hit_object.shape[1]
     slots = max(int(slots), 1)
     # 16-bit counts (a set has at most 65535 directions), and the shares taken a block of
@@ -111,9 +124,7 @@ def texel_sizes(meshes, object_samples) -> np.ndarray:
     for index, (mesh, samples) in enumerate(zip(meshes, object_samples)):
         if mesh.mode != "atlas" or len(samples) == 0:
             continue
-        corners = mesh.positions[mesh.triangles].astype(np.float64)
-        area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-        sizes[index] = np.sqrt(np.nansum(area) / len(samples))
+        sizes[index] = np.sqrt(np.nansum(mesh_triangle_areas(mesh)) / len(samples))
     return sizes
 
 
@@ -121,7 +132,40 @@ def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None =
     """The table entries of prepared scene ``p`` that hit an object o nearer than
     ``target_reach[o]`` (O,) and, if given, than their sample's ``sample_reach`` (K,), and
     have a gather weight: (sample (m,) int64, direction (m,) int64, weight (m,) float32), the
-    weight max(0, n . d_i) times the sample's scale; None when there are none."""
+    weight max(0, n . d_i) times the sample's scale, by direction, then sample; None when
+    there are none. Compiled where the kernels load, bitwise the numpy pass."""
+    module = kernels.compiled()
+    if module is None:
+        return _close_entries_numpy(p, target_reach, sample_reach)
+    table = p.table
+    count = len(table.directions)
+    arguments = [np.ascontiguousarray(table.hit_object, np.int16),
+                 np.ascontiguousarray(table.hit_distance_code, np.uint16), DISTANCE_VALUES,
+                 np.ascontiguousarray(target_reach, np.float32),
+                 np.zeros(0) if sample_reach is None else np.ascontiguousarray(sample_reach, np.float64)]
+    offsets = np.zeros(count + 1, np.int64)
+    kernels.run(module.close_entries, p.settings.threads, *arguments, offsets, np.zeros(0, np.int64), False)
+    np.cumsum(offsets, out=offsets)
+    sample = np.empty(offsets[-1], np.int64)
+    kernels.run(module.close_entries, p.settings.threads, *arguments, offsets, sample, True)
+    # The cosines are numpy's matrix products, one direction at a time as in the numpy pass:
+    # BLAS sums them its own way (with fused multiply-adds where the CPU has them), which a
+    # kernel cannot follow on every platform.
+    normals = p.frame_normal.astype(np.float32)
+    cosine = np.empty(len(sample), np.float32)
+    for i in np.nonzero(np.diff(offsets))[0]:
+        rows = slice(offsets[i], offsets[i + 1])
+        cosine[rows] = normals[sample[rows]] @ table.directions[i].astype(np.float32)
+    weight = np.maximum(cosine, 0.0) * p.gather_scale().astype(np.float32)[sample]
+    keep = weight > 0
+    if not keep.any():
+        return None
+    direction = np.repeat(np.arange(count, dtype=np.int64), np.diff(offsets))
+    return sample[keep], direction[keep], weight[keep]
+
+
+def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None):
+    """:func:`close_entries` in numpy."""
     table = p.table
     target_reach = np.asarray(target_reach, np.float32)
     scale = p.gather_scale().astype(np.float32)
@@ -186,9 +230,35 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
     return ShortHits(sample, weight, obj, uv, points)
 
 
+# The texels a landing point's owner is looked for in, in turn: its own, then its neighbours.
+OWNER_SHIFTS = ((0, 0), (-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1))
+
+
 def _texel_owners(p, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(m,) int64 the sample owning the texel each landing (object (m,), atlas uv (m, 2)) lies
-    in, else one owning a neighbouring texel; -1 where none does."""
+    """(m,) int64 the sample owning the texel each landing (object (m,) int64, atlas uv (m, 2)
+    float32) lies in, else one owning a neighbouring texel; -1 where none does."""
+    module = kernels.compiled()
+    if module is None:
+        return _texel_owners_numpy(p, obj, uv)
+    widths = np.array([samples.width for samples in p.object_samples], np.int64)
+    heights = np.array([samples.height for samples in p.object_samples], np.int64)
+    # One grid of texel owners for the objects landed on, each at its offset.
+    landed = np.nonzero(np.bincount(obj, minlength=len(widths)))[0]
+    texels = widths[landed] * heights[landed]
+    grid_offset = np.zeros(len(widths), np.int64)
+    grid_offset[landed] = np.cumsum(texels) - texels
+    grid = np.full(int(texels.sum()), -1, np.int64)
+    for index in landed:
+        samples = p.object_samples[index]
+        grid[grid_offset[index] + samples.pixel] = p.sample_offset[index] + np.arange(len(samples))
+    owner = np.empty(len(obj), np.int64)
+    module.texel_owners(np.asarray(obj, np.int64), np.ascontiguousarray(uv, np.float32), widths, heights, grid_offset,
+                        grid, np.array(OWNER_SHIFTS, np.int64), owner)
+    return owner
+
+
+def _texel_owners_numpy(p, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """:func:`_texel_owners` in numpy."""
     owner = np.full(len(obj), -1, np.int64)
     for index in np.unique(obj):
         samples = p.object_samples[index]
@@ -199,7 +269,7 @@ def _texel_owners(p, obj: np.ndarray, uv: np.ndarray) -> np.ndarray:
         x = np.clip(np.floor(uv[chosen, 0] * width).astype(np.int64), 0, width - 1)
         y = np.clip(np.floor(uv[chosen, 1] * height).astype(np.int64), 0, height - 1)
         found = np.full(len(chosen), -1, np.int64)
-        for dx, dy in ((0, 0), (-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)):
+        for dx, dy in OWNER_SHIFTS:
             open_rows = found < 0
             if not open_rows.any():
                 break

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from ..sampling.samples import VertexSamples
 from .contacts import close_entries, sum_by_sample, texel_sizes
 
@@ -44,6 +45,9 @@ SAME_SURFACE_TEXELS = 2.0
 # Light arriving from hits within this many tiles of the sample's texels is near light,
 # which the filter keeps as gathered.
 NEAR_FIELD_TILES = 2.0
+# Texels per task of the compiled candidate search: thousands of tasks on a large atlas, to
+# balance the threads, each long enough that its start costs nothing.
+PAIR_TASK_TEXELS = 4096
 
 
 @dataclass
@@ -92,7 +96,62 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     block that lie on the same surface (normals within SAME_SURFACE_COSINE, closer than
     SAME_SURFACE_TEXELS tiles), are not buried, and see each other (the segment between
     them, just off the surface, is clear: never across a wall standing between them).
-    Geometry alone, found once per preparation (p.filter_pairs())."""
+    Listed by object, then by shift (dy, then dx, ascending), then by texel. Geometry alone,
+    found once per preparation (p.filter_pairs()). The candidates are found by a compiled
+    kernel where the kernels load, and each object's occlusion rays cast in one query;
+    bitwise the numpy pass's pairs."""
+    module = kernels.compiled()
+    if module is None:
+        return _filter_pairs_numpy(p)
+    tile = int(round(np.sqrt(len(p.rotations))))
+    steps = range(-(tile // 2), tile - tile // 2)
+    shifts = np.array([(dx, dy) for dy in steps for dx in steps], np.int64)
+    centre = int(np.nonzero(~shifts.any(axis=1))[0][0])
+    sizes = texel_sizes(p.meshes, p.object_samples)
+    buried = p.table.buried() if p.table is not None else np.zeros(len(p.position), bool)
+    geometry = (np.ascontiguousarray(p.position, np.float64), np.ascontiguousarray(p.normal, np.float64),
+                np.ascontiguousarray(p.origins, np.float64))
+    texels, neighbours = [], []
+    for index, samples in enumerate(p.object_samples):
+        if isinstance(samples, VertexSamples) or len(samples) == 0:
+            continue
+        first = int(p.sample_offset[index])
+        count, width, height = len(samples), samples.width, samples.height
+        owner = np.full(width * height, -1, np.int64)
+        visible = ~buried[first:first + count]
+        owner[samples.pixel[visible]] = first + np.nonzero(visible)[0]
+        reach = (SAME_SURFACE_TEXELS * tile * sizes[index]) ** 2
+        arguments = (np.asarray(samples.pixel, np.int64), visible, owner, first, int(width), int(height), shifts,
+                     PAIR_TASK_TEXELS, *geometry, SAME_SURFACE_COSINE, float(reach))
+        tasks = -(-count // PAIR_TASK_TEXELS)
+        offsets = np.zeros(len(shifts) * tasks + 1, np.int64)
+        none = np.zeros(0, np.int64)
+        kernels.run(module.filter_candidates, p.settings.threads, *arguments, offsets, offsets, none, none,
+                    np.zeros((0, 3), np.float32), np.zeros(0, np.float32), False)
+        # The unshifted pairs (each texel with itself) cast no ray.
+        ray_counts = offsets[1:].reshape(len(shifts), tasks).copy()
+        ray_counts[centre] = 0
+        ray_offsets = np.append(0, np.cumsum(ray_counts))
+        np.cumsum(offsets, out=offsets)
+        rows, other = np.empty(offsets[-1], np.int64), np.empty(offsets[-1], np.int64)
+        direction, length = np.empty((ray_offsets[-1], 3), np.float32), np.empty(ray_offsets[-1], np.float32)
+        kernels.run(module.filter_candidates, p.settings.threads, *arguments, offsets, ray_offsets, rows, other,
+                    direction, length, True)
+        # The rays, in pair order, are those of the pairs before and after the unshifted ones.
+        a, b = offsets[centre * tasks], offsets[(centre + 1) * tasks]
+        clear = np.ones(len(rows), bool)
+        if len(length):
+            blocked = p.ray_scene.occluded(p.origins[np.concatenate([rows[:a], rows[b:]])], direction, length)
+            clear[:a], clear[b:] = ~blocked[:a], ~blocked[a:]
+        texels.append(rows[clear])
+        neighbours.append(other[clear])
+    if not texels:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(texels), np.concatenate(neighbours)
+
+
+def _filter_pairs_numpy(p) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`filter_pairs` in numpy."""
     tile = int(round(np.sqrt(len(p.rotations))))
     offsets = range(-(tile // 2), tile - tile // 2)
     sizes = texel_sizes(p.meshes, p.object_samples)

@@ -1,6 +1,8 @@
 """Sharp contacts (core.transport.contacts): short rays read the lamps' light at their landing point."""
 import numpy as np
+import pytest
 
+from core import kernels
 from core.pipeline.relight import bake
 from core.scene import Light, Material, Scene
 from core.settings import BakeSettings
@@ -133,3 +135,51 @@ def test_a_landing_point_is_never_beyond_the_surface_it_landed_on():
     # Within embree's float32 distance (1e-9 here) of the surface, or in front of it.
     assert np.all(position[on_floor, 2] >= -1e-7) and np.all(position[on_floor, 2] < 1e-3)
     assert np.all(position[on_wall, 1] <= 1e-7) and np.all(position[on_wall, 1] > -1e-3)
+
+
+def _bitwise(ours, theirs):
+    assert (ours is None) == (theirs is None)
+    for a, b in zip(ours or (), theirs or ()):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("scene", ["box", "wall"])
+def test_compiled_contact_passes_are_bitwise_those_of_numpy(monkeypatch, scene):
+    """The entries that land close by, the exposed shares and the landing points' owners, on
+    scenes with contacts (texels buried under a box, a wall's foot) and interleaved rotations."""
+    if kernels.compiled() is None:
+        pytest.skip(f"compiled kernels unavailable: {kernels.status().reason}")
+    from core.pipeline.prepare import prepare
+    from core.transport import contacts
+    built = _box_on_floor() if scene == "box" else _wall_on_floor(16)
+    p = prepare(built, BakeSettings(directions=64, bounces=1, footprint_samples=16))
+    assert p.rotations is not None
+    sizes = texel_sizes(p.meshes, p.object_samples)
+    reach = np.repeat(4.0 * sizes, np.diff(p.sample_offset)).astype(np.float32)
+    counts = []
+    for target, by_sample in ((SHORT_HIT_TEXELS * sizes, None), (np.full(len(sizes), np.inf), reach)):
+        theirs = contacts._close_entries_numpy(p, target, by_sample)
+        _bitwise(contacts.close_entries(p, target, by_sample), theirs)
+        counts.append(len(theirs[0]))
+    assert min(counts) > 0
+    assert contacts.close_entries(p, np.zeros(len(sizes))) is None
+    for slots in (1, 5, 16):
+        share = contacts.exposed_share(p.table, slots, threads=2)
+        _bitwise((share,), (contacts._exposed_share_numpy(p.table, slots),))
+    assert np.any(share < 1.0)
+    # Where the short entries land, and points all over the atlases: in gutters, on borders.
+    sample, direction, _ = contacts.close_entries(p, SHORT_HIT_TEXELS * sizes)
+    rng = np.random.default_rng(3)
+    obj = np.concatenate([p.table.hit_object[direction, sample], rng.integers(0, len(sizes), 3000), [0, 1]])
+    uv = np.concatenate([p.table.hit_uv(direction, sample), rng.random((3000, 2), np.float32),
+                         np.array([[0.0, 0.0], [1.0, 1.0]], np.float32)])
+    owners = contacts._texel_owners(p, obj.astype(np.int64), uv)
+    _bitwise((owners,), (contacts._texel_owners_numpy(p, obj.astype(np.int64), uv),))
+    assert np.all(owners >= -1) and np.any(owners >= 0)
+    short = contacts.find_short_hits(p)
+    monkeypatch.setattr(kernels, "_module", None)
+    reference = contacts.find_short_hits(p)
+    _bitwise((short.sample, short.weight, short.obj, short.uv, short.points.position, short.points.normal),
+             (reference.sample, reference.weight, reference.obj, reference.uv, reference.points.position,
+              reference.points.normal))

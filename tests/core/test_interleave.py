@@ -2,11 +2,14 @@
 reconstruction filter (core.transport.interleave)."""
 import numpy as np
 import pytest
+from test_contacts import _box_on_floor, _wall_on_floor
 
+from core import kernels
 from core.pipeline.prepare import prepare
 from core.pipeline.relight import bake
 from core.scene import Light, Material, Scene
 from core.settings import BakeSettings
+from core.transport.interleave import _filter_pairs_numpy, filter_pairs
 from core.visibility.directions import ShadowRegions
 from core.visibility.shadows import shadow_fractions
 from core.visibility.table import BELOW_HORIZON, MISS
@@ -93,3 +96,98 @@ def test_sums_by_sample_are_bitwise_numpy_s_unbuffered_sums():
     np.add.at(expected, sample, values)
     np.testing.assert_array_equal(sum_by_sample(sample, values, 60), expected)
     np.testing.assert_array_equal(sum_by_sample(sample[:0], values[:0], 3), np.zeros((3, 6)))
+
+
+@pytest.mark.parametrize("scene", ["box", "wall"])
+def test_compiled_filter_pairs_are_bitwise_those_of_numpy_for_any_thread_count(monkeypatch, scene):
+    """The filter's pairs on scenes with contacts: texels buried under a box (no pairs), a wall
+    between floor texels (pairs across it occluded), charts' borders (another surface)."""
+    if kernels.compiled() is None:
+        pytest.skip(f"compiled kernels unavailable: {kernels.status().reason}")
+    p = prepare(_box_on_floor() if scene == "box" else _wall_on_floor(16),
+                BakeSettings(directions=64, bounces=1, footprint_samples=16))
+    queries, blocked = [], []
+    occluded = p.ray_scene.occluded
+
+    def counted(*arguments):
+        hits = occluded(*arguments)
+        queries.append(len(hits))
+        blocked.append(int(hits.sum()))
+        return hits
+
+    monkeypatch.setattr(p.ray_scene, "occluded", counted)
+    texels, neighbours = _filter_pairs_numpy(p)
+    assert sum(blocked) > 0 and len(texels) > len(p.position)
+    assert not np.isin(np.nonzero(p.table.buried())[0], texels).any()
+    rays = sum(queries)
+    for threads in (1, 2):
+        queries.clear()
+        p.settings.threads = threads
+        ours = filter_pairs(p)
+        for a, b in zip(ours, (texels, neighbours)):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+        # The same rays, one query per object.
+        assert sum(queries) == rays and len(queries) <= len(p.meshes)
+
+
+class _Row:
+    """A one-row atlas's texels, as filter_pairs reads core.sampling.samples.ObjectSamples."""
+
+    def __init__(self, count):
+        self.width, self.height, self.pixel = count, 1, np.arange(count, dtype=np.int64)
+
+    def __len__(self):
+        return self.width
+
+
+def test_compiled_filter_pairs_round_as_numpy_does_at_the_same_surface_thresholds():
+    """Neighbours whose normals' dot product is SAME_SURFACE_COSINE, or whose distance is the
+    reach, to the last bits: the order in which numpy's einsum sums decides them."""
+    if kernels.compiled() is None:
+        pytest.skip(f"compiled kernels unavailable: {kernels.status().reason}")
+    from types import SimpleNamespace
+
+    from core.transport.interleave import SAME_SURFACE_COSINE, SAME_SURFACE_TEXELS
+
+    rng = np.random.default_rng(17)
+    count = 4000
+    triangle = SimpleNamespace(mode="atlas", positions=np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]),
+                               triangles=np.array([[0, 1, 2]]))
+    reach = (SAME_SURFACE_TEXELS * 3) ** 2 * 0.5 / count  # the triangle's texel size, over the 3 x 3 tile
+    # Each texel a step from the last: either a step of the reach with a normal turned well within
+    # the cosine, or a short step with a normal turned by the cosine's angle.
+    on_edge = rng.random(count - 1) < 0.5
+    steps = rng.normal(size=(count - 1, 3))
+    steps *= np.where(on_edge, np.sqrt(reach), 0.1 * np.sqrt(reach))[:, None] / np.linalg.norm(steps, axis=1)[:, None]
+    position = np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    normal = np.zeros((count, 3))
+    normal[0] = [0.0, 0.0, 1.0]
+    for k, edge in enumerate(on_edge):
+        axis = np.cross(normal[k], rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        cosine = SAME_SURFACE_COSINE + rng.integers(-2, 3) * np.spacing(SAME_SURFACE_COSINE)
+        angle = 0.1 * np.arccos(SAME_SURFACE_COSINE) if edge else np.arccos(cosine)
+        normal[k + 1] = np.cos(angle) * normal[k] + np.sin(angle) * axis
+        normal[k + 1] /= np.linalg.norm(normal[k + 1])
+
+    def occluded(origins, directions, distances):
+        return directions[:, 0] > 0.5  # a ray's answer depends on that ray alone, as embree's
+
+    p = SimpleNamespace(rotations=np.zeros((9, 3, 3)), meshes=[triangle], object_samples=[_Row(count)], table=None,
+                        sample_offset=np.array([0, count]), position=position, normal=normal,
+                        origins=position.astype(np.float32), settings=SimpleNamespace(threads=2),
+                        ray_scene=SimpleNamespace(occluded=occluded))
+    texels, neighbours = _filter_pairs_numpy(p)
+    ours = filter_pairs(p)
+    for a, b in zip(ours, (texels, neighbours)):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    # Summed in the other order, some pairs would be decided otherwise.
+    rows, other = np.arange(count - 1), np.arange(1, count)
+    gap, facing = position[rows] - position[other], normal[rows] * normal[other]
+    squared = gap * gap
+    assert np.any(((squared[:, 0] + squared[:, 1]) + squared[:, 2] < reach)
+                  != (np.einsum("kd,kd->k", gap, gap) < reach))
+    assert np.any(((facing[:, 0] + facing[:, 1]) + facing[:, 2] > SAME_SURFACE_COSINE)
+                  != (np.einsum("kd,kd->k", normal[rows], normal[other]) > SAME_SURFACE_COSINE))

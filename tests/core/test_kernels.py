@@ -425,3 +425,31 @@ def test_compiled_hard_lamp_points_match_numpy(monkeypatch, kind, blend, footpri
             assert got.position is None and expected.position is None
         else:
             np.testing.assert_array_equal(got.position, expected.position)
+
+
+def test_compiled_close_entries_and_exposed_shares_are_bitwise_numpy_s_for_any_thread_count():
+    from types import SimpleNamespace
+
+    from core.transport import contacts
+    from core.visibility.table import encode_distance
+
+    rng = np.random.default_rng(13)
+    # Every kind of entry, distances of every scale, and more samples than one block of exposed_share.
+    table, normals, *_ = _random_scene(13, samples=1500, vertex=False)
+    table.hit_distance_code[:] = encode_distance(rng.lognormal(-2.0, 2.0, table.hit_distance_code.shape))
+    scale = gather_normalisation(table, normals)
+    reaches = [(np.array([0.05, np.inf]), None), (np.array([0.3, 0.0]), rng.uniform(0, 0.5, 1500).astype(np.float32))]
+    for threads in (1, 2):
+        p = SimpleNamespace(table=table, frame_normal=normals, gather_scale=lambda: scale,
+                            settings=SimpleNamespace(threads=threads))
+        for target, by_sample in reaches:
+            theirs = contacts._close_entries_numpy(p, target, by_sample)
+            assert len(theirs[0]) > 1000
+            for a, b in zip(contacts.close_entries(p, target, by_sample), theirs):
+                assert a.dtype == b.dtype
+                np.testing.assert_array_equal(a, b)
+        for slots in (1, 7, 16, 97, 200):
+            share = contacts.exposed_share(table, slots, threads=threads)
+            assert share.dtype == np.float64
+            np.testing.assert_array_equal(share, contacts._exposed_share_numpy(table, slots))
+            assert slots == 1 or np.any((share > 0) & (share < 1))

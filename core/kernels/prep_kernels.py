@@ -1,0 +1,201 @@
+"""Compiled (numba) kernels of the passes a preparation runs once over the whole table:
+the table entries that land close by, the texels' exposed shares and the texels owning
+landing points (core.transport.contacts: close_entries, exposed_share, _texel_owners), and the
+interleaving filter's candidate pairs (core.transport.interleave.filter_pairs).
+
+Imported only through :mod:`core.kernels`. Each computes what the numpy code computes, in
+the same float32 and float64 operations and order, so their results are bitwise the numpy
+code's. Where a pass lists entries, it counts them first and then writes them at each
+task's offset (the callers take the running sum in between), so their order is the numpy
+code's, whatever the thread count.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..visibility.table import BACKFACE, BELOW_HORIZON
+from . import KERNEL_OPTIONS
+
+SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
+
+# Samples per task of exposed_share: its counts (slots x block, int32) stay in the core's cache
+# while every direction's row of the block is read.
+EXPOSED_BLOCK = 1024
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def close_entries(hit_object, hit_distance_code, distance_values, target_reach, sample_reach, offsets, sample,
+                  write):
+    """Count the hits of each direction nearer than their target's ``target_reach`` and (where
+    given) their sample's ``sample_reach``, or with ``write`` list their samples, ascending, at
+    each direction's offset; in parallel over directions.
+
+    hit_object : (N, K) int16; hit_distance_code : (N, K) uint16; distance_values : (65536,)
+    float32 core.visibility.table.DISTANCE_VALUES; target_reach : (O,) float32; sample_reach :
+    (K,) float64, or (0,) for none (float32 reaches widen exactly, and a comparison of float32
+    distances with float32 or float64 reaches is exact in float64). offsets : (N + 1,) int64,
+    without ``write`` an output whose entry i + 1 is direction i's count (entry 0 untouched),
+    with it their running sum from 0. Output with ``write``: sample (offsets[-1],) int64.
+    """
+    by_sample = sample_reach.shape[0] > 0
+    for i in nb.prange(hit_object.shape[0]):
+        if write and offsets[i + 1] == offsets[i]:
+            continue
+        at = offsets[i]
+        count = 0
+        for k in range(hit_object.shape[1]):
+            target = hit_object[i, k]
+            if target < 0:
+                continue
+            distance = distance_values[hit_distance_code[i, k]]
+            if not distance < target_reach[target]:
+                continue
+            if by_sample and not np.float64(distance) < sample_reach[k]:
+                continue
+            if write:
+                sample[at + count] = k
+            count += 1
+        if not write:
+            offsets[i + 1] = count
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def exposed_share(hit_object, slots, buried_share, share):
+    """Each sample's share of footprint points that are not buried (core.transport.contacts.
+    exposed_share), in parallel over blocks of samples.
+
+    hit_object : (N, K) int16, direction i starting from footprint point i % ``slots``;
+    buried_share : float, core.transport.contacts.BURIED_POINT_SHARE (an argument, as a
+    constant imported from there would outlive a change in the cached kernel). Output share
+    (K,) float64.
+    """
+    samples = hit_object.shape[1]
+    for block in nb.prange((samples + EXPOSED_BLOCK - 1) // EXPOSED_BLOCK):
+        start = block * EXPOSED_BLOCK
+        stop = min(start + EXPOSED_BLOCK, samples)
+        traced = np.zeros((slots, stop - start), np.int32)
+        backface = np.zeros((slots, stop - start), np.int32)
+        for i in range(hit_object.shape[0]):
+            slot = i % slots
+            for k in range(start, stop):
+                code = hit_object[i, k]
+                traced[slot, k - start] += np.int32(code != BELOW_HORIZON)
+                backface[slot, k - start] += np.int32(code == BACKFACE)
+        for k in range(start, stop):
+            counted = 0
+            buried = 0
+            for slot in range(slots):
+                rays = traced[slot, k - start]
+                if rays > 0:
+                    counted += 1
+                    # As numpy: the 16-bit counts against the share times the count in float64.
+                    if np.float64(backface[slot, k - start]) >= buried_share * np.float64(rays):
+                        buried += 1
+            share[k] = 1.0 - buried / counted if counted > 0 else 1.0
+
+
+@nb.njit(**SERIAL_OPTIONS)
+def texel_owners(obj, uv, widths, heights, grid_offset, grid, shifts, owner):
+    """The sample owning the texel each landing lies in, else the first of its neighbours in
+    ``shifts`` order that has one, else -1 (core.transport.contacts._texel_owners).
+
+    obj : (m,) int64; uv : (m, 2) float32; widths, heights, grid_offset : (O,) int64 each
+    object's atlas size and the start of its texels in ``grid`` (G,) int64, the sample owning
+    each texel or -1; shifts : (S, 2) int64 (dx, dy), the first (0, 0). Output owner (m,) int64.
+    """
+    for i in range(obj.shape[0]):
+        o = obj[i]
+        width = widths[o]
+        height = heights[o]
+        # float32 texel coordinates, as numpy multiplies float32 by a Python int.
+        x = min(max(np.int64(np.floor(uv[i, 0] * np.float32(width))), 0), width - 1)
+        y = min(max(np.int64(np.floor(uv[i, 1] * np.float32(height))), 0), height - 1)
+        found = -1
+        for s in range(shifts.shape[0]):
+            xx = min(max(x + shifts[s, 0], 0), width - 1)
+            yy = min(max(y + shifts[s, 1], 0), height - 1)
+            found = grid[grid_offset[o] + yy * width + xx]
+            if found >= 0:
+                break
+        owner[i] = found
+
+
+@nb.njit(inline="always")
+def _same_surface(row, neighbour, position, normal, origins, cosine, reach):
+    """Whether texel ``row`` and its neighbour lie on the same surface (normals' dot product
+    over ``cosine``, squared distance under ``reach``) with distinct origins, and if so the ray
+    between those: its float64 offset and length (else zeros). numpy's einsum sums three
+    products as (0 + 2) + 1 (its two SIMD lanes), its norm as (0 + 1) + 2."""
+    facing = (normal[row, 0] * normal[neighbour, 0] + normal[row, 2] * normal[neighbour, 2]) \
+        + normal[row, 1] * normal[neighbour, 1]
+    g0 = position[row, 0] - position[neighbour, 0]
+    g1 = position[row, 1] - position[neighbour, 1]
+    g2 = position[row, 2] - position[neighbour, 2]
+    if not (facing > cosine and (g0 * g0 + g2 * g2) + g1 * g1 < reach):
+        return False, 0.0, 0.0, 0.0, 0.0
+    a0 = origins[neighbour, 0] - origins[row, 0]
+    a1 = origins[neighbour, 1] - origins[row, 1]
+    a2 = origins[neighbour, 2] - origins[row, 2]
+    length = np.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+    return length > 0.0, a0, a1, a2, length
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def filter_candidates(pixel, visible, grid, first, width, height, shifts, chunk, position, normal, origins, cosine,
+                      reach, offsets, ray_offsets, rows, other, direction, length, write):
+    """One object's candidate pairs of the interleaving filter (core.transport.interleave.
+    filter_pairs) before their occlusion test: for each shift (dx, dy) of ``shifts`` in turn,
+    each visible texel whose shifted texel holds a visible sample on the same surface (shift
+    (0, 0): the texel itself), texels in ascending order. Counted, or with ``write`` listed,
+    in parallel over tasks: shift s and the ``chunk`` texels from c * chunk, task s * chunks + c.
+
+    pixel : (n,) int64 the object's texels; visible : (n,) bool; grid : (width * height,)
+    int64 the global sample owning each texel if visible, else -1; first : int the object's
+    first sample; shifts : (S, 2) int64; position, normal, origins : (K, 3) float64 (origins:
+    p.origins); cosine, reach : float the bounds (exclusive) of the same surface's normals' dot
+    product and squared distance. offsets, ray_offsets : (T + 1,) int64, T the task count;
+    without ``write`` offsets is an output whose entry t + 1 is task t's count (entry 0
+    untouched), with it both are running sums from 0: of every task's count, and of those of
+    shifted tasks (shift (0, 0) casts no ray). Outputs with ``write``: rows, other (offsets[-1],)
+    int64 the texel and its neighbour; direction (r, 3) float32 and length (r,) float32 the
+    rays from texel to neighbour of the shifted pairs (r = ray_offsets[-1]), in pair order.
+    """
+    count = pixel.shape[0]
+    chunks = (count + chunk - 1) // chunk
+    for task in nb.prange(shifts.shape[0] * chunks):
+        if write and offsets[task + 1] == offsets[task]:
+            continue
+        dx = shifts[task // chunks, 0]
+        dy = shifts[task // chunks, 1]
+        shifted = dx != 0 or dy != 0
+        start = (task % chunks) * chunk
+        at = offsets[task]
+        ray_at = ray_offsets[task]
+        found = 0
+        for j in range(start, min(start + chunk, count)):
+            if not visible[j]:
+                continue
+            x = pixel[j] % width + dx
+            y = pixel[j] // width + dy
+            if x < 0 or x >= width or y < 0 or y >= height:
+                continue
+            neighbour = grid[y * width + x]
+            if neighbour < 0:
+                continue
+            row = first + j
+            if shifted:
+                same, a0, a1, a2, far = _same_surface(row, neighbour, position, normal, origins, cosine, reach)
+                if not same:
+                    continue
+                if write:
+                    direction[ray_at + found, 0] = np.float32(a0 / far)
+                    direction[ray_at + found, 1] = np.float32(a1 / far)
+                    direction[ray_at + found, 2] = np.float32(a2 / far)
+                    length[ray_at + found] = np.float32(far)
+            if write:
+                rows[at + found] = row
+                other[at + found] = neighbour
+            found += 1
+        if not write:
+            offsets[task + 1] = found
