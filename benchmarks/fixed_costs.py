@@ -1,0 +1,150 @@
+"""The passes a bake runs once per preparation (or once per lamp), compiled against their
+numpy fallbacks, in one process: the same inputs, both paths timed back to back, results
+checked bitwise equal.
+
+- On ``benchmarks.scenes.dense_mesh`` (201k triangles on a 64^2 atlas): the UV rasteriser
+  (core.sampling.raster), once at the atlas's size and once at 2048^2.
+- On the demo scene (403k texels, 128 directions, interleaved): the contact and near-field
+  passes (core.transport.contacts: close_entries, exposed_share, _texel_owners;
+  core.transport.interleave.filter_pairs) and, for each hard lamp, the direct light with the
+  samples that need no shadow ray summed in one pass (LampPoints.add_untraced) against the
+  point-by-point loop.
+
+Each figure is the median of ``--repeats`` calls after one unmeasured call. Writes
+``benchmarks/results/fixed_costs.json`` with the machine, settings and date.
+
+    .venv/bin/python benchmarks/fixed_costs.py [--repeats 3]
+"""
+import argparse
+import importlib
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+
+def _timed(function, repeats: int):
+    """(median seconds of ``repeats`` calls after a first unmeasured one, the last result)."""
+    result = function()
+    seconds = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        result = function()
+        seconds.append(time.perf_counter() - started)
+    return statistics.median(seconds), result
+
+
+def _same(a, b) -> bool:
+    """Bitwise equality of two results (arrays, tuples of arrays, dataclasses of arrays, None)."""
+    if a is None or b is None:
+        return a is None and b is None
+    if isinstance(a, np.ndarray):
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if hasattr(a, "__dataclass_fields__"):
+        return all(_same(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
+    return a == b
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "fixed_costs.json"))
+    args = parser.parse_args(argv)
+
+    from benchmarks.run import write_results
+    from tools.visibake import load_extension
+
+    extension = load_extension()
+    import bpy
+
+    def module(name):
+        return importlib.import_module(f"{extension.__name__}.{name}")
+
+    kernels = module("core.kernels")
+    status = kernels.status()
+    if status.backend != "numba":
+        print(f"compiled kernels unavailable ({status.reason}): nothing to compare", file=sys.stderr)
+        return 2
+    rows = []
+
+    def compare(name, reference_call, compiled_call, reference="numpy"):
+        """Time the reference path (the numpy fallback, or what ``reference`` names) against the compiled one."""
+        reference_seconds, expected = _timed(reference_call, args.repeats)
+        compiled_seconds, got = _timed(compiled_call, args.repeats)
+        rows.append({"pass": name, "reference": reference, "reference_seconds": round(reference_seconds, 4),
+                     "compiled_seconds": round(compiled_seconds, 4),
+                     "speedup": round(reference_seconds / max(compiled_seconds, 1e-9), 1),
+                     "bitwise": _same(expected, got)})
+        print(f"{name}: {reference} {reference_seconds:.3f} s, compiled {compiled_seconds:.3f} s, "
+              f"bitwise {'equal' if rows[-1]['bitwise'] else 'DIFFERENT'}", flush=True)
+
+    # The dense mesh's UV rasterisation.
+    scenes = importlib.import_module("benchmarks.scenes")
+    raster = module("core.sampling.raster")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    terrain = scenes.dense_mesh()[0]
+    mesh = terrain.data
+    mesh.calc_loop_triangles()
+    loops = np.empty(len(mesh.loop_triangles) * 3, np.int32)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    uv = np.empty(len(mesh.loops) * 2, np.float32)
+    mesh.uv_layers["UVMap"].data.foreach_get("uv", uv)
+    corner_uv = uv.reshape(-1, 2)[loops].reshape(-1, 3, 2)
+    for size in (64, 2048):
+        compare(f"rasterize dense_mesh ({len(corner_uv)} triangles) at {size}^2",
+                lambda size=size: raster._rasterize_numpy(corner_uv, size, size),
+                lambda size=size: raster.rasterize(corner_uv, size, size))
+
+    # The demo's per-preparation passes and its lamps.
+    bpy.ops.wm.read_homefile(use_empty=True)
+    objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)
+    props = bpy.context.scene.visibake
+    props.passes = {"lighting"}
+    settings = module("operators.adapter.settings").bake_settings(props)
+    scene = module("operators.adapter.extraction").extract_scene(bpy.context, objects).scene
+    p = module("core.pipeline.prepare").prepare(scene, settings, table_needed=True)
+    contacts = module("core.transport.contacts")
+    interleave = module("core.transport.interleave")
+    reach = contacts.SHORT_HIT_TEXELS * contacts.texel_sizes(p.meshes, p.object_samples)
+    slots = p.footprint[0].shape[1]
+    compare("close_entries (short-hit reach)", lambda: contacts._close_entries_numpy(p, reach),
+            lambda: contacts.close_entries(p, reach))
+    compare("exposed_share", lambda: contacts._exposed_share_numpy(p.table, slots),
+            lambda: contacts.exposed_share(p.table, slots))
+    sample, direction, _ = contacts.close_entries(p, reach)
+    obj = p.table.hit_object[direction, sample].astype(np.int64)
+    uv_hits = p.table.hit_uv(direction, sample)
+    compare("texel owners of the short hits", lambda: contacts._texel_owners_numpy(p, obj, uv_hits),
+            lambda: contacts._texel_owners(p, obj, uv_hits))
+    compare("filter_pairs (with its occlusion rays)", lambda: interleave._filter_pairs_numpy(p),
+            lambda: interleave.filter_pairs(p))
+
+    direct = module("core.transport.direct")
+    lamps = module("core.lights.lamps")
+    samples, shadowing = p.sample_set(), p.shadowing()
+    one_pass = lamps.LampPoints.add_untraced
+    for light in scene.lights:
+        def looped(light=light):
+            lamps.LampPoints.add_untraced = lambda *arguments: None
+            try:
+                return direct.lamp_irradiance(samples, shadowing, [light])
+            finally:
+                lamps.LampPoints.add_untraced = one_pass
+        compare(f"direct light of {light.name} ({light.kind}, {len(samples.position)} samples)", looped,
+                lambda light=light: direct.lamp_irradiance(samples, shadowing, [light]), "point-by-point loop")
+
+    write_results(args.out, {"settings": {"repeats": args.repeats, "demo_directions": settings.directions,
+                                          "demo_samples": int(len(p.position))},
+                             "kernels": status.describe(), "passes": rows})
+    return 0 if all(row["bitwise"] for row in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
