@@ -112,14 +112,8 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     geometry = (np.ascontiguousarray(p.position, np.float64), np.ascontiguousarray(p.normal, np.float64),
                 np.ascontiguousarray(p.origins, np.float64))
     texels, neighbours = [], []
-    for index, samples in enumerate(p.object_samples):
-        if isinstance(samples, VertexSamples) or len(samples) == 0:
-            continue
-        first = int(p.sample_offset[index])
+    for index, samples, first, visible, owner in _atlas_texels(p, buried):
         count, width, height = len(samples), samples.width, samples.height
-        owner = np.full(width * height, -1, np.int64)
-        visible = ~buried[first:first + count]
-        owner[samples.pixel[visible]] = first + np.nonzero(visible)[0]
         reach = (SAME_SURFACE_TEXELS * tile * sizes[index]) ** 2
         arguments = (np.asarray(samples.pixel, np.int64), visible, owner, first, int(width), int(height), shifts,
                      PAIR_TASK_TEXELS, *geometry, SAME_SURFACE_COSINE, float(reach))
@@ -150,6 +144,20 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(texels), np.concatenate(neighbours)
 
 
+def _atlas_texels(p, buried: np.ndarray):
+    """For each object with atlas texels: its index, samples, first global sample, which of its
+    samples are visible ((n,) bool: not ``buried``), and the global sample owning each texel of
+    its atlas if visible, else -1 ((width * height,) int64)."""
+    for index, samples in enumerate(p.object_samples):
+        if isinstance(samples, VertexSamples) or len(samples) == 0:
+            continue
+        first = int(p.sample_offset[index])
+        owner = np.full(samples.width * samples.height, -1, np.int64)
+        visible = ~buried[first:first + len(samples)]
+        owner[samples.pixel[visible]] = first + np.nonzero(visible)[0]
+        yield index, samples, first, visible, owner
+
+
 def _filter_pairs_numpy(p) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_pairs` in numpy."""
     tile = int(round(np.sqrt(len(p.rotations))))
@@ -158,14 +166,8 @@ def _filter_pairs_numpy(p) -> tuple[np.ndarray, np.ndarray]:
     buried = p.table.buried() if p.table is not None else np.zeros(len(p.position), bool)
     origins = np.asarray(p.origins, np.float64)
     texels, neighbours = [], []
-    for index, samples in enumerate(p.object_samples):
-        if isinstance(samples, VertexSamples) or len(samples) == 0:
-            continue
-        first = int(p.sample_offset[index])
-        count, width, height = len(samples), samples.width, samples.height
-        owner = np.full(width * height, -1, np.int64)
-        visible = ~buried[first:first + count]
-        owner[samples.pixel[visible]] = first + np.nonzero(visible)[0]
+    for index, samples, first, visible, owner in _atlas_texels(p, buried):
+        width, height = samples.width, samples.height
         x, y = samples.pixel % width, samples.pixel // width
         reach = (SAME_SURFACE_TEXELS * tile * sizes[index]) ** 2
         for dy in offsets:
