@@ -284,14 +284,13 @@ class LampPoints:
         if module is None or not self.point_lamp or self.footprint is None:
             return None
         light_kind = self.light
-        cos_half = float(np.cos(light_kind.spot_size / 2.0))
         point_normals = (np.zeros((len(self.position), 0, 3), np.float32) if self.footprint_normals is None
                          else np.ascontiguousarray(self.footprint_normals, np.float32))
         pending = np.zeros(len(self.position), bool)
         kernels.run(module.hard_lamp_decided, self.threads, _KERNEL_KINDS[light_kind.kind],
                     np.asarray(light_kind.position, np.float64), np.asarray(light_kind.direction, np.float64),
-                    cos_half, (1.0 - cos_half) * float(light_kind.spot_blend),
-                    np.ascontiguousarray(self.position, np.float64), np.ascontiguousarray(self.normal, np.float64),
+                    *_spot_cone(light_kind), np.ascontiguousarray(self.position, np.float64),
+                    np.ascontiguousarray(self.normal, np.float64),
                     np.ascontiguousarray(self.footprint, np.float32), point_normals, self.scale / self.count,
                     np.nonzero(rows)[0].astype(np.int64), np.ascontiguousarray(decided, bool),
                     np.ascontiguousarray(visible, bool), self.count, np.ascontiguousarray(small, bool),
@@ -328,6 +327,13 @@ _NO_FOOTPRINT = np.zeros((1, 1, 3), np.float32)
 _NO_RECEIVER = np.zeros((0, 3))
 
 
+def _spot_cone(light: Light) -> tuple[float, float]:
+    """A spot's cone as the compiled kernels take it: the cosine of its half angle, and its
+    blend band in cosine (<= 0: a hard edge)."""
+    cos_half = float(np.cos(light.spot_size / 2.0))
+    return cos_half, (1.0 - cos_half) * float(light.spot_blend)
+
+
 def _compiled_point(lamp: LampPoints, point: int) -> LightContribution | None:
     """Point ``point`` of a lamp without extent through the compiled kernel
     (core.kernels.light_kernels.hard_lamp_point), with ``lit`` set; None where the kernels
@@ -342,8 +348,7 @@ def _compiled_point(lamp: LampPoints, point: int) -> LightContribution | None:
     point_normals, normal_slot = _NO_FOOTPRINT, -1
     if lamp.footprint_normals is not None:
         point_normals, normal_slot = lamp.footprint_normals, point % lamp.footprint_normals.shape[1]
-    cos_half = float(np.cos(light.spot_size / 2.0))
-    band = (1.0 - cos_half) * float(light.spot_blend)
+    cos_half, band = _spot_cone(light)
     part = LightContribution(np.empty((count, 3)), np.empty((count, 3)), np.empty(count),
                              np.empty((count, 3)) if offset_slot >= 0 else None, np.empty(count, bool))
     kernels.run(module.hard_lamp_point, lamp.threads, _KERNEL_KINDS[light.kind],
