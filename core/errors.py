@@ -35,3 +35,8 @@ class DeviceError(BakeRefused):
 
 class SetupError(BakeRefused):
     """A lighting setup file or sun sweep that cannot be used; the message names the place."""
+
+
+class VolumeRefused(BakeRefused):
+    """A volume cannot be lit as given (an empty or unusable grid, a grid too large); the
+    message names the volume and what to change."""

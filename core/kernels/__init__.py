@@ -36,6 +36,8 @@ _lock = threading.RLock()
 _cache_dir: str | None = None
 _status: KernelStatus | None = None
 _module = None
+_volume_module = None
+_volume_seconds = 0.0
 
 
 @dataclass(frozen=True)
@@ -238,6 +240,28 @@ def status() -> KernelStatus:
         if _status is None:
             _status = _load()
         return _status
+
+
+def volume():
+    """The volume kernels (:mod:`core.kernels.volume_kernels`), compiled or read from the cache
+    on first use; None where numba cannot load (:func:`status` says why). Kept apart from
+    the surface kernels so that a surface bake never compiles them."""
+    global _volume_module, _volume_seconds
+    if compiled() is None:
+        return None
+    with _lock:
+        if _volume_module is None:
+            started = time.perf_counter()
+            from . import volume_kernels
+            volume_kernels.warm_up()
+            _volume_seconds = time.perf_counter() - started
+            _volume_module = volume_kernels
+        return _volume_module
+
+
+def volume_load_seconds() -> float:
+    """Seconds the first :func:`volume` call spent compiling or reading the volume kernels."""
+    return _volume_seconds
 
 
 def tried() -> bool:

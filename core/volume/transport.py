@@ -1,0 +1,135 @@
+"""Light in a medium by table lookups: direct light, then K bounces through the scattering
+tables, each the same 3D lookup for every voxel (the paper's section 6.2).
+
+What is stored per voxel is the in-scattered radiance S: the phase-weighted integral of the
+radiance arriving there, which for the isotropic phase is the radiance averaged over the
+sphere, W/(m^2 sr). The medium re-emits ``sigma_s * S`` per world unit towards every
+direction, so an emission-absorption volume with that emission and the same extinction
+renders the scattered look (FORMATS.md, "Rendering baked light").
+
+    S_0(x) = sum over lamps of E(x) T(x) / (4 pi)                      lamps (core.volume.direct)
+           + 1/N sum_i escape_i(x) L_world(d_i)                         the world
+           + 1/N sum_i (1 - escape_i(x)) <emission / sigma_t>_i(x)      the medium's own emission
+    S_k+1(x) = 1/N sum_i (1 - escape_i(x)) <albedo S_k>_i(x)            one bounce
+
+where <f>_i(x) is the mean of f over the ray's stored scattering points, each read as a
+density-weighted trilinear interpolation (core.kernels.volume_kernels.gather_volume).
+With albedo <= 1 every bounce is at most the one before it times the largest albedo, and a
+uniform world's radiance is a fixed point: the furnace of tests/core/test_volume.py.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import kernels
+from ..errors import VolumeRefused
+from ..lights.environment import has_light, world_radiance
+from ..lights.lamps import usable_lights
+from ..scene import Light, World
+from . import require_kernels
+from .direct import lamp_inscatter
+from .medium import Medium, padded
+from .tables import ScatteringTables
+
+
+@dataclass
+class VolumeLight:
+    """The in-scattered radiance of a medium, per voxel.
+
+    direct : (nx, ny, nz, 3) float32, light that reached each voxel without scattering
+        (lamps, the world, the medium's emission)
+    indirect : (nx, ny, nz, 3) float32, the sum of the bounces
+    bounce_means : mean S over the active voxels after each bounce, (3,) each (for the report)
+    warnings : what was left out and why
+    """
+
+    direct: np.ndarray
+    indirect: np.ndarray
+    bounce_means: list[np.ndarray] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def total(self) -> np.ndarray:
+        """(nx, ny, nz, 3) float32 direct plus indirect."""
+        return self.direct + self.indirect
+
+
+def gather(medium: Medium, tables: ScatteringTables, sent: np.ndarray, threads: int = 0) -> np.ndarray:
+    """One lookup pass: the light arriving at every table voxel from the scattering points.
+
+    sent : (V, 3) float64 what each table voxel's scattering sends per unit albedo-weighted
+        density (albedo times S for a bounce; emission over extinction for emission)
+    Returns (V, 3) float64.
+    """
+    module = require_kernels()
+    source = np.zeros((*medium.shape, 4), np.float32)
+    index = tuple(tables.voxels.T)
+    density = medium.density[index]
+    source[index + (slice(0, 3),)] = sent * density[:, None]
+    source[index + (3,)] = density
+    result = np.zeros((len(tables.voxels), 3))
+    kernels.run(module.gather_volume, threads, padded(source), tables.voxels, tables.index_directions,
+                tables.distance_codes, tables.escape_codes, tables.distance_per_code, module.BLOCK, result)
+    return result
+
+
+def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] = (), world: World | None = None,
+                 bounces: int = 1, area_light_samples: int = 4, threads: int = 0,
+                 progress: Callable[[str, float], None] | None = None) -> VolumeLight:
+    """Direct light and ``bounces`` bounces of scattering in ``medium``.
+
+    lights : lamps in Cycles' units (core.scene.Light); world : its radiance reaches the
+    voxels through the tables' escaping fractions. ``progress(stage, fraction)`` is called
+    between passes and may raise core.errors.Cancelled.
+    """
+    if bounces < 0:
+        raise ValueError(f"bounces must be >= 0, got {bounces}")
+    warnings = list(medium.warnings)
+    voxels = tables.voxels
+    if len(voxels) and not np.array_equal(voxels, medium.active()):
+        raise VolumeRefused(f"volume {medium.name!r}: the scattering tables were built for another grid; "
+                            "bake its tables again")
+    direct = np.zeros((len(voxels), 3))
+    world_suns = list(getattr(world, "suns", None) or []) if world is not None else []
+    usable = usable_lights(list(lights) + world_suns, warnings)
+    steps = len(usable) + 2 + bounces
+    done = 0
+
+    def report(stage: str) -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(stage, done / steps)
+
+    for light in usable:
+        direct += lamp_inscatter(medium, light, voxels, area_light_samples, threads)
+        report(f"direct light: {light.name}")
+    if world is not None and has_light(world):
+        radiance = world_radiance(world, tables.directions)
+        direct += (radiance.astype(np.float32).T @ tables.escape()).T.astype(np.float64) / len(tables.directions)
+    report("world light")
+    if medium.emission is not None and medium.extinction > 0:
+        direct += gather(medium, tables, medium.emission[tuple(voxels.T)] / medium.extinction, threads)
+    report("emission")
+    albedo = medium.albedo[tuple(voxels.T)].astype(np.float64)
+    indirect = np.zeros_like(direct)
+    means = []
+    previous = direct
+    for bounce in range(bounces):
+        previous = gather(medium, tables, albedo * previous, threads)
+        indirect += previous
+        means.append(previous.mean(axis=0) if len(previous) else np.zeros(3))
+        report(f"bounce {bounce + 1}")
+    return VolumeLight(_to_grid(medium, voxels, direct), _to_grid(medium, voxels, indirect), means, warnings)
+
+
+def _to_grid(medium: Medium, voxels: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(nx, ny, nz, 3) float32 with ``values`` (V, 3) at ``voxels`` and 0 elsewhere."""
+    if not np.all(np.isfinite(values)):
+        raise RuntimeError(f"volume {medium.name!r}: the transport produced non-finite values (a bug)")
+    grid = np.zeros((*medium.shape, 3), np.float32)
+    grid[tuple(voxels.T)] = values
+    return grid
