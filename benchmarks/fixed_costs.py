@@ -28,7 +28,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 
-def _timed(function, repeats: int):
+def timed(function, repeats: int = 3):
     """(median seconds of ``repeats`` calls after a first unmeasured one, the last result)."""
     result = function()
     seconds = []
@@ -76,8 +76,8 @@ def main(argv=None) -> int:
 
     def compare(name, reference_call, compiled_call, reference="numpy"):
         """Time the reference path (the numpy fallback, or what ``reference`` names) against the compiled one."""
-        reference_seconds, expected = _timed(reference_call, args.repeats)
-        compiled_seconds, got = _timed(compiled_call, args.repeats)
+        reference_seconds, expected = timed(reference_call, args.repeats)
+        compiled_seconds, got = timed(compiled_call, args.repeats)
         rows.append({"pass": name, "reference": reference, "reference_seconds": round(reference_seconds, 4),
                      "compiled_seconds": round(compiled_seconds, 4),
                      "speedup": round(reference_seconds / max(compiled_seconds, 1e-9), 1),

@@ -23,7 +23,6 @@ import datetime
 import json
 import os
 import platform
-import statistics
 import sys
 import time
 
@@ -32,6 +31,8 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
+from benchmarks.fixed_costs import timed  # noqa: E402
+from benchmarks.volume_reference import trilinear  # noqa: E402
 from core import kernels  # noqa: E402
 from core.scene import Light  # noqa: E402
 from core.visibility.directions import direction_set  # noqa: E402
@@ -64,36 +65,20 @@ def medium_of(n: int):
                        albedo=(ALBEDO,) * 3)
 
 
-def _trilinear(grid: np.ndarray, points: np.ndarray) -> np.ndarray:
-    padded = np.pad(grid.astype(np.float64), 2)
-    p = points + 2.0
-    base = np.floor(p).astype(np.int64)
-    inside = np.all((base >= 0) & (base < np.array(padded.shape) - 1), axis=1)
-    base = np.clip(base, 0, np.array(padded.shape) - 2)
-    f = p - base
-    value = np.zeros(len(points))
-    for corner in range(8):
-        offset = np.array([corner & 1, (corner >> 1) & 1, corner >> 2])
-        weight = np.prod(np.where(offset, f, 1.0 - f), axis=1)
-        idx = base + offset
-        value += weight * padded[idx[:, 0], idx[:, 1], idx[:, 2]]
-    return np.where(inside, value, 0.0)
-
-
 def _march(density, starts, directions, voxel, step=0.25, targets=None):
     """March index-space rays; returns (optical depth to the grid's end, and where each
     reached ``targets`` in optical depth (NaN: escaped first))."""
     n = density.shape[0]
     depth = np.zeros(len(starts))
     where = np.full((len(starts), 3), np.nan)
-    before = _trilinear(density, starts)
+    before = trilinear(density, starts)
     point = starts.copy()
     live = np.ones(len(starts), bool)
     for _ in range(int(np.ceil(1.8 * (n + 2) / step)) + 2):
         if not live.any():
             break
         moved = point + directions * step
-        after = _trilinear(density, moved)
+        after = trilinear(density, moved)
         increment = EXTINCTION * voxel * step * 0.5 * (before + after)
         if targets is not None:
             crossing = live & np.isnan(where[:, 0]) & (depth + increment >= targets) & (increment > 0)
@@ -137,16 +122,6 @@ def reference_bounce(medium, probes: np.ndarray, paths: int, seed: int = 1):
     return np.array(means), np.array(errors)
 
 
-def _timed(function, repeats=3):
-    result = function()
-    seconds = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        result = function()
-        seconds.append(time.perf_counter() - started)
-    return statistics.median(seconds), result
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--probes", type=int, default=24)
@@ -171,18 +146,18 @@ def main() -> int:
     record["active_voxels"] = int(len(active))
 
     timings = {}
-    timings["sun_sweep_s"], _ = _timed(lambda: direct.transmittance(medium, sun))
-    timings["point_sweep_s"], _ = _timed(lambda: direct.transmittance(medium, lamp))
+    timings["sun_sweep_s"], _ = timed(lambda: direct.transmittance(medium, sun))
+    timings["point_sweep_s"], _ = timed(lambda: direct.transmittance(medium, lamp))
     big = make_medium("cloud256", cloud(256), np.diag([1 / 256, 1 / 256, 1 / 256, 1.0]), extinction=EXTINCTION)
     if not options.quick:
-        timings["sun_sweep_256_s"], _ = _timed(lambda: direct.transmittance(big, sun), repeats=1)
-        timings["point_sweep_256_s"], _ = _timed(lambda: direct.transmittance(big, lamp), repeats=1)
+        timings["sun_sweep_256_s"], _ = timed(lambda: direct.transmittance(big, sun), repeats=1)
+        timings["point_sweep_256_s"], _ = timed(lambda: direct.transmittance(big, lamp), repeats=1)
     big = None  # free its grids before the tables
     directions = direction_set(64, rotate=True, seed=3)
-    timings["tables_64_s"], table = _timed(lambda: tables.build_tables(medium, directions), repeats=1)
+    timings["tables_64_s"], table = timed(lambda: tables.build_tables(medium, directions), repeats=1)
     record["table_mib"] = round(table.nbytes / 2 ** 20, 1)
-    timings["direct_s"], _ = _timed(lambda: transport.light_medium(medium, table, [sun], bounces=0), repeats=1)
-    timings["one_bounce_gather_s"], _ = _timed(
+    timings["direct_s"], _ = timed(lambda: transport.light_medium(medium, table, [sun], bounces=0), repeats=1)
+    timings["one_bounce_gather_s"], _ = timed(
         lambda: transport.gather(medium, table, np.ones((len(table.voxels), 3))))
     record["timings"] = {key: round(value, 3) for key, value in timings.items()}
     print(json.dumps(record["timings"]), flush=True)

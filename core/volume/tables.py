@@ -4,18 +4,21 @@ it leaves the grid unscattered.
 
 The paper marches each ray in fixed steps and stores one point chosen at random with the
 probability that the ray scatters there (a free-flight sample), plus the transmittance
-up to it. Here the escaping fraction is stored apart (it sees the world) and the M points
+up to it. Here the escaping fraction is stored apart (it sees the world) and M points
 are stratified over the free-flight distribution restricted to the grid: point j is its
 quantile (j + u) / M, with u uniform per voxel, direction and point (hashed from a seed, so
 a table is reproducible). Each point then carries the weight (1 - escape) / M exactly. With
 M = 1 this is the paper's table.
 
-Measured (benchmarks/volume_accuracy.py, one bounce against a Monte Carlo reference, see
-docs/benchmarks.md): the deterministic alternative, u = 1/2 (each ray's median point, no
-noise), is biased by 11% at M = 1, 5.6% at M = 2 and 3.1% at M = 4 whatever the direction
-count, because the quantile function has a logarithmic end where a ray's light is still
-changing; the random points are unbiased and their error falls with the direction count
-(5% at 64 directions, 2% at 256). So the random points are the default, and
+Measured (benchmarks/volume_accuracy.py: one bounce in a 64^3 cloud against a Monte Carlo
+reference, relative RMSE; docs/benchmarks.md):
+- the deterministic alternative, u = 1/2 (each ray's median point, no noise), is biased:
+  12% at M = 1, 5.7% at M = 2, 2.9% at M = 4, whatever the direction count, because the
+  quantile function has a logarithmic end where a ray's light is still changing;
+- the random points are unbiased: 6.6%, 3.3% and 2.1% at M = 1, 2, 4 with 64 directions,
+  3.4% and 2.3% at M = 1, 2 with 256. At an equal number of lookups (N x M) more points
+  per ray beat more directions, and take fewer bytes.
+So the default is random points with M = 2 (3.3% at 64 directions, 6 bytes an entry), and
 ``jitter_seed=None`` keeps the midpoints for comparison.
 
 Storage: a distance code (uint16, index-space distance along the direction) per point and an
@@ -84,7 +87,7 @@ def table_bytes(voxels: int, directions: int, points: int) -> int:
     return int(voxels) * int(directions) * (2 * int(points) + 2) + 12 * int(voxels)
 
 
-def build_tables(medium: Medium, directions: np.ndarray, points: int = 1, step: float = 0.5,
+def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: float = 0.5,
                  jitter_seed: int | None = 0, threads: int = 0) -> ScatteringTables:
     """March every active voxel's ray along every direction (core.kernels.volume_kernels.scatter_table).
 

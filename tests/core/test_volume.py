@@ -1,14 +1,15 @@
 """Light in media (core.volume) against closed forms and an independent ray march.
 
-The reference march here is plain numpy with its own trilinear lookup (the same medium:
-voxel centres interpolated trilinearly, zero outside the grid), in steps twenty times finer
-than the tables'. Nothing in it comes from core.kernels.
+The reference march (benchmarks/volume_reference.py) is plain numpy with its own trilinear
+lookup of the same medium, in steps ten times finer than the tables'. Nothing in it comes
+from core.volume or core.kernels.
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from benchmarks.volume_reference import segment_transmittance
 from core import kernels
 from core.errors import VolumeRefused
 from core.scene import Light, World
@@ -20,35 +21,10 @@ pytestmark = pytest.mark.skipif(kernels.compiled() is None,
                                 reason=f"numba kernels unavailable here: {kernels.status().reason}")
 
 
-def reference_trilinear(grid: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(K,) the zero-padded trilinear interpolation of ``grid`` (nx, ny, nz) at index points (K, 3)."""
-    padded = np.pad(grid.astype(np.float64), 2)
-    p = points + 2.0
-    base = np.floor(p).astype(np.int64)
-    inside = np.all((base >= 0) & (base < np.array(padded.shape) - 1), axis=1)
-    base = np.clip(base, 0, np.array(padded.shape) - 2)
-    f = p - base
-    value = np.zeros(len(points))
-    for corner in range(8):
-        offset = np.array([corner & 1, (corner >> 1) & 1, corner >> 2])
-        weight = np.prod(np.where(offset, f, 1.0 - f), axis=1)
-        idx = base + offset
-        value += weight * padded[idx[:, 0], idx[:, 1], idx[:, 2]]
-    return np.where(inside, value, 0.0)
-
-
-def reference_transmittance(medium, starts: np.ndarray, ends: np.ndarray, step: float = 0.05) -> np.ndarray:
-    """(K,) transmittance along index-space segments ``starts`` -> ``ends`` (K, 3), by a fine
-    midpoint march of the zero-padded trilinear density."""
-    offset = ends - starts
-    index_length = np.linalg.norm(offset, axis=1)
-    world_length = np.linalg.norm(offset @ medium.linear.T, axis=1)
-    steps = max(1, int(np.ceil(index_length.max() / step)))
-    depth = np.zeros(len(starts))
-    for s in range(steps):
-        points = starts + offset * ((s + 0.5) / steps)
-        depth += reference_trilinear(medium.density, points) * world_length / steps
-    return np.exp(-medium.extinction * depth)
+def reference_transmittance(medium, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """(K,) transmittance along index-space segments ``starts`` -> ``ends`` (K, 3), marched
+    finely by the independent reference."""
+    return segment_transmittance(medium.density, medium.linear, medium.extinction, starts, ends)
 
 
 def exit_points(medium, starts: np.ndarray, direction_index: np.ndarray) -> np.ndarray:
