@@ -142,6 +142,23 @@ def build_parser() -> argparse.ArgumentParser:
         _setting_option(sub, "--device", PREFERENCE_SETTINGS["device"], note="default: the preference, else auto")
         _setting_option(sub, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
         sub.add_argument("--no-progress", action="store_true", help="no progress bar")
+    volume = commands.add_parser(
+        "volume", help="bake the light scattered in a .blend's Volume objects into VDB grids and a baked Volume object")
+    volume.add_argument("input", help="the .blend whose volumes to bake")
+    volume.add_argument("--out", metavar="DIR", required=True, help="write DIR/<object>/<grid>.vdb")
+    volume.add_argument("--objects", metavar="A,B", help="comma-separated Volume objects (default: all visible)")
+    volume.add_argument("--resolution", type=int, default=64, metavar="N",
+                        help="voxels along the grid's longest side (default 64; a finer grid is box-averaged)")
+    volume.add_argument("--directions", type=int, default=64, metavar="N",
+                        help="global directions of the scattering tables (default 64)")
+    volume.add_argument("--bounces", type=int, default=1, metavar="K", help="scattering bounces (default 1)")
+    volume.add_argument("--points", type=int, default=2, metavar="M",
+                        help="scattering points stored per table ray (default 2)")
+    _setting_option(volume, "--seed", SETTINGS["seed"])
+    volume.add_argument("--save", metavar="OUT.blend", help="save the scene with its baked Volume objects")
+    volume.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
+    _setting_option(volume, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    volume.add_argument("--no-progress", action="store_true", help="no progress bar")
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
                          help="wire the results into the objects' materials for preview (see preview; use with --save)")
@@ -331,7 +348,57 @@ def run_clear_cache(args) -> int:
     return EXIT_OK
 
 
+def run_volume(args) -> int:
+    """``volume``: light each Volume object from its scattering tables and write its grids."""
+    from .adapter import volume_job
+
+    for option, value, lowest, highest in (("--resolution", args.resolution, 2, 1024),
+                                           ("--directions", args.directions, 1, 16384),
+                                           ("--bounces", args.bounces, 0, 64), ("--points", args.points, 1, 16)):
+        if not lowest <= value <= highest:
+            raise BakeRefused(f"{option} {value}: use a value from {lowest} to {highest}")
+    out_dir = os.path.abspath(args.out)
+    _check_destinations(args, out_dir)
+    _load_input(args)
+    scene = bpy.context.scene
+    volumes = volume_job.scene_volumes(scene)
+    if args.objects:
+        names = [n.strip() for n in args.objects.split(",") if n.strip()]
+        by_name = {o.name: o for o in volumes}
+        missing = [n for n in names if n not in by_name]
+        if missing:
+            raise BakeRefused(f"--objects: no visible Volume object named {', '.join(missing)} in the scene")
+        volumes = [by_name[n] for n in names]
+    threads = args.threads if args.threads is not None else 0
+    progress = _Progress(not args.no_progress)
+    try:
+        outcome = volume_job.run_volume_bake(scene, volumes, out_dir, args.resolution, args.directions,
+                                             args.bounces, args.points, args.seed or 0, threads, progress)
+    finally:
+        progress.close()
+    made_folders: list = []
+    try:
+        if args.save:
+            _save_blend(args.save, made_folders)
+            outcome.report["files"].append(os.path.abspath(args.save))
+        if args.report:
+            job.write_report(args.report, outcome.report)
+    except BaseException:
+        outcome.rollback()
+        raise
+    for warning in outcome.report["warnings"]:
+        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    for entry in outcome.report["volumes"]:
+        done = f"-> {entry['output']!r}" if entry["output"] else "skipped"
+        print(f"visibake: volume {entry['name']!r} {'x'.join(map(str, entry['grid']))}, "
+              f"{entry['active_voxels']:,} voxels with medium {done}", flush=True)
+    print(f"visibake: {len(outcome.report['files'])} file(s) written in {outcome.report['seconds']:.1f} s", flush=True)
+    return EXIT_OK
+
+
 def run(args) -> int:
+    if args.command == "volume":
+        return run_volume(args)
     if args.command == "preview":
         return run_preview(args)
     if args.command == "clear-cache":

@@ -1,0 +1,212 @@
+"""``visibake volume``: a Volume object's medium read through openvdb, lit, written as grids and
+as a baked Volume object; the user's volume and file untouched; bad input refused (exit 2)."""
+import hashlib
+import importlib
+import json
+import math
+
+import bpy
+
+import numpy as np
+import pytest
+
+from blender_support import extension_module_name
+from bpy_scenes import black_world, sun
+
+VOXEL = 0.1
+SIDE = 24
+RADIUS = 8.0
+SUN_STRENGTH = 3.0
+DENSITY = 4.0
+
+
+@pytest.fixture
+def vdb(visibake):
+    compat = importlib.import_module(extension_module_name() + ".operators.adapter.compat")
+    try:
+        return compat.openvdb()
+    except compat.FeatureMissing as missing:
+        pytest.skip(f"volumes need Blender's openvdb module: {missing}")
+
+
+def write_vdb(vdb, path, density: np.ndarray | None = None, name="density", origin=(0.5, -0.3, 0.2)):
+    """A sphere of density 1 (SIDE^3 voxels of VOXEL, RADIUS voxels) as ``path``."""
+    if density is None:
+        centre = (SIDE - 1) / 2.0
+        index = np.indices((SIDE, SIDE, SIDE)).astype(np.float64)
+        inside = np.sqrt(((index - centre) ** 2).sum(axis=0)) <= RADIUS
+        density = inside.astype(np.float32)
+    grid = vdb.FloatGrid()
+    grid.copyFromArray(np.ascontiguousarray(density, np.float32), ijk=(0, 0, 0))
+    grid.name = name
+    matrix = np.diag([VOXEL, VOXEL, VOXEL, 1.0])
+    matrix[3, :3] = origin  # openvdb's row-vector convention
+    grid.transform = vdb.createLinearTransform(matrix.tolist())
+    vdb.write(str(path), grids=[grid])
+
+
+def volume_scene(path, name="Cloud"):
+    volume = bpy.data.volumes.new(name)
+    volume.filepath = str(path)
+    obj = bpy.data.objects.new(name, volume)
+    obj.location = (0.0, 0.0, 1.0)
+    bpy.context.scene.collection.objects.link(obj)
+    material = bpy.data.materials.new(name + " material")
+    compat = importlib.import_module(extension_module_name() + ".operators.adapter.compat")
+    compat.ensure_node_tree(material)
+    tree = material.node_tree
+    tree.nodes.clear()
+    principled = tree.nodes.new("ShaderNodeVolumePrincipled")
+    principled.inputs["Density"].default_value = DENSITY
+    principled.inputs["Color"].default_value = (0.9, 0.9, 0.9, 1.0)
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    tree.links.new(principled.outputs[0], output.inputs["Volume"])
+    volume.materials.append(material)
+    return obj
+
+
+@pytest.fixture
+def cloud_blend(clean_scene, vdb, tmp_path):
+    black_world()
+    sun(SUN_STRENGTH)  # straight down
+    vdb_path = tmp_path / "cloud.vdb"
+    write_vdb(vdb, vdb_path)
+    volume_scene(vdb_path)
+    blend = tmp_path / "cloud.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    return blend, vdb_path
+
+
+def digest(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_a_volume_bake_writes_its_grids_and_a_baked_object_and_leaves_the_source_alone(
+        visibake, vdb, cloud_blend, tmp_path):
+    blend, vdb_path = cloud_blend
+    before = digest(vdb_path)
+    out, report_path, saved = tmp_path / "out", tmp_path / "report.json", tmp_path / "saved.blend"
+    status = visibake.cli.main(["volume", str(blend), "--out", str(out), "--resolution", "24", "--directions", "16",
+                                "--bounces", "1", "--report", str(report_path), "--save", str(saved),
+                                "--no-progress"])
+    assert status == 0
+    assert digest(vdb_path) == before
+    for grid in ("scattered", "direct", "indirect", "emission", "density", "volume"):
+        assert (out / "Cloud" / f"{grid}.vdb").is_file()
+    report = json.loads(report_path.read_text())
+    entry = report["volumes"][0]
+    # openvdb stores the active voxels only: the file's grid is the sphere's bounding box,
+    # native voxels 4..19, which is the bake's grid (index t is native t + 4).
+    low, count = 4, SIDE - 8
+    assert entry["name"] == "Cloud" and entry["grid"] == [count] * 3 and entry["output"] == "Cloud (VisiBake)"
+    assert entry["active_voxels"] > 1000
+
+    scattered = vdb.read(str(out / "Cloud" / "direct.vdb"), "direct")
+    values = np.zeros((count, count, count, 3), np.float32)
+    scattered.copyToArray(values, ijk=(0, 0, 0))
+    assert np.all(np.isfinite(values)) and values.min() >= 0
+    # The sun shines straight down: the sphere's top voxel (native z 19 on the column x = y =
+    # 11) sees it through half a voxel of fading density; a voxel lower down through the
+    # voxels above it plus that half.
+    column = 11 - low
+    top = 19 - low
+    expected_top = SUN_STRENGTH / (4 * math.pi) * math.exp(-DENSITY * 0.5 * VOXEL)
+    assert values[column, column, top, 0] == pytest.approx(expected_top, rel=0.05)
+    lower = top - 6
+    depth = (top - lower + 0.5) * VOXEL
+    assert values[column, column, lower, 0] == pytest.approx(
+        SUN_STRENGTH / (4 * math.pi) * math.exp(-DENSITY * depth), rel=0.05)
+    indirect = vdb.read(str(out / "Cloud" / "indirect.vdb"), "indirect")
+    assert indirect.evalActiveVoxelBoundingBox() is not None
+    # Written in the source grid's index space: the same transform.
+    assert np.allclose(scattered.transform.indexToWorld((1.0, 2.0, 3.0)),
+                       (0.5 + 0.1 * (1 + low), -0.3 + 0.1 * (2 + low), 0.2 + 0.1 * (3 + low)))
+
+    source = bpy.data.objects["Cloud"]
+    assert bpy.path.abspath(source.data.filepath) == str(vdb_path)
+    assert source.get("visibake_volume_of") is None
+    baked = bpy.data.objects["Cloud (VisiBake)"]
+    assert baked.get("visibake_volume_of") == "Cloud"
+    assert np.allclose(np.array(baked.matrix_world), np.array(source.matrix_world))
+    kinds = {node.bl_idname for node in baked.active_material.node_tree.nodes}
+    assert {"ShaderNodeVolumeAbsorption", "ShaderNodeEmission", "ShaderNodeAttribute"} <= kinds
+    baked.data.grids.load()
+    assert {g.name for g in baked.data.grids} == {"density", "emission"}
+    assert saved.is_file()
+
+    # Baking again replaces VisiBake's own object, and makes no second one.
+    assert visibake.cli.main(["volume", str(blend), "--out", str(out), "--resolution", "12", "--directions", "8",
+                              "--save", str(saved), "--no-progress"]) == 0
+    bpy.ops.wm.open_mainfile(filepath=str(saved))
+    assert [o.name for o in bpy.data.objects if o.type == "VOLUME"] == ["Cloud", "Cloud (VisiBake)"]
+
+
+def test_a_finer_grid_is_box_averaged_to_the_resolution(visibake, vdb, cloud_blend, tmp_path):
+    blend, _ = cloud_blend
+    out = tmp_path / "out"
+    assert visibake.cli.main(["volume", str(blend), "--out", str(out), "--resolution", "8", "--directions", "8",
+                              "--no-progress"]) == 0
+    density = vdb.read(str(out / "Cloud" / "density.vdb"), "density")
+    low, high = density.evalActiveVoxelBoundingBox()
+    assert np.all(np.array(high) - np.array(low) + 1 <= 8)
+    # The file's 16^3 voxels (native 4..19), two per voxel of the bake: the centre of bake
+    # voxel 0 is between native voxels 4 and 5.
+    assert np.allclose(density.transform.indexToWorld((0.0, 0.0, 0.0)), (0.5 + 0.45, -0.3 + 0.45, 0.2 + 0.45))
+
+
+@pytest.mark.parametrize("case, message", [
+    ("missing file", "was not found"),
+    ("no density grid", "has no 'density' grid"),
+    ("NaN density", "NaN or infinite"),
+    ("negative density", "negative"),
+    ("huge grid", "more than VisiBake"),
+    ("empty grid", "empty"),
+    ("a user object in the way", "is not VisiBake's"),
+])
+def test_bad_volumes_exit_2_with_the_reason_and_write_nothing(visibake, vdb, clean_scene, tmp_path, capfd, case,
+                                                              message):
+    black_world()
+    sun(SUN_STRENGTH)
+    path = tmp_path / "bad.vdb"
+    if case == "no density grid":
+        write_vdb(vdb, path, name="heat")
+    elif case == "NaN density":
+        grid = vdb.FloatGrid()
+        grid.name = "density"
+        grid.copyFromArray(np.ones((8, 8, 8), np.float32), ijk=(0, 0, 0))
+        grid.getAccessor().setValueOn((3, 4, 5), float("nan"))
+        vdb.write(str(path), grids=[grid])
+    elif case == "negative density":
+        write_vdb(vdb, path, -np.ones((8, 8, 8)))
+    elif case == "huge grid":
+        grid = vdb.FloatGrid()
+        grid.name = "density"
+        accessor = grid.getAccessor()
+        accessor.setValueOn((0, 0, 0), 1.0)
+        accessor.setValueOn((999_999, 999_999, 999_999), 1.0)
+        vdb.write(str(path), grids=[grid])
+    elif case == "empty grid":
+        grid = vdb.FloatGrid()
+        grid.name = "density"
+        vdb.write(str(path), grids=[grid])
+    elif case in ("a user object in the way",):
+        write_vdb(vdb, path)
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new("Cloud (VisiBake)", None))
+    volume_scene(path)
+    blend = tmp_path / "bad.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    out = tmp_path / "out"
+    assert visibake.cli.main(["volume", str(blend), "--out", str(out), "--resolution", "16", "--directions", "8",
+                              "--no-progress"]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert err and message in err[-1], err
+    assert not list(out.rglob("*.vdb")) if out.exists() else True
+    assert "Cloud (VisiBake)" not in bpy.data.objects or case == "a user object in the way"
+
+
+def test_a_scene_without_volumes_is_refused(visibake, vdb, clean_scene, tmp_path, capfd):
+    black_world()
+    blend = tmp_path / "empty.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    assert visibake.cli.main(["volume", str(blend), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert "no Volume object" in capfd.readouterr().err
