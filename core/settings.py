@@ -338,3 +338,16 @@ class LayoutSettings(_Validated):
     texel_density: float = _default("texel_density")
     mode: str = _default("mode")
 
+
+
+# The volume bake's settings (scene.visibake's Volumes section and ``visibake volume``).
+VOLUME_SETTINGS = _table(
+    Setting("volume_resolution", int, 64, "Resolution", minimum=2, maximum=1024, soft_max=256,
+            help="Voxels along a volume's longest side; a finer grid is box-averaged down to it"),
+    Setting("volume_directions", int, 64, "Directions", minimum=1, maximum=16384, soft_min=16, soft_max=1024,
+            help="Global directions of the volume's scattering tables (one 3D table each)"),
+    Setting("volume_bounces", int, 1, "Bounces", minimum=0, maximum=64, soft_max=8,
+            help="Scattering bounces after the direct light (0: single scattering only)"),
+    Setting("volume_points", int, 2, "Points per Ray", minimum=1, maximum=16, soft_max=4,
+            help="Scattering points each table ray stores, stratified along it (more: less noise, more memory)"),
+)

@@ -21,7 +21,7 @@ from ..core.errors import BakeRefused, Cancelled
 from ..core.lights import setups as lighting_setups
 from ..core.outputs import summary as report_texts
 from ..core.outputs.destinations import FILE, FOLDER, check_destinations
-from ..core.settings import PREFERENCE_SETTINGS, PRESETS, SETTINGS, Setting
+from ..core.settings import PREFERENCE_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
 from .adapter import job
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
@@ -39,11 +39,15 @@ SCENE_SETTING_OPTIONS = {
     "refine_vertex_objects": "--refine", "output_dir": "--out",
     "bake_all": "--objects",  # the command bakes every visible mesh unless --objects names some
     "active_object_index": None,  # the selected row of the panel's list: UI state, not a setting
+    # The Volumes section's settings are options of the volume command ("COMMAND OPTION").
+    "volume_resolution": "volume --resolution", "volume_directions": "volume --directions",
+    "volume_bounces": "volume --bounces", "volume_points": "volume --points",
 }
 # Every operator of the panel, and the command that does the same.
 OPERATOR_COMMANDS = {
     "visibake.bake": "bake", "visibake.relight": "relight", "visibake.preview_add": "preview",
     "visibake.preview_remove": "preview --remove", "visibake.clear_cache": "clear-cache",
+    "visibake.bake_volume": "volume",
 }
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
@@ -147,13 +151,10 @@ def build_parser() -> argparse.ArgumentParser:
     volume.add_argument("input", help="the .blend whose volumes to bake")
     volume.add_argument("--out", metavar="DIR", required=True, help="write DIR/<object>/<grid>.vdb")
     volume.add_argument("--objects", metavar="A,B", help="comma-separated Volume objects (default: all visible)")
-    volume.add_argument("--resolution", type=int, default=64, metavar="N",
-                        help="voxels along the grid's longest side (default 64; a finer grid is box-averaged)")
-    volume.add_argument("--directions", type=int, default=64, metavar="N",
-                        help="global directions of the scattering tables (default 64)")
-    volume.add_argument("--bounces", type=int, default=1, metavar="K", help="scattering bounces (default 1)")
-    volume.add_argument("--points", type=int, default=2, metavar="M",
-                        help="scattering points stored per table ray (default 2)")
+    for name, option, metavar in (("volume_resolution", "--resolution", "N"),
+                                  ("volume_directions", "--directions", "N"),
+                                  ("volume_bounces", "--bounces", "K"), ("volume_points", "--points", "M")):
+        _setting_option(volume, option, VOLUME_SETTINGS[name], metavar, default=True)
     _setting_option(volume, "--seed", SETTINGS["seed"])
     volume.add_argument("--save", metavar="OUT.blend", help="save the scene with its baked Volume objects")
     volume.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
@@ -349,18 +350,22 @@ def run_clear_cache(args) -> int:
 
 
 def run_volume(args) -> int:
-    """``volume``: light each Volume object from its scattering tables and write its grids."""
+    """``volume``: light each Volume object from its scattering tables and write its grids. The
+    scene's Volumes settings travel in the .blend; the options override them."""
     from .adapter import volume_job
 
-    for option, value, lowest, highest in (("--resolution", args.resolution, 2, 1024),
-                                           ("--directions", args.directions, 1, 16384),
-                                           ("--bounces", args.bounces, 0, 64), ("--points", args.points, 1, 16)):
-        if not lowest <= value <= highest:
-            raise BakeRefused(f"{option} {value}: use a value from {lowest} to {highest}")
     out_dir = os.path.abspath(args.out)
     _check_destinations(args, out_dir)
     _load_input(args)
     scene = bpy.context.scene
+    values = {}
+    for name in VOLUME_SETTINGS:
+        spec, given = VOLUME_SETTINGS[name], getattr(args, name.removeprefix("volume_"))
+        value = getattr(scene.visibake, name) if given is None else given
+        if not spec.minimum <= value <= spec.maximum:
+            raise BakeRefused(f"--{name.removeprefix('volume_')} {value}: use a value from {spec.minimum} to "
+                              f"{spec.maximum}")
+        values[name] = value
     volumes = volume_job.scene_volumes(scene)
     if args.objects:
         names = [n.strip() for n in args.objects.split(",") if n.strip()]
@@ -369,11 +374,13 @@ def run_volume(args) -> int:
         if missing:
             raise BakeRefused(f"--objects: no visible Volume object named {', '.join(missing)} in the scene")
         volumes = [by_name[n] for n in names]
-    threads = args.threads if args.threads is not None else 0
+    threads = args.threads if args.threads is not None else volume_job.preferred_threads()
     progress = _Progress(not args.no_progress)
     try:
-        outcome = volume_job.run_volume_bake(scene, volumes, out_dir, args.resolution, args.directions,
-                                             args.bounces, args.points, args.seed or 0, threads, progress)
+        outcome = volume_job.VolumeJob(scene, volumes, out_dir, values["volume_resolution"],
+                                       values["volume_directions"], values["volume_bounces"], values["volume_points"],
+                                       scene.visibake.seed if args.seed is None else args.seed, threads,
+                                       progress).run()
     finally:
         progress.close()
     made_folders: list = []

@@ -174,4 +174,42 @@ class VIEW3D_PT_visibake_report(bpy.types.Panel):
             column.label(text=text, icon=icon)
 
 
-classes = (VIEW3D_PT_visibake, VISIBAKE_UL_objects, VIEW3D_PT_visibake_objects, VIEW3D_PT_visibake_report)
+class VIEW3D_PT_visibake_volumes(bpy.types.Panel):
+    bl_label = "Volumes"
+    bl_idname = "VIEW3D_PT_visibake_volumes"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "VisiBake"
+    bl_parent_id = "VIEW3D_PT_visibake"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        from ..operators import volume
+
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.visibake
+        targets = volume.volume_targets(context)
+        selected = any(o.select_get() for o in targets)
+        names = ", ".join(o.name for o in targets[:3]) + (", ..." if len(targets) > 3 else "")
+        layout.label(text=(f"{'Selected' if selected else 'All'}: {names}" if targets else "No Volume objects"),
+                     icon="VOLUME_DATA")
+        column = layout.column()
+        for name in ("volume_resolution", "volume_directions", "volume_bounces", "volume_points"):
+            column.prop(props, name)
+        folder = volume.output_folder(context)
+        layout.label(text=f"Grids into {folder}" if folder else "Set an Output Folder (or save the file)")
+        row = layout.row()
+        row.enabled = bool(targets) and bool(folder)
+        row.operator("visibake.bake_volume", icon="RENDER_STILL")
+        report = context.scene.get("visibake_volume_report")
+        if report:
+            try:
+                layout.label(text=volume.summary(json.loads(report)).removeprefix("VisiBake: "))
+            except (TypeError, ValueError, KeyError):
+                layout.label(text="The last volume report cannot be read")
+
+
+classes = (VIEW3D_PT_visibake, VISIBAKE_UL_objects, VIEW3D_PT_visibake_objects, VIEW3D_PT_visibake_report,
+           VIEW3D_PT_visibake_volumes)

@@ -7,7 +7,7 @@ files store: never rename one.
 """
 import bpy
 
-from ..core.settings import OBJECT_SETTINGS, PRESETS, SETTINGS, Setting
+from ..core.settings import OBJECT_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
 
 
 def setting_property(spec: Setting, **options):
@@ -101,6 +101,10 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
         name="Active Object", default=0, min=0,
         description="The row of the objects list that is selected (the list's own state)")
     output_dir: setting_property(SETTINGS["output_dir"], subtype="DIR_PATH")
+    volume_resolution: setting_property(VOLUME_SETTINGS["volume_resolution"])
+    volume_directions: setting_property(VOLUME_SETTINGS["volume_directions"])
+    volume_bounces: setting_property(VOLUME_SETTINGS["volume_bounces"])
+    volume_points: setting_property(VOLUME_SETTINGS["volume_points"])
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

@@ -7,7 +7,6 @@ import threading
 
 from ...core.errors import Cancelled
 from ...core.pipeline.progress import Progress
-from . import job
 
 
 class ModalBake:
@@ -20,20 +19,29 @@ class ModalBake:
     (every batch of rays or directions; a child unwrap is killed at once).
     """
 
-    def __init__(self, bake_job: "job.BakeJob", progress: Progress):
+    def __init__(self, bake_job, progress: Progress):
+        """``bake_job``: a :class:`job.BakeJob`, or any job with ``modal_steps()``, ``abort()``
+        and ``needs_main_thread``."""
         self.job, self.progress = bake_job, progress
-        self.steps = [("plan", bake_job.plan, False),
-                      ("unwrap", lambda: bake_job.unwrap(in_child=True), True),
-                      ("extract", bake_job.extract, False),
-                      ("visibility", bake_job.compute_visibility, True),
-                      ("lighting", bake_job.compute_lighting, None),  # None: a worker unless the GPU needs main
-                      ("finish", bake_job.finish, False)]
+        if hasattr(bake_job, "modal_steps"):  # a job that names its own steps (volume_job.VolumeJob)
+            self.steps = bake_job.modal_steps()
+        else:
+            self.steps = self._bake_steps(bake_job)
         self.next_step = 0
         self.outcome = None
         self.error = None
         self.done = False
         self._thread = None
         self._thread_error = None
+
+    @staticmethod
+    def _bake_steps(bake_job) -> list:
+        return [("plan", bake_job.plan, False),
+                ("unwrap", lambda: bake_job.unwrap(in_child=True), True),
+                ("extract", bake_job.extract, False),
+                ("visibility", bake_job.compute_visibility, True),
+                ("lighting", bake_job.compute_lighting, None),  # None: a worker unless the GPU needs main
+                ("finish", bake_job.finish, False)]
 
     def tick(self) -> bool:
         """Advance the bake as far as it can go without waiting; True once it has ended.

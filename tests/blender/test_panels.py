@@ -107,7 +107,10 @@ def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, 
     bpy.context.view_layer.update()  # as the UI does after a change: the cache status follows outside draw
     drawn = _draw(main.VIEW3D_PT_visibake)
     settings = set(bpy.context.scene.visibake.bl_rna.properties.keys()) - {"rna_type", "name", "active_object_index"}
-    assert settings <= set(_props(drawn))  # every scene setting is on the panel
+    volumes = _draw(main.VIEW3D_PT_visibake_volumes)
+    assert settings <= set(_props(drawn)) | set(_props(volumes))  # every scene setting is on the panel
+    assert {p for p in settings if p.startswith("volume_")} == set(_props(volumes))  # the volumes' in their section
+    assert _operators(volumes) == ["visibake.bake_volume"]
     active_object = {options["property"] for name, options in drawn
                      if name == "prop" and options["owner"] == "VisiBakeObjectSettings"}
     device = [options["property"] for name, options in drawn

@@ -210,3 +210,60 @@ def test_a_scene_without_volumes_is_refused(visibake, vdb, clean_scene, tmp_path
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     assert visibake.cli.main(["volume", str(blend), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
     assert "no Volume object" in capfd.readouterr().err
+
+
+def read_grid(vdb, path, name, shape):
+    grid = vdb.read(str(path), name)
+    values = np.zeros(shape, np.float32)
+    grid.copyToArray(values, ijk=(0, 0, 0))
+    return values
+
+
+def test_the_panel_s_bake_volume_does_what_the_command_does(visibake, vdb, cloud_blend, tmp_path):
+    blend, _ = cloud_blend
+    assert visibake.cli.main(["volume", str(blend), "--out", str(tmp_path / "cli"), "--resolution", "12",
+                              "--directions", "8", "--bounces", "2", "--no-progress"]) == 0
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    props = bpy.context.scene.visibake
+    props.volume_resolution, props.volume_directions, props.volume_bounces = 12, 8, 2
+    props.output_dir = str(tmp_path / "panel")
+    cloud = bpy.data.objects["Cloud"]
+    cloud.select_set(True)
+    assert bpy.ops.visibake.bake_volume() == {"FINISHED"}
+    report = json.loads(bpy.context.scene["visibake_volume_report"])
+    assert report["volumes"][0]["output"] == "Cloud (VisiBake)"
+    for grid in ("scattered", "indirect"):
+        from_panel = read_grid(vdb, tmp_path / "panel" / "Cloud" / f"{grid}.vdb", grid, (8, 8, 8, 3))
+        from_cli = read_grid(vdb, tmp_path / "cli" / "Cloud" / f"{grid}.vdb", grid, (8, 8, 8, 3))
+        assert from_panel.any()
+        np.testing.assert_array_equal(from_panel, from_cli)
+
+
+def test_the_modal_volume_bake_runs_its_tables_on_a_worker_and_a_cancel_leaves_nothing(visibake, vdb, cloud_blend,
+                                                                                      tmp_path):
+    import time
+
+    blend, _ = cloud_blend
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    adapter = visibake.operators.adapter
+    progress_module = importlib.import_module(extension_module_name() + ".core.pipeline.progress")
+    cloud = bpy.data.objects["Cloud"]
+    for cancel in (False, True):
+        progress = progress_module.Progress()
+        job = adapter.volume_job.VolumeJob(bpy.context.scene, [cloud], str(tmp_path / f"out{cancel}"), 16, 16, 1,
+                                           progress=progress)
+        modal = adapter.modal.ModalBake(job, progress)
+        assert not modal.tick()  # read on the main thread; the tables and light now run on a worker
+        assert modal._thread is not None
+        if cancel:
+            progress.cancel()
+        while not modal.tick():
+            time.sleep(0.02)
+        if cancel:
+            assert type(modal.error).__name__ == "Cancelled"
+            assert not list((tmp_path / f"out{cancel}").rglob("*.vdb"))
+            assert "Cloud (VisiBake)" not in bpy.data.objects
+        else:
+            assert modal.error is None and modal.outcome.report["volumes"][0]["output"] == "Cloud (VisiBake)"
+            assert (tmp_path / f"out{cancel}" / "Cloud" / "volume.vdb").is_file()
+            adapter.volume_io.remove_baked_object(bpy.data.objects["Cloud (VisiBake)"])
