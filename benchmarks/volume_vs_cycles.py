@@ -2,16 +2,20 @@
 renders VisiBake's baked emission-absorption volume from the same camera, and the two images
 are compared.
 
-The scene: a 32^3 VDB sphere (density 1 - (r/12)^2, in a unit cube) with a Principled Volume
-(Density ``--density``, colour 0.9), a sun of 3 W/m^2 at 40 degrees, a black world, and a
-camera 3 m away. The bake: ``visibake volume`` with ``--directions`` and ``--bounces``;
-Cycles' volume bounces are set to the same count.
+The scene: a ``--side``^3 VDB sphere (density 1 - (r / R)^2 with R = 0.375 of the side, in a
+unit cube) with a Principled Volume (Density ``--density``, colour 0.9), a sun of 3 W/m^2 at
+40 degrees, a black world, and a camera 3 m away. The bake: ``visibake volume`` at the grid's
+own resolution, once per count in ``--directions``, with ``--bounces``; Cycles' volume
+bounces are set to the same count.
 
 Error: relative RMSE over the pixels the cloud covers, of the baked render against the
-path-traced one. The path-traced image's own noise is measured by rendering it twice with
-two seeds (the RMSE of the difference over sqrt 2), and the error without it is given too.
+path-traced one. Both renders are noisy (Cycles marches the baked volume stochastically too),
+so each is rendered twice with two seeds: its noise is the RMSE of the difference over sqrt 2,
+and the error without both noises is sqrt(error^2 - noise_traced^2 - noise_baked^2) (0 where
+the noises explain it all). A plot of error against directions and a picture of the renders
+are written beside the JSON.
 
-    .venv/bin/python benchmarks/volume_vs_cycles.py [--directions 64] [--bounces 1] [--out DIR]
+    .venv/bin/python benchmarks/volume_vs_cycles.py [--side 64] [--directions 64,256] [--bounces 1] [--out DIR]
 
 Writes DIR/volume_vs_cycles.json (default benchmarks/results/) and the EXRs beside it.
 """
@@ -31,7 +35,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SIZE = 64
 
 
-def build_scene(folder: str, density: float) -> str:
+def build_scene(folder: str, density: float, side: int) -> str:
     import bpy
 
     if hasattr(bpy.utils, "expose_bundled_modules"):
@@ -40,11 +44,10 @@ def build_scene(folder: str, density: float) -> str:
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
-    side = 32
     centre = (side - 1) / 2
     radius = np.sqrt(((np.indices((side,) * 3).astype(float) - centre) ** 2).sum(axis=0))
     grid = vdb.FloatGrid()
-    grid.copyFromArray(np.clip(1.0 - (radius / 12.0) ** 2, 0.0, None).astype(np.float32))
+    grid.copyFromArray(np.clip(1.0 - (radius / (0.375 * side)) ** 2, 0.0, None).astype(np.float32))
     grid.name = "density"
     matrix = np.diag([1 / side, 1 / side, 1 / side, 1.0])
     matrix[3, :3] = -0.5
@@ -96,6 +99,7 @@ def render(blend: str, which: str, bounces: int, samples: int, seed: int, path: 
     scene.cycles.volume_bounces = bounces
     scene.cycles.use_denoising = False
     scene.cycles.samples = samples
+    scene.cycles.use_adaptive_sampling = False  # every pixel gets its samples: the noise is what they leave
     scene.cycles.seed = seed
     source, baked = bpy.data.objects["Cloud"], bpy.data.objects["Cloud (VisiBake)"]
     (source if which == "baked" else baked).hide_render = True
@@ -109,44 +113,95 @@ def render(blend: str, which: str, bounces: int, samples: int, seed: int, path: 
     return pixels, seconds
 
 
+def _plot(record: dict, traced: np.ndarray, images: dict, stem: str) -> None:
+    """``stem``.png: error against directions; ``stem``_renders.png: the renders side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bakes = record["bakes"]
+    figure, axis = plt.subplots(figsize=(5, 3.5))
+    counts = [b["directions"] for b in bakes]
+    axis.plot(counts, [100 * b["relative_rmse"] for b in bakes], "o-", label="baked vs path-traced")
+    axis.plot(counts, [100 * b["relative_rmse_without_noise"] for b in bakes], "s-", label="without both noises")
+    axis.axhline(100 * record["cycles_noise"], color="grey", linestyle=":", label="path-traced noise")
+    axis.axhline(5.0, color="red", linestyle="--", label="issue 17's bound")
+    axis.set_xscale("log", base=2)
+    axis.set_xlabel("directions")
+    axis.set_ylabel("relative RMSE (%)")
+    axis.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(stem + ".png", dpi=120)
+    plt.close(figure)
+    panels = [("Cycles, path-traced", traced)] + [(f"VisiBake, {n} directions", image) for n, image in images.items()]
+    figure, axes = plt.subplots(1, len(panels), figsize=(2.6 * len(panels), 2.8))
+    top = max(float(image.max()) for _, image in panels) or 1.0
+    for axis, (title, image) in zip(np.atleast_1d(axes), panels):
+        axis.imshow(np.clip(image[::-1] / top, 0, 1) ** (1 / 2.2))
+        axis.set_title(title, fontsize=8)
+        axis.axis("off")
+    figure.tight_layout()
+    figure.savefig(stem + "_renders.png", dpi=120)
+    plt.close(figure)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--directions", type=int, default=64)
+    parser.add_argument("--directions", default="64,256", help="comma-separated direction counts")
+    parser.add_argument("--side", type=int, default=64, help="voxels per side of the VDB sphere")
     parser.add_argument("--bounces", type=int, default=1)
     parser.add_argument("--density", type=float, default=8.0)
-    parser.add_argument("--samples", type=int, default=256, help="Cycles samples of the path-traced volume")
+    parser.add_argument("--samples", type=int, default=1024, help="Cycles samples of the path-traced volume")
+    parser.add_argument("--baked-samples", type=int, default=256, help="Cycles samples of the baked volume")
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results"))
     options = parser.parse_args()
     folder = os.path.abspath(os.path.join(options.out, "volume_vs_cycles"))
     os.makedirs(folder, exist_ok=True)
     sys.path.insert(0, ROOT)
-    blend = build_scene(folder, options.density)
-    baked_blend = os.path.join(folder, "baked.blend")
-    started = time.perf_counter()
-    subprocess.run([sys.executable, os.path.join(ROOT, "tools", "visibake.py"), "volume", blend, "--out",
-                    os.path.join(folder, "grids"), "--resolution", "32", "--directions", str(options.directions),
-                    "--bounces", str(options.bounces), "--save", baked_blend, "--report",
-                    os.path.join(folder, "report.json"), "--no-progress"], check=True)
-    command_seconds = time.perf_counter() - started
-    with open(os.path.join(folder, "report.json")) as handle:
-        report = json.load(handle)
-    traced, traced_seconds = render(baked_blend, "source", options.bounces, options.samples, 0,
-                                    os.path.join(folder, "cycles.exr"))
-    again, _ = render(baked_blend, "source", options.bounces, options.samples, 7, os.path.join(folder, "cycles_2.exr"))
-    baked, baked_seconds = render(baked_blend, "baked", options.bounces, 64, 0, os.path.join(folder, "baked.exr"))
-    covered = traced.mean(axis=-1) > 0.01 * traced.max()
-    scale = traced[covered].mean()
-    error = float(np.sqrt(((baked - traced)[covered] ** 2).mean()) / scale)
-    noise = float(np.sqrt(((traced - again)[covered] ** 2).mean()) / scale / np.sqrt(2))
+    blend = build_scene(folder, options.density, options.side)
     record = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
-              "settings": vars(options), "pixels_covered": int(covered.sum()),
-              "relative_rmse": round(error, 4), "cycles_noise": round(noise, 4),
-              "relative_rmse_without_cycles_noise": round(float(np.sqrt(max(error ** 2 - noise ** 2, 0.0))), 4),
-              "mean_ratio": round(float(baked[covered].mean() / scale), 4),
-              "visibake_bake_seconds": report["seconds"], "visibake_command_seconds": round(command_seconds, 1),
-              "cycles_path_traced_seconds": round(traced_seconds, 2), "cycles_baked_render_seconds":
-                  round(baked_seconds, 2)}
+              "settings": vars(options), "bakes": []}
+    traced = again = covered = None
+    images = {}
+    for count in [int(c) for c in str(options.directions).split(",")]:
+        baked_blend = os.path.join(folder, f"baked_{count}.blend")
+        report_path = os.path.join(folder, f"report_{count}.json")
+        started = time.perf_counter()
+        subprocess.run([sys.executable, os.path.join(ROOT, "tools", "visibake.py"), "volume", blend, "--out",
+                        os.path.join(folder, f"grids_{count}"), "--resolution", str(options.side), "--directions",
+                        str(count), "--bounces", str(options.bounces), "--save", baked_blend, "--report",
+                        report_path, "--no-progress"], check=True)
+        command_seconds = time.perf_counter() - started
+        with open(report_path) as handle:
+            report = json.load(handle)
+        if traced is None:
+            traced, traced_seconds = render(baked_blend, "source", options.bounces, options.samples, 0,
+                                            os.path.join(folder, "cycles.exr"))
+            again, _ = render(baked_blend, "source", options.bounces, options.samples, 7,
+                              os.path.join(folder, "cycles_2.exr"))
+            covered = traced.mean(axis=-1) > 0.01 * traced.max()
+            scale = traced[covered].mean()
+            noise = float(np.sqrt(((traced - again)[covered] ** 2).mean()) / scale / np.sqrt(2))
+            record.update(pixels_covered=int(covered.sum()), cycles_noise=round(noise, 4),
+                          cycles_path_traced_seconds=round(traced_seconds, 2))
+        baked, baked_seconds = render(baked_blend, "baked", options.bounces, options.baked_samples, 0,
+                                      os.path.join(folder, f"baked_{count}.exr"))
+        baked_again, _ = render(baked_blend, "baked", options.bounces, options.baked_samples, 7,
+                                os.path.join(folder, f"baked_{count}_2.exr"))
+        images[count] = baked
+        error = float(np.sqrt(((baked - traced)[covered] ** 2).mean()) / scale)
+        baked_noise = float(np.sqrt(((baked - baked_again)[covered] ** 2).mean()) / scale / np.sqrt(2))
+        record["bakes"].append({
+            "directions": count, "relative_rmse": round(error, 4), "baked_render_noise": round(baked_noise, 4),
+            "relative_rmse_without_noise": round(float(np.sqrt(max(error ** 2 - noise ** 2 - baked_noise ** 2,
+                                                                   0.0))), 4),
+            "mean_ratio": round(float(baked[covered].mean() / scale), 4),
+            "visibake_bake_seconds": report["seconds"], "visibake_command_seconds": round(command_seconds, 1),
+            "volume_seconds": report["volumes"][0]["seconds"], "cycles_baked_render_seconds": round(baked_seconds, 2)})
+        print(json.dumps(record["bakes"][-1]), flush=True)
+    _plot(record, traced, images, os.path.join(options.out, "volume_vs_cycles"))
     with open(os.path.join(options.out, "volume_vs_cycles.json"), "w") as handle:
         json.dump(record, handle, indent=1)
     print(json.dumps(record, indent=1))

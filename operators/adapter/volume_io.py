@@ -180,7 +180,7 @@ def baked_object_name(source_name: str) -> str:
     return f"{source_name} (VisiBake)"
 
 
-def make_baked_object(source, path: str, extinction: float, warnings: list[str]):
+def make_baked_object(source, path: str, extinction: float):
     """The Volume object that renders a baked volume: the file at ``path`` (grids ``density``
     and ``emission``), with an emission-absorption material, at the source's place. An
     existing object of that name is replaced only if VisiBake made it."""

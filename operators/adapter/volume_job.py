@@ -92,7 +92,7 @@ class VolumeJob:
         self.warnings: list[str] = []
         self.report = {"command": "volume", "directions": int(directions), "bounces": int(bounces),
                        "points_per_ray": int(points), "resolution": int(resolution), "volumes": [], "files": [],
-                       "warnings": self.warnings}
+                       "grids": dict(volume_io.OUTPUT_GRIDS), "warnings": self.warnings}
         self.outcome = VolumeOutcome(self.report)
         self.volumes: list[_Volume] = []
         self.started = time.perf_counter()
@@ -138,8 +138,12 @@ class VolumeJob:
                      "active_voxels": int(np.count_nonzero(medium.density)), "output": None,
                      "seconds": {"read": round(time.perf_counter() - started, 3)}}
             self.report["volumes"].append(entry)
-            if entry["active_voxels"] == 0 or medium.extinction == 0:
+            if entry["active_voxels"] == 0:
                 self.warnings.append(f"volume {obj.name!r}: its density is zero everywhere; it was skipped")
+                continue
+            if medium.extinction == 0:
+                self.warnings.append(f"volume {obj.name!r}: its material's Density is 0 (nothing scatters); it was "
+                                     "skipped")
                 continue
             self.volumes.append(_Volume(obj, entry, medium, index_to_local))
 
@@ -207,7 +211,7 @@ class VolumeJob:
         volume_io.write_grids(self.vdb, combined, {"density": medium.density, "emission": grids["emission"]},
                               volume.index_to_local)
         self.report["files"].append(combined)
-        baked = volume_io.make_baked_object(volume.obj, combined, medium.extinction, self.warnings)
+        baked = volume_io.make_baked_object(volume.obj, combined, medium.extinction)
         outcome.created.append(baked)
         volume.entry.update(output=baked.name, bounce_means=[m.tolist() for m in light.bounce_means],
                             max_scattered=float(total.max()))
