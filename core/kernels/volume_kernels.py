@@ -75,7 +75,7 @@ def _bilinear_slice(grid, k, b, c, outside):
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def sweep_transmittance(density, extinction, is_point, light, linear, select, out):
+def sweep_transmittance(density, extinction, is_point, light, linear, select, flip, order, lamp_density, out):
     """Transmittance from every voxel to a lamp, by front-to-back slices from the lamp (the
     paper's section 6.1): each voxel continues the value of the previous slice, read
     bilinearly where its ray towards the lamp crosses that slice, over the segment between
@@ -87,35 +87,60 @@ def sweep_transmittance(density, extinction, is_point, light, linear, select, ou
     medium, where the transmittance falls off radially and a bilinear read of it would
     darken every slice a little more).
 
-    The grid is given permuted and flipped so that the sweep runs along its first axis with
-    increasing index away from the lamp (core.volume.direct.SweepFrame).
+    The sweep runs in a frame (core.volume.direct.SweepFrame): the grid's axes permuted so
+    that the sweep axis is first, and that axis read backwards when ``flip``, so that the
+    sweep's index increases away from the lamp. The results go straight into the grid's own
+    layout, so the six sweeps of a lamp need no merge.
 
-    density : (A + 3, B + 3, C + 3) float32 padded density, sweep axis first
+    density : (A + 3, B + 3, C + 3) float32 padded density, permuted (not flipped)
     extinction : float64, sigma_t per unit density per world unit
     is_point : True for a lamp at a position, False for a direction (a sun)
-    light : (3,) float64 a point lamp's position in this frame's index space, or a sun's
+    light : (3,) float64 a point lamp's position in the frame's index space, or a sun's
         direction towards it, scaled so that its first component is -1 (one slice back)
-    linear : (3, 3) float64 this frame's index-to-world linear map (segment lengths)
+    linear : (3, 3) float64 the frame's index-to-world linear map (segment lengths)
     select : True: write only the voxels whose ray to the lamp leaves through the slice
         behind them (the lamp's pyramid along this axis); False: every voxel
-    out : (A, B, C) float32, written where selected (the caller pre-fills it)
+    flip : the sweep axis is read backwards; order : (3,) int64 the grid axes in frame order
+    lamp_density : float64 the density at a point lamp (0 for a sun)
+    out : (nx, ny, nz) float32 in the grid's own layout, written where selected (the caller
+        pre-fills it)
     """
-    count_a = out.shape[0]
-    count_b = out.shape[1]
-    count_c = out.shape[2]
+    count_a = density.shape[0] - 3
+    count_b = density.shape[1] - 3
+    count_c = density.shape[2] - 3
     # Outside the grid nothing attenuates: transmittance 1 (a sun), mean extinction 0 (a lamp).
     outside = 0.0 if is_point else 1.0
     previous = np.full((count_b + 3, count_c + 3), outside)
     current = np.full((count_b + 3, count_c + 3), outside)
     first = 0
-    lamp_density = 0.0
     if is_point:
         first = max(0, int(np.floor(light[0])) + 1)
-        lamp_density = trilinear(density, light[0], light[1], light[2])
     for a in range(first, count_a):
+        # Padded indices of this slice and the one behind it (-1: the pad before the grid).
+        slice_here = count_a - a if flip else a + 1
+        slice_behind = count_a - a + 1 if flip else a
+        grid_a = np.int64(count_a - 1 - a) if flip else np.int64(a)
         for b in nb.prange(count_b):
             for c in range(count_c):
-                here = density[a + 1, b + 1, c + 1]
+                here = density[slice_here, b + 1, c + 1]
+                # This voxel's index in the grid's own layout (prange's index may be unsigned:
+                # cast, or numba unifies the branches to float).
+                row = np.int64(b)
+                i0 = np.int64(c)
+                i1 = np.int64(c)
+                i2 = np.int64(c)
+                if order[0] == 0:
+                    i0 = grid_a
+                elif order[1] == 0:
+                    i0 = row
+                if order[0] == 1:
+                    i1 = grid_a
+                elif order[1] == 1:
+                    i1 = row
+                if order[0] == 2:
+                    i2 = grid_a
+                elif order[1] == 2:
+                    i2 = row
                 if is_point:
                     sa = light[0] - a
                     sb = light[1] - b
@@ -129,7 +154,7 @@ def sweep_transmittance(density, extinction, is_point, light, linear, select, ou
                         depth = extinction * reach * 0.5 * (here + lamp_density)
                         current[b + 1, c + 1] = depth / reach if reach > 0.0 else extinction * lamp_density
                         if not select or (-sa >= abs(sb) and -sa >= abs(sc)):
-                            out[a, b, c] = np.exp(-depth)
+                            out[i0, i1, i2] = np.exp(-depth)
                         continue
                     step = 1.0 / (a - light[0])
                     sa *= step
@@ -146,7 +171,7 @@ def sweep_transmittance(density, extinction, is_point, light, linear, select, ou
                 length = np.sqrt(wx * wx + wy * wy + wz * wz)
                 qb = b + sb
                 qc = c + sc
-                behind = _bilinear_slice(density, a, qb, qc, 0.0)
+                behind = _bilinear_slice(density, slice_behind, qb, qc, 0.0)
                 carried = outside
                 if a > first or (not is_point and a > 0):
                     pb = qb + 1.0
@@ -170,7 +195,7 @@ def sweep_transmittance(density, extinction, is_point, light, linear, select, ou
                 # The step is one slice back (sa = -1): the lamp's pyramid is where it moves
                 # at most one voxel sideways.
                 if not select or (abs(sb) <= 1.0 and abs(sc) <= 1.0):
-                    out[a, b, c] = value
+                    out[i0, i1, i2] = value
         previous, current = current, previous
 
 
@@ -375,8 +400,9 @@ def warm_up() -> tuple:
     density = np.zeros((4, 4, 4), np.float32)
     linear = np.eye(3)
     out = np.ones((1, 1, 1), np.float32)
-    sweep_transmittance(density, 1.0, True, np.zeros(3), linear, True, out)
-    sweep_transmittance(density, 1.0, False, np.array([-1.0, 0.0, 0.0]), linear, False, out)
+    order = np.arange(3, dtype=np.int64)
+    sweep_transmittance(density, 1.0, True, np.zeros(3), linear, True, True, order, 0.0, out)
+    sweep_transmittance(density, 1.0, False, np.array([-1.0, 0.0, 0.0]), linear, False, False, order, 0.0, out)
     active = np.zeros((1, 3), np.int32)
     directions = np.array([[1.0, 0.0, 0.0]])
     codes = np.zeros((1, 1, 1), np.uint16)

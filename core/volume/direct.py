@@ -26,7 +26,8 @@ from .medium import Medium, padded
 
 @dataclass(frozen=True)
 class SweepFrame:
-    """A grid seen with the sweep axis first and increasing away from the lamp.
+    """A grid seen with the sweep axis first and increasing away from the lamp (the kernel
+    reads the grid permuted to ``order``, and its first axis backwards when ``flip``).
 
     order : (3,) the original axes in this frame's order; flip : the sweep axis is reversed
     """
@@ -37,16 +38,6 @@ class SweepFrame:
     @staticmethod
     def along(axis: int, flip: bool) -> SweepFrame:
         return SweepFrame((axis, *(a for a in range(3) if a != axis)), flip)
-
-    def grid(self, grid: np.ndarray) -> np.ndarray:
-        """``grid`` (nx, ny, nz) seen in this frame (a view)."""
-        view = grid.transpose(self.order)
-        return view[::-1] if self.flip else view
-
-    def back(self, grid: np.ndarray) -> np.ndarray:
-        """A grid of this frame in the original axes (a view)."""
-        view = grid[::-1] if self.flip else grid
-        return view.transpose(np.argsort(self.order))
 
     def vector(self, vector: np.ndarray) -> np.ndarray:
         """An index-space direction (3,) in this frame."""
@@ -80,30 +71,36 @@ def transmittance(medium: Medium, light: Light, threads: int = 0) -> np.ndarray:
         return np.ones(medium.shape, np.float32)
     module = require_kernels()
     inverse = np.linalg.inv(medium.linear)
+    result = np.ones(medium.shape, np.float32)
+    permuted: dict[int, np.ndarray] = {}
+
+    def sweep(frame: SweepFrame, is_point: bool, light_in_frame: np.ndarray, lamp_density: float) -> None:
+        axis = frame.order[0]
+        if axis not in permuted:  # one padded copy per sweep axis, shared by both directions
+            permuted[axis] = padded(medium.density.transpose(frame.order))
+        kernels.run(module.sweep_transmittance, threads, permuted[axis], medium.extinction, is_point,
+                    light_in_frame, frame.linear(medium.linear), is_point, frame.flip,
+                    np.array(frame.order, np.int64), lamp_density, result)
+
     if light.kind == "SUN":
         towards = inverse @ -np.asarray(light.direction, np.float64)
         axis = int(np.argmax(np.abs(towards)))
         frame = SweepFrame.along(axis, bool(towards[axis] > 0))
         step = frame.vector(towards)
-        step = step / -step[0]
-        out = np.ones(tuple(medium.shape[a] for a in frame.order), np.float32)
-        kernels.run(module.sweep_transmittance, threads, padded(frame.grid(medium.density)), medium.extinction,
-                    False, step, frame.linear(medium.linear), False, out)
-        return np.ascontiguousarray(frame.back(out))
+        sweep(frame, False, step / -step[0], 0.0)
+        return result
     lamp = medium.to_index(np.asarray(light.position, np.float64)[None])[0]
-    result = np.ones(medium.shape, np.float32)
     for axis in range(3):
         for flip in (False, True):
             frame = SweepFrame.along(axis, flip)
             where = frame.point(lamp, medium.shape)
             if np.floor(where[0]) + 1 >= medium.shape[axis]:
                 continue  # the lamp lies beyond the grid's last slice on this side
-            out = np.full(tuple(medium.shape[a] for a in frame.order), np.nan, np.float32)
-            kernels.run(module.sweep_transmittance, threads, padded(frame.grid(medium.density)),
-                        medium.extinction, True, where, frame.linear(medium.linear), True, out)
-            swept = frame.back(out)
-            chosen = ~np.isnan(swept)
-            result[chosen] = swept[chosen]
+            if axis not in permuted:
+                permuted[axis] = padded(medium.density.transpose(frame.order))
+            unflipped = SweepFrame.along(axis, False).point(lamp, medium.shape)
+            lamp_density = float(module.trilinear(permuted[axis], *unflipped))
+            sweep(frame, True, where, lamp_density)
     return result
 
 
