@@ -403,6 +403,7 @@ def warm_up() -> tuple:
     order = np.arange(3, dtype=np.int64)
     sweep_transmittance(density, 1.0, True, np.zeros(3), linear, True, True, order, 0.0, out)
     sweep_transmittance(density, 1.0, False, np.array([-1.0, 0.0, 0.0]), linear, False, False, order, 0.0, out)
+    trilinear(density, np.float64(0.0), np.float64(0.0), np.float64(0.0))  # a lamp's own density (core.volume.direct)
     active = np.zeros((1, 3), np.int32)
     directions = np.array([[1.0, 0.0, 0.0]])
     codes = np.zeros((1, 1, 1), np.uint16)
@@ -410,4 +411,4 @@ def warm_up() -> tuple:
     scatter_table(density, active, directions, np.ones(1), 1.0, 1.0, 1, np.int64(-1), 1.0, BLOCK, codes, escape)
     gather_volume(np.zeros((4, 4, 4, 4), np.float32), active, directions, codes, escape, 1.0, BLOCK,
                   np.zeros((1, 3)))
-    return sweep_transmittance, scatter_table, gather_volume
+    return sweep_transmittance, scatter_table, gather_volume, trilinear

@@ -74,11 +74,14 @@ def transmittance(medium: Medium, light: Light, threads: int = 0) -> np.ndarray:
     result = np.ones(medium.shape, np.float32)
     permuted: dict[int, np.ndarray] = {}
 
+    def density_along(axis: int) -> np.ndarray:
+        """The padded density with ``axis`` first: one copy per axis, shared by its two sweeps."""
+        if axis not in permuted:
+            permuted[axis] = padded(medium.density.transpose(SweepFrame.along(axis, False).order))
+        return permuted[axis]
+
     def sweep(frame: SweepFrame, is_point: bool, light_in_frame: np.ndarray, lamp_density: float) -> None:
-        axis = frame.order[0]
-        if axis not in permuted:  # one padded copy per sweep axis, shared by both directions
-            permuted[axis] = padded(medium.density.transpose(frame.order))
-        kernels.run(module.sweep_transmittance, threads, permuted[axis], medium.extinction, is_point,
+        kernels.run(module.sweep_transmittance, threads, density_along(frame.order[0]), medium.extinction, is_point,
                     light_in_frame, frame.linear(medium.linear), is_point, frame.flip,
                     np.array(frame.order, np.int64), lamp_density, result)
 
@@ -96,10 +99,8 @@ def transmittance(medium: Medium, light: Light, threads: int = 0) -> np.ndarray:
             where = frame.point(lamp, medium.shape)
             if np.floor(where[0]) + 1 >= medium.shape[axis]:
                 continue  # the lamp lies beyond the grid's last slice on this side
-            if axis not in permuted:
-                permuted[axis] = padded(medium.density.transpose(frame.order))
             unflipped = SweepFrame.along(axis, False).point(lamp, medium.shape)
-            lamp_density = float(module.trilinear(permuted[axis], *unflipped))
+            lamp_density = float(module.trilinear(density_along(axis), *unflipped))
             sweep(frame, True, where, lamp_density)
     return result
 
