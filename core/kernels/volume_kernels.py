@@ -74,6 +74,17 @@ def _bilinear_slice(grid, k, b, c, outside):
     return low + (high - low) * fc
 
 
+@nb.njit(**INLINE_OPTIONS)
+def _grid_index(axis, order, along, row, column):
+    """The index along the grid's axis ``axis`` of a sweep frame's voxel (along, row, column),
+    the frame's axes being the grid's axes ``order``."""
+    if order[0] == axis:
+        return along
+    if order[1] == axis:
+        return row
+    return column
+
+
 @nb.njit(**KERNEL_OPTIONS)
 def sweep_transmittance(density, extinction, is_point, light, linear, select, flip, order, lamp_density, out):
     """Transmittance from every voxel to a lamp, by front-to-back slices from the lamp (the
@@ -124,23 +135,12 @@ def sweep_transmittance(density, extinction, is_point, light, linear, select, fl
             for c in range(count_c):
                 here = density[slice_here, b + 1, c + 1]
                 # This voxel's index in the grid's own layout (prange's index may be unsigned:
-                # cast, or numba unifies the branches to float).
+                # cast, or numba unifies int64 with it as float).
                 row = np.int64(b)
-                i0 = np.int64(c)
-                i1 = np.int64(c)
-                i2 = np.int64(c)
-                if order[0] == 0:
-                    i0 = grid_a
-                elif order[1] == 0:
-                    i0 = row
-                if order[0] == 1:
-                    i1 = grid_a
-                elif order[1] == 1:
-                    i1 = row
-                if order[0] == 2:
-                    i2 = grid_a
-                elif order[1] == 2:
-                    i2 = row
+                column = np.int64(c)
+                i0 = _grid_index(0, order, grid_a, row, column)
+                i1 = _grid_index(1, order, grid_a, row, column)
+                i2 = _grid_index(2, order, grid_a, row, column)
                 if is_point:
                     sa = light[0] - a
                     sb = light[1] - b
