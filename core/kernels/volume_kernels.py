@@ -21,7 +21,8 @@ import numpy as np
 
 from . import KERNEL_OPTIONS
 
-INLINE_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
+# Helpers called from the parallel kernels (and the lamp-density lookup), compiled serial.
+SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 # Distances and escape fractions are stored as 16-bit codes (core.volume.tables).
 CODE_MAX = 65535.0
 # A ray this optically deep lets less than 1/65535 through (exp(-11.1)): its escape code is 0.
@@ -30,7 +31,7 @@ ESCAPE_BEYOND = 11.1
 BLOCK = 512
 
 
-@nb.njit(**INLINE_OPTIONS)
+@nb.njit(**SERIAL_OPTIONS)
 def trilinear(grid, x, y, z):
     """The padded scalar ``grid`` (X, Y, Z) float32 at index-space point (x, y, z): zero
     outside [-1, n] on any axis."""
@@ -57,7 +58,7 @@ def trilinear(grid, x, y, z):
     return c0 + (c1 - c0) * fz
 
 
-@nb.njit(**INLINE_OPTIONS)
+@nb.njit(**SERIAL_OPTIONS)
 def _bilinear_slice(grid, k, b, c, outside):
     """Slice ``k`` (padded index) of the padded ``grid`` (X, Y, Z) at in-slice index point
     (b, c); ``outside`` beyond [-1, n] on either axis."""
@@ -74,7 +75,7 @@ def _bilinear_slice(grid, k, b, c, outside):
     return low + (high - low) * fc
 
 
-@nb.njit(**INLINE_OPTIONS)
+@nb.njit(**SERIAL_OPTIONS)
 def _grid_index(axis, order, along, row, column):
     """The index along the grid's axis ``axis`` of a sweep frame's voxel (along, row, column),
     the frame's axes being the grid's axes ``order``."""
@@ -199,7 +200,7 @@ def sweep_transmittance(density, extinction, is_point, light, linear, select, fl
         previous, current = current, previous
 
 
-@nb.njit(**INLINE_OPTIONS)
+@nb.njit(**SERIAL_OPTIONS)
 def _hash_unit(a, b, c):
     """A uniform number in [0, 1) from three non-negative integers (a PCG-style hash)."""
     h = np.uint64(a) * np.uint64(0x9E3779B97F4A7C15) ^ np.uint64(b) * np.uint64(0xBF58476D1CE4E5B9) \
@@ -394,9 +395,9 @@ def gather_volume(source, active, directions, distance_codes, escape_codes, dist
             result[v, 2] /= count
 
 
-def warm_up() -> tuple:
-    """Compile (or read from the cache) each kernel for the dtypes its callers pass; returns
-    the kernels, for the caller's cache-miss count."""
+def warm_up() -> None:
+    """Compile (or read from the cache) each kernel for the dtypes its callers pass, so that
+    no call during a bake compiles (core.kernels.volume times this)."""
     density = np.zeros((4, 4, 4), np.float32)
     linear = np.eye(3)
     out = np.ones((1, 1, 1), np.float32)
@@ -411,4 +412,3 @@ def warm_up() -> tuple:
     scatter_table(density, active, directions, np.ones(1), 1.0, 1.0, 1, np.int64(-1), 1.0, BLOCK, codes, escape)
     gather_volume(np.zeros((4, 4, 4, 4), np.float32), active, directions, codes, escape, 1.0, BLOCK,
                   np.zeros((1, 3)))
-    return sweep_transmittance, scatter_table, gather_volume, trilinear
