@@ -15,6 +15,17 @@ and the error without both noises is sqrt(error^2 - noise_traced^2 - noise_baked
 the noises explain it all). A plot of error against directions and a picture of the renders
 are written beside the JSON.
 
+Time at equal error (``--lightings``, default 1 and 16): how long Cycles takes to path-trace
+the volume to the bake's own error (its error without both noises), against how long
+VisiBake takes to bake that many lightings. Cycles' noise falls as 1/sqrt(samples) (measured
+here at two sample counts; the record gives both), so it needs
+samples x (noise / error)^2 samples, at its measured seconds per sample, for each lighting.
+VisiBake builds its tables once: its first bake's time, plus each further lighting at the
+time of a re-bake that reads the cached tables, less its kernel load (run once and counted
+K - 1 times; in a session the kernels stay loaded). Neither
+side counts rendering the result for viewing: Cycles' image is its result, the bake's grids
+render in EEVEE at once, or in Cycles at the ``cycles_baked_render_seconds`` given.
+
     .venv/bin/python benchmarks/volume_vs_cycles.py [--side 64] [--directions 64,256] [--bounces 1] [--out DIR]
 
 Writes DIR/volume_vs_cycles.json (default benchmarks/results/) and the EXRs beside it.
@@ -25,6 +36,7 @@ import json
 import math
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -154,6 +166,7 @@ def main() -> int:
     parser.add_argument("--density", type=float, default=8.0)
     parser.add_argument("--samples", type=int, default=1024, help="Cycles samples of the path-traced volume")
     parser.add_argument("--baked-samples", type=int, default=256, help="Cycles samples of the baked volume")
+    parser.add_argument("--lightings", default="1,16", help="lighting counts for the time at equal error")
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results"))
     options = parser.parse_args()
     folder = os.path.abspath(os.path.join(options.out, "volume_vs_cycles"))
@@ -165,17 +178,25 @@ def main() -> int:
               "settings": vars(options), "bakes": []}
     traced = again = covered = None
     images = {}
+    cache = os.path.join(folder, "cache")
     for count in [int(c) for c in str(options.directions).split(",")]:
         baked_blend = os.path.join(folder, f"baked_{count}.blend")
         report_path = os.path.join(folder, f"report_{count}.json")
-        started = time.perf_counter()
-        subprocess.run([sys.executable, os.path.join(ROOT, "tools", "visibake.py"), "volume", blend, "--out",
-                        os.path.join(folder, f"grids_{count}"), "--resolution", str(options.side), "--directions",
-                        str(count), "--bounces", str(options.bounces), "--save", baked_blend, "--report",
-                        report_path, "--no-progress"], check=True)
-        command_seconds = time.perf_counter() - started
-        with open(report_path) as handle:
-            report = json.load(handle)
+        if os.path.isdir(cache):
+            shutil.rmtree(cache)  # the first bake builds its tables
+        reports = []
+        for attempt in ("built", "cached"):
+            started = time.perf_counter()
+            subprocess.run([sys.executable, os.path.join(ROOT, "tools", "visibake.py"), "volume", blend, "--out",
+                            os.path.join(folder, f"grids_{count}"), "--resolution", str(options.side),
+                            "--directions", str(count), "--bounces", str(options.bounces), "--save", baked_blend,
+                            "--report", report_path, "--cache-dir", cache, "--no-progress"], check=True)
+            if attempt == "built":
+                command_seconds = time.perf_counter() - started
+            with open(report_path) as handle:
+                reports.append(json.load(handle))
+            assert reports[-1]["volumes"][0]["tables"] == attempt, reports[-1]["volumes"][0]["tables"]
+        report, relit = reports
         if traced is None:
             traced, traced_seconds = render(baked_blend, "source", options.bounces, options.samples, 0,
                                             os.path.join(folder, "cycles.exr"))
@@ -184,8 +205,17 @@ def main() -> int:
             covered = traced.mean(axis=-1) > 0.01 * traced.max()
             scale = traced[covered].mean()
             noise = float(np.sqrt(((traced - again)[covered] ** 2).mean()) / scale / np.sqrt(2))
+            quarter, quarter_seconds = render(baked_blend, "source", options.bounces, options.samples // 4, 3,
+                                              os.path.join(folder, "cycles_quarter.exr"))
+            # Against the mean of the two full renders (whose own noise is noise / sqrt 2).
+            quarter_noise = float(np.sqrt(max(((quarter - 0.5 * (traced + again))[covered] ** 2).mean() / scale ** 2
+                                              - noise ** 2 / 2, 0.0)))
             record.update(pixels_covered=int(covered.sum()), cycles_noise=round(noise, 4),
-                          cycles_path_traced_seconds=round(traced_seconds, 2))
+                          cycles_path_traced_seconds=round(traced_seconds, 2),
+                          cycles_quarter_samples_noise=round(quarter_noise, 4),
+                          cycles_quarter_samples_seconds=round(quarter_seconds, 2),
+                          cycles_noise_falls_as=("1/sqrt(samples): expect the quarter's noise to be twice the full "
+                                                 "render's"))
         baked, baked_seconds = render(baked_blend, "baked", options.bounces, options.baked_samples, 0,
                                       os.path.join(folder, f"baked_{count}.exr"))
         baked_again, _ = render(baked_blend, "baked", options.bounces, options.baked_samples, 7,
@@ -193,10 +223,27 @@ def main() -> int:
         images[count] = baked
         error = float(np.sqrt(((baked - traced)[covered] ** 2).mean()) / scale)
         baked_noise = float(np.sqrt(((baked - baked_again)[covered] ** 2).mean()) / scale / np.sqrt(2))
+        own_error = float(np.sqrt(max(error ** 2 - noise ** 2 - baked_noise ** 2, 0.0)))
+        # Cycles' samples (and seconds) to path-trace to the bake's own error, from the full render's noise.
+        floor = max(own_error, 1e-3)
+        cycles_seconds = traced_seconds * (noise / floor) ** 2
+        # In a session (the panel) the kernels stay loaded: a further lighting does not load them again.
+        relight_seconds = round(relit["seconds"] - relit.get("volume_kernel_load_s", 0.0), 3)
+        timing = {}
+        for lightings in [int(k) for k in str(options.lightings).split(",")]:
+            visibake_seconds = report["seconds"] + (lightings - 1) * relight_seconds
+            timing[str(lightings)] = {"cycles_seconds": round(lightings * cycles_seconds, 1),
+                                      "visibake_seconds": round(visibake_seconds, 2),
+                                      "cycles_over_visibake": round(lightings * cycles_seconds / visibake_seconds, 2)}
         record["bakes"].append({
             "directions": count, "relative_rmse": round(error, 4), "baked_render_noise": round(baked_noise, 4),
-            "relative_rmse_without_noise": round(float(np.sqrt(max(error ** 2 - noise ** 2 - baked_noise ** 2,
-                                                                   0.0))), 4),
+            "relative_rmse_without_noise": round(own_error, 4),
+            "cycles_samples_to_equal_error": int(round(options.samples * (noise / floor) ** 2)),
+            "relight_seconds_with_cached_tables": relight_seconds,
+            "relight_volume_seconds": relit["volumes"][0]["seconds"],
+            "relight_kernel_load_seconds": relit.get("volume_kernel_load_s"),
+            "first_bake_kernel_load_seconds": report.get("volume_kernel_load_s"),
+            "time_at_equal_error": timing,
             "mean_ratio": round(float(baked[covered].mean() / scale), 4),
             "visibake_bake_seconds": report["seconds"], "visibake_command_seconds": round(command_seconds, 1),
             "volume_seconds": report["volumes"][0]["seconds"], "cycles_baked_render_seconds": round(baked_seconds, 2)})

@@ -4,4 +4,4 @@
 compiles the ``.glsl`` sources beside it lazily; ``gather`` is the bounce gather.
 Nothing here runs at import or register time.
 """
-from . import backend, dilate, direct, gather, passes, runtime  # noqa: F401
+from . import backend, dilate, direct, gather, passes, runtime, volume_sweep  # noqa: F401

@@ -150,7 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
         "volume", help="bake the light scattered in a .blend's Volume objects into VDB grids and a baked Volume object")
     volume.add_argument("input", help="the .blend whose volumes to bake")
     volume.add_argument("--out", metavar="DIR", required=True, help="write DIR/<object>/<grid>.vdb")
-    volume.add_argument("--objects", metavar="A,B", help="comma-separated Volume objects (default: all visible)")
+    volume.add_argument("--objects", metavar="A,B",
+                        help="comma-separated Volume objects or meshes with a Principled Volume (default: all visible)")
     for name, option, metavar in (("volume_resolution", "--resolution", "N"),
                                   ("volume_directions", "--directions", "N"),
                                   ("volume_bounces", "--bounces", "K"), ("volume_points", "--points", "M")):
@@ -159,6 +160,10 @@ def build_parser() -> argparse.ArgumentParser:
     volume.add_argument("--save", metavar="OUT.blend", help="save the scene with its baked Volume objects")
     volume.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
     _setting_option(volume, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    _setting_option(volume, "--cache-dir", SETTINGS["cache_dir"], "DIR")
+    volume.add_argument("--no-cache", action="store_true", help="neither read nor write the cached scattering tables")
+    _setting_option(volume, "--device", PREFERENCE_SETTINGS["device"],
+                    note="the lamps' slice sweeps; default: the preference, else auto")
     volume.add_argument("--no-progress", action="store_true", help="no progress bar")
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
@@ -358,6 +363,10 @@ def run_volume(args) -> int:
     _check_destinations(args, out_dir)
     _load_input(args)
     scene = bpy.context.scene
+    if args.cache_dir is not None:
+        scene.visibake.cache_dir = os.path.abspath(args.cache_dir)
+    if args.no_cache:
+        scene.visibake.use_cache = False
     values = {}
     for name in VOLUME_SETTINGS:
         spec, given = VOLUME_SETTINGS[name], getattr(args, name.removeprefix("volume_"))
@@ -372,7 +381,8 @@ def run_volume(args) -> int:
         by_name = {o.name: o for o in volumes}
         missing = [n for n in names if n not in by_name]
         if missing:
-            raise BakeRefused(f"--objects: no visible Volume object named {', '.join(missing)} in the scene")
+            raise BakeRefused(f"--objects: no visible volume (Volume object or mesh with a Principled Volume) named "
+                              f"{', '.join(missing)} in the scene")
         volumes = [by_name[n] for n in names]
     threads = args.threads if args.threads is not None else volume_job.preferred_threads()
     progress = _Progress(not args.no_progress)
@@ -380,7 +390,7 @@ def run_volume(args) -> int:
         outcome = volume_job.VolumeJob(scene, volumes, out_dir, values["volume_resolution"],
                                        values["volume_directions"], values["volume_bounces"], values["volume_points"],
                                        scene.visibake.seed if args.seed is None else args.seed, threads,
-                                       progress).run()
+                                       progress, device_name=args.device).run()
     finally:
         progress.close()
     made_folders: list = []

@@ -9,7 +9,8 @@ from .bake import _BakeOperator
 
 
 def volume_targets(context) -> list:
-    """The selected Volume objects VisiBake can bake, or every visible one when none is selected."""
+    """The selected media VisiBake can bake (Volume objects, meshes with a Principled Volume), or every
+    visible one when none is selected."""
     volumes = volume_job.scene_volumes(context.scene)
     selected = [o for o in volumes if o.select_get()]
     return selected or volumes
@@ -32,7 +33,8 @@ def summary(report: dict) -> str:
 
 
 class VISIBAKE_OT_bake_volume(_BakeOperator, bpy.types.Operator):
-    """Bake the light scattered in the selected Volume objects (all visible ones if none is selected) into \
+    """Bake the light scattered in the selected volumes (Volume objects and meshes with a Principled Volume; all \
+visible ones if none is selected) into \
 VDB grids, and add a Volume object that renders them"""
 
     bl_idname = "visibake.bake_volume"

@@ -174,6 +174,9 @@ class VIEW3D_PT_visibake_report(bpy.types.Panel):
             column.label(text=text, icon=icon)
 
 
+NO_VOLUMES = "No volumes (Volume objects, meshes with a Principled Volume)"
+
+
 class VIEW3D_PT_visibake_volumes(bpy.types.Panel):
     bl_label = "Volumes"
     bl_idname = "VIEW3D_PT_visibake_volumes"
@@ -193,7 +196,7 @@ class VIEW3D_PT_visibake_volumes(bpy.types.Panel):
         targets = volume.volume_targets(context)
         selected = any(o.select_get() for o in targets)
         names = ", ".join(o.name for o in targets[:3]) + (", ..." if len(targets) > 3 else "")
-        layout.label(text=(f"{'Selected' if selected else 'All'}: {names}" if targets else "No Volume objects"),
+        layout.label(text=(f"{'Selected' if selected else 'All'}: {names}" if targets else NO_VOLUMES),
                      icon="VOLUME_DATA")
         column = layout.column()
         for name in ("volume_resolution", "volume_directions", "volume_bounces", "volume_points"):

@@ -60,6 +60,8 @@ from .table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE
 # 8: a vertex-mode hit's triangle packed with its barycentrics in hit_uv_code (vertex_cells).
 FORMAT_VERSION = 8
 TABLE_FILE = "visibility.npz"
+# A volume's scattering tables (core.volume.cache), one per slot of its own.
+VOLUME_TABLE_FILE = "volume.npz"
 LIGHTING_PREFIX = "lighting-"
 # Transport results kept per slot (each is 48 bytes per texel): enough for a session
 # of re-mixing a handful of light groups, small next to the table.
@@ -406,6 +408,7 @@ _KIND_SCHEMA = {
                   for name in ("rays_cast", "rays_below_horizon", "backface_hits")),
               "written": str},
     "lighting": {},
+    "volume_table": {"volume": str, "written": str},
 }
 
 
@@ -596,9 +599,12 @@ class VisibilityCache:
         Only VisiBake's own files are removed (tables and lighting results in slot folders),
         never a slot that a live bake is writing into, and never anything else in the folder.
         """
+        self._make_room(self.slot(settings), incoming, replacing)
+
+    def _make_room(self, own: str, incoming: int, replacing: bool) -> None:
+        """:meth:`make_room` for the slot folder ``own``."""
         if self.limit_bytes <= 0:
             return
-        own = self.slot(settings)
         replaced = sum(_size(path) for path in _slot_files(own)) if replacing else 0
         total = folder_size(self.folder)
         excess = total - replaced + incoming - self.limit_bytes
@@ -634,6 +640,39 @@ class VisibilityCache:
             except OSError:
                 pass
             self.evicted.append((slot, size))
+
+    def volume_slot(self, slot_key: str) -> str:
+        """The slot folder of one volume's tables (``slot_key``: hex, core.volume.cache.slot_key)."""
+        return os.path.join(self.folder, f"{self.label}-{slot_key[:12]}")
+
+    def load_volume_tables(self, slot: str, key: str) -> tuple[dict, dict] | None:
+        """(header, arrays) of the volume tables in ``slot`` if they were stored under ``key``,
+        else None; raises CorruptCache for a file that cannot be trusted (which it removes)."""
+        path = os.path.join(slot, VOLUME_TABLE_FILE)
+        if not os.path.exists(path):
+            return None
+        try:
+            meta = _read_meta(path, "volume_table")
+            if meta["key"] != key:
+                return None
+            arrays = _read_arrays(path, meta, meta["arrays"])
+        except CorruptCache:
+            if not self.read_only:
+                os.remove(path)
+            raise
+        self._touch(path)
+        return meta, arrays
+
+    def save_volume_tables(self, slot: str, key: str, volume: str, arrays: dict) -> int:
+        """Write a volume's tables into ``slot``, replacing what it held; returns the bytes
+        written (0: a read-only cache). Raises CacheFull where the cap leaves no room."""
+        if self.read_only:
+            return 0
+        self.abandoned_removed += remove_abandoned_writes(slot, self.opened)
+        self._make_room(slot, sum(np.asarray(a).nbytes for a in arrays.values()), replacing=True)
+        meta = {"kind": "volume_table", "key": key, "volume": volume, "arrays": sorted(arrays),
+                "written": time.strftime("%Y-%m-%dT%H:%M:%S")}
+        return _write(os.path.join(slot, VOLUME_TABLE_FILE), meta, arrays)
 
     def discard_table(self, settings: BakeSettings) -> None:
         path = self.table_path(settings)
@@ -707,7 +746,7 @@ def _slot_folders(folder: str) -> list[str]:
 
 def _slot_files(slot: str) -> list[str]:
     """The files VisiBake keeps in a slot folder (its table and lighting results), existing ones only."""
-    return _listed(slot, lambda _, name: name == TABLE_FILE
+    return _listed(slot, lambda _, name: name in (TABLE_FILE, VOLUME_TABLE_FILE)
                    or (name.startswith(LIGHTING_PREFIX) and name.endswith(".npz")))
 
 

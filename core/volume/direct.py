@@ -61,11 +61,14 @@ class SweepFrame:
         return moved
 
 
-def transmittance(medium: Medium, light: Light, threads: int = 0) -> np.ndarray:
+def transmittance(medium: Medium, light: Light, threads: int = 0, sweep_pass=None) -> np.ndarray:
     """The fraction of ``light``'s light reaching every voxel centre through the medium.
 
     Returns (nx, ny, nz) float32 in [0, 1]. A lamp that casts no shadows is not attenuated
     (Blender's Cast Shadow off). An area lamp is swept from its centre.
+    sweep_pass : None for the CPU kernel (core.kernels.volume_kernels.sweep_transmittance),
+        or a callable with its arguments that does the same sweep elsewhere (the GPU twin,
+        gpu_shaders.volume_sweep)
     """
     if not light.casts_shadows or medium.extinction == 0:
         return np.ones(medium.shape, np.float32)
@@ -81,9 +84,13 @@ def transmittance(medium: Medium, light: Light, threads: int = 0) -> np.ndarray:
         return permuted[axis]
 
     def sweep(frame: SweepFrame, is_point: bool, light_in_frame: np.ndarray, lamp_density: float) -> None:
-        kernels.run(module.sweep_transmittance, threads, density_along(frame.order[0]), medium.extinction, is_point,
-                    light_in_frame, frame.linear(medium.linear), is_point, frame.flip,
-                    np.array(frame.order, np.int64), lamp_density, result)
+        arguments = (density_along(frame.order[0]), medium.extinction, is_point, light_in_frame,
+                     frame.linear(medium.linear), is_point, frame.flip, np.array(frame.order, np.int64),
+                     lamp_density, result)
+        if sweep_pass is None:
+            kernels.run(module.sweep_transmittance, threads, *arguments)
+        else:
+            sweep_pass(*arguments)
 
     if light.kind == "SUN":
         towards = inverse @ -np.asarray(light.direction, np.float64)
@@ -106,8 +113,10 @@ def transmittance(medium: Medium, light: Light, threads: int = 0) -> np.ndarray:
 
 
 def lamp_inscatter(medium: Medium, light: Light, voxels: np.ndarray, area_light_samples: int = 4,
-                   threads: int = 0, chunk: int = 1 << 18) -> np.ndarray:
-    """In-scattered radiance of one lamp at ``voxels``, shadowed by the medium.
+                   threads: int = 0, chunk: int = 1 << 18, occluders=None, sweep_pass=None) -> np.ndarray:
+    """In-scattered radiance of one lamp at ``voxels``, shadowed by the medium and, with
+    ``occluders`` (core.volume.occluders.Occluders), by the meshes: a shadow ray per voxel
+    and lamp point, so an area lamp's mesh shadows are soft.
 
     With an isotropic phase it is the unshadowed irradiance at normal incidence over 4 pi,
     times the transmittance: a small lamp's radiance arriving from its solid angle, averaged
@@ -117,7 +126,8 @@ def lamp_inscatter(medium: Medium, light: Light, voxels: np.ndarray, area_light_
 
     voxels : (V, 3) int32. Returns (V, 3) float64 W/(m^2 sr).
     """
-    shadow = transmittance(medium, light, threads)[tuple(voxels.T)].astype(np.float64)
+    shadow = transmittance(medium, light, threads, sweep_pass)[tuple(voxels.T)].astype(np.float64)
+    meshes_shadow = occluders is not None and light.casts_shadows
     result = np.zeros((len(voxels), 3))
     for start in range(0, len(voxels), chunk):
         part = slice(start, start + chunk)
@@ -125,5 +135,9 @@ def lamp_inscatter(medium: Medium, light: Light, voxels: np.ndarray, area_light_
         towards, _ = centre_probe(light, positions)
         ids = np.arange(start, start + len(positions), dtype=np.int64)
         for contribution in light_contributions(light, positions, towards, area_light_samples, ids):
-            result[part] += contribution.irradiance
+            if meshes_shadow:
+                seen = occluders.lamp_visibility(positions, contribution.to_light, contribution.distance)
+                result[part] += contribution.irradiance * seen[:, None]
+            else:
+                result[part] += contribution.irradiance
     return result * (shadow / (4.0 * np.pi))[:, None]

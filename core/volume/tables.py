@@ -53,6 +53,8 @@ class ScatteringTables:
     distance_per_code : float index units per distance code
     step : float march step in index units; jitter_seed : the seed of the points' strata, or
         None for the quantile midpoints
+    sees_world : (N, V) bool, False where a mesh ends the ray (its escaping fraction then
+        reaches the mesh, not the world); None when no mesh is in the scene
     """
 
     directions: np.ndarray
@@ -64,6 +66,7 @@ class ScatteringTables:
     distance_per_code: float
     step: float
     jitter_seed: int | None = None
+    sees_world: np.ndarray | None = None
 
     @property
     def points(self) -> int:
@@ -71,35 +74,52 @@ class ScatteringTables:
 
     @property
     def nbytes(self) -> int:
-        return int(self.distance_codes.nbytes + self.escape_codes.nbytes + self.voxels.nbytes)
+        hits = 0 if self.sees_world is None else self.sees_world.nbytes
+        return int(self.distance_codes.nbytes + self.escape_codes.nbytes + self.voxels.nbytes + hits)
 
     def escape(self) -> np.ndarray:
         """(N, V) float32 the fraction of each ray that leaves the grid unscattered."""
         return self.escape_codes.astype(np.float32) * np.float32(1.0 / CODE_MAX)
+
+    def world_escape(self) -> np.ndarray:
+        """(N, V) float32 the fraction of each ray that leaves unscattered and meets no mesh."""
+        escape = self.escape()
+        return escape if self.sees_world is None else escape * self.sees_world
 
     def distances(self) -> np.ndarray:
         """(N, V, M) float64 index-space distance of each stored point from its voxel."""
         return self.distance_codes.astype(np.float64) * self.distance_per_code
 
 
-def table_bytes(voxels: int, directions: int, points: int) -> int:
-    """Bytes the tables of ``voxels`` active voxels take (what :func:`build_tables` refuses above)."""
-    return int(voxels) * int(directions) * (2 * int(points) + 2) + 12 * int(voxels)
+def table_bytes(voxels: int, directions: int, points: int, meshes: bool = False) -> int:
+    """Bytes the tables of ``voxels`` active voxels take (what :func:`build_tables` refuses above);
+    ``meshes``: with the per-ray flag of a mesh in the scene."""
+    return int(voxels) * int(directions) * (2 * int(points) + 2 + int(bool(meshes))) + 12 * int(voxels)
+
+
+# Rays traced against the meshes per chunk of directions: their hit distances (4 bytes each)
+# are held only while the chunk is marched.
+MESH_RAYS_PER_CHUNK = 1 << 23
 
 
 def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: float = 0.5,
-                 jitter_seed: int | None = 0, threads: int = 0) -> ScatteringTables:
+                 jitter_seed: int | None = 0, threads: int = 0, occluders=None,
+                 progress=None) -> ScatteringTables:
     """March every active voxel's ray along every direction (core.kernels.volume_kernels.scatter_table).
 
     directions : (N, 3) float64 unit world directions; points : M >= 1; step : index units
     jitter_seed : an int for points drawn uniformly within their strata (hashed from it), None
         for the quantile midpoints
+    occluders : core.volume.occluders.Occluders or None: each ray is traced against the
+        meshes first, and ends at the first one it meets
+    progress : called with the fraction done between chunks of directions (may raise
+        core.errors.Cancelled)
     """
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     if points < 1 or not 0 < step <= 2:
         raise ValueError(f"points must be >= 1 and step in (0, 2], got {points}, {step}")
     voxels = medium.active()
-    size = table_bytes(len(voxels), len(directions), points)
+    size = table_bytes(len(voxels), len(directions), points, occluders is not None)
     if size > MAX_TABLE_BYTES:
         raise VolumeRefused(
             f"volume {medium.name!r}: its scattering tables would take {size / 2**30:.1f} GiB "
@@ -115,10 +135,24 @@ def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: 
     code_scale = CODE_MAX / longest
     distance_codes = np.zeros((len(directions), len(voxels), points), np.uint16)
     escape_codes = np.zeros((len(directions), len(voxels)), np.uint16)
+    sees_world = None if occluders is None else np.ones((len(directions), len(voxels)), bool)
     if len(voxels):
         seed = -1 if jitter_seed is None else int(jitter_seed) & 0x7FFFFFFF
-        kernels.run(module.scatter_table, threads, padded(medium.density), voxels, index_directions,
-                    world_per_index, float(medium.extinction), float(step), int(points), np.int64(seed),
-                    code_scale, module.BLOCK, distance_codes, escape_codes)
+        density = padded(medium.density)
+        origins = medium.world_positions(voxels) if occluders is not None else None
+        no_meshes = np.zeros((0, 0), np.float32)
+        chunk = len(directions) if occluders is None else max(1, MESH_RAYS_PER_CHUNK // len(voxels))
+        for first in range(0, len(directions), chunk):
+            part = slice(first, min(first + chunk, len(directions)))
+            blocked = no_meshes
+            if occluders is not None:
+                blocked = np.stack([occluders.first_hits(origins, direction) for direction in directions[part]])
+                sees_world[part] = ~np.isfinite(blocked)
+                blocked = (blocked / world_per_index[part, None]).astype(np.float32)
+            kernels.run(module.scatter_table, threads, density, voxels, index_directions[part],
+                        world_per_index[part], float(medium.extinction), float(step), int(points), np.int64(seed),
+                        code_scale, module.BLOCK, blocked, np.int64(first), distance_codes[part], escape_codes[part])
+            if progress is not None:
+                progress(part.stop / len(directions))
     return ScatteringTables(directions, index_directions, world_per_index, voxels, distance_codes, escape_codes,
-                            1.0 / code_scale, float(step), jitter_seed)
+                            1.0 / code_scale, float(step), jitter_seed, sees_world)

@@ -78,12 +78,16 @@ def gather(medium: Medium, tables: ScatteringTables, sent: np.ndarray, threads: 
 
 def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] = (), world: World | None = None,
                  bounces: int = 1, area_light_samples: int = 4, threads: int = 0,
-                 progress: Callable[[str, float], None] | None = None) -> VolumeLight:
+                 progress: Callable[[str, float], None] | None = None, occluders=None,
+                 sweep_pass=None) -> VolumeLight:
     """Direct light and ``bounces`` bounces of scattering in ``medium``.
 
     lights : lamps in Cycles' units (core.scene.Light); world : its radiance reaches the
-    voxels through the tables' escaping fractions. ``progress(stage, fraction)`` is called
-    between passes and may raise core.errors.Cancelled.
+    voxels through the tables' escaping fractions (and only along rays no mesh ends, when
+    the tables were built with meshes). ``progress(stage, fraction)`` is called between
+    passes and may raise core.errors.Cancelled.
+    occluders : core.volume.occluders.Occluders, the meshes that shadow the lamps, or None
+    sweep_pass : the medium's transmittance sweep (core.volume.direct.transmittance)
     """
     if bounces < 0:
         raise ValueError(f"bounces must be >= 0, got {bounces}")
@@ -105,11 +109,12 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
             progress(stage, done / steps)
 
     for light in usable:
-        direct += lamp_inscatter(medium, light, voxels, area_light_samples, threads)
+        direct += lamp_inscatter(medium, light, voxels, area_light_samples, threads, occluders=occluders,
+                                 sweep_pass=sweep_pass)
         report(f"direct light: {light.name}")
     if world is not None and has_light(world):
         radiance = world_radiance(world, tables.directions)
-        direct += (radiance.astype(np.float32).T @ tables.escape()).T.astype(np.float64) / len(tables.directions)
+        direct += (radiance.astype(np.float32).T @ tables.world_escape()).T.astype(np.float64) / len(tables.directions)
     report("world light")
     if medium.emission is not None and medium.extinction > 0:
         direct += gather(medium, tables, medium.emission[tuple(voxels.T)] / medium.extinction, threads)

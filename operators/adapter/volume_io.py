@@ -1,5 +1,6 @@
 """Volumes between Blender and core.volume: a Volume object's medium read through the bundled
-openvdb, the baked grids written as .vdb, and the Volume object that renders them.
+openvdb (or a mesh's inside voxelised, for a mesh with a volume material), the baked grids
+written as .vdb, and the Volume object that renders them.
 
 Nothing of the user's is modified: the source object, its data, its material and its .vdb
 file are only read. What VisiBake creates (the baked Volume object, its data and material)
@@ -8,6 +9,7 @@ carries :data:`OWNED_KEY`, and only such datablocks are ever replaced.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import bpy
 
@@ -15,7 +17,8 @@ import numpy as np
 
 from ...core.errors import VolumeRefused
 from ...core.volume.medium import Medium, check_grid_shape, make_medium
-from . import compat
+from ...core.volume.voxelise import fitted_grid, inside_fraction
+from . import compat, extract
 
 OWNED_KEY = "visibake_volume_of"
 PRINCIPLED = "ShaderNodeVolumePrincipled"
@@ -33,24 +36,38 @@ def is_volume_target(obj) -> bool:
     return obj.type == "VOLUME" and obj.get(OWNED_KEY) is None
 
 
-def _principled(obj, warnings: list[str]):
-    """The Principled Volume node feeding the object's material output, or None."""
+def _material_output(obj):
+    """The active Material Output (target All or Cycles) of the object's active material, or None."""
     material = obj.active_material
     if material is None or not compat.uses_nodes(material):
         return None
     for node in material.node_tree.nodes:
         if node.bl_idname == "ShaderNodeOutputMaterial" and node.is_active_output and \
                 node.target in {"ALL", "CYCLES"}:
-            socket = node.inputs.get("Volume")
-            if socket is None or not socket.is_linked:
-                return None
-            source = socket.links[0].from_node
-            if source.bl_idname != PRINCIPLED:
-                warnings.append(f"volume {obj.name!r}: its material's volume shader is a {source.bl_label}, not a "
-                                "Principled Volume")
-                return None
-            return source
+            return node
     return None
+
+
+def _principled(obj, warnings: list[str]):
+    """The Principled Volume node feeding the object's material output, or None."""
+    node = _material_output(obj)
+    if node is None:
+        return None
+    socket = node.inputs.get("Volume")
+    if socket is None or not socket.is_linked:
+        return None
+    source = socket.links[0].from_node
+    if source.bl_idname != PRINCIPLED:
+        warnings.append(f"volume {obj.name!r}: its material's volume shader is a {source.bl_label}, not a "
+                        "Principled Volume")
+        return None
+    return source
+
+
+def is_mesh_volume(obj) -> bool:
+    """Whether ``obj`` is a mesh that Cycles fills with a Principled Volume: a MESH object (not one
+    VisiBake made) whose active material's active output takes its Volume from one."""
+    return obj.type == "MESH" and obj.get(OWNED_KEY) is None and _principled(obj, []) is not None
 
 
 def _value(node, name: str, default, obj_name: str, warnings: list[str]):
@@ -89,6 +106,52 @@ def _downsample(dense: np.ndarray, factor: int) -> np.ndarray:
     return blocks.mean(axis=(1, 3, 5), dtype=np.float64).astype(np.float32)
 
 
+@dataclass
+class _PrincipledVolume:
+    """A Principled Volume node's inputs, as read (the node's own values)."""
+
+    density_name: str
+    multiplier: float
+    color: np.ndarray
+    absorption: np.ndarray
+    emission_strength: float
+    emission_color: np.ndarray
+
+
+def _read_principled(obj, node, warnings: list[str]) -> _PrincipledVolume:
+    """The inputs of the Principled Volume ``node`` of ``obj``, with a warning for each that
+    VisiBake leaves out or reads differently from Cycles."""
+    density_name = _value(node, "Density Attribute", "density", obj.name, warnings) or "density"
+    multiplier = max(float(_value(node, "Density", 1.0, obj.name, warnings)), 0.0)
+    color = np.clip(np.asarray(_value(node, "Color", (0.5, 0.5, 0.5, 1.0), obj.name, warnings))[:3], 0.0, None)
+    absorption = np.asarray(_value(node, "Absorption Color", (0.0, 0.0, 0.0, 1.0), obj.name, warnings))[:3]
+    emission_strength = float(_value(node, "Emission Strength", 0.0, obj.name, warnings))
+    emission_color = np.asarray(_value(node, "Emission Color", (1.0, 1.0, 1.0, 1.0), obj.name, warnings))[:3]
+    if float(_value(node, "Anisotropy", 0.0, obj.name, warnings)) != 0.0:
+        warnings.append(f"volume {obj.name!r}: its anisotropy was baked as isotropic scattering")
+    if float(_value(node, "Blackbody Intensity", 0.0, obj.name, warnings)) > 0.0:
+        warnings.append(f"volume {obj.name!r}: its blackbody (temperature) emission was left out")
+    color_attribute = _value(node, "Color Attribute", "", obj.name, warnings)
+    if color_attribute:
+        warnings.append(f"volume {obj.name!r}: its colour grid {color_attribute!r} was left out; the node's colour "
+                        "was used")
+    return _PrincipledVolume(density_name, multiplier, color, absorption, emission_strength, emission_color)
+
+
+def _principled_medium(obj, shader: _PrincipledVolume, warnings: list[str]):
+    """(extinction per unit density, albedo (3,), emission (3,) or None) of a Principled Volume."""
+    if np.any(shader.absorption > 0):
+        warnings.append(f"volume {obj.name!r}: its absorption colour makes the extinction differ per channel; "
+                        "the channels' mean was used")
+    color = shader.color
+    extinction_rgb = color + np.clip(1.0 - color, 0.0, None) * np.clip(
+        1.0 - np.sqrt(np.clip(shader.absorption, 0, None)), 0.0, None)
+    extinction = float(extinction_rgb.mean()) * shader.multiplier
+    albedo = np.divide(color * shader.multiplier, extinction, out=np.zeros(3), where=extinction > 0)
+    emission = shader.emission_strength * shader.emission_color if shader.emission_strength > 0 else None
+    return extinction, albedo, emission
+
+
 def read_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium, np.ndarray]:
     """The medium of a Volume object at the current frame, at most ``resolution`` voxels per side.
 
@@ -106,20 +169,8 @@ def read_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium, np.n
     if node is None:
         raise VolumeRefused(f"volume {obj.name!r}: its material has no Principled Volume as the volume shader; "
                             "VisiBake reads density, colour and emission from one")
-    density_name = _value(node, "Density Attribute", "density", obj.name, warnings) or "density"
-    multiplier = max(float(_value(node, "Density", 1.0, obj.name, warnings)), 0.0)
-    color = np.clip(np.asarray(_value(node, "Color", (0.5, 0.5, 0.5, 1.0), obj.name, warnings))[:3], 0.0, None)
-    absorption = np.asarray(_value(node, "Absorption Color", (0.0, 0.0, 0.0, 1.0), obj.name, warnings))[:3]
-    emission_strength = float(_value(node, "Emission Strength", 0.0, obj.name, warnings))
-    emission_color = np.asarray(_value(node, "Emission Color", (1.0, 1.0, 1.0, 1.0), obj.name, warnings))[:3]
-    if float(_value(node, "Anisotropy", 0.0, obj.name, warnings)) != 0.0:
-        warnings.append(f"volume {obj.name!r}: its anisotropy was baked as isotropic scattering")
-    if float(_value(node, "Blackbody Intensity", 0.0, obj.name, warnings)) > 0.0:
-        warnings.append(f"volume {obj.name!r}: its blackbody (temperature) emission was left out")
-    color_attribute = _value(node, "Color Attribute", "", obj.name, warnings)
-    if color_attribute:
-        warnings.append(f"volume {obj.name!r}: its colour grid {color_attribute!r} was left out; the node's colour "
-                        "was used")
+    shader = _read_principled(obj, node, warnings)
+    density_name = shader.density_name
     try:
         metadata = vdb.readAllGridMetadata(path)
     except Exception as error:  # noqa: BLE001 - openvdb raises its own kinds for unreadable files
@@ -145,18 +196,85 @@ def read_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium, np.n
     to_native = np.diag([float(factor)] * 3 + [1.0])
     to_native[:3, 3] = low + (factor - 1) / 2.0
     index_to_local = _index_to_local(grid.transform) @ to_native
-    if np.any(absorption > 0):
-        warnings.append(f"volume {obj.name!r}: its absorption colour makes the extinction differ per channel; "
-                        "the channels' mean was used")
-    extinction_rgb = color + np.clip(1.0 - color, 0.0, None) * np.clip(1.0 - np.sqrt(np.clip(absorption, 0, None)),
-                                                                      0.0, None)
-    extinction = float(extinction_rgb.mean()) * multiplier
-    albedo = np.divide(color * multiplier, extinction, out=np.zeros(3), where=extinction > 0)
-    emission = emission_strength * emission_color if emission_strength > 0 else None
+    extinction, albedo, emission = _principled_medium(obj, shader, warnings)
     if emission is not None:
         warnings.append(f"volume {obj.name!r}: its emission was baked where its density is above zero only")
     world = np.array(obj.matrix_world, np.float64) @ index_to_local
     medium = make_medium(obj.name, dense, world, extinction, albedo, emission)
+    return medium, index_to_local
+
+
+def read_mesh_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium, np.ndarray]:
+    """The medium Cycles renders inside a mesh whose material has a Principled Volume, at most
+    ``resolution`` voxels per side.
+
+    The mesh is read with its modifiers (the viewport's evaluation) and voxelised in object
+    space on a grid fitted to its bounds (core.volume.voxelise): each voxel's density is the
+    fraction of it inside the mesh. A mesh has no density grid, so Cycles' density is the
+    node's Density throughout the inside (its Density Attribute finds no grid); as for a Volume
+    object, that Density is the medium's extinction and the node's colour its albedo.
+
+    Returns the medium (in world space) and its index-to-object matrix (4, 4) float64, which the
+    baked grids are written with. Raises VolumeRefused for a material without a Principled
+    Volume, a mesh without faces, or one that encloses nothing (it must be closed).
+    """
+    node = _principled(obj, warnings)
+    if node is None:
+        raise VolumeRefused(f"volume {obj.name!r}: its material has no Principled Volume as the volume shader; "
+                            "VisiBake reads density, colour and emission from one")
+    shader = _read_principled(obj, node, warnings)
+    output = _material_output(obj)
+    surface = output.inputs.get("Surface") if output is not None else None
+    if surface is not None and surface.is_linked:
+        warnings.append(f"volume {obj.name!r}: its material has a Surface shader too; only the medium inside the "
+                        "mesh was baked, not the surface (which in Cycles also shades the mesh and can hide or "
+                        "shadow the medium)")
+    others = sorted({slot.material.name for slot in obj.material_slots
+                     if slot.material is not None and slot.material != obj.active_material})
+    if others:
+        warnings.append(f"volume {obj.name!r}: only its active material {obj.active_material.name!r} was read; its "
+                        f"other materials ({', '.join(map(repr, others))}) were not")
+    extract._viewport_difference(obj, warnings)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    evaluated = obj.evaluated_get(depsgraph)
+    if not evaluated.is_evaluated and any(m.show_render for m in obj.modifiers):
+        warnings.append(f"object {obj.name!r} is hidden in the viewport, so its modifiers are not evaluated; "
+                        "VisiBake reads it without them (Cycles renders them): show it to bake them")
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        count = len(mesh.loop_triangles)
+        positions = extract.read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
+        triangles = extract.read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
+        has_density_attribute = mesh.attributes.get(shader.density_name) is not None
+    finally:
+        evaluated.to_mesh_clear()
+    if count == 0:
+        raise VolumeRefused(f"volume {obj.name!r}: its mesh has no faces; a mesh volume fills the inside of a "
+                            "closed mesh")
+    if has_density_attribute:
+        # Cycles finds it, but reads a volume's attribute from grids only: per vertex or face it
+        # reads 0 (kernel/geom/volume.h), which empties the medium there.
+        warnings.append(f"volume {obj.name!r}: its mesh has a {shader.density_name!r} attribute, the Principled "
+                        "Volume's Density Attribute; VisiBake used the node's Density throughout the inside, but "
+                        "Cycles may read the attribute as zero density: rename it or clear the Density Attribute")
+    used = positions[np.unique(triangles)]
+    used = used[np.all(np.isfinite(used), axis=1)]
+    if len(used) == 0 or not float(np.ptp(used, axis=0).max()) > 0:
+        raise VolumeRefused(f"volume {obj.name!r}: its mesh encloses nothing (its faces have no extent); a mesh "
+                            "volume fills the inside of a closed mesh")
+    shape, index_to_local = fitted_grid(used.min(axis=0), used.max(axis=0), max(int(resolution), 1))
+    check_grid_shape(obj.name, shape)
+    density = inside_fraction(positions, triangles, index_to_local, shape)
+    if not density.any():
+        raise VolumeRefused(f"volume {obj.name!r}: its mesh encloses nothing (a flat or open mesh, such as a "
+                            "plane); the mesh must be closed for Cycles and VisiBake to fill it with its volume")
+    extinction, albedo, emission = _principled_medium(obj, shader, warnings)
+    if emission is not None:
+        # Cycles emits throughout the inside; a voxel partly inside emits that part.
+        emission = density[..., None] * emission.astype(np.float32)
+    world = np.array(obj.matrix_world, np.float64) @ index_to_local
+    medium = make_medium(obj.name, density, world, extinction, albedo, emission)
     return medium, index_to_local
 
 

@@ -21,11 +21,16 @@ from ...core import kernels
 from ...core.errors import VolumeRefused
 from ...core.outputs.names import inside_folder, unique_components
 from ...core.visibility.directions import direction_set
+from ...core.volume import cache as volume_cache
 from ...core.volume import tables as volume_tables
 from ...core.volume import transport
-from . import compat, extract, volume_io
+from ...core.volume.occluders import Occluders
+from . import compat, device, extract, volume_io
+from .job import visibility_cache
 
 COMBINED_FILE = "volume.vdb"
+# The scattering tables' march step in voxels (core.volume.tables.build_tables).
+TABLE_STEP = 0.5
 
 
 @dataclass
@@ -53,14 +58,38 @@ class VolumeOutcome:
 
 def preferred_threads() -> int:
     """The Threads preference (0: all cores), or 0 where VisiBake is not an enabled add-on."""
-    from . import device
     return int(getattr(device.preferences(), "threads", 0) or 0)
 
 
+def occluder_meshes(scene, volumes: list) -> list[tuple]:
+    """[(positions (n, 3) float64 world, triangles (m, 3) int32, casts_shadow)] of the meshes
+    Cycles renders around ``volumes``: mesh objects and the instances and curves the
+    depsgraph makes (extract.scene_geometry), less the meshes that are themselves media and
+    the objects whose ray visibility hides them from volume scattering and shadows."""
+    ignored: list[str] = []  # the surface bake's own warnings about these meshes do not apply here
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    media = {o.as_pointer() for o in volumes}
+    meshes = []
+    for obj in extract.scene_meshes(scene):
+        if obj.as_pointer() in media or volume_io.is_mesh_volume(obj):
+            continue
+        scatter = bool(getattr(obj, "visible_volume_scatter", True))
+        shadow = bool(getattr(obj, "visible_shadow", True))
+        if not (scatter or shadow):
+            continue
+        mesh = extract.read_mesh(obj, depsgraph, "", (1, 1), False, ignored)
+        meshes.append((mesh.positions, mesh.triangles, shadow))
+    for mesh in extract.scene_geometry(depsgraph, scene, ignored).meshes:
+        meshes.append((mesh.positions, mesh.triangles, mesh.casts_shadow))
+    return meshes
+
+
 def scene_volumes(scene) -> list:
-    """The Volume objects Cycles renders, that VisiBake did not make."""
+    """The media Cycles renders, that VisiBake did not make: Volume objects, and meshes whose
+    material fills them with a Principled Volume (voxelised)."""
     visible = extract.render_visible(scene)
-    return [o for o in scene.objects if volume_io.is_volume_target(o) and o.as_pointer() in visible]
+    return [o for o in scene.objects
+            if (volume_io.is_volume_target(o) or volume_io.is_mesh_volume(o)) and o.as_pointer() in visible]
 
 
 @dataclass
@@ -80,12 +109,15 @@ class VolumeJob:
     ``progress(stage, fraction)`` may raise core.errors.Cancelled; it is called between passes.
     """
 
-    needs_main_thread = False
-
     def __init__(self, scene, objects: list, out_dir: str, resolution: int = 64, directions: int = 64,
                  bounces: int = 1, points: int = 2, seed: int = 0, threads: int = 0,
-                 progress: Callable[[str, float], None] | None = None):
+                 progress: Callable[[str, float], None] | None = None, device_name: str | None = None):
+        """device_name : 'auto', 'gpu' or 'cpu' for the lamps' slice sweeps (the GPU twin,
+        gpu_shaders.volume_sweep); None: the preference. The tables and the bounces run on the
+        CPU kernels."""
         self.scene, self.objects, self.out_dir = scene, list(objects), out_dir
+        self.device_name = device_name
+        self.sweep_pass = None
         self.resolution, self.directions, self.bounces, self.points = resolution, directions, bounces, points
         self.seed, self.threads = int(seed), int(threads)
         self.progress = progress or (lambda stage, fraction: None)
@@ -95,6 +127,9 @@ class VolumeJob:
                        "grids": dict(volume_io.OUTPUT_GRIDS), "warnings": self.warnings}
         self.outcome = VolumeOutcome(self.report)
         self.volumes: list[_Volume] = []
+        self.occluders = None
+        self.meshes: list = []
+        self.cache = None
         self.started = time.perf_counter()
 
     def run(self) -> VolumeOutcome:
@@ -107,9 +142,14 @@ class VolumeJob:
             self.abort()
             raise
 
+    @property
+    def needs_main_thread(self) -> bool:
+        """The GPU sweep needs Blender's GPU context, which only the main thread holds."""
+        return self.sweep_pass is not None
+
     def modal_steps(self) -> list:
-        """(name, step, on a worker thread) for core ModalBake."""
-        return [("read", self.read, False), ("compute", self.compute, True), ("finish", self.finish, False)]
+        """(name, step, on a worker thread; None: unless :attr:`needs_main_thread`) for ModalBake."""
+        return [("read", self.read, False), ("compute", self.compute, None), ("finish", self.finish, False)]
 
     def expected_work(self) -> dict:
         return {}
@@ -122,15 +162,29 @@ class VolumeJob:
             raise VolumeRefused("set an Output Folder (or save the .blend): the baked grids are .vdb files written "
                                 "there")
         self.vdb = compat.openvdb()  # refuses a Blender without the module before any work
+        self.cache = visibility_cache(self.scene)
+        requested = self.device_name or getattr(device.preferences(), "device", "auto") or "auto"
+        choice = device.choose(bpy.context, requested)
+        self.report["device"] = {**choice.report, "passes": "the lamps' slice sweeps" if choice.name == "gpu"
+                                 else "none (every pass on the CPU kernels)"}
+        if choice.name == "gpu":
+            from ...gpu_shaders import volume_sweep
+            self.sweep_pass = volume_sweep.sweep_transmittance
+        self.report["cache"] = self.cache.folder if self.cache is not None else None
         self.lights = [extract.read_light(lamp, self.warnings) for lamp in extract.scene_lights(self.scene)]
         self.world = extract.read_world(self.scene, self.warnings)
-        if extract.scene_meshes(self.scene):
-            self.warnings.append("meshes do not shadow or hide volumes yet: each volume is lit as if alone with "
-                                 "the lamps and the world")
+        self.meshes = meshes = occluder_meshes(self.scene, self.objects)
+        self.occluders = Occluders.from_meshes(meshes, self.threads)
+        self.report["occluders"] = {"meshes": len(meshes),
+                                    "triangles": self.occluders.triangles if self.occluders else 0}
+        if self.occluders is not None:
+            self.warnings.append("meshes shadow the lamps and hide the world from the volumes, but the light they "
+                                 "reflect into a volume is not baked, and the volumes do not shadow them")
         for number, obj in enumerate(self.objects):
             self.progress("read", number / len(self.objects))
             started = time.perf_counter()
-            medium, index_to_local = volume_io.read_medium(obj, self.resolution, self.warnings)
+            read = volume_io.read_mesh_medium if obj.type == "MESH" else volume_io.read_medium
+            medium, index_to_local = read(obj, self.resolution, self.warnings)
             for line in medium.warnings:
                 if line not in self.warnings:
                     self.warnings.append(line)
@@ -156,13 +210,22 @@ class VolumeJob:
 
             share("scattering tables", 0.0)
             started = time.perf_counter()
-            table = volume_tables.build_tables(volume.medium, directions, points=self.points,
-                                               jitter_seed=self.seed, threads=self.threads)
+            def build(volume=volume, share=share):
+                return volume_tables.build_tables(
+                    volume.medium, directions, points=self.points, step=TABLE_STEP, jitter_seed=self.seed,
+                    threads=self.threads, occluders=self.occluders,
+                    progress=lambda fraction: share("scattering tables", 0.5 * fraction))
+
+            table, volume.entry["tables"] = volume_cache.cached_tables(
+                self.cache, volume.obj.name, volume.medium, directions, self.points, TABLE_STEP, self.seed,
+                self.meshes, build, self.warnings)
             volume.entry["seconds"]["tables"] = round(time.perf_counter() - started, 3)
             volume.entry["table_mib"] = round(table.nbytes / 2 ** 20, 2)
             started = time.perf_counter()
-            volume.light = transport.light_medium(volume.medium, table, self.lights, self.world, self.bounces,
-                                                  threads=self.threads, progress=share)
+            volume.light = transport.light_medium(
+                volume.medium, table, self.lights, self.world, self.bounces, threads=self.threads,
+                progress=lambda stage, fraction: share(stage, 0.5 + 0.5 * fraction), occluders=self.occluders,
+                sweep_pass=self.sweep_pass)
             volume.entry["seconds"]["light"] = round(time.perf_counter() - started, 3)
             for line in volume.light.warnings:
                 if line not in self.warnings:

@@ -267,3 +267,97 @@ def test_the_modal_volume_bake_runs_its_tables_on_a_worker_and_a_cancel_leaves_n
             assert modal.error is None and modal.outcome.report["volumes"][0]["output"] == "Cloud (VisiBake)"
             assert (tmp_path / f"out{cancel}" / "Cloud" / "volume.vdb").is_file()
             adapter.volume_io.remove_baked_object(bpy.data.objects["Cloud (VisiBake)"])
+
+
+def roof_over_low_x(name="Roof", casts_shadow=True):
+    """A plane high above the cloud covering native voxel columns x <= 11 (world x < 1.62)."""
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata([(-10.0, -10.0, 5.0), (1.62, -10.0, 5.0), (1.62, 10.0, 5.0), (-10.0, 10.0, 5.0)], [],
+                     [(0, 1, 2, 3)])
+    obj = bpy.data.objects.new(name, mesh)
+    obj.visible_shadow = casts_shadow
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+@pytest.mark.parametrize("casts_shadow", [True, False])
+def test_a_mesh_between_the_sun_and_the_cloud_shadows_it_unless_it_casts_no_shadow(
+        visibake, vdb, cloud_blend, tmp_path, casts_shadow):
+    blend, _ = cloud_blend
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    roof_over_low_x(casts_shadow=casts_shadow)
+    roofed = tmp_path / "roofed.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(roofed), copy=True)
+    out, report_path = tmp_path / "out", tmp_path / "report.json"
+    status = visibake.cli.main(["volume", str(roofed), "--out", str(out), "--resolution", "24", "--directions", "16",
+                                "--bounces", "0", "--report", str(report_path), "--no-progress"])
+    assert status == 0
+    report = json.loads(report_path.read_text())
+    assert report["occluders"] == {"meshes": 1, "triangles": 2}
+    count, low = SIDE - 8, 4
+    direct = read_grid(vdb, out / "Cloud" / "direct.vdb", "direct", (count, count, count, 3))
+    density = read_grid(vdb, out / "Cloud" / "density.vdb", "density", (count, count, count))
+    under = np.arange(count)[:, None, None] + low <= 11
+    shaded = direct[..., 0][under & (density > 0)]
+    sunny = direct[..., 0][~under & (density > 0)]
+    assert sunny.max() > 0.1 * SUN_STRENGTH / (4 * math.pi)
+    if casts_shadow:
+        assert shaded.max() == 0.0
+    else:
+        assert shaded.max() > 0.1 * SUN_STRENGTH / (4 * math.pi)
+
+
+def test_a_second_bake_after_the_sun_changed_reads_the_cached_tables(visibake, vdb, cloud_blend, tmp_path):
+    blend, _ = cloud_blend
+    runs = []
+    for strength in (SUN_STRENGTH, 2 * SUN_STRENGTH):
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        next(o for o in bpy.context.scene.objects if o.type == "LIGHT").data.energy = strength
+        changed = tmp_path / "relit.blend"  # one file, as a user would save it (the cache is per file)
+        bpy.ops.wm.save_as_mainfile(filepath=str(changed), copy=True)
+        out, report_path = tmp_path / f"out{strength}", tmp_path / f"report{strength}.json"
+        status = visibake.cli.main(["volume", str(changed), "--out", str(out), "--resolution", "24",
+                                    "--directions", "16", "--bounces", "1", "--report", str(report_path),
+                                    "--cache-dir", str(tmp_path / "cache"), "--no-progress"])
+        assert status == 0
+        count = SIDE - 8
+        runs.append((json.loads(report_path.read_text()),
+                     read_grid(vdb, out / "Cloud" / "scattered.vdb", "scattered", (count, count, count, 3))))
+    (first, once), (second, twice) = runs
+    assert first["volumes"][0]["tables"] == "built" and second["volumes"][0]["tables"] == "cached"
+    assert first["cache"] == second["cache"] == str(tmp_path / "cache")
+    # The light is linear in the sun: the same tables give exactly twice the light.
+    np.testing.assert_allclose(twice, 2 * once, rtol=1e-5, atol=1e-9)
+    assert once.max() > 0
+
+
+def test_no_cache_builds_the_tables_and_writes_no_cache(visibake, vdb, cloud_blend, tmp_path):
+    blend, _ = cloud_blend
+    report_path = tmp_path / "report.json"
+    status = visibake.cli.main(["volume", str(blend), "--out", str(tmp_path / "out"), "--resolution", "16",
+                                "--directions", "8", "--report", str(report_path), "--cache-dir",
+                                str(tmp_path / "cache"), "--no-cache", "--no-progress"])
+    assert status == 0
+    report = json.loads(report_path.read_text())
+    assert report["volumes"][0]["tables"] == "built" and report["cache"] is None
+    assert not (tmp_path / "cache").exists()
+
+
+def test_the_gpu_sweep_gives_the_cpu_kernel_s_light(visibake, vdb, cloud_blend, tmp_path):
+    """``--device gpu`` runs the lamps' slice sweeps on Blender's gpu module (llvmpipe here);
+    the grids match the CPU kernels' within float32 rounding of the carried depth."""
+    blend, _ = cloud_blend
+    count = SIDE - 8
+    grids, reports = {}, {}
+    for name in ("cpu", "gpu"):
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        report_path = tmp_path / f"report_{name}.json"
+        status = visibake.cli.main(["volume", str(blend), "--out", str(tmp_path / name), "--resolution", "24",
+                                    "--directions", "8", "--bounces", "1", "--device", name, "--no-cache",
+                                    "--report", str(report_path), "--no-progress"])
+        assert status == 0
+        reports[name] = json.loads(report_path.read_text())
+        grids[name] = read_grid(vdb, tmp_path / name / "Cloud" / "scattered.vdb", "scattered", (count, count, count, 3))
+    assert reports["gpu"]["device"]["used"] == "gpu" and reports["cpu"]["device"]["used"] == "cpu"
+    assert grids["cpu"].max() > 0
+    np.testing.assert_allclose(grids["gpu"], grids["cpu"], rtol=1e-4, atol=1e-6 * grids["cpu"].max())
