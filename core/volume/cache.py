@@ -36,12 +36,13 @@ def table_key(medium: Medium, directions: np.ndarray, points: int, step: float, 
     """Hash of what every table entry depends on.
 
     meshes : the occluders as Occluders.from_meshes takes them (positions, triangles, casts
-        shadow); only their geometry is hashed, since a mesh's shadows do not enter the tables
+        shadow[, seen by scattering]); only the geometry that ends table rays is hashed, since
+        a mesh's shadows do not enter the tables
     """
-    geometry = [part for positions, triangles, _ in meshes
-                for part in (np.asarray(positions, np.float64), np.asarray(triangles, np.int32))]
+    seen = [m for m in meshes if len(m) < 4 or m[3]]
+    geometry = [part for m in seen for part in (np.asarray(m[0], np.float64), np.asarray(m[1], np.int32))]
     return arrays_key(FORMAT, medium.density, medium.index_to_world, float(medium.extinction),
-                      np.asarray(directions, np.float64), int(points), float(step), jitter_seed, len(meshes),
+                      np.asarray(directions, np.float64), int(points), float(step), jitter_seed, len(seen),
                       *geometry)
 
 

@@ -19,29 +19,32 @@ from ..visibility.rays import RayScene
 class Occluders:
     """The meshes around a medium, in world space, as embree scenes.
 
-    every : all meshes (they end table rays and hide the world)
+    scattered : the meshes that end table rays and hide the world (Blender's volume scatter
+        visibility), or None
     shadows : the meshes that cast shadows from lamps (Blender's shadow visibility), or None
     triangles : int, how many triangles in all (for the report)
     """
 
-    every: RayScene
+    scattered: RayScene | None
     shadows: RayScene | None
     triangles: int
 
     @staticmethod
     def from_meshes(meshes, threads: int = 0) -> Occluders | None:
-        """``meshes``: [(positions (n, 3) float64 world, triangles (m, 3) int32, casts_shadow bool)].
-        None when there are no triangles."""
-        meshes = [(np.asarray(p, np.float64), np.asarray(t, np.int32), bool(s)) for p, t, s in meshes if len(t)]
+        """``meshes``: [(positions (n, 3) float64 world, triangles (m, 3) int32, casts_shadow bool[,
+        seen_by_scattering bool, default True])]. None when there are no triangles."""
+        meshes = [(np.asarray(m[0], np.float64), np.asarray(m[1], np.int32), bool(m[2]),
+                   bool(m[3]) if len(m) > 3 else True) for m in meshes if len(m[1])]
         if not meshes:
             return None
-        finite = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p, _, _ in meshes])
+        finite = np.concatenate([m[0][np.all(np.isfinite(m[0]), axis=1)] for m in meshes])
         # Embree traces in float32 around this centre (core.visibility.rays.RayScene); NaN
         # vertices (broken modifiers) stay NaN and are never hit.
         centre = 0.5 * (finite.min(axis=0) + finite.max(axis=0)) if len(finite) else np.zeros(3)
-        every = RayScene([(p, t) for p, t, _ in meshes], threads, centre)
-        shadows = every.subset([i for i, (_, _, s) in enumerate(meshes) if s])
-        return Occluders(every, shadows, sum(len(t) for _, t, _ in meshes))
+        every = RayScene([(m[0], m[1]) for m in meshes], threads, centre)
+        shadows = every.subset([i for i, m in enumerate(meshes) if m[2]])
+        scattered = every.subset([i for i, m in enumerate(meshes) if m[3]])
+        return Occluders(scattered, shadows, sum(len(m[1]) for m in meshes))
 
     def lamp_visibility(self, origins: np.ndarray, to_light: np.ndarray, distance: np.ndarray) -> np.ndarray:
         """(K,) float64 1 where no shadow-casting mesh lies between ``origins`` (K, 3) world and
@@ -54,7 +57,9 @@ class Occluders:
 
     def first_hits(self, origins: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """(K,) float64 world distance from each of ``origins`` (K, 3) along the unit world
-        ``direction`` (3,) to the first mesh, inf where none."""
+        ``direction`` (3,) to the first mesh that volume scattering sees, inf where none."""
+        if self.scattered is None:
+            return np.full(len(origins), np.inf)
         directions = np.broadcast_to(np.asarray(direction, np.float32), (len(origins), 3))
-        _, _, _, distance = self.every.intersect(np.asarray(origins, np.float64), directions)
+        _, _, _, distance = self.scattered.intersect(np.asarray(origins, np.float64), directions)
         return distance.astype(np.float64)

@@ -62,7 +62,7 @@ def preferred_threads() -> int:
 
 
 def occluder_meshes(scene, volumes: list) -> list[tuple]:
-    """[(positions (n, 3) float64 world, triangles (m, 3) int32, casts_shadow)] of the meshes
+    """[(positions (n, 3) float64 world, triangles (m, 3) int32, casts_shadow, seen_by_scattering)] of the meshes
     Cycles renders around ``volumes``: mesh objects and the instances and curves the
     depsgraph makes (extract.scene_geometry), less the meshes that are themselves media and
     the objects whose ray visibility hides them from volume scattering and shadows."""
@@ -78,9 +78,9 @@ def occluder_meshes(scene, volumes: list) -> list[tuple]:
         if not (scatter or shadow):
             continue
         mesh = extract.read_mesh(obj, depsgraph, "", (1, 1), False, ignored)
-        meshes.append((mesh.positions, mesh.triangles, shadow))
+        meshes.append((mesh.positions, mesh.triangles, shadow, scatter))
     for mesh in extract.scene_geometry(depsgraph, scene, ignored).meshes:
-        meshes.append((mesh.positions, mesh.triangles, mesh.casts_shadow))
+        meshes.append((mesh.positions, mesh.triangles, mesh.casts_shadow, True))
     return meshes
 
 

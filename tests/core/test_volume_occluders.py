@@ -108,3 +108,17 @@ def test_meshes_that_no_ray_meets_change_nothing_and_chunks_change_nothing(monke
 def test_no_triangles_make_no_occluders():
     assert Occluders.from_meshes([]) is None
     assert Occluders.from_meshes([(np.zeros((0, 3)), np.zeros((0, 3), np.int32), True)]) is None
+
+
+def test_a_mesh_hidden_from_volume_scattering_casts_shadows_but_ends_no_table_ray():
+    medium = slab()
+    positions, triangles, _ = quad(-1.0, 3.0, -1.0, 3.0, 2.0)
+    hidden = Occluders.from_meshes([(positions, triangles, True, False)])
+    assert hidden.scattered is None and hidden.shadows is not None
+    up = np.array([[0.0, 0.0, 1.0]])
+    table = tables.build_tables(medium, up, points=1, occluders=hidden)
+    assert table.sees_world.all()
+    seen = tables.build_tables(medium, up, points=1, occluders=Occluders.from_meshes([(positions, triangles, True)]))
+    assert not seen.sees_world.any()
+    lit = transport.light_medium(medium, table, [overhead_sun()], bounces=0, occluders=hidden)
+    assert lit.direct.max() == 0.0
