@@ -648,11 +648,16 @@ class VisibilityCache:
     def load_volume_tables(self, slot: str, key: str) -> tuple[dict, dict] | None:
         """(header, arrays) of the volume tables in ``slot`` if they were stored under ``key``,
         else None; raises CorruptCache for a file that cannot be trusted (which it removes)."""
-        path = os.path.join(slot, VOLUME_TABLE_FILE)
+        return self._load_keyed(os.path.join(slot, VOLUME_TABLE_FILE), "volume_table", key)
+
+    def _load_keyed(self, path: str, kind: str, key: str) -> tuple[dict, dict] | None:
+        """(header, arrays) of the ``kind`` file at ``path`` if it was stored under ``key``, else
+        None, marked as just used; raises CorruptCache for a file that cannot be trusted, which
+        it removes (unless read-only)."""
         if not os.path.exists(path):
             return None
         try:
-            meta = _read_meta(path, "volume_table")
+            meta = _read_meta(path, kind)
             if meta["key"] != key:
                 return None
             arrays = _read_arrays(path, meta, meta["arrays"])
@@ -684,21 +689,11 @@ class VisibilityCache:
 
     def load_lighting(self, settings: BakeSettings, key: str) -> dict | None:
         """Transport arrays stored under ``key``; None if absent or not trustworthy."""
-        path = self._lighting_path(settings, key)
-        if not os.path.exists(path):
-            return None
         try:
-            meta = _read_meta(path, "lighting")
-            if meta["key"] != key:
-                return None
-            arrays = _read_arrays(path, meta, meta["arrays"])
+            found = self._load_keyed(self._lighting_path(settings, key), "lighting", key)
         except CorruptCache:
-            if not self.read_only:
-                os.remove(path)
             return None
-        if not self.read_only:
-            os.utime(path)  # most recently used, kept longest
-        return arrays
+        return None if found is None else found[1]
 
     def save_lighting(self, settings: BakeSettings, key: str, arrays: dict) -> None:
         if self.read_only:
