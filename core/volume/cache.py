@@ -81,19 +81,19 @@ def from_arrays(arrays: dict, medium: Medium, directions: np.ndarray, points: in
                             None if seed < 0 else seed, sees_world)
 
 
-def cached_tables(cache, scene_label_volume: str, medium: Medium, directions: np.ndarray, points: int,
+def cached_tables(cache, volume_name: str, medium: Medium, directions: np.ndarray, points: int,
                   step: float, jitter_seed: int | None, meshes: list, build, warnings: list[str]):
     """The tables of ``medium`` from ``cache`` (a core.visibility.cache.VisibilityCache, or
     None) when they were stored for the same key, else ``build()`` and stored.
 
-    scene_label_volume : the volume's name as the slot knows it
+    volume_name : the volume's name (its slot is named after it and the table settings)
     build : () -> ScatteringTables
     Returns (tables, how) with how 'cached', 'built' or 'built, not cached'.
     """
     if cache is None:
         return build(), "built"
     seed = -1 if jitter_seed is None else int(jitter_seed)
-    slot = cache.volume_slot(slot_key(scene_label_volume, len(directions), seed, points, step))
+    slot = cache.volume_slot(slot_key(volume_name, len(directions), seed, points, step))
     key = table_key(medium, directions, points, step, jitter_seed, meshes)
     try:
         found = cache.load_volume_tables(slot, key)
@@ -104,7 +104,7 @@ def cached_tables(cache, scene_label_volume: str, medium: Medium, directions: np
                         "they were built again")
     tables = build()
     try:
-        cache.save_volume_tables(slot, key, scene_label_volume, to_arrays(tables))
+        cache.save_volume_tables(slot, key, volume_name, to_arrays(tables))
     except (CacheFull, OSError) as error:
         warnings.append(f"volume {medium.name!r}: its scattering tables were not cached ({error})")
         return tables, "built, not cached"

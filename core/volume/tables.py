@@ -37,6 +37,9 @@ from . import require_kernels
 from .medium import Medium, padded
 
 CODE_MAX = 65535
+# The march step in index units: half a voxel, so that the trapezoid rule samples the
+# trilinear density at twice the grid's rate.
+STEP = 0.5
 # Tables above this many bytes are refused with the size and what to lower.
 MAX_TABLE_BYTES = 8 << 30
 
@@ -102,7 +105,7 @@ def table_bytes(voxels: int, directions: int, points: int, meshes: bool = False)
 MESH_RAYS_PER_CHUNK = 1 << 23
 
 
-def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: float = 0.5,
+def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: float = STEP,
                  jitter_seed: int | None = 0, threads: int = 0, occluders=None,
                  progress=None) -> ScatteringTables:
     """March every active voxel's ray along every direction (core.kernels.volume_kernels.scatter_table).

@@ -8,7 +8,7 @@ direction, so an emission-absorption volume with that emission and the same exti
 renders the scattered look (FORMATS.md, "Rendering baked light").
 
     S_0(x) = sum over lamps of E(x) T(x) / (4 pi)                      lamps (core.volume.direct)
-           + 1/N sum_i escape_i(x) L_world(d_i)                         the world
+           + 1/N sum_i escape_i(x) L_world(d_i)                         the world (rays no mesh ends)
            + 1/N sum_i (1 - escape_i(x)) <emission / sigma_t>_i(x)      the medium's own emission
     S_k+1(x) = 1/N sum_i (1 - escape_i(x)) <albedo S_k>_i(x)            one bounce
 

@@ -29,8 +29,6 @@ from . import compat, device, extract, volume_io
 from .job import visibility_cache
 
 COMBINED_FILE = "volume.vdb"
-# The scattering tables' march step in voxels (core.volume.tables.build_tables).
-TABLE_STEP = 0.5
 
 
 @dataclass
@@ -212,12 +210,12 @@ class VolumeJob:
             started = time.perf_counter()
             def build(volume=volume, share=share):
                 return volume_tables.build_tables(
-                    volume.medium, directions, points=self.points, step=TABLE_STEP, jitter_seed=self.seed,
+                    volume.medium, directions, points=self.points, step=volume_tables.STEP, jitter_seed=self.seed,
                     threads=self.threads, occluders=self.occluders,
                     progress=lambda fraction: share("scattering tables", 0.5 * fraction))
 
             table, volume.entry["tables"] = volume_cache.cached_tables(
-                self.cache, volume.obj.name, volume.medium, directions, self.points, TABLE_STEP, self.seed,
+                self.cache, volume.obj.name, volume.medium, directions, self.points, volume_tables.STEP, self.seed,
                 self.meshes, build, self.warnings)
             volume.entry["seconds"]["tables"] = round(time.perf_counter() - started, 3)
             volume.entry["table_mib"] = round(table.nbytes / 2 ** 20, 2)
