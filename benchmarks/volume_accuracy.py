@@ -38,7 +38,7 @@ from core.scene import Light  # noqa: E402
 from core.visibility.directions import direction_set  # noqa: E402
 from core.volume import direct, tables, transport  # noqa: E402
 from core.volume.medium import make_medium  # noqa: E402
-from core.volume.occluders import Occluders  # noqa: E402
+from core.volume.occluders import Occluders, SurfaceMesh  # noqa: E402
 
 SUN_DIRECTION = np.array([0.3, 0.45, -0.84]) / np.linalg.norm([0.3, 0.45, -0.84])
 SUN_IRRADIANCE = 3.0
@@ -125,15 +125,14 @@ def reference_bounce(medium, probes: np.ndarray, paths: int, seed: int = 1):
 
 def floor_mesh(side: int = 100, height: float = -0.05, low=(-1.0, -1.0), high=(2.0, 2.0)):
     """A horizontal grid of ``side``^2 quads (2 side^2 triangles) over [low, high] in x and y at
-    ``height`` (by default a floor under the cloud's unit cube), as
-    core.volume.occluders.Occluders.from_meshes takes it."""
+    ``height`` (by default a floor under the cloud's unit cube), grey (albedo 0.5)."""
     u, v = np.meshgrid(np.linspace(low[0], high[0], side + 1), np.linspace(low[1], high[1], side + 1),
                        indexing="ij")
     positions = np.stack([u.ravel(), v.ravel(), np.full(u.size, height)], axis=1)
     index = np.arange((side + 1) ** 2).reshape(side + 1, side + 1)
     a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
     triangles = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int32)
-    return positions, triangles, True
+    return SurfaceMesh(positions, triangles, albedo=np.full((len(triangles), 3), 0.5, np.float32))
 
 
 def main() -> int:
@@ -186,8 +185,13 @@ def main() -> int:
     directions = direction_set(64, rotate=True, seed=3)
     timings["tables_64_m1_s"], table = timed(lambda: tables.build_tables(medium, directions, points=1), repeats=1)
     timings["tables_64_m2_s"], table_m2 = timed(lambda: tables.build_tables(medium, directions), repeats=1)
-    timings["tables_64_m2_with_floor_s"], _ = timed(
+    timings["tables_64_m2_with_floor_s"], floored = timed(
         lambda: tables.build_tables(medium, directions, occluders=floor), repeats=1)
+    # The floor's light: a shadow ray and a march through the cloud per table ray that ends at it.
+    timings["direct_with_floor_s"], _ = timed(
+        lambda: transport.light_medium(medium, floored, [sun], bounces=0, occluders=floor), repeats=1)
+    record["rays_ending_at_the_floor"] = int((~floored.sees_world).sum())
+    floored = None
     record["table_mib"] = round(table_m2.nbytes / 2 ** 20, 1)
     timings["direct_s"], _ = timed(lambda: transport.light_medium(medium, table, [sun], bounces=0), repeats=1)
     timings["one_bounce_gather_m1_s"], _ = timed(
@@ -198,7 +202,8 @@ def main() -> int:
     print(json.dumps(record["timings"]), flush=True)
     if options.timings:
         print(json.dumps({key: record.get(key) for key in ("active_voxels", "active_voxels_256",
-                                                           "voxels_under_the_roof_share", "floor_triangles")}))
+                                                           "voxels_under_the_roof_share", "floor_triangles",
+                                                           "rays_ending_at_the_floor")}))
         return 0
 
     rng = np.random.default_rng(5)

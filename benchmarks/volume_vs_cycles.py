@@ -8,6 +8,10 @@ unit cube) with a Principled Volume (Density ``--density``, colour 0.9), a sun o
 own resolution, once per count in ``--directions``, with ``--bounces``; Cycles' volume
 bounces are set to the same count.
 
+With ``--floor``, a grey floor under the cloud: the sun lights it, the cloud shadows it, and
+its reflection lights the cloud from below (VisiBake bakes that reflection, first order). It
+is a real mesh in both renders; only the pixels the cloud covers are compared.
+
 Error: relative RMSE over the pixels the cloud covers, of the baked render against the
 path-traced one. Both renders are noisy (Cycles marches the baked volume stochastically too),
 so each is rendered twice with two seeds: its noise is the RMSE of the difference over sqrt 2,
@@ -26,7 +30,8 @@ K - 1 times; in a session the kernels stay loaded). Neither
 side counts rendering the result for viewing: Cycles' image is its result, the bake's grids
 render in EEVEE at once, or in Cycles at the ``cycles_baked_render_seconds`` given.
 
-    .venv/bin/python benchmarks/volume_vs_cycles.py [--side 64] [--directions 64,256] [--bounces 1] [--out DIR]
+    .venv/bin/python benchmarks/volume_vs_cycles.py [--side 64] [--directions 64,256] [--bounces 1] [--floor]
+        [--out DIR]
 
 Writes DIR/volume_vs_cycles.json (default benchmarks/results/) and the EXRs beside it.
 """
@@ -47,7 +52,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SIZE = 64
 
 
-def build_scene(folder: str, density: float, side: int) -> str:
+def build_scene(folder: str, density: float, side: int, floor: bool = False) -> str:
     import bpy
 
     if hasattr(bpy.utils, "expose_bundled_modules"):
@@ -89,6 +94,17 @@ def build_scene(folder: str, density: float, side: int) -> str:
     world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
     scene.world = world
+    if floor:
+        # A grey floor just under the sphere (density zero below z = -0.375): the sun lights it,
+        # the cloud shadows it, and it lights the cloud from below.
+        mesh = bpy.data.meshes.new("Floor")
+        mesh.from_pydata([(-10, -10, -0.42), (10, -10, -0.42), (10, 10, -0.42), (-10, 10, -0.42)], [], [(0, 1, 2, 3)])
+        grey = bpy.data.materials.new("Grey")
+        grey.use_nodes = True
+        grey.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+        grey.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
+        mesh.materials.append(grey)
+        scene.collection.objects.link(bpy.data.objects.new("Floor", mesh))
     camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     camera.location = (0.0, -3.0, 0.0)
     camera.rotation_euler = (math.radians(90), 0.0, 0.0)
@@ -99,7 +115,8 @@ def build_scene(folder: str, density: float, side: int) -> str:
     return path
 
 
-def render(blend: str, which: str, bounces: int, samples: int, seed: int, path: str) -> tuple[np.ndarray, float]:
+def render(blend: str, which: str, bounces: int, samples: int, seed: int, path: str,
+           hide: tuple = ()) -> tuple[np.ndarray, float]:
     import bpy
 
     bpy.ops.wm.open_mainfile(filepath=blend)
@@ -115,6 +132,8 @@ def render(blend: str, which: str, bounces: int, samples: int, seed: int, path: 
     scene.cycles.seed = seed
     source, baked = bpy.data.objects["Cloud"], bpy.data.objects["Cloud (VisiBake)"]
     (source if which == "baked" else baked).hide_render = True
+    for name in hide:
+        bpy.data.objects[name].hide_render = True
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.filepath = path
     started = time.perf_counter()
@@ -167,12 +186,14 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=1024, help="Cycles samples of the path-traced volume")
     parser.add_argument("--baked-samples", type=int, default=256, help="Cycles samples of the baked volume")
     parser.add_argument("--lightings", default="1,16", help="lighting counts for the time at equal error")
+    parser.add_argument("--floor", action="store_true",
+                        help="a grey floor under the cloud (it shadows, and lights the cloud from below)")
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results"))
     options = parser.parse_args()
     folder = os.path.abspath(os.path.join(options.out, "volume_vs_cycles"))
     os.makedirs(folder, exist_ok=True)
     sys.path.insert(0, ROOT)
-    blend = build_scene(folder, options.density, options.side)
+    blend = build_scene(folder, options.density, options.side, options.floor)
     record = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
               "settings": vars(options), "bakes": []}
@@ -203,6 +224,11 @@ def main() -> int:
             again, _ = render(baked_blend, "source", options.bounces, options.samples, 7,
                               os.path.join(folder, "cycles_2.exr"))
             covered = traced.mean(axis=-1) > 0.01 * traced.max()
+            if options.floor:
+                # The cloud's pixels only: the floor around it is the same mesh in both renders.
+                alone, _ = render(baked_blend, "baked", options.bounces, 16, 0, os.path.join(folder, "mask.exr"),
+                                  hide=("Floor",))
+                covered = alone.mean(axis=-1) > 0.01 * alone.max()
             scale = traced[covered].mean()
             noise = float(np.sqrt(((traced - again)[covered] ** 2).mean()) / scale / np.sqrt(2))
             quarter, quarter_seconds = render(baked_blend, "source", options.bounces, options.samples // 4, 3,

@@ -410,6 +410,52 @@ def gather_volume(source, active, directions, distance_codes, escape_codes, dist
             result[v, 2] /= count
 
 
+@nb.njit(**KERNEL_OPTIONS)
+def march_transmittance(density, points, directions, lengths, world_per_index, extinction, step, out):
+    """Transmittance through the medium along K index-space segments, marched in ``step``
+    index units with the trapezoid rule, from where each enters the box [-1, n] (the density
+    is zero outside it) to where it leaves it or ends.
+
+    density : (X, Y, Z) float32 padded; points : (K, 3) float64 starts; directions : (K, 3)
+    float64 unit; lengths : (K,) float64 index units (inf: unbounded, a sun);
+    world_per_index : (K,) float64 world length of an index unit along each; extinction,
+    step : float64. Output out (K,) float64.
+    """
+    limit_x = float(density.shape[0] - 3)
+    limit_y = float(density.shape[1] - 3)
+    limit_z = float(density.shape[2] - 3)
+    for q in nb.prange(points.shape[0]):
+        x = points[q, 0]
+        y = points[q, 1]
+        z = points[q, 2]
+        ux = directions[q, 0]
+        uy = directions[q, 1]
+        uz = directions[q, 2]
+        near = 0.0
+        far = lengths[q]
+        for start, unit, limit in ((x, ux, limit_x), (y, uy, limit_y), (z, uz, limit_z)):
+            if unit != 0.0:
+                a = (-1.0 - start) / unit
+                b = (limit - start) / unit
+                near = max(near, min(a, b))
+                far = min(far, max(a, b))
+            elif start < -1.0 or start > limit:
+                far = -1.0
+        depth = 0.0
+        if far > near:
+            travelled = near
+            before = trilinear(density, x + ux * near, y + uy * near, z + uz * near)
+            while travelled < far:
+                length = min(step, far - travelled)
+                travelled += length
+                after = trilinear(density, x + ux * travelled, y + uy * travelled, z + uz * travelled)
+                depth += 0.5 * length * (before + after)
+                before = after
+                if depth * extinction * world_per_index[q] > ESCAPE_BEYOND:
+                    break
+        out[q] = np.exp(-depth * extinction * world_per_index[q])
+
+
 def warm_up() -> None:
     """Compile (or read from the cache) each kernel for the dtypes its callers pass, so that
     no call during a bake compiles (core.kernels.volume times this)."""
@@ -427,5 +473,7 @@ def warm_up() -> None:
     for blocked in (np.zeros((0, 0), np.float32), np.full((1, 1), np.inf, np.float32)):
         scatter_table(density, active, directions, np.ones(1), 1.0, 1.0, 1, np.int64(-1), 1.0, BLOCK, blocked,
                       np.int64(0), codes, escape)
+    march_transmittance(density, np.zeros((1, 3)), directions, np.full(1, np.inf), np.ones(1), 1.0, 0.5,
+                        np.zeros(1))
     gather_volume(np.zeros((4, 4, 4, 4), np.float32), active, directions, codes, escape, 1.0, BLOCK,
                   np.zeros((1, 3)))

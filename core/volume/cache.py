@@ -18,6 +18,7 @@ import numpy as np
 
 from ..visibility.cache import CacheFull, CorruptCache, arrays_key
 from .medium import Medium
+from .occluders import SurfaceMesh
 from .tables import ScatteringTables
 
 # Bump whenever a stored array's meaning changes (the kernels' codes, the hash of points).
@@ -35,12 +36,11 @@ def table_key(medium: Medium, directions: np.ndarray, points: int, step: float, 
               meshes: list) -> str:
     """Hash of what every table entry depends on.
 
-    meshes : the occluders as Occluders.from_meshes takes them (positions, triangles, casts
-        shadow[, seen by scattering]); only the geometry that ends table rays is hashed, since
-        a mesh's shadows do not enter the tables
+    meshes : the occluders as Occluders.from_meshes takes them; only the geometry that ends
+        table rays is hashed, since a mesh's shadows and colours do not enter the tables
     """
-    seen = [m for m in meshes if len(m) < 4 or m[3]]
-    geometry = [part for m in seen for part in (np.asarray(m[0], np.float64), np.asarray(m[1], np.int32))]
+    seen = [m for m in map(SurfaceMesh.of, meshes) if m.seen_by_scattering]
+    geometry = [part for m in seen for part in (np.asarray(m.positions, np.float64), np.asarray(m.triangles, np.int32))]
     return arrays_key(FORMAT, medium.density, medium.index_to_world, float(medium.extinction),
                       np.asarray(directions, np.float64), int(points), float(step), jitter_seed, len(seen),
                       *geometry)

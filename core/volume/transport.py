@@ -9,6 +9,8 @@ renders the scattered look (FORMATS.md, "Rendering baked light").
 
     S_0(x) = sum over lamps of E(x) T(x) / (4 pi)                      lamps (core.volume.direct)
            + 1/N sum_i escape_i(x) L_world(d_i)                         the world (rays no mesh ends)
+           + 1/N sum_i escape_i(x) L_mesh(hit_i)                        meshes (rays a mesh ends;
+                                                                        core.volume.occluders)
            + 1/N sum_i (1 - escape_i(x)) <emission / sigma_t>_i(x)      the medium's own emission
     S_k+1(x) = 1/N sum_i (1 - escape_i(x)) <albedo S_k>_i(x)            one bounce
 
@@ -32,6 +34,7 @@ from ..scene import Light, World
 from . import require_kernels
 from .direct import lamp_inscatter
 from .medium import Medium, padded
+from .occluders import reflected_light
 from .tables import ScatteringTables
 
 
@@ -86,7 +89,9 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
     voxels through the tables' escaping fractions (and only along rays no mesh ends, when
     the tables were built with meshes). ``progress(stage, fraction)`` is called between
     passes and may raise core.errors.Cancelled.
-    occluders : core.volume.occluders.Occluders, the meshes that shadow the lamps, or None
+    occluders : core.volume.occluders.Occluders, the meshes that shadow the lamps and, where
+        the tables were built with them, send their emission and reflected lamp light back
+        into the medium; or None
     sweep_pass : the medium's transmittance sweep (core.volume.direct.transmittance)
     """
     if bounces < 0:
@@ -99,7 +104,8 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
     direct = np.zeros((len(voxels), 3))
     world_suns = list(getattr(world, "suns", None) or []) if world is not None else []
     usable = usable_lights(list(lights) + world_suns, warnings)
-    steps = len(usable) + 2 + bounces
+    reflecting = occluders is not None and tables.sees_world is not None
+    steps = len(usable) + 2 + int(reflecting) + bounces
     done = 0
 
     def report(stage: str) -> None:
@@ -116,6 +122,9 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
         radiance = world_radiance(world, tables.directions)
         direct += (radiance.astype(np.float32).T @ tables.world_escape()).T.astype(np.float64) / len(tables.directions)
     report("world light")
+    if reflecting:
+        direct += reflected_light(medium, tables, occluders, usable, area_light_samples, threads)
+        report("light from meshes")
     if medium.emission is not None and medium.extinction > 0:
         direct += gather(medium, tables, medium.emission[tuple(voxels.T)] / medium.extinction, threads)
     report("emission")

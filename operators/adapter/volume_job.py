@@ -24,7 +24,7 @@ from ...core.visibility.directions import direction_set
 from ...core.volume import cache as volume_cache
 from ...core.volume import tables as volume_tables
 from ...core.volume import transport
-from ...core.volume.occluders import Occluders
+from ...core.volume.occluders import Occluders, SurfaceMesh
 from . import compat, device, extract, volume_io
 from .job import visibility_cache
 
@@ -59,11 +59,23 @@ def preferred_threads() -> int:
     return int(getattr(device.preferences(), "threads", 0) or 0)
 
 
-def occluder_meshes(scene, volumes: list) -> list[tuple]:
-    """[(positions (n, 3) float64 world, triangles (m, 3) int32, casts_shadow, seen_by_scattering)] of the meshes
-    Cycles renders around ``volumes``: mesh objects and the instances and curves the
-    depsgraph makes (extract.scene_geometry), less the meshes that are themselves media and
-    the objects whose ray visibility hides them from volume scattering and shadows."""
+def _surface(mesh, casts_shadow: bool, seen_by_scattering: bool) -> SurfaceMesh:
+    """A core.scene.Mesh as the volume sees it: its triangles' albedo and emission from their
+    materials (an image texture's mean colour where the material has one)."""
+    albedo = np.array([np.asarray(m.base_color_texture, np.float64).reshape(-1, 3).mean(axis=0)
+                       if m.base_color_texture is not None and np.size(m.base_color_texture) else m.base_color
+                       for m in mesh.materials] or [np.full(3, 0.8)], np.float32)
+    emission = np.array([m.emission for m in mesh.materials] or [np.zeros(3)], np.float32)
+    index = np.clip(mesh.material_index, 0, len(albedo) - 1)
+    return SurfaceMesh(mesh.positions, mesh.triangles, casts_shadow, seen_by_scattering,
+                       np.clip(albedo[index], 0.0, 1.0), emission[index] if emission.any() else None)
+
+
+def occluder_meshes(scene, volumes: list) -> list[SurfaceMesh]:
+    """The meshes Cycles renders around ``volumes`` (core.volume.occluders.SurfaceMesh): mesh
+    objects and the instances and curves the depsgraph makes (extract.scene_geometry), less
+    the meshes that are themselves media and the objects whose ray visibility hides them
+    from volume scattering and shadows."""
     ignored: list[str] = []  # the surface bake's own warnings about these meshes do not apply here
     depsgraph = bpy.context.evaluated_depsgraph_get()
     media = {o.as_pointer() for o in volumes}
@@ -75,10 +87,9 @@ def occluder_meshes(scene, volumes: list) -> list[tuple]:
         shadow = bool(getattr(obj, "visible_shadow", True))
         if not (scatter or shadow):
             continue
-        mesh = extract.read_mesh(obj, depsgraph, "", (1, 1), False, ignored)
-        meshes.append((mesh.positions, mesh.triangles, shadow, scatter))
+        meshes.append(_surface(extract.read_mesh(obj, depsgraph, "", (1, 1), False, ignored), shadow, scatter))
     for mesh in extract.scene_geometry(depsgraph, scene, ignored).meshes:
-        meshes.append((mesh.positions, mesh.triangles, mesh.casts_shadow, True))
+        meshes.append(_surface(mesh, mesh.casts_shadow, True))
     return meshes
 
 
@@ -176,8 +187,10 @@ class VolumeJob:
         self.report["occluders"] = {"meshes": len(meshes),
                                     "triangles": self.occluders.triangles if self.occluders else 0}
         if self.occluders is not None:
-            self.warnings.append("meshes shadow the lamps and hide the world from the volumes, but the light they "
-                                 "reflect into a volume is not baked, and the volumes do not shadow them")
+            self.warnings.append("meshes light the volumes with their emission and the lamp light they reflect "
+                                 "(diffuse, each triangle's base colour, first order); the world light and the "
+                                 "volume's light they reflect are left out, and the volumes do not shadow the "
+                                 "meshes' own bake")
         for number, obj in enumerate(self.objects):
             self.progress("read", number / len(self.objects))
             started = time.perf_counter()

@@ -361,3 +361,37 @@ def test_the_gpu_sweep_gives_the_cpu_kernel_s_light(visibake, vdb, cloud_blend, 
     assert reports["gpu"]["device"]["used"] == "gpu" and reports["cpu"]["device"]["used"] == "cpu"
     assert grids["cpu"].max() > 0
     np.testing.assert_allclose(grids["gpu"], grids["cpu"], rtol=1e-4, atol=1e-6 * grids["cpu"].max())
+
+
+def test_a_white_floor_under_the_cloud_lights_its_underside(visibake, vdb, cloud_blend, tmp_path):
+    """The sun lights a white floor below the cloud, and the floor's reflection reaches the
+    cloud from below: its lowest voxels get more light than without the floor, its top ones
+    (which the floor reaches through the cloud, or past it at grazing angles) less."""
+    blend, _ = cloud_blend
+    count = SIDE - 8
+    grids = {}
+    for name in ("alone", "floored"):
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        if name == "floored":
+            mesh = bpy.data.meshes.new("Floor")
+            mesh.from_pydata([(-20, -20, 1.0), (20, -20, 1.0), (20, 20, 1.0), (-20, 20, 1.0)], [], [(0, 1, 2, 3)])
+            material = bpy.data.materials.new("White")
+            material.diffuse_color = (1.0, 1.0, 1.0, 1.0)
+            compat = importlib.import_module(extension_module_name() + ".operators.adapter.compat")
+            compat.ensure_node_tree(material)
+            material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+            mesh.materials.append(material)
+            bpy.context.scene.collection.objects.link(bpy.data.objects.new("Floor", mesh))
+        changed = tmp_path / f"{name}.blend"
+        bpy.ops.wm.save_as_mainfile(filepath=str(changed), copy=True)
+        status = visibake.cli.main(["volume", str(changed), "--out", str(tmp_path / name), "--resolution", "24",
+                                    "--directions", "32", "--bounces", "0", "--no-progress"])
+        assert status == 0
+        grids[name] = read_grid(vdb, tmp_path / name / "Cloud" / "direct.vdb", "direct", (count, count, count, 3))
+    column = count // 2
+    bottom, top = 0, count - 1  # native z 4 and 19: world z 1.6 and 3.1 (the floor is at z 1)
+    gained = grids["floored"][column, column, :, 0] - grids["alone"][column, column, :, 0]
+    assert gained.min() >= -1e-7
+    # The floor's radiance is 3 / pi under the sun; the bottom voxel sees it over about half its sky.
+    assert gained[bottom] > 0.1 * 3.0 / np.pi / 2
+    assert gained[top] < 0.5 * gained[bottom]

@@ -122,3 +122,64 @@ def test_a_mesh_hidden_from_volume_scattering_casts_shadows_but_ends_no_table_ra
     assert not seen.sees_world.any()
     lit = transport.light_medium(medium, table, [overhead_sun()], bounces=0, occluders=hidden)
     assert lit.direct.max() == 0.0
+
+
+def floor(z, albedo=None, emission=None, flipped=False, side=20.0):
+    """A large square floor at height ``z`` (two triangles), facing up (or down when ``flipped``)."""
+    from core.volume.occluders import SurfaceMesh
+
+    positions = np.array([[-side, -side, z], [side, -side, z], [side, side, z], [-side, side, z]])
+    triangles = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    if flipped:
+        triangles = triangles[:, ::-1].copy()
+    return SurfaceMesh(positions, triangles, True, True,
+                       None if albedo is None else np.full((2, 3), albedo, np.float32),
+                       None if emission is None else np.full((2, 3), emission, np.float32))
+
+
+@pytest.mark.parametrize("flipped", [False, True])
+def test_a_lit_floor_under_a_cloud_sends_back_its_lamp_light_through_the_cloud_s_shadow(flipped):
+    # A cloud over a grey floor, a sun straight down: every table ray that ends at the floor
+    # brings its escaping fraction times albedo / pi times the sun's irradiance at the hit,
+    # which the cloud shadows. The expected value marches that shadow with the independent
+    # reference (benchmarks/volume_reference.py); only the table's own escaping fractions are
+    # taken from the code under test.
+    from benchmarks.volume_reference import segment_transmittance
+
+    medium = make_medium("cloud", np.random.default_rng(2).uniform(0.5, 1.5, (10, 9, 8)), TO_WORLD, extinction=4.0)
+    ground = Occluders.from_meshes([floor(-0.35, albedo=0.5, flipped=flipped)])
+    directions = direction_set(24, rotate=True, seed=4)
+    table = tables.build_tables(medium, directions, points=2, occluders=ground)
+    sun = overhead_sun()
+    lit = transport.light_medium(medium, table, [sun], bounces=0, occluders=ground)
+    alone = transport.light_medium(medium, table, [sun], bounces=0)
+    reflected = (lit.direct - alone.direct)[tuple(table.voxels.T)][:, 0]
+
+    expected = np.zeros(len(table.voxels))
+    origins = medium.world_positions(table.voxels)
+    for d, direction in enumerate(directions):
+        if direction[2] >= 0:
+            assert table.sees_world[d].all()
+            continue
+        hits = origins + ((-0.35 - origins[:, 2]) / direction[2])[:, None] * direction
+        starts = medium.to_index(hits)
+        shadow = segment_transmittance(medium.density, medium.linear, medium.extinction, starts,
+                                       starts + np.array([0.0, 0.0, 40.0]))
+        expected += table.escape()[d] * 0.5 / np.pi * sun.strength * shadow
+    expected /= len(directions)
+    assert expected.max() > 0.01 and expected.min() < 0.5 * expected.max()  # the cloud's shadow shows
+    np.testing.assert_allclose(reflected, expected, rtol=2e-3, atol=1e-4 * expected.max())
+
+
+def test_an_emitting_floor_under_a_thin_medium_fills_the_lower_half_of_every_voxel_s_sky():
+    # Nearly transparent medium, a floor of radiance 2 below it, no lamps: each voxel sees the
+    # floor over the lower hemisphere, so its in-scattered radiance (the sphere's mean) is 1,
+    # up to the direction set's sampling of the two halves (24 directions) and the transmittance.
+    medium = make_medium("haze", np.ones((6, 6, 6)), TO_WORLD, extinction=1e-3)
+    glow = Occluders.from_meshes([floor(-0.2, emission=2.0)])
+    directions = direction_set(24, rotate=True, seed=4)
+    table = tables.build_tables(medium, directions, points=1, occluders=glow)
+    lit = transport.light_medium(medium, table, [], None, bounces=0, occluders=glow)
+    downward = np.mean(directions[:, 2] < 0)
+    np.testing.assert_allclose(lit.direct[..., 0], 2.0 * downward, rtol=2e-3)
+    assert abs(downward - 0.5) < 0.1
