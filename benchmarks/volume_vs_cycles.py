@@ -99,10 +99,15 @@ def build_scene(folder: str, density: float, side: int, floor: bool = False) -> 
         # the cloud shadows it, and it lights the cloud from below.
         mesh = bpy.data.meshes.new("Floor")
         mesh.from_pydata([(-10, -10, -0.42), (10, -10, -0.42), (10, 10, -0.42), (-10, 10, -0.42)], [], [(0, 1, 2, 3)])
+        # A Diffuse BSDF (Lambert, as VisiBake reflects): a Principled BSDF's specular layer
+        # takes about a tenth of the light from its diffuse part.
         grey = bpy.data.materials.new("Grey")
         grey.use_nodes = True
-        grey.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.8, 0.8, 0.8, 1.0)
-        grey.node_tree.nodes["Principled BSDF"].inputs["Roughness"].default_value = 1.0
+        nodes = grey.node_tree.nodes
+        nodes.remove(nodes["Principled BSDF"])
+        diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+        diffuse.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+        grey.node_tree.links.new(diffuse.outputs[0], nodes["Material Output"].inputs["Surface"])
         mesh.materials.append(grey)
         scene.collection.objects.link(bpy.data.objects.new("Floor", mesh))
     camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))

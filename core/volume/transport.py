@@ -9,10 +9,13 @@ renders the scattered look (FORMATS.md, "Rendering baked light").
 
     S_0(x) = sum over lamps of E(x) T(x) / (4 pi)                      lamps (core.volume.direct)
            + 1/N sum_i escape_i(x) L_world(d_i)                         the world (rays no mesh ends)
-           + 1/N sum_i escape_i(x) L_mesh(hit_i)                        meshes (rays a mesh ends;
-                                                                        core.volume.occluders)
            + 1/N sum_i (1 - escape_i(x)) <emission / sigma_t>_i(x)      the medium's own emission
     S_k+1(x) = 1/N sum_i (1 - escape_i(x)) <albedo S_k>_i(x)            one bounce
+             + [k = 0] 1/N sum_i escape_i(x) L_mesh(hit_i)              meshes (rays a mesh ends;
+                                                                        core.volume.occluders)
+
+The meshes' light joins the first bounce because Cycles counts it so: a path reaches a mesh
+only by leaving a scattering point, which is a volume bounce.
 
 where <f>_i(x) is the mean of f over the ray's stored scattering points, each read as a
 density-weighted trilinear interpolation (core.kernels.volume_kernels.gather_volume).
@@ -104,7 +107,13 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
     direct = np.zeros((len(voxels), 3))
     world_suns = list(getattr(world, "suns", None) or []) if world is not None else []
     usable = usable_lights(list(lights) + world_suns, warnings)
-    reflecting = occluders is not None and tables.sees_world is not None
+    # Light from meshes reaches a voxel after its path has left a scattering point once: Cycles
+    # counts it as one volume bounce (measured: with it in the direct light, one bounce came
+    # out 10% brighter than Cycles' one volume bounce over a floor), so it joins the first bounce.
+    reflecting = occluders is not None and tables.sees_world is not None and bounces > 0
+    if occluders is not None and tables.sees_world is not None and bounces == 0:
+        warnings.append("the light the meshes send into the volumes counts as a bounce (as in Cycles): with 0 "
+                        "bounces it is left out")
     steps = len(usable) + 2 + int(reflecting) + bounces
     done = 0
 
@@ -122,8 +131,9 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
         radiance = world_radiance(world, tables.directions)
         direct += (radiance.astype(np.float32).T @ tables.world_escape()).T.astype(np.float64) / len(tables.directions)
     report("world light")
+    from_meshes = None
     if reflecting:
-        direct += reflected_light(medium, tables, occluders, usable, area_light_samples, threads)
+        from_meshes = reflected_light(medium, tables, occluders, usable, area_light_samples, threads)
         report("light from meshes")
     if medium.emission is not None and medium.extinction > 0:
         direct += gather(medium, tables, medium.emission[tuple(voxels.T)] / medium.extinction, threads)
@@ -134,6 +144,8 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
     previous = direct
     for bounce in range(bounces):
         previous = gather(medium, tables, albedo * previous, threads)
+        if bounce == 0 and from_meshes is not None:
+            previous += from_meshes
         indirect += previous
         means.append(previous.mean(axis=0) if len(previous) else np.zeros(3))
         report(f"bounce {bounce + 1}")
