@@ -38,7 +38,7 @@ from core.scene import Light  # noqa: E402
 from core.visibility.directions import direction_set  # noqa: E402
 from core.volume import direct, tables, transport  # noqa: E402
 from core.volume.medium import make_medium  # noqa: E402
-from core.volume.occluders import Occluders, SurfaceMesh  # noqa: E402
+from core.volume.occluders import Occluders, SurfaceMesh, reflected_light  # noqa: E402
 
 SUN_DIRECTION = np.array([0.3, 0.45, -0.84]) / np.linalg.norm([0.3, 0.45, -0.84])
 SUN_IRRADIANCE = 3.0
@@ -188,8 +188,7 @@ def main() -> int:
     timings["tables_64_m2_with_floor_s"], floored = timed(
         lambda: tables.build_tables(medium, directions, occluders=floor), repeats=1)
     # The floor's light: a shadow ray and a march through the cloud per table ray that ends at it.
-    timings["direct_with_floor_s"], _ = timed(
-        lambda: transport.light_medium(medium, floored, [sun], bounces=0, occluders=floor), repeats=1)
+    timings["floor_light_s"], _ = timed(lambda: reflected_light(medium, floored, floor, [sun]), repeats=1)
     record["rays_ending_at_the_floor"] = int((~floored.sees_world).sum())
     floored = None
     record["table_mib"] = round(table_m2.nbytes / 2 ** 20, 1)
