@@ -15,10 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import kernels
+from ..geometry import face_normals
 from ..visibility.rays import RayScene
 from . import require_kernels
 from .medium import Medium, padded
-from .tables import CODE_MAX
+from .tables import CODE_MAX, STEP
 
 
 @dataclass
@@ -103,14 +104,6 @@ class Occluders:
         return geometry, triangle, distance.astype(np.float64)
 
 
-def _face_normals(surface: SurfaceMesh, triangles: np.ndarray) -> np.ndarray:
-    """(K, 3) float64 unit geometric normals of ``triangles`` (K,) of ``surface``."""
-    corners = surface.positions[surface.triangles[triangles]]
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    return normal / np.maximum(length, 1e-300)
-
-
 def reflected_light(medium: Medium, tables, occluders: Occluders | None, lights: list, area_light_samples: int = 4,
                     threads: int = 0) -> np.ndarray:
     """In-scattered radiance from the meshes that the table rays end at.
@@ -147,7 +140,7 @@ def reflected_light(medium: Medium, tables, occluders: Occluders | None, lights:
             mine = geometry == number
             if not mine.any():
                 continue
-            normals[mine] = _face_normals(surface, triangle[mine])
+            normals[mine] = face_normals(surface.positions, surface.triangles[triangle[mine]])[0]
             if surface.albedo is not None:
                 albedo[mine] = surface.albedo[triangle[mine]]
             if surface.emission is not None:
@@ -187,7 +180,7 @@ def _irradiance(module, medium: Medium, density: np.ndarray, inverse: np.ndarray
                 world_per_index = 1.0 / scale
                 transmittance = np.ones(len(points))
                 kernels.run(module.march_transmittance, threads, density, start, along / scale[:, None],
-                            contribution.distance * scale, world_per_index, float(medium.extinction), 0.5,
+                            contribution.distance * scale, world_per_index, float(medium.extinction), STEP,
                             transmittance)
                 shade *= transmittance
             total += contribution.irradiance * shade[:, None]
