@@ -40,3 +40,7 @@ class SetupError(BakeRefused):
 class VolumeRefused(BakeRefused):
     """A volume cannot be lit as given (an empty or unusable grid, a grid too large); the
     message names the volume and what to change."""
+
+
+class AppearanceRefused(BakeRefused):
+    """A micro-geometry tile or a BRDF/BTF request that cannot be simulated as given."""

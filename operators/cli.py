@@ -10,6 +10,7 @@ Exit status: 0 success, 2 bad input (one line on stderr saying why), 1 failure.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -165,6 +166,32 @@ def build_parser() -> argparse.ArgumentParser:
     _setting_option(volume, "--device", PREFERENCE_SETTINGS["device"],
                     note="the lamps' slice sweeps; default: the preference, else auto")
     volume.add_argument("--no-progress", action="store_true", help="no progress bar")
+    brdf = commands.add_parser(
+        "brdf", help="simulate the BRDF of a periodic micro-geometry tile and write it as a MERL or tabulated file")
+    brdf.add_argument("input", help="the .blend holding the tile")
+    brdf.add_argument("--tile", metavar="NAME", required=True,
+                      help="the tile: a mesh object or a collection, one period of a surface repeating in X and Y")
+    brdf.add_argument("--out", metavar="FILE", required=True,
+                      help="FILE.binary (MERL, isotropic) or FILE.npz (tabulated light x view values)")
+    brdf.add_argument("--format", choices=("merl", "table"),
+                      help="default: merl for .binary, table for .npz")
+    brdf.add_argument("--lights", type=int, default=100, metavar="N", help="light directions over the hemisphere")
+    brdf.add_argument("--views", type=int, default=100, metavar="N", help="view directions over the hemisphere")
+    brdf.add_argument("--directions", type=int, default=128, metavar="N",
+                      help="the global direction set of the visibility tables")
+    brdf.add_argument("--bounces", type=int, default=2, metavar="K", help="inter-reflections after the direct light")
+    brdf.add_argument("--resolution", type=int, default=64, metavar="R", help="samples across the period")
+    brdf.add_argument("--view-rays", type=int, default=128, metavar="R",
+                      help="rays across the period per view (R x R), which measure masking")
+    brdf.add_argument("--period", metavar="X,Y", help="the repeat in X and Y (default: the tile's bounding box)")
+    brdf.add_argument("--phong", metavar="KS,EXP",
+                      help="the paper's micro-BRDF: Lambert plus a Phong lobe of weight KS and exponent EXP on every "
+                           "face (default: each material's own)")
+    _setting_option(brdf, "--seed", SETTINGS["seed"])
+    _setting_option(brdf, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    brdf.add_argument("--overwrite", action="store_true", help="replace FILE if it exists")
+    brdf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
+    brdf.add_argument("--no-progress", action="store_true", help="no progress bar")
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
                          help="wire the results into the objects' materials for preview (see preview; use with --save)")
@@ -413,7 +440,56 @@ def run_volume(args) -> int:
     return EXIT_OK
 
 
+def _pair(text: str, option: str) -> tuple[float, float]:
+    try:
+        first, second = (float(part) for part in text.split(","))
+    except ValueError:
+        raise BakeRefused(f"{option} {text!r}: give two numbers separated by a comma") from None
+    if not (math.isfinite(first) and math.isfinite(second)):
+        raise BakeRefused(f"{option} {text!r}: give finite numbers")
+    return first, second
+
+
+def run_brdf(args) -> int:
+    """``brdf``: simulate a tile's BRDF (core.appearance.gonio) and write its table."""
+    from ..core.appearance import gonio
+    from .adapter import tile_io
+
+    output_format = args.format or ("table" if args.out.lower().endswith(".npz") else "merl")
+    if output_format == "merl" and not args.out.lower().endswith((".binary", ".merl")):
+        raise BakeRefused(f"--out {args.out!r}: a MERL file ends in .binary (or .merl, as pbrt expects)")
+    if output_format == "table" and not args.out.lower().endswith(".npz"):
+        raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
+    period = _pair(args.period, "--period") if args.period else None
+    phong = _pair(args.phong, "--phong") if args.phong else None
+    if phong is not None and not (0 <= phong[0] <= 1 and phong[1] >= 0):
+        raise BakeRefused(f"--phong {args.phong!r}: the weight lies in [0, 1] and the exponent is >= 0")
+    _load_input(args)
+    scene = bpy.context.scene
+    tile = tile_io.read_tile(scene, args.tile, period, phong)
+    seed = scene.visibake.seed if args.seed is None else args.seed
+    settings = gonio.GonioSettings(directions=args.directions, bounces=args.bounces, resolution=args.resolution,
+                                   view_rays=args.view_rays, seed=seed,
+                                   threads=args.threads if args.threads is not None else 0)
+    progress = _Progress(not args.no_progress)
+    try:
+        report = tile_io.run_brdf(tile, args.out, output_format, args.lights, args.views, settings, args.overwrite,
+                                  progress)
+    finally:
+        progress.close()
+    if args.report:
+        job.write_report(args.report, report)
+    for warning in report["warnings"]:
+        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    print(f"visibake: {args.lights} x {args.views} BRDF samples of {args.tile!r} ({report['samples']:,} surface "
+          f"samples, {settings.directions} directions, {settings.bounces} bounces) -> {report['output']!r} in "
+          f"{report['seconds']:.1f} s; largest directional albedo {report['max_directional_albedo']:.3f}", flush=True)
+    return EXIT_OK
+
+
 def run(args) -> int:
+    if args.command == "brdf":
+        return run_brdf(args)
     if args.command == "volume":
         return run_volume(args)
     if args.command == "preview":

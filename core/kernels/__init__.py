@@ -38,6 +38,7 @@ _status: KernelStatus | None = None
 _module = None
 _volume_module = None
 _volume_seconds = 0.0
+_appearance_module = None
 
 
 @dataclass(frozen=True)
@@ -257,6 +258,20 @@ def volume():
             _volume_seconds = time.perf_counter() - started
             _volume_module = volume_kernels
         return _volume_module
+
+
+def appearance():
+    """The appearance kernels (:mod:`core.kernels.appearance_kernels`), compiled or read from
+    the cache on first use; None where numba cannot load (:func:`status` says why)."""
+    global _appearance_module
+    if compiled() is None:
+        return None
+    with _lock:
+        if _appearance_module is None:
+            from . import appearance_kernels
+            appearance_kernels.warm_up()
+            _appearance_module = appearance_kernels
+        return _appearance_module
 
 
 def volume_load_seconds() -> float:

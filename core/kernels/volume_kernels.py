@@ -336,10 +336,10 @@ def gather_volume(source, active, directions, distance_codes, escape_codes, dist
     direction's lookups are neighbours in the source grid and each voxel's sum runs in the
     same order whatever the thread count.
 
-    source : (X, Y, Z, 4) float32 padded: channels 0-2 density times what a scattering
-        point sends (albedo times in-scattered radiance, or emission over extinction),
-        channel 3 the density; the point's value is their ratio (a density-weighted
-        interpolation, never above its largest corner)
+    source : (X, Y, Z, 3) float32 padded: what a scattering point sends (albedo times
+        in-scattered radiance, or emission over extinction), dilated one voxel beyond the
+        medium (core.volume.transport.dilated_source), so that a plain trilinear read near
+        the medium's edge does not mix in the zeros outside it
     active : (V, 3) int32; directions : (N, 3) float64 unit, index space
     distance_codes : (N, V, M) uint16; escape_codes : (N, V) uint16; distance_per_code :
         float64 index units per code; block : int voxels per task
@@ -348,41 +348,52 @@ def gather_volume(source, active, directions, distance_codes, escape_codes, dist
     count = directions.shape[0]
     points = distance_codes.shape[2]
     count_v = active.shape[0]
-    limit_x = source.shape[0] - 2
-    limit_y = source.shape[1] - 2
-    limit_z = source.shape[2] - 2
+    limit_x = np.float32(source.shape[0] - 2)
+    limit_y = np.float32(source.shape[1] - 2)
+    limit_z = np.float32(source.shape[2] - 2)
+    # Flat, unsigned offsets: the eight corners of a cell are fixed strides apart, and
+    # unsigned indices spare the negative-index wrap test on each of the 24 reads.
+    flat = source.ravel()
+    step_z = np.uint64(3)
+    step_y = np.uint64(3 * source.shape[2])
+    step_x = np.uint64(3 * source.shape[2] * source.shape[1])
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
     blocks = (count_v + block - 1) // block
     for task in nb.prange(blocks):
         first = task * block
         last = min(first + block, count_v)
-        for v in range(first, last):
-            result[v, 0] = 0.0
-            result[v, 1] = 0.0
-            result[v, 2] = 0.0
+        sums = np.zeros((last - first, 3), np.float64)
         for d in range(count):
-            ex = directions[d, 0] * distance_per_code
-            ey = directions[d, 1] * distance_per_code
-            ez = directions[d, 2] * distance_per_code
+            ex = np.float32(directions[d, 0] * distance_per_code)
+            ey = np.float32(directions[d, 1] * distance_per_code)
+            ez = np.float32(directions[d, 2] * distance_per_code)
             for v in range(first, last):
-                weight = (1.0 - escape_codes[d, v] * (1.0 / CODE_MAX)) / points
-                if weight <= 0.0:
+                weight = np.float32(CODE_MAX - escape_codes[d, v])
+                if weight <= zero:
                     continue
+                ox = np.float32(active[v, 0] + 1)
+                oy = np.float32(active[v, 1] + 1)
+                oz = np.float32(active[v, 2] + 1)
+                r = zero
+                g = zero
+                b = zero
                 for j in range(points):
-                    code = float(distance_codes[d, v, j])
-                    px = active[v, 0] + ex * code + 1.0
-                    py = active[v, 1] + ey * code + 1.0
-                    pz = active[v, 2] + ez * code + 1.0
-                    if px < 0.0 or py < 0.0 or pz < 0.0 or px > limit_x or py > limit_y or pz > limit_z:
+                    code = np.float32(distance_codes[d, v, j])
+                    px = ox + ex * code
+                    py = oy + ey * code
+                    pz = oz + ez * code
+                    if px < zero or py < zero or pz < zero or px > limit_x or py > limit_y or pz > limit_z:
                         continue
-                    i = int(px)
-                    jj = int(py)
-                    k = int(pz)
-                    fx = np.float32(px - i)
-                    fy = np.float32(py - jj)
-                    fz = np.float32(pz - k)
-                    gx = np.float32(1.0) - fx
-                    gy = np.float32(1.0) - fy
-                    gz = np.float32(1.0) - fz
+                    i = np.uint64(px)
+                    jj = np.uint64(py)
+                    k = np.uint64(pz)
+                    fx = px - np.float32(i)
+                    fy = py - np.float32(jj)
+                    fz = pz - np.float32(k)
+                    gx = one - fx
+                    gy = one - fy
+                    gz = one - fz
                     w000 = gx * gy * gz
                     w100 = fx * gy * gz
                     w010 = gx * fy * gz
@@ -391,23 +402,46 @@ def gather_volume(source, active, directions, distance_codes, escape_codes, dist
                     w101 = fx * gy * fz
                     w011 = gx * fy * fz
                     w111 = fx * fy * fz
-                    a = (w000 * source[i, jj, k, 3] + w100 * source[i + 1, jj, k, 3]
-                         + w010 * source[i, jj + 1, k, 3] + w110 * source[i + 1, jj + 1, k, 3]
-                         + w001 * source[i, jj, k + 1, 3] + w101 * source[i + 1, jj, k + 1, 3]
-                         + w011 * source[i, jj + 1, k + 1, 3] + w111 * source[i + 1, jj + 1, k + 1, 3])
-                    if a <= 1e-30:
-                        continue
-                    share = weight / a
-                    for c in range(3):
-                        value = (w000 * source[i, jj, k, c] + w100 * source[i + 1, jj, k, c]
-                                 + w010 * source[i, jj + 1, k, c] + w110 * source[i + 1, jj + 1, k, c]
-                                 + w001 * source[i, jj, k + 1, c] + w101 * source[i + 1, jj, k + 1, c]
-                                 + w011 * source[i, jj + 1, k + 1, c] + w111 * source[i + 1, jj + 1, k + 1, c])
-                        result[v, c] += share * value
+                    a000 = i * step_x + jj * step_y + k * step_z
+                    a100 = a000 + step_x
+                    a010 = a000 + step_y
+                    a110 = a100 + step_y
+                    a001 = a000 + step_z
+                    a101 = a100 + step_z
+                    a011 = a010 + step_z
+                    a111 = a110 + step_z
+                    r += (w000 * flat[a000] + w100 * flat[a100] + w010 * flat[a010] + w110 * flat[a110]
+                          + w001 * flat[a001] + w101 * flat[a101] + w011 * flat[a011] + w111 * flat[a111])
+                    a000 += np.uint64(1)
+                    a100 += np.uint64(1)
+                    a010 += np.uint64(1)
+                    a110 += np.uint64(1)
+                    a001 += np.uint64(1)
+                    a101 += np.uint64(1)
+                    a011 += np.uint64(1)
+                    a111 += np.uint64(1)
+                    g += (w000 * flat[a000] + w100 * flat[a100] + w010 * flat[a010] + w110 * flat[a110]
+                          + w001 * flat[a001] + w101 * flat[a101] + w011 * flat[a011] + w111 * flat[a111])
+                    a000 += np.uint64(1)
+                    a100 += np.uint64(1)
+                    a010 += np.uint64(1)
+                    a110 += np.uint64(1)
+                    a001 += np.uint64(1)
+                    a101 += np.uint64(1)
+                    a011 += np.uint64(1)
+                    a111 += np.uint64(1)
+                    b += (w000 * flat[a000] + w100 * flat[a100] + w010 * flat[a010] + w110 * flat[a110]
+                          + w001 * flat[a001] + w101 * flat[a101] + w011 * flat[a011] + w111 * flat[a111])
+                row = v - first
+                sums[row, 0] += weight * r
+                sums[row, 1] += weight * g
+                sums[row, 2] += weight * b
+        # The weights were escape codes' complements, summed in float64: scale once.
+        scale = 1.0 / (CODE_MAX * points * count)
         for v in range(first, last):
-            result[v, 0] /= count
-            result[v, 1] /= count
-            result[v, 2] /= count
+            result[v, 0] = sums[v - first, 0] * scale
+            result[v, 1] = sums[v - first, 1] * scale
+            result[v, 2] = sums[v - first, 2] * scale
 
 
 @nb.njit(**KERNEL_OPTIONS)
@@ -475,5 +509,5 @@ def warm_up() -> None:
                       np.int64(0), codes, escape)
     march_transmittance(density, np.zeros((1, 3)), directions, np.full(1, np.inf), np.ones(1), 1.0, 0.5,
                         np.zeros(1))
-    gather_volume(np.zeros((4, 4, 4, 4), np.float32), active, directions, codes, escape, 1.0, BLOCK,
+    gather_volume(np.zeros((4, 4, 4, 3), np.float32), active, directions, codes, escape, 1.0, BLOCK,
                   np.zeros((1, 3)))

@@ -121,8 +121,8 @@ class RayScene:
         bounds = np.linspace(0, count, parts + 1).astype(np.int64)
         return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray):
-        """Nearest hit of each ray.
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None):
+        """Nearest hit of each ray (before ``distances`` (n,) when given; default: infinity).
 
         Returns
         -------
@@ -132,9 +132,9 @@ class RayScene:
         distance : (n,) float32 along the (unit) direction, inf for a miss
         """
         return self.intersect_local(np.ascontiguousarray(self.local(origins), np.float32),
-                                    np.ascontiguousarray(directions, np.float32))
+                                    np.ascontiguousarray(directions, np.float32), distances)
 
-    def intersect_local(self, origins: np.ndarray, directions: np.ndarray):
+    def intersect_local(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None):
         """:meth:`intersect` of rays whose ``origins`` (n, 3) float32 are in this scene's frame
         already (core.visibility.table.TraceRequest.rays)."""
         count = len(origins)
@@ -145,7 +145,10 @@ class RayScene:
 
         def run(span):
             a, b = span
-            out = self._scene.run(origins[a:b], directions[a:b], output=1)
+            kwargs = {}
+            if distances is not None:
+                kwargs["dists"] = np.ascontiguousarray(distances[a:b], np.float32)
+            out = self._scene.run(origins[a:b], directions[a:b], output=1, **kwargs)
             geometry[a:b] = out["geomID"]
             triangle[a:b] = out["primID"]
             bary[a:b, 0] = out["u"]

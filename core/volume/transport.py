@@ -18,7 +18,7 @@ The meshes' light joins the first bounce because Cycles counts it so: a path rea
 only by leaving a scattering point, which is a volume bounce.
 
 where <f>_i(x) is the mean of f over the ray's stored scattering points, each read as a
-density-weighted trilinear interpolation (core.kernels.volume_kernels.gather_volume).
+trilinear interpolation of f dilated one voxel beyond the medium (dilated_source).
 With albedo <= 1 every bounce is at most the one before it times the largest albedo, and a
 uniform world's radiance is a fixed point: the furnace of tests/core/test_volume.py.
 """
@@ -36,7 +36,7 @@ from ..lights.lamps import usable_lights
 from ..scene import Light, World
 from . import require_kernels
 from .direct import lamp_inscatter
-from .medium import Medium, padded
+from .medium import Medium
 from .occluders import reflected_light
 from .tables import ScatteringTables
 
@@ -63,22 +63,51 @@ class VolumeLight:
         return self.direct + self.indirect
 
 
+def dilated_source(medium: Medium, voxels: np.ndarray, sent: np.ndarray) -> np.ndarray:
+    """The gather's source grid: ``sent`` (V, 3) at ``voxels`` (V, 3) int32, and every other
+    voxel that touches one of them (26-neighbourhood) given the mean of the ones it touches.
+
+    A stored scattering point lies where the medium's trilinear density is positive, so at
+    least one corner of its cell is a medium voxel and every other corner touches it: one
+    ring of dilation is enough for a plain trilinear read never to mix in the zeros outside
+    the medium. (The read used to weight the corners by density and divide; the dilated
+    grid reads three channels instead of four and divides nothing.)
+
+    Returns (nx + 3, ny + 3, nz + 3, 3) float32, padded as the kernels read it.
+    """
+    index = tuple(np.asarray(voxels).T + 1)
+    shape = tuple(n + 3 for n in medium.shape)
+    summed = np.zeros((*shape, 4), np.float32)
+    summed[index + (slice(0, 3),)] = sent
+    summed[index + (3,)] = 1.0
+    inside = summed[..., 3] > 0
+    source = summed[..., :3].copy()
+    for axis in range(3):
+        shifted = summed.copy()
+        below = [slice(None)] * 4
+        above = [slice(None)] * 4
+        below[axis] = slice(1, None)
+        above[axis] = slice(None, -1)
+        shifted[tuple(below)] += summed[tuple(above)]
+        shifted[tuple(above)] += summed[tuple(below)]
+        summed = shifted
+    touching = ~inside & (summed[..., 3] > 0)
+    source[touching] = summed[touching, :3] / summed[touching, 3:]
+    return source
+
+
 def gather(medium: Medium, tables: ScatteringTables, sent: np.ndarray, threads: int = 0) -> np.ndarray:
     """One lookup pass: the light arriving at every table voxel from the scattering points.
 
-    sent : (V, 3) float64 what each table voxel's scattering sends per unit albedo-weighted
-        density (albedo times S for a bounce; emission over extinction for emission)
+    sent : (V, 3) float64 what each table voxel's scattering sends (albedo times S for a
+        bounce; emission over extinction for emission)
     Returns (V, 3) float64.
     """
     module = require_kernels()
-    source = np.zeros((*medium.shape, 4), np.float32)
-    index = tuple(tables.voxels.T)
-    density = medium.density[index]
-    source[index + (slice(0, 3),)] = sent * density[:, None]
-    source[index + (3,)] = density
     result = np.zeros((len(tables.voxels), 3))
-    kernels.run(module.gather_volume, threads, padded(source), tables.voxels, tables.index_directions,
-                tables.distance_codes, tables.escape_codes, tables.distance_per_code, module.BLOCK, result)
+    kernels.run(module.gather_volume, threads, dilated_source(medium, tables.voxels, sent), tables.voxels,
+                tables.index_directions, tables.distance_codes, tables.escape_codes, tables.distance_per_code,
+                module.BLOCK, result)
     return result
 
 

@@ -1,0 +1,248 @@
+"""One period of a micro-geometry surface that repeats in X and Y, and its samples.
+
+The tile is what the virtual gonioreflectometer (core.appearance.gonio) lights and views:
+the paper's section 7.1 periodic micro-geometry. Its samples are the vertices of the mesh
+refined until no edge is longer than two cells of period / resolution (the paper's
+per-vertex tables), so that a shadow edge or an inter-reflection is resolved as finely as a 64x64 texture
+would at resolution 64, on any mesh, UV-mapped or not.
+
+A sample is shared by the faces around a point that are smooth, or that lie in one plane
+with the same material; a crease or a material border splits it, so that a V-groove's two
+walls keep their own light at the bottom of the groove.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import AppearanceRefused
+from ..geometry import face_normals, triangle_areas
+
+# Most triangles the refinement may make: 4 M triangles hold about 2 M samples, whose tables
+# at 256 directions are ~20 GB; a bigger request is a mistake, refused with a message.
+MAX_REFINED_TRIANGLES = 4_000_000
+# Faces whose unit normals differ by less than this (about 0.06 degrees) count as one plane.
+COPLANAR = 1e-3
+# A border point further than this share of the period from its opposite border's points
+# makes the tile "not periodic" (a warning, not a refusal: the user may know better).
+BORDER_MISMATCH = 1e-3
+
+
+@dataclass
+class Tile:
+    """One period of a periodic micro-geometry.
+
+    positions : (P, 3) float64 scene units, z up (the macro surface's normal)
+    triangles : (T, 3) int32
+    period : (2,) float64 the repeat in X and Y
+    origin : (2,) float64 the footprint's lower corner: the period is
+        [origin, origin + period) in X and Y
+    albedo : (T, 3) float32 linear base colour of each triangle's material
+    specular : (T,) float32 weight of the glossy lobe (0: Lambert only)
+    roughness : (T,) float32 the glossy lobe's GGX roughness (Principled BSDF), or < 0 for
+        the paper's Phong lobe whose exponent is ``phong_exponent``
+    smooth : (T,) bool smooth-shaded faces share their samples' normals
+    material : (T,) int32 the triangle's material slot (a border between two splits samples)
+    phong_exponent : float
+    warnings : what was noticed about the tile (for the report)
+    """
+
+    positions: np.ndarray
+    triangles: np.ndarray
+    period: np.ndarray
+    origin: np.ndarray
+    albedo: np.ndarray
+    specular: np.ndarray
+    roughness: np.ndarray
+    smooth: np.ndarray
+    material: np.ndarray
+    phong_exponent: float = 8.0
+    warnings: list[str] = field(default_factory=list)
+
+    @classmethod
+    def of(cls, positions, triangles, period=None, origin=None, albedo=(0.8, 0.8, 0.8), specular=0.0,
+           roughness=-1.0, smooth=False, material=0, phong_exponent: float = 8.0) -> Tile:
+        """A tile with per-triangle properties broadcast from scalars; the period defaults to
+        the bounding box in XY. Refuses (core.errors.AppearanceRefused) what cannot be simulated."""
+        positions = np.asarray(positions, np.float64).reshape(-1, 3)
+        triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
+        if len(triangles) == 0:
+            raise AppearanceRefused("the tile has no faces: give it a mesh with at least one face")
+        if not np.all(np.isfinite(positions)):
+            raise AppearanceRefused("the tile has vertices at infinite or undefined positions")
+        if triangles.min() < 0 or triangles.max() >= len(positions):
+            raise AppearanceRefused("the tile's faces refer to vertices it does not have")
+        low = positions[np.unique(triangles)].min(axis=0)
+        high = positions[np.unique(triangles)].max(axis=0)
+        period = high[:2] - low[:2] if period is None else np.asarray(period, np.float64).reshape(2)
+        origin = low[:2] if origin is None else np.asarray(origin, np.float64).reshape(2)
+        if not np.all(np.isfinite(period)) or np.any(period <= 0):
+            raise AppearanceRefused(f"the tile's period must be positive in X and Y, got {tuple(period)} (a tile "
+                                    "flat in X or Y has no footprint: give its period)")
+        count = len(triangles)
+        tile = cls(positions, triangles, period, origin,
+                   np.broadcast_to(np.asarray(albedo, np.float32), (count, 3)).copy(),
+                   np.broadcast_to(np.asarray(specular, np.float32), (count,)).copy(),
+                   np.broadcast_to(np.asarray(roughness, np.float32), (count,)).copy(),
+                   np.broadcast_to(np.asarray(smooth, bool), (count,)).copy(),
+                   np.broadcast_to(np.asarray(material, np.int32), (count,)).copy(), float(phong_exponent))
+        if not np.any(face_normals(positions, triangles)[1]):
+            raise AppearanceRefused("the tile's faces all have zero area")
+        if np.any(tile.albedo < 0) or np.any(tile.albedo > 1) or np.any(tile.specular < 0) or np.any(tile.specular > 1):
+            raise AppearanceRefused("the tile's base colours and specular weights must lie in [0, 1]")
+        tile.warnings.extend(border_mismatch(tile))
+        return tile
+
+    @property
+    def height_range(self) -> tuple[float, float]:
+        """(lowest, highest) z of the tile's vertices in use."""
+        z = self.positions[np.unique(self.triangles), 2]
+        return float(z.min()), float(z.max())
+
+    @property
+    def glossy(self) -> bool:
+        """Whether any face has a glossy lobe (the transport is view-dependent only then)."""
+        return bool(np.any(self.specular > 0))
+
+
+def border_mismatch(tile: Tile) -> list[str]:
+    """Warnings when the tile's surface does not continue across its borders: for each axis,
+    the profile where the tile meets its lower border must reappear at its upper border.
+
+    Checks the edges lying on each border (vertices within a tolerance of it): their points,
+    shifted by one period, must lie on the opposite border's edges. A tile with no geometry
+    on a border (threads that stop short of it) is periodic by gaps, which is fine.
+    """
+    warnings = []
+    tolerance = BORDER_MISMATCH * float(tile.period.max())
+    for axis, name in ((0, "X"), (1, "Y")):
+        low = tile.origin[axis]
+        high = low + tile.period[axis]
+        coordinate = tile.positions[:, axis]
+        on_low = np.abs(coordinate - low) < tolerance
+        on_high = np.abs(coordinate - high) < tolerance
+        other = 1 - axis
+        low_points = tile.positions[on_low][:, [other, 2]]
+        high_points = tile.positions[on_high][:, [other, 2]]
+        if len(low_points) == 0 and len(high_points) == 0:
+            continue
+        if len(low_points) == 0 or len(high_points) == 0:
+            warnings.append(f"the tile is not periodic in {name}: it has vertices on one {name} border and none on "
+                            "the other, so the repeated surface has a step there")
+            continue
+        missing = _unmatched(low_points, high_points, tolerance) + _unmatched(high_points, low_points, tolerance)
+        if missing:
+            warnings.append(f"the tile is not periodic in {name}: {missing} border vertices have no partner on the "
+                            f"opposite border (a step or a gap in the repeated surface)")
+    return warnings
+
+
+def _unmatched(points: np.ndarray, others: np.ndarray, tolerance: float) -> int:
+    """How many of ``points`` (k, 2) lie further than ``tolerance`` from the polyline through
+    ``others`` (m, 2) sorted along its first coordinate (the opposite border's profile)."""
+    order = np.argsort(others[:, 0], kind="stable")
+    along = others[order, 0]
+    height = others[order, 1]
+    if len(along) == 1:
+        return int(np.sum(np.hypot(points[:, 0] - along[0], points[:, 1] - height[0]) > tolerance))
+    # The profile's height at each point's position (vertical walls: any height between the
+    # wall's ends matches, so compare with the nearest profile vertex as well).
+    interpolated = np.interp(points[:, 0], along, height)
+    nearest = np.min(np.hypot(points[:, None, 0] - along[None], points[:, None, 1] - height[None]), axis=1)
+    inside = (points[:, 0] >= along[0] - tolerance) & (points[:, 0] <= along[-1] + tolerance)
+    fits = inside & ((np.abs(interpolated - points[:, 1]) < tolerance) | (nearest < tolerance))
+    return int(np.sum(~fits))
+
+
+def refine(positions: np.ndarray, triangles: np.ndarray, longest: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split every triangle into four at its edges' midpoints until no edge is longer than
+    ``longest``. Midpoints are shared between neighbours, so the mesh stays watertight.
+
+    Returns (positions (P', 3) float64, triangles (T', 3) int32, parent (T',) int64: the
+    original triangle each came from).
+    """
+    parent = np.arange(len(triangles), dtype=np.int64)
+    while True:
+        corners = positions[triangles]
+        edges = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2)
+        if len(triangles) == 0 or edges.max() <= longest:
+            return positions, triangles, parent
+        if len(triangles) * 4 > MAX_REFINED_TRIANGLES:
+            raise AppearanceRefused(f"the tile at this resolution needs more than {MAX_REFINED_TRIANGLES:,} triangles; "
+                              "lower the resolution or simplify the tile")
+        pairs = np.sort(np.stack([triangles, triangles[:, [1, 2, 0]]], axis=2).reshape(-1, 2), axis=1)
+        unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        middle = len(positions) + inverse.reshape(-1, 3)
+        positions = np.concatenate([positions, 0.5 * (positions[unique[:, 0]] + positions[unique[:, 1]])])
+        a, b, c = triangles.T
+        ab, bc, ca = middle.T
+        triangles = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
+                                    np.stack([ab, bc, ca], 1)]).astype(np.int32)
+        parent = np.concatenate([parent] * 4)
+
+
+@dataclass
+class TileSamples:
+    """The tile's samples: vertices of its refined mesh (see the module's docstring).
+
+    position : (S, 3) float64; normal : (S, 3) float64 unit; area : (S,) float64 (a third
+        of the faces around it), scene units squared
+    albedo : (S, 3) float32; specular : (S,) float32; roughness : (S,) float32
+    triangles : (F, 3) int32 the refined faces, indexing samples
+    face_normal : (F, 3) float64 unit; face_area : (F,) float64
+    """
+
+    position: np.ndarray
+    normal: np.ndarray
+    area: np.ndarray
+    albedo: np.ndarray
+    specular: np.ndarray
+    roughness: np.ndarray
+    triangles: np.ndarray
+    face_normal: np.ndarray
+    face_area: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.position)
+
+
+def tile_samples(tile: Tile, resolution: int) -> TileSamples:
+    """The tile's samples at ``resolution``: the faces are split until no edge is longer than
+    two cells of the period's longer side over ``resolution``."""
+    if resolution < 1:
+        raise AppearanceRefused(f"the resolution must be at least 1, got {resolution}")
+    # A grid of resolution x resolution cells has diagonals of sqrt(2) cells, and a sloped
+    # one longer: two cells lets a 64 x 64 heightfield at resolution 64 be its own samples.
+    spacing = float(tile.period.max()) / resolution
+    positions, triangles, parent = refine(tile.positions, tile.triangles, 2.0 * spacing)
+    normals, keep = face_normals(positions, triangles)
+    positions_used, triangles, parent, normals = positions, triangles[keep], parent[keep], normals[keep]
+    areas = triangle_areas(positions[triangles])
+    corner_point = triangles.reshape(-1)
+    corner_face = np.repeat(np.arange(len(triangles)), 3)
+    smooth = tile.smooth[parent][corner_face]
+    # Corners share a sample when they sit at one point, with one material, and either both
+    # faces are smooth or their planes agree.
+    plane = np.round(normals[corner_face] / COPLANAR).astype(np.int64)
+    plane[smooth] = 0
+    keys = np.column_stack([corner_point, tile.material[parent][corner_face], smooth.astype(np.int64), plane])
+    _, sample_of_corner = np.unique(keys, axis=0, return_inverse=True)
+    sample_of_corner = sample_of_corner.reshape(-1)
+    count = int(sample_of_corner.max()) + 1
+    weighted = np.zeros((count, 3))
+    np.add.at(weighted, sample_of_corner, normals[corner_face] * areas[corner_face, None])
+    length = np.linalg.norm(weighted, axis=1, keepdims=True)
+    normal = weighted / np.maximum(length, 1e-300)
+    area = np.zeros(count)
+    np.add.at(area, sample_of_corner, areas[corner_face] / 3.0)
+    position = np.zeros((count, 3))
+    position[sample_of_corner] = positions_used[corner_point]
+
+    def per_sample(values: np.ndarray) -> np.ndarray:
+        out = np.zeros((count, *values.shape[1:]), values.dtype)
+        out[sample_of_corner] = values[parent][corner_face]
+        return out
+
+    return TileSamples(position, normal, area, per_sample(tile.albedo), per_sample(tile.specular),
+                       per_sample(tile.roughness), sample_of_corner.reshape(-1, 3).astype(np.int32), normals, areas)

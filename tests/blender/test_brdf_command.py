@@ -1,0 +1,116 @@
+"""`visibake brdf`: a tile object (or collection) in a .blend simulated and written as a MERL or
+tabulated file, with clear refusals; the user's scene and files untouched (issue 18)."""
+import importlib
+import os
+
+import bpy
+
+import numpy as np
+import pytest
+
+from blender_support import extension_module_name
+
+ALBEDO = 0.6
+
+
+@pytest.fixture
+def appearance(visibake):
+    name = extension_module_name()
+    return (importlib.import_module(name + ".core.appearance.merl"),
+            importlib.import_module(name + ".core.appearance.tabulated"))
+
+
+def groove_scene(path, name="Groove", material="principled", in_collection=False):
+    """A .blend with a V-groove tile (one period of 1 x 1 in XY, depth 0.5) named ``name``."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    vertices = [(0, 0, 0.5), (0.5, 0, 0), (1, 0, 0.5), (0, 1, 0.5), (0.5, 1, 0), (1, 1, 0.5)]
+    faces = [(0, 1, 4, 3), (1, 2, 5, 4)]
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(vertices, [], faces)
+    mesh.update()
+    obj = bpy.data.objects.new(name, mesh)
+    if in_collection:
+        collection = bpy.data.collections.new(name + "Set")
+        bpy.context.scene.collection.children.link(collection)
+        collection.objects.link(obj)
+    else:
+        bpy.context.scene.collection.objects.link(obj)
+    made = bpy.data.materials.new("Cloth")
+    importlib.import_module(extension_module_name() + ".operators.adapter.compat").ensure_node_tree(made)
+    tree = made.node_tree
+    tree.nodes.clear()
+    if material == "principled":
+        shader = tree.nodes.new("ShaderNodeBsdfPrincipled")
+        shader.inputs["Base Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1)
+        shader.inputs["Specular IOR Level"].default_value = 0.0
+    else:
+        shader = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        shader.inputs["Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1)
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    tree.links.new(shader.outputs[0], output.inputs["Surface"])
+    mesh.materials.append(made)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
+FAST = ["--lights", "6", "--views", "6", "--directions", "32", "--resolution", "8", "--view-rays", "32",
+        "--no-progress"]
+
+
+def test_brdf_writes_a_merl_file_that_reads_back(visibake, appearance, tmp_path):
+    merl, _ = appearance
+    blend = groove_scene(tmp_path / "tile.blend")
+    out = tmp_path / "groove.binary"
+    report = tmp_path / "report.json"
+    assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(out), "--report", str(report)]
+                             + FAST) == 0
+    assert os.path.getsize(out) == merl.FILE_BYTES
+    table = merl.read_merl(str(out))
+    assert np.all(np.isfinite(table))
+    # Lambert V-groove, seen and lit from straight above: about albedo / pi (its walls tilt
+    # 45 degrees, and what one wall sends to the other comes back after a bounce).
+    value = merl.evaluate(table, np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 1.0]]))[0]
+    assert 0.5 * ALBEDO / np.pi < value[0] < 1.2 * ALBEDO / np.pi
+    assert np.allclose(value, value[0], rtol=1e-6)  # grey in, grey out
+    assert report.exists()
+
+
+def test_brdf_writes_a_table_from_a_collection(visibake, appearance, tmp_path):
+    _, tabulated = appearance
+    blend = groove_scene(tmp_path / "tile.blend", material="diffuse", in_collection=True)
+    out = tmp_path / "groove.npz"
+    assert visibake.cli.main(["brdf", str(blend), "--tile", "GrooveSet", "--out", str(out)] + FAST) == 0
+    bsdf = tabulated.load_tabulated(str(out))
+    assert bsdf.values.shape == (6, 6, 3)
+    assert np.all(bsdf.values >= 0) and np.all(np.isfinite(bsdf.values))
+    assert np.allclose(bsdf.period, [1.0, 1.0])
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--tile", "Nothing"], "no object or collection"),
+    (["--tile", "Groove", "--directions", "0"], "directions must be between"),
+    (["--tile", "Groove", "--directions", "1000000"], "directions must be between"),
+    (["--tile", "Empty"], "has no faces"),
+    (["--tile", "Groove", "--period", "1,zero"], "two numbers"),
+])
+def test_bad_input_is_refused_with_exit_2(visibake, tmp_path, capfd, arguments, message):
+    blend = groove_scene(tmp_path / "tile.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    empty = bpy.data.objects.new("Empty", bpy.data.meshes.new("Empty"))
+    bpy.context.scene.collection.objects.link(empty)
+    bpy.ops.wm.save_mainfile()
+    out = tmp_path / "x.binary"
+    status = visibake.cli.main(["brdf", str(blend), "--out", str(out), "--no-progress"]
+                               + [a for a in FAST if a != "--no-progress"][:8] + arguments)
+    assert status == 2
+    assert message in capfd.readouterr().err
+    assert not out.exists()
+
+
+def test_an_existing_file_is_not_overwritten(visibake, tmp_path, capfd):
+    blend = groove_scene(tmp_path / "tile.blend")
+    out = tmp_path / "mine.binary"
+    out.write_bytes(b"the user's own file")
+    assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(out)] + FAST) == 2
+    assert "does not overwrite" in capfd.readouterr().err
+    assert out.read_bytes() == b"the user's own file"
