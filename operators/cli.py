@@ -192,6 +192,28 @@ def build_parser() -> argparse.ArgumentParser:
     brdf.add_argument("--overwrite", action="store_true", help="replace FILE if it exists")
     brdf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     brdf.add_argument("--no-progress", action="store_true", help="no progress bar")
+    btf = commands.add_parser(
+        "btf", help="simulate the BTF of a periodic micro-geometry tile: an image per light and view direction")
+    btf.add_argument("input", help="the .blend holding the tile")
+    btf.add_argument("--tile", metavar="NAME", required=True, help="the tile: a mesh object or a collection")
+    btf.add_argument("--out", metavar="DIR", required=True,
+                     help="write DIR/tvTTT_pvPPP/tlTTT_plPPP_tvTTT_pvPPP.<format> and DIR/btf.json")
+    btf.add_argument("--format", choices=("exr", "png"), default="exr",
+                     help="exr: linear RGB float; png: 8-bit sRGB")
+    btf.add_argument("--image-size", type=int, default=256, metavar="N", help="N x N pixels per image")
+    btf.add_argument("--rays-per-pixel", type=int, default=4, metavar="N", help="jittered rays per pixel")
+    for option, default, text in (("--directions", 128, "the global direction set of the visibility tables"),
+                                  ("--bounces", 2, "inter-reflections after the direct light"),
+                                  ("--resolution", 64, "samples across the period")):
+        btf.add_argument(option, type=int, default=default, metavar="N", help=text)
+    btf.add_argument("--period", metavar="X,Y", help="the repeat in X and Y (default: the tile's bounding box)")
+    btf.add_argument("--phong", metavar="KS,EXP", help="the paper's Lambert plus Phong micro-BRDF on every face")
+    _setting_option(btf, "--seed", SETTINGS["seed"])
+    _setting_option(btf, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    btf.add_argument("--overwrite", action="store_true",
+                     help="write into DIR even if it holds files VisiBake did not write (they are not deleted)")
+    btf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
+    btf.add_argument("--no-progress", action="store_true", help="no progress bar")
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
                          help="wire the results into the objects' materials for preview (see preview; use with --save)")
@@ -450,16 +472,11 @@ def _pair(text: str, option: str) -> tuple[float, float]:
     return first, second
 
 
-def run_brdf(args) -> int:
-    """``brdf``: simulate a tile's BRDF (core.appearance.gonio) and write its table."""
+def _tile_and_settings(args):
+    """The tile and the simulation settings of a ``brdf`` or ``btf`` command."""
     from ..core.appearance import gonio
     from .adapter import tile_io
 
-    output_format = args.format or ("table" if args.out.lower().endswith(".npz") else "merl")
-    if output_format == "merl" and not args.out.lower().endswith((".binary", ".merl")):
-        raise BakeRefused(f"--out {args.out!r}: a MERL file ends in .binary (or .merl, as pbrt expects)")
-    if output_format == "table" and not args.out.lower().endswith(".npz"):
-        raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
     period = _pair(args.period, "--period") if args.period else None
     phong = _pair(args.phong, "--phong") if args.phong else None
     if phong is not None and not (0 <= phong[0] <= 1 and phong[1] >= 0):
@@ -469,8 +486,21 @@ def run_brdf(args) -> int:
     tile = tile_io.read_tile(scene, args.tile, period, phong)
     seed = scene.visibake.seed if args.seed is None else args.seed
     settings = gonio.GonioSettings(directions=args.directions, bounces=args.bounces, resolution=args.resolution,
-                                   view_rays=args.view_rays, seed=seed,
+                                   view_rays=getattr(args, "view_rays", 128), seed=seed,
                                    threads=args.threads if args.threads is not None else 0)
+    return tile, settings
+
+
+def run_brdf(args) -> int:
+    """``brdf``: simulate a tile's BRDF (core.appearance.gonio) and write its table."""
+    from .adapter import tile_io
+
+    output_format = args.format or ("table" if args.out.lower().endswith(".npz") else "merl")
+    if output_format == "merl" and not args.out.lower().endswith((".binary", ".merl")):
+        raise BakeRefused(f"--out {args.out!r}: a MERL file ends in .binary (or .merl, as pbrt expects)")
+    if output_format == "table" and not args.out.lower().endswith(".npz"):
+        raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
+    tile, settings = _tile_and_settings(args)
     progress = _Progress(not args.no_progress)
     try:
         report = tile_io.run_brdf(tile, args.out, output_format, args.lights, args.views, settings, args.overwrite,
@@ -487,9 +517,33 @@ def run_brdf(args) -> int:
     return EXIT_OK
 
 
+def run_btf(args) -> int:
+    """``btf``: simulate a tile's BTF on the UBO2003 directions, in the UTIA folder layout."""
+    from .adapter import tile_io
+
+    if not 1 <= args.rays_per_pixel <= 256:
+        raise BakeRefused(f"--rays-per-pixel {args.rays_per_pixel}: use 1 to 256")
+    tile, settings = _tile_and_settings(args)
+    progress = _Progress(not args.no_progress)
+    try:
+        report = tile_io.run_btf(tile, args.out, args.format, args.image_size, settings, args.rays_per_pixel,
+                                 args.overwrite, progress)
+    finally:
+        progress.close()
+    if args.report:
+        job.write_report(args.report, report)
+    for warning in report["warnings"]:
+        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    print(f"visibake: BTF of {args.tile!r}: {report['images']} images of {args.image_size}x{args.image_size} -> "
+          f"{report['output']!r} in {report['seconds']:.1f} s", flush=True)
+    return EXIT_OK
+
+
 def run(args) -> int:
     if args.command == "brdf":
         return run_brdf(args)
+    if args.command == "btf":
+        return run_btf(args)
     if args.command == "volume":
         return run_volume(args)
     if args.command == "preview":

@@ -258,6 +258,143 @@ def _unit(vectors, name: str) -> np.ndarray:
     return vectors / length
 
 
+@dataclass
+class _Prepared:
+    """What every light direction shares: the samples, the periodic scene, the tables."""
+
+    samples: TileSamples
+    scene: PeriodicScene
+    directions: np.ndarray
+    tables: VisibilityTables
+    diffuse_albedo: np.ndarray  # (S, 3) float32 (1 - specular) * albedo / pi
+    stats: dict
+    warnings: list
+
+
+def _prepare(tile: Tile, settings: GonioSettings, report) -> _Prepared:
+    import time
+    started = time.perf_counter()
+    stats: dict = {}
+    report("samples", 0.0)
+    samples = tile_samples(tile, settings.resolution)
+    scene = PeriodicScene(samples.position, samples.triangles, tile.period, tile.origin, settings.threads)
+    directions = direction_set(settings.directions, rotate=True, seed=settings.seed)
+    stats["samples"] = len(samples)
+    stats["faces"] = len(samples.triangles)
+    stats["samples_s"] = round(time.perf_counter() - started, 3)
+    mark = time.perf_counter()
+    report("visibility tables", 0.05)
+    tables = build_tables(samples, scene, directions)
+    stats["tables_s"] = round(time.perf_counter() - mark, 3)
+    stats["table_mib"] = round(tables.nbytes / 2 ** 20, 1)
+    diffuse_albedo = ((1.0 - samples.specular)[:, None] * samples.albedo / np.pi).astype(np.float32)
+    return _Prepared(samples, scene, directions, tables, diffuse_albedo, stats, list(tile.warnings))
+
+
+@dataclass
+class _LitBatch:
+    """The light of a batch of b light directions, ready to be viewed.
+
+    first : index of the batch's first light; lights : (b, 3)
+    direct : (S, b) float64 the direct irradiance (sun of unit irradiance)
+    irradiance : (S, b, 3) float64 direct plus the bounces' irradiance
+    incoming : (S, N, b, 3) float32 the bounces' radiance arriving from each direction (glossy
+        tiles only; None for Lambert ones, whose outgoing light is view-independent)
+    """
+
+    first: int
+    lights: np.ndarray
+    direct: np.ndarray
+    irradiance: np.ndarray
+    incoming: np.ndarray | None
+
+
+def _light_batches(tile: Tile, prepared: _Prepared, lights: np.ndarray, settings: GonioSettings, module, times: dict):
+    """Yield a _LitBatch per batch of light directions: direct light, then the bounces."""
+    import time
+    samples, tables, directions = prepared.samples, prepared.tables, prepared.directions
+    diffuse_albedo = prepared.diffuse_albedo
+    glossy = tile.glossy
+    n = len(directions)
+    count = len(samples)
+    batch = (max(1, min(DIFFUSE_BATCH, GLOSSY_BATCH_BYTES // max(1, count * n * 3 * 4 * 2))) if glossy
+             else DIFFUSE_BATCH)
+    threads = settings.threads
+    for first in range(0, len(lights), batch):
+        chunk = lights[first:first + batch]
+        b = len(chunk)
+        mark = time.perf_counter()
+        direct = np.stack([direct_irradiance(samples, prepared.scene, light) for light in chunk], axis=1)  # (S, b)
+        times["direct_s"] = times.get("direct_s", 0.0) + time.perf_counter() - mark
+        mark = time.perf_counter()
+        irradiance = np.repeat(direct[:, :, None], 3, axis=2)
+        incoming_total = None
+        if glossy:
+            incoming_total = np.zeros((count, n, b, 3), np.float32)
+            sent_glossy = np.zeros((count, n, b))
+            for k, light in enumerate(chunk):
+                lobe = np.zeros(count * n)
+                module.lobe_many(np.repeat(samples.normal, n, axis=0), np.repeat(samples.specular, n),
+                                 np.repeat(samples.roughness, n), tile.phong_exponent,
+                                 np.tile(light, (count * n, 1)), np.tile(-directions, (count, 1)), lobe)
+                sent_glossy[:, :, k] = lobe.reshape(count, n) * direct[:, k:k + 1]
+            outgoing = (diffuse_albedo[:, None, None, :] * direct[:, None, :, None]
+                        + sent_glossy[..., None]).astype(np.float32)
+            arriving = np.empty_like(outgoing)
+            for bounce in range(settings.bounces):
+                kernels.run(module.incoming_radiance, threads, outgoing, tables.hit_corner, tables.hit_weight, arriving)
+                incoming_total += arriving
+                reached = np.einsum("sn,snbc->sbc", tables.cos_weight, arriving, dtype=np.float64)
+                irradiance += reached
+                if bounce + 1 < settings.bounces:
+                    diffuse = (diffuse_albedo[:, None, :] * reached).astype(np.float32)
+                    kernels.run(module.glossy_outgoing, threads, arriving, directions, samples.normal,
+                                samples.specular, samples.roughness, tile.phong_exponent, tables.cos_weight, diffuse,
+                                outgoing)
+        else:
+            sent = (diffuse_albedo[:, None, :] * direct[:, :, None]).astype(np.float32)
+            reached = np.empty((count, b, 3))
+            for _ in range(settings.bounces):
+                kernels.run(module.gather_diffuse, threads, sent, tables.hit_corner, tables.hit_weight,
+                            tables.cos_weight, reached)
+                irradiance += reached
+                sent = (diffuse_albedo[:, None, :] * reached).astype(np.float32)
+        times["bounces_s"] = times.get("bounces_s", 0.0) + time.perf_counter() - mark
+        yield _LitBatch(first, chunk, direct, irradiance, incoming_total)
+
+
+def _outgoing_towards(tile: Tile, prepared: _Prepared, lit: _LitBatch, view: np.ndarray, rows: np.ndarray,
+                      module, threads: int) -> np.ndarray:
+    """(R, b, 3) float64: the radiance the samples ``rows`` (R,) int64 send towards ``view``
+    (unit) under each light of the batch: diffuse, the glossy lobe over the bounces' light,
+    and the glossy lobe over the sun's."""
+    samples = prepared.samples
+    out = prepared.diffuse_albedo[rows][:, None, :] * lit.irradiance[rows]
+    if lit.incoming is None:
+        return out
+    towards = np.empty((len(rows), len(lit.lights), 3))
+    kernels.run(module.glossy_towards, threads, lit.incoming, prepared.directions, samples.normal, samples.specular,
+                samples.roughness, tile.phong_exponent, prepared.tables.cos_weight, rows, view, towards)
+    out += towards
+    lobe = np.empty(len(rows))
+    for k, light in enumerate(lit.lights):
+        module.lobe_many(samples.normal[rows], samples.specular[rows], samples.roughness[rows], tile.phong_exponent,
+                         np.tile(light, (len(rows), 1)), np.tile(view, (len(rows), 1)), lobe)
+        out[:, k, :] += (lobe * lit.direct[rows, k])[:, None]
+    return out
+
+
+def _start(settings: GonioSettings | None, lights, views):
+    settings = settings or GonioSettings()
+    settings.check()
+    module = require_kernels()
+    lights = _unit(lights, "light")
+    views = _unit(views, "view")
+    if np.any(views[:, 2] <= 0):
+        raise AppearanceRefused("view directions must lie above the tile (z > 0)")
+    return settings, module, lights, views
+
+
 def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = None,
                   progress: Callable[[str, float], None] | None = None) -> BRDFSamples:
     """The tile's BRDF at every (light, view) pair (see the module's docstring).
@@ -268,130 +405,135 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
     ``progress(stage, fraction)`` is called between steps and may raise core.errors.Cancelled.
     """
     import time
-    settings = settings or GonioSettings()
-    settings.check()
-    module = require_kernels()
-    lights = _unit(lights, "light")
-    views = _unit(views, "view")
-    if np.any(views[:, 2] <= 0):
-        raise AppearanceRefused("view directions must lie above the tile (z > 0)")
-    stats: dict = {}
-    warnings = list(tile.warnings)
+    settings, module, lights, views = _start(settings, lights, views)
     started = time.perf_counter()
 
     def report(stage: str, fraction: float) -> None:
         if progress is not None:
             progress(stage, fraction)
 
-    report("samples", 0.0)
-    samples = tile_samples(tile, settings.resolution)
-    scene = PeriodicScene(samples.position, samples.triangles, tile.period, tile.origin, settings.threads)
-    directions = direction_set(settings.directions, rotate=True, seed=settings.seed)
-    stats["samples"] = len(samples)
-    stats["faces"] = len(samples.triangles)
-    stats["samples_s"] = time.perf_counter() - started
-
-    mark = time.perf_counter()
-    report("visibility tables", 0.05)
-    tables = build_tables(samples, scene, directions)
-    stats["tables_s"] = time.perf_counter() - mark
-    stats["table_mib"] = round(tables.nbytes / 2 ** 20, 1)
-
+    prepared = _prepare(tile, settings, report)
+    stats, warnings, samples = prepared.stats, prepared.warnings, prepared.samples
     mark = time.perf_counter()
     report("views", 0.2)
-    seen = view_weights(samples, scene, views, settings.view_rays, settings.seed)
-    stats["views_s"] = time.perf_counter() - mark
+    seen = view_weights(samples, prepared.scene, views, settings.view_rays, settings.seed)
+    stats["views_s"] = round(time.perf_counter() - mark, 3)
     if np.max(seen.back_share, initial=0.0) > 0.01:
         warnings.append(f"up to {100 * seen.back_share.max():.1f}% of a view sees the backs of faces, which are "
                         "black here: check that the tile's normals point outwards")
-
-    glossy = tile.glossy
-    diffuse_albedo = ((1.0 - samples.specular)[:, None] * samples.albedo / np.pi).astype(np.float32)
     values = np.zeros((len(lights), len(views), 3))
-    through = np.zeros(len(lights))
-    n = len(directions)
-    batch = (max(1, min(DIFFUSE_BATCH, GLOSSY_BATCH_BYTES // max(1, len(samples) * n * 3 * 4 * 2))) if glossy
-             else DIFFUSE_BATCH)
-    visible_rows = np.nonzero(seen.weights.max(axis=0) > 0)[0].astype(np.int64)
-    times = {"direct_s": 0.0, "bounces_s": 0.0, "gather_views_s": 0.0}
-    threads = settings.threads
-    for first in range(0, len(lights), batch):
-        chunk = lights[first:first + batch]
-        b = len(chunk)
+    through = np.array([transparency(prepared.scene, light, settings.view_rays) for light in lights])
+    times: dict = {"gather_views_s": 0.0}
+    for lit in _light_batches(tile, prepared, lights, settings, module, times):
         mark = time.perf_counter()
-        direct = np.stack([direct_irradiance(samples, scene, light) for light in chunk], axis=1)  # (S, b)
-        for k, light in enumerate(chunk):
-            through[first + k] = transparency(scene, light, settings.view_rays)
-        times["direct_s"] += time.perf_counter() - mark
-
-        mark = time.perf_counter()
-        irradiance = np.repeat(direct[:, :, None], 3, axis=2)  # (S, b, 3) total, direct included
-        incoming_total = np.zeros((len(samples), n, b, 3), np.float32) if glossy else None
-        if glossy:
-            outgoing = np.empty((len(samples), n, b, 3), np.float32)
-            sent_glossy = np.zeros((len(samples), n, b))
-            for k, light in enumerate(chunk):
-                lobe = np.zeros(len(samples) * n)
-                module.lobe_many(np.repeat(samples.normal, n, axis=0), np.repeat(samples.specular, n),
-                                 np.repeat(samples.roughness, n), tile.phong_exponent,
-                                 np.tile(light, (len(samples) * n, 1)), np.tile(-directions, (len(samples), 1)), lobe)
-                sent_glossy[:, :, k] = lobe.reshape(len(samples), n) * direct[:, k:k + 1]
-            outgoing[:] = (diffuse_albedo[:, None, None, :] * direct[:, None, :, None]
-                           + sent_glossy[..., None]).astype(np.float32)
-            arriving = np.empty_like(outgoing)
-            for bounce in range(settings.bounces):
-                kernels.run(module.incoming_radiance, threads, outgoing, tables.hit_corner, tables.hit_weight, arriving)
-                incoming_total += arriving
-                if bounce + 1 == settings.bounces:
-                    # Only the irradiance of the last bounce is needed, not what it sends on.
-                    reached = np.einsum("sn,snbc->sbc", tables.cos_weight, arriving, dtype=np.float64)
-                    irradiance += reached
-                    break
-                reached = np.einsum("sn,snbc->sbc", tables.cos_weight, arriving, dtype=np.float64)
-                irradiance += reached
-                diffuse = (diffuse_albedo[:, None, :] * reached).astype(np.float32)
-                kernels.run(module.glossy_outgoing, threads, arriving, directions, samples.normal, samples.specular,
-                            samples.roughness, tile.phong_exponent, tables.cos_weight, diffuse, outgoing)
+        b = len(lit.lights)
+        if lit.incoming is None:
+            # Lambert: the outgoing light is the same towards every view, one product for all pairs.
+            diffuse_out = prepared.diffuse_albedo[:, None, :] * lit.irradiance
+            values[lit.first:lit.first + b] += np.einsum("vs,sbc->bvc", seen.weights, diffuse_out)
         else:
-            sent = (diffuse_albedo[:, None, :] * direct[:, :, None]).astype(np.float32)
-            reached = np.empty((len(samples), b, 3))
-            for _ in range(settings.bounces):
-                kernels.run(module.gather_diffuse, threads, sent, tables.hit_corner, tables.hit_weight,
-                            tables.cos_weight, reached)
-                irradiance += reached
-                sent = (diffuse_albedo[:, None, :] * reached).astype(np.float32)
-        times["bounces_s"] += time.perf_counter() - mark
-
-        mark = time.perf_counter()
-        diffuse_out = diffuse_albedo[:, None, :] * irradiance  # (S, b, 3)
-        # L_mean(v) for the diffuse part: one product over the samples for all pairs.
-        values[first:first + b] += np.einsum("vs,sbc->bvc", seen.weights, diffuse_out)
-        if glossy:
-            rows = visible_rows
-            towards = np.empty((len(rows), b, 3))
-            lobe = np.empty(len(rows))
             for index, view in enumerate(views):
-                kernels.run(module.glossy_towards, threads, incoming_total, directions, samples.normal,
-                            samples.specular, samples.roughness, tile.phong_exponent, tables.cos_weight, rows, view,
-                            towards)
-                share = seen.weights[index, rows]
-                values[first:first + b, index] += np.einsum("r,rbc->bc", share, towards)
-                for k, light in enumerate(chunk):
-                    module.lobe_many(samples.normal[rows], samples.specular[rows], samples.roughness[rows],
-                                     tile.phong_exponent, np.tile(light, (len(rows), 1)),
-                                     np.tile(view, (len(rows), 1)), lobe)
-                    values[first + k, index] += float(share @ (lobe * direct[rows, k]))
+                rows = np.nonzero(seen.weights[index] > 0)[0].astype(np.int64)
+                towards = _outgoing_towards(tile, prepared, lit, view, rows, module, settings.threads)
+                values[lit.first:lit.first + b, index] += np.einsum("r,rbc->bc", seen.weights[index, rows], towards)
         times["gather_views_s"] += time.perf_counter() - mark
-        report("lights", 0.25 + 0.75 * min(1.0, (first + b) / len(lights)))
+        report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b) / len(lights)))
 
     cosine = lights[:, 2]
-    lit = cosine > 1e-9
-    values[lit] /= cosine[lit, None, None]
-    values[~lit] = 0.0
+    lit_from_above = cosine > 1e-9
+    values[lit_from_above] /= cosine[lit_from_above, None, None]
+    values[~lit_from_above] = 0.0
     if not np.all(np.isfinite(values)):
         raise RuntimeError("the BRDF simulation produced non-finite values (a bug)")
     stats.update({key: round(value, 3) for key, value in times.items()})
     stats["total_s"] = round(time.perf_counter() - started, 3)
-    stats["glossy"] = glossy
-    stats["visible_samples"] = int(len(visible_rows))
+    stats["glossy"] = tile.glossy
     return BRDFSamples(lights, views, values, through, stats, warnings)
+
+
+def pixel_rays(scene: PeriodicScene, samples: TileSamples, view: np.ndarray, width: int, height: int,
+               per_pixel: int, seed: int):
+    """The rays of a BTF image seen from ``view``: ``per_pixel`` jittered parallel rays through
+    each pixel of the period's texture space (column along X, row 0 at the origin's Y).
+
+    Returns (pixel (R,) int64 row * width + column, corners (R, 3) int32 samples, weights
+    (R, 3) float32 barycentric over per_pixel): rays that meet nothing or a face's back are
+    left out (black).
+    """
+    rng = np.random.default_rng(seed)
+    pixel = np.repeat(np.arange(width * height), per_pixel)
+    jitter = rng.random((2, len(pixel)))
+    column = pixel % width
+    row = pixel // width
+    top = scene.z_range[1] + 0.01 * float(scene.period.max()) + 1e-6
+    # A ray through the macro plane (z = 0 of the tile's lowest point would shift the image
+    # with the view); the reference plane is the top of the slab, so that the image is the
+    # texture seen from above along -v, as a camera rectified to the tile's plane sees it.
+    points = np.column_stack([scene.origin[0] + (column + jitter[0]) / width * scene.period[0],
+                              scene.origin[1] + (row + jitter[1]) / height * scene.period[1],
+                              np.full(len(pixel), top)])
+    hits = scene.trace(points, np.tile(-view, (len(points), 1)))
+    met = hits.fate == HIT
+    faces = hits.triangle[met]
+    facing = samples.face_normal[faces] @ view > 0
+    keep = np.nonzero(met)[0][facing]
+    return (pixel[keep], samples.triangles[hits.triangle[keep]],
+            (hits.barycentric[keep] / per_pixel).astype(np.float32))
+
+
+def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, settings: GonioSettings | None = None,
+                 per_pixel: int = 4, progress: Callable[[str, float], None] | None = None) -> dict:
+    """The tile's BTF: an image per (light, view) pair, rectified to the tile's texture space.
+
+    A pixel's value is pi L / E: the radiance it sends towards the view under a sun of
+    irradiance E, times pi (so a white Lambert plane lit from straight above is 1, and
+    the images darken as real BTF photographs do when the light tilts; the BRDF is the
+    image's mean over pi cos(theta_l)).
+    lights (L, 3), views (V, 3): as simulate_brdf; image_size (width, height);
+    ``write(light_index, view_index, image (height, width, 3) float32, row 0 at the origin's Y)``
+    is called once per pair. Returns the stats.
+    """
+    import time
+    settings, module, lights, views = _start(settings, lights, views)
+    width, height = (int(v) for v in image_size)
+    if not (1 <= width <= 8192 and 1 <= height <= 8192):
+        raise AppearanceRefused(f"the image size must be 1 to 8192 pixels a side, got {width} x {height}")
+    started = time.perf_counter()
+
+    def report(stage: str, fraction: float) -> None:
+        if progress is not None:
+            progress(stage, fraction)
+
+    prepared = _prepare(tile, settings, report)
+    stats = prepared.stats
+    mark = time.perf_counter()
+    report("views", 0.2)
+    view_rays = [pixel_rays(prepared.scene, prepared.samples, view, width, height, per_pixel, settings.seed + index)
+                 for index, view in enumerate(views)]
+    stats["views_s"] = round(time.perf_counter() - mark, 3)
+    times: dict = {"images_s": 0.0, "write_s": 0.0}
+    pixels = width * height
+    for lit in _light_batches(tile, prepared, lights, settings, module, times):
+        b = len(lit.lights)
+        for index, view in enumerate(views):
+            mark = time.perf_counter()
+            pixel, corners, weights = view_rays[index]
+            rows, inverse = np.unique(corners, return_inverse=True)
+            towards = _outgoing_towards(tile, prepared, lit, view, rows.astype(np.int64), module, settings.threads)
+            images = np.zeros((b, pixels, 3))
+            kernels.run(module.splat_pixels, settings.threads, pixel, inverse.reshape(corners.shape).astype(np.int64),
+                        weights, towards, images)
+            images *= np.pi
+            times["images_s"] += time.perf_counter() - mark
+            mark = time.perf_counter()
+            for k in range(b):
+                image = images[k].reshape(height, width, 3).astype(np.float32)
+                if not np.all(np.isfinite(image)):
+                    raise RuntimeError("the BTF simulation produced non-finite values (a bug)")
+                write(lit.first + k, index, image)
+            times["write_s"] += time.perf_counter() - mark
+        report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b) / len(lights)))
+    stats.update({key: round(value, 3) for key, value in times.items()})
+    stats["total_s"] = round(time.perf_counter() - started, 3)
+    stats["images"] = len(lights) * len(views)
+    return stats

@@ -192,6 +192,24 @@ def glossy_towards(incoming, directions, normal, specular, roughness, exponent, 
                     out[r, b, c] += g * incoming[s, i, b, c]
 
 
+@nb.njit(**KERNEL_OPTIONS)
+def splat_pixels(pixel, corners, weights, values, out):
+    """Images from rays: out[k, pixel[r]] += sum over corners of weights[r] * values[corners[r], k].
+
+    pixel : (R,) int64; corners : (R, 3) int64 rows of ``values``; weights : (R, 3) float32
+    values : (Rows, B, 3) float64; out : (B, P, 3) float64, zeroed by the caller.
+    One image per task, so the sums run in ray order whatever the thread count.
+    """
+    for k in nb.prange(values.shape[1]):
+        for r in range(pixel.shape[0]):
+            p = pixel[r]
+            for corner in range(3):
+                w = weights[r, corner]
+                t = corners[r, corner]
+                for c in range(3):
+                    out[k, p, c] += w * values[t, k, c]
+
+
 def warm_up() -> None:
     """Compile (or read from the cache) each kernel for the dtypes its callers pass."""
     s, n, b = 2, 3, 1
@@ -208,5 +226,7 @@ def warm_up() -> None:
     incoming_radiance(field, corners, weights, np.zeros_like(field))
     glossy_outgoing(field, directions, normal, specular, roughness, 8.0, cos_weight, np.zeros((s, b, 3), np.float32),
                     np.zeros_like(field))
+    splat_pixels(np.zeros(1, np.int64), np.zeros((1, 3), np.int64), np.ones((1, 3), np.float32),
+                 np.zeros((1, b, 3)), np.zeros((b, 1, 3)))
     glossy_towards(field, directions, normal, specular, roughness, 8.0, cos_weight, np.arange(s, dtype=np.int64),
                    np.array([0.0, 0.0, 1.0]), np.zeros((s, b, 3)))

@@ -198,3 +198,32 @@ def run_brdf(tile: Tile, out_path: str, output_format: str, lights: int, views: 
             "mean_brdf": [float(x) for x in result.values.mean(axis=(0, 1))],
             "max_transparency": float(result.transparency.max(initial=0.0)),
             "seconds": round(time.perf_counter() - started, 3)}
+
+
+def run_btf(tile: Tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,
+            per_pixel: int = 4, overwrite: bool = False, progress=None) -> dict:
+    """Simulate the tile's BTF on the 81 x 81 directions of Bonn's UBO2003 and write it in
+    the UTIA folder layout (core.appearance.btf). Returns the report (a JSON-able dict)."""
+    from ...core.appearance import btf
+
+    if not 8 <= image_size <= 4096:
+        raise AppearanceRefused(f"--image-size takes 8 to 4096 pixels, got {image_size}")
+    started = time.perf_counter()
+    thetas, phis = btf.ubo_directions()
+    directions = btf.unit_vector(thetas, phis)
+    written_settings = {"directions": settings.directions, "bounces": settings.bounces,
+                        "resolution": settings.resolution, "seed": settings.seed, "rays_per_pixel": per_pixel,
+                        "pixel_value": "pi * radiance / sun irradiance (a white Lambert plane lit from above is 1; "
+                                       "the BRDF is the value over pi cos(theta_l))"}
+    try:
+        writer = btf.BTFWriter(out_dir, image_format, image_size, image_size, tile.period, overwrite=overwrite,
+                               settings=written_settings)
+    except ValueError as error:
+        raise OutputRefused(str(error)) from None
+    stats = gonio.simulate_btf(tile, directions, directions, (image_size, image_size), writer.write, settings,
+                               per_pixel, progress)
+    manifest = writer.finish()
+    return {"output": os.path.abspath(out_dir), "manifest": manifest, "format": image_format,
+            "images": stats["images"], "image_size": image_size, "settings": written_settings,
+            "samples": stats.get("samples"), "stats": stats, "warnings": list(tile.warnings),
+            "seconds": round(time.perf_counter() - started, 3)}

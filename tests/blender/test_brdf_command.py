@@ -114,3 +114,26 @@ def test_an_existing_file_is_not_overwritten(visibake, tmp_path, capfd):
     assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(out)] + FAST) == 2
     assert "does not overwrite" in capfd.readouterr().err
     assert out.read_bytes() == b"the user's own file"
+
+
+def test_btf_writes_the_utia_layout(visibake, tmp_path):
+    btf = importlib.import_module(extension_module_name() + ".core.appearance.btf")
+    blend = groove_scene(tmp_path / "tile.blend")
+    out = tmp_path / "btf"
+    assert visibake.cli.main(["btf", str(blend), "--tile", "Groove", "--out", str(out), "--format", "png",
+                              "--image-size", "8", "--rays-per-pixel", "1", "--directions", "16", "--resolution", "4",
+                              "--bounces", "1", "--no-progress"]) == 0
+    images = sorted(p.relative_to(out).as_posix() for p in out.rglob("*.png"))
+    assert len(images) == 81 * 81
+    assert "tv000_pv000/tl000_pl000_tv000_pv000.png" in images
+    assert "tv075_pv345/tl015_pl060_tv075_pv345.png" in images
+    assert (out / "btf.json").exists()
+    image = btf.read_png(str(out / "tv000_pv000/tl000_pl000_tv000_pv000.png"))
+    assert image.shape == (8, 8, 3)
+    # Lit and seen from above, the grey groove's walls are mid-grey (not black, not white).
+    assert 0.15 < image.mean() < 0.9
+    # A second run into its own folder is allowed; a folder with a stranger's file is not.
+    (out / "notes.txt").write_text("mine")
+    assert visibake.cli.main(["btf", str(blend), "--tile", "Groove", "--out", str(out), "--image-size", "8",
+                              "--directions", "16", "--resolution", "4", "--no-progress"]) == 2
+    assert (out / "notes.txt").read_text() == "mine"

@@ -195,3 +195,35 @@ class TestSimulatedBRDF:
         tile = Tile.of(*brdf_tiles.flat_tile())
         with pytest.raises(AppearanceRefused, match="above the tile"):
             gonio.simulate_brdf(tile, [[0, 0, 1]], [[0, 0, -1]], small_settings())
+
+
+class TestBTF:
+    def test_images_average_to_the_brdf_and_a_flat_tile_is_uniform(self):
+        tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=0.7, specular=0.2, roughness=0.3)
+        lights = np.array([direction(0, 0), direction(45, 30)])
+        views = np.array([direction(30, 200), direction(60, 0)])
+        settings = small_settings(view_rays=128)
+        images = {}
+        stats = gonio.simulate_btf(tile, lights, views, (32, 16), lambda li, vi, image: images.__setitem__((li, vi),
+                                                                                                          image),
+                                   settings, per_pixel=16)
+        assert len(images) == 4 and stats["images"] == 4
+        brdf = gonio.simulate_brdf(tile, lights, views, settings)
+        for (li, vi), image in images.items():
+            assert image.shape == (16, 32, 3)
+            mean = image.mean(axis=(0, 1)) / (np.pi * lights[li, 2])
+            assert np.allclose(mean, brdf.values[li, vi], rtol=0.02), (li, vi)
+        flat = Tile.of(*brdf_tiles.flat_tile(), albedo=1.0)
+        gonio.simulate_btf(flat, [[0, 0, 1]], [[0, 0, 1]], (8, 8),
+                           lambda li, vi, image: images.__setitem__("flat", image), small_settings())
+        assert np.allclose(images["flat"], 1.0, rtol=1e-5)
+
+    def test_the_image_is_the_tile_in_texture_space(self):
+        # A plate over x < 0.5: the left half of the image (columns along X) is lit.
+        positions, triangles = plate(0.0, 0.5, z=0.0)
+        tile = Tile.of(positions, triangles, (1.0, 1.0), (0.0, 0.0), albedo=1.0)
+        images = {}
+        gonio.simulate_btf(tile, [[0, 0, 1]], [[0, 0, 1]], (8, 4), lambda li, vi, image: images.__setitem__(0, image),
+                           small_settings())
+        assert np.allclose(images[0][:, :4], 1.0, rtol=1e-4)
+        assert np.all(images[0][:, 4:] == 0)
