@@ -491,6 +491,21 @@ def _tile_and_settings(args):
     return tile, settings
 
 
+def _run_appearance(args, work) -> dict:
+    """``work(progress)`` under a progress bar; then its report written (--report) and its
+    warnings printed. Returns the report."""
+    progress = _Progress(not args.no_progress)
+    try:
+        report = work(progress)
+    finally:
+        progress.close()
+    if args.report:
+        job.write_report(args.report, report)
+    for warning in report["warnings"]:
+        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    return report
+
+
 def run_brdf(args) -> int:
     """``brdf``: simulate a tile's BRDF (core.appearance.gonio) and write its table."""
     from .adapter import tile_io
@@ -501,16 +516,8 @@ def run_brdf(args) -> int:
     if output_format == "table" and not args.out.lower().endswith(".npz"):
         raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
     tile, settings = _tile_and_settings(args)
-    progress = _Progress(not args.no_progress)
-    try:
-        report = tile_io.run_brdf(tile, args.out, output_format, args.lights, args.views, settings, args.overwrite,
-                                  progress)
-    finally:
-        progress.close()
-    if args.report:
-        job.write_report(args.report, report)
-    for warning in report["warnings"]:
-        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    report = _run_appearance(args, lambda progress: tile_io.run_brdf(
+        tile, args.out, output_format, args.lights, args.views, settings, args.overwrite, progress))
     print(f"visibake: {args.lights} x {args.views} BRDF samples of {args.tile!r} ({report['samples']:,} surface "
           f"samples, {settings.directions} directions, {settings.bounces} bounces) -> {report['output']!r} in "
           f"{report['seconds']:.1f} s; largest directional albedo {report['max_directional_albedo']:.3f}", flush=True)
@@ -524,16 +531,8 @@ def run_btf(args) -> int:
     if not 1 <= args.rays_per_pixel <= 256:
         raise BakeRefused(f"--rays-per-pixel {args.rays_per_pixel}: use 1 to 256")
     tile, settings = _tile_and_settings(args)
-    progress = _Progress(not args.no_progress)
-    try:
-        report = tile_io.run_btf(tile, args.out, args.format, args.image_size, settings, args.rays_per_pixel,
-                                 args.overwrite, progress)
-    finally:
-        progress.close()
-    if args.report:
-        job.write_report(args.report, report)
-    for warning in report["warnings"]:
-        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    report = _run_appearance(args, lambda progress: tile_io.run_btf(
+        tile, args.out, args.format, args.image_size, settings, args.rays_per_pixel, args.overwrite, progress))
     print(f"visibake: BTF of {args.tile!r}: {report['images']} images of {args.image_size}x{args.image_size} -> "
           f"{report['output']!r} in {report['seconds']:.1f} s", flush=True)
     return EXIT_OK

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OutputRefused
+from ..outputs.atomic import atomic_file
 from ..outputs.images import srgb_to_linear, write_exr
 from ..outputs.names import inside_folder
 
@@ -339,11 +340,9 @@ def _direction_list(thetas: np.ndarray, phis: np.ndarray) -> list[dict]:
 
 
 def _write_json_atomically(path: str, content: dict) -> None:
-    temporary = path + ".tmp"
-    with open(temporary, "w", encoding="utf-8") as handle:
+    with atomic_file(path, "w", encoding="utf-8") as handle:
         json.dump(content, handle, indent=1)
         handle.write("\n")
-    os.replace(temporary, path)
 
 
 class BTFWriter:

@@ -83,9 +83,10 @@ Cells whose centre's light or view is at or below the horizon (``~valid_cells()`
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
+
+from ..outputs.atomic import atomic_file
 
 THETA_H_RES = 90
 THETA_D_RES = 90
@@ -336,19 +337,9 @@ def write_merl(path, table):
                          f"marker {NO_DATA}, e.g. {t[bad][0]!r}; not written")
     data = _stored_numbers(t).astype("<f8", copy=False)
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, temporary = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(HEADER.tobytes())
-            f.write(data.tobytes())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-        raise
+    with atomic_file(path) as f:
+        f.write(HEADER.tobytes())
+        f.write(data.tobytes())
 
 
 def read_merl(path):

@@ -44,12 +44,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import zipfile
 import zlib
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..outputs.atomic import atomic_file
 
 FORMAT_NAME = "visibake-bsdf"
 FORMAT_VERSION = 1
@@ -293,19 +294,9 @@ def save_tabulated(path: str, bsdf: TabulatedBSDF) -> str:
         "checksum": np.array(checksum(*arrays.values(), bsdf.units, bsdf.settings)),
     }
     path = os.path.abspath(path)
-    folder = os.path.dirname(path)
-    handle, temporary = tempfile.mkstemp(prefix=".visibake-bsdf-", suffix=".npz.tmp", dir=folder)
-    try:
-        # A file object, not a name: np.savez_compressed would append ".npz" to the temporary name.
-        with os.fdopen(handle, "wb") as stream:
-            np.savez_compressed(stream, **content)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-        raise
+    # A stream, not a name: np.savez_compressed would append ".npz" to a temporary name.
+    with atomic_file(path) as stream:
+        np.savez_compressed(stream, **content)
     return path
 
 

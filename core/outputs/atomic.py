@@ -1,0 +1,24 @@
+"""Files written whole or not at all: a reader (or a crash) never sees half a file."""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+
+
+@contextlib.contextmanager
+def atomic_file(path: str, mode: str = "wb", encoding: str | None = None):
+    """Yield a stream to a temporary file beside ``path``; when the block ends normally it is
+    flushed to disk and renamed over ``path``, otherwise removed (and ``path`` left as it was)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    handle, temporary = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(handle, mode, encoding=encoding) as stream:
+            yield stream
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+        raise
