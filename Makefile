@@ -9,7 +9,8 @@
 #   make test-core  tests/core only (no bpy, no extension build): seconds
 #   make lint     ruff (pinned in requirements.txt; config in ruff.toml)
 #   make demo     tools/visibake.py demo --out out/demo
-#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|standard|bounces|full), or accuracy.py (=accuracy), volume_*.py (=volume)
+#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|standard|bounces|full), or accuracy.py (=accuracy), volume_*.py (=volume),
+#                 brdf_vs_cycles.py (=appearance)
 #   make clean    build/test outputs;  make distclean  also .venv and wheels
 
 SHELL := /bin/bash
@@ -171,6 +172,7 @@ demo: venv build
 # BENCH_PROFILE=accuracy: error against N per scene, one technique at a time (benchmarks/accuracy.py).
 # BENCH_PROFILE=seams: seam stitching judged on renders of the baked lighting (benchmarks/seams.py).
 # BENCH_PROFILE=volume: volume lighting against Monte Carlo and Cycles (benchmarks/volume_accuracy.py, volume_vs_cycles.py).
+# BENCH_PROFILE=appearance: tile BRDFs against Cycles, and their speed (benchmarks/brdf_vs_cycles.py -> docs/appearance/).
 BENCH_PROFILE ?= quick
 bench: venv
 ifeq ($(BENCH_PROFILE),accuracy)
@@ -180,6 +182,8 @@ else ifeq ($(BENCH_PROFILE),seams)
 else ifeq ($(BENCH_PROFILE),volume)
 	$(PY) benchmarks/volume_accuracy.py
 	$(PY) benchmarks/volume_vs_cycles.py
+else ifeq ($(BENCH_PROFILE),appearance)
+	$(PY) benchmarks/brdf_vs_cycles.py
 else
 	$(PY) benchmarks/run.py --profile $(BENCH_PROFILE)
 endif

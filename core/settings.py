@@ -351,3 +351,23 @@ VOLUME_SETTINGS = _table(
     Setting("volume_points", int, 2, "Points per Ray", minimum=1, maximum=16, soft_max=4,
             help="Scattering points each table ray stores, stratified along it (more: less noise, more memory)"),
 )
+
+
+# The virtual gonioreflectometer (core.appearance): the panel's Materials from Micro-Geometry
+# section and `visibake brdf` (whose options default to these).
+APPEARANCE_SETTINGS = _table(
+    Setting("appearance_lights", int, 100, "Light Directions", minimum=1, maximum=10000, soft_max=400,
+            help="Light directions over the hemisphere the tile's BRDF is sampled at"),
+    Setting("appearance_views", int, 100, "View Directions", minimum=1, maximum=10000, soft_max=400,
+            help="View directions over the hemisphere, for each light"),
+    Setting("appearance_directions", int, 128, "Directions", minimum=8, maximum=4096, soft_max=1024,
+            help="Global directions of the tile's visibility tables (the inter-reflections' quadrature)"),
+    Setting("appearance_bounces", int, 2, "Bounces", minimum=0, maximum=64, soft_max=8,
+            help="Inter-reflections within the micro-geometry after the direct light"),
+    Setting("appearance_resolution", int, 64, "Resolution", minimum=1, maximum=2048, soft_max=256,
+            help="Samples across the tile's period (its mesh is refined to this)"),
+    Setting("appearance_format", str, "merl", "Format", help="The file the BRDF is written to",
+            choices=(("merl", "MERL", "An isotropic MERL .binary table, as renderers' measured-BRDF readers take"),
+                     ("table", "Table", "The light x view samples and the transparency, as .npz "
+                                        "(anisotropic and see-through tiles)"))),
+)

@@ -2,6 +2,6 @@
 and the headless command (``cli``). They stay thin: the Blender side of the data flow
 is in ``adapter``, everything else in ``core``."""
 from ..panels import properties
-from . import bake, cache, preview, volume
+from . import appearance, bake, cache, preview, volume
 
-classes = properties.classes + bake.classes + cache.classes + preview.classes + volume.classes
+classes = properties.classes + bake.classes + cache.classes + preview.classes + volume.classes + appearance.classes

@@ -214,5 +214,41 @@ class VIEW3D_PT_visibake_volumes(bpy.types.Panel):
                 layout.label(text="The last volume report cannot be read")
 
 
+class VIEW3D_PT_visibake_appearance(bpy.types.Panel):
+    bl_label = "Materials from Micro-Geometry"
+    bl_idname = "VIEW3D_PT_visibake_appearance"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "VisiBake"
+    bl_parent_id = "VIEW3D_PT_visibake"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        from ..operators import appearance
+
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.visibake
+        tile = appearance.tile_object(context)
+        layout.label(text=f"Tile: {tile.name} (one period, repeating in X and Y)" if tile
+                     else "Make the tile's mesh object active", icon="MOD_ARRAY")
+        column = layout.column()
+        for name in ("appearance_lights", "appearance_views", "appearance_directions", "appearance_bounces",
+                     "appearance_resolution", "appearance_format"):
+            column.prop(props, name)
+        path = appearance.output_path(context, tile)
+        layout.label(text=f"Into {path}" if path else "Set an Output Folder (or save the file)")
+        row = layout.row()
+        row.enabled = tile is not None and bool(path)
+        row.operator("visibake.simulate_brdf", icon="MATERIAL")
+        report = context.scene.get("visibake_brdf_report")
+        if report:
+            try:
+                layout.label(text=appearance.summary(json.loads(report)).removeprefix("VisiBake: "))
+            except (TypeError, ValueError, KeyError):
+                layout.label(text="The last BRDF report cannot be read")
+
+
 classes = (VIEW3D_PT_visibake, VISIBAKE_UL_objects, VIEW3D_PT_visibake_objects, VIEW3D_PT_visibake_report,
-           VIEW3D_PT_visibake_volumes)
+           VIEW3D_PT_visibake_volumes, VIEW3D_PT_visibake_appearance)

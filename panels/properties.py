@@ -7,7 +7,7 @@ files store: never rename one.
 """
 import bpy
 
-from ..core.settings import OBJECT_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
+from ..core.settings import APPEARANCE_SETTINGS, OBJECT_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
 
 
 def setting_property(spec: Setting, **options):
@@ -105,6 +105,12 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     volume_directions: setting_property(VOLUME_SETTINGS["volume_directions"])
     volume_bounces: setting_property(VOLUME_SETTINGS["volume_bounces"])
     volume_points: setting_property(VOLUME_SETTINGS["volume_points"])
+    appearance_lights: setting_property(APPEARANCE_SETTINGS["appearance_lights"])
+    appearance_views: setting_property(APPEARANCE_SETTINGS["appearance_views"])
+    appearance_directions: setting_property(APPEARANCE_SETTINGS["appearance_directions"])
+    appearance_bounces: setting_property(APPEARANCE_SETTINGS["appearance_bounces"])
+    appearance_resolution: setting_property(APPEARANCE_SETTINGS["appearance_resolution"])
+    appearance_format: setting_property(APPEARANCE_SETTINGS["appearance_format"])
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

@@ -6,9 +6,10 @@ refined until no edge is longer than two cells of period / resolution (the paper
 per-vertex tables), so that a shadow edge or an inter-reflection is resolved as finely as a 64x64 texture
 would at resolution 64, on any mesh, UV-mapped or not.
 
-A sample is shared by the faces around a point that are smooth, or that lie in one plane
-with the same material; a crease or a material border splits it, so that a V-groove's two
-walls keep their own light at the bottom of the groove.
+A sample is shared by the faces around a point that shade it with one normal (smooth faces
+through their interpolated corner normals, flat ones in one plane) and one material; a
+crease or a material border splits it, so that a V-groove's two walls keep their own light
+at the bottom of the groove.
 """
 from __future__ import annotations
 
@@ -45,6 +46,8 @@ class Tile:
     smooth : (T,) bool smooth-shaded faces share their samples' normals
     material : (T,) int32 the triangle's material slot (a border between two splits samples)
     phong_exponent : float
+    corner_normals : (T, 3, 3) float64 unit shading normals at each triangle's corners (as
+        the renderer shades: Blender's corner normals), or None for smooth_corner_normals
     warnings : what was noticed about the tile (for the report)
     """
 
@@ -58,11 +61,12 @@ class Tile:
     smooth: np.ndarray
     material: np.ndarray
     phong_exponent: float = 8.0
+    corner_normals: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
 
     @classmethod
     def of(cls, positions, triangles, period=None, origin=None, albedo=(0.8, 0.8, 0.8), specular=0.0,
-           roughness=-1.0, smooth=False, material=0, phong_exponent: float = 8.0) -> Tile:
+           roughness=-1.0, smooth=False, material=0, phong_exponent: float = 8.0, corner_normals=None) -> Tile:
         """A tile with per-triangle properties broadcast from scalars; the period defaults to
         the bounding box in XY. Refuses (core.errors.AppearanceRefused) what cannot be simulated."""
         positions = np.asarray(positions, np.float64).reshape(-1, 3)
@@ -87,6 +91,13 @@ class Tile:
                    np.broadcast_to(np.asarray(roughness, np.float32), (count,)).copy(),
                    np.broadcast_to(np.asarray(smooth, bool), (count,)).copy(),
                    np.broadcast_to(np.asarray(material, np.int32), (count,)).copy(), float(phong_exponent))
+        if corner_normals is None:
+            tile.corner_normals = smooth_corner_normals(positions, triangles, tile.smooth)
+        else:
+            corner_normals = np.asarray(corner_normals, np.float64).reshape(count, 3, 3)
+            if not np.all(np.isfinite(corner_normals)):
+                raise AppearanceRefused("the tile's normals are not finite")
+            tile.corner_normals = corner_normals
         if not np.any(face_normals(positions, triangles)[1]):
             raise AppearanceRefused("the tile's faces all have zero area")
         if np.any(tile.albedo < 0) or np.any(tile.albedo > 1) or np.any(tile.specular < 0) or np.any(tile.specular > 1):
@@ -155,22 +166,24 @@ def _unmatched(points: np.ndarray, others: np.ndarray, tolerance: float) -> int:
     return int(np.sum(~fits))
 
 
-def refine(positions: np.ndarray, triangles: np.ndarray, longest: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def refine(positions: np.ndarray, triangles: np.ndarray, longest: float):
     """Split every triangle into four at its edges' midpoints until no edge is longer than
     ``longest``. Midpoints are shared between neighbours, so the mesh stays watertight.
 
     Returns (positions (P', 3) float64, triangles (T', 3) int32, parent (T',) int64: the
-    original triangle each came from).
+    original triangle each came from, corner_bary (T', 3, 3) float64: each corner's
+    barycentric weights in its parent).
     """
     parent = np.arange(len(triangles), dtype=np.int64)
+    corner_bary = np.tile(np.eye(3), (len(triangles), 1, 1))
     while True:
         corners = positions[triangles]
         edges = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2)
         if len(triangles) == 0 or edges.max() <= longest:
-            return positions, triangles, parent
+            return positions, triangles, parent, corner_bary
         if len(triangles) * 4 > MAX_REFINED_TRIANGLES:
-            raise AppearanceRefused(f"the tile at this resolution needs more than {MAX_REFINED_TRIANGLES:,} triangles; "
-                              "lower the resolution or simplify the tile")
+            raise AppearanceRefused(f"the tile at this resolution needs more than {MAX_REFINED_TRIANGLES:,} "
+                                    "triangles; lower the resolution or simplify the tile")
         pairs = np.sort(np.stack([triangles, triangles[:, [1, 2, 0]]], axis=2).reshape(-1, 2), axis=1)
         unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
         middle = len(positions) + inverse.reshape(-1, 3)
@@ -179,7 +192,31 @@ def refine(positions: np.ndarray, triangles: np.ndarray, longest: float) -> tupl
         ab, bc, ca = middle.T
         triangles = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
                                     np.stack([ab, bc, ca], 1)]).astype(np.int32)
+        ba, bb, bcc = corner_bary[:, 0], corner_bary[:, 1], corner_bary[:, 2]
+        mab, mbc, mca = 0.5 * (ba + bb), 0.5 * (bb + bcc), 0.5 * (bcc + ba)
+        corner_bary = np.concatenate([np.stack([ba, mab, mca], 1), np.stack([mab, bb, mbc], 1),
+                                      np.stack([mca, mbc, bcc], 1), np.stack([mab, mbc, mca], 1)])
         parent = np.concatenate([parent] * 4)
+
+
+def smooth_corner_normals(positions: np.ndarray, triangles: np.ndarray, smooth: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) float64 unit normals at each triangle's corners: where the face is smooth, the
+    vertex normal weighted by the corner angles of the smooth faces around it (as Blender
+    computes a mesh's normals); where it is flat, the face's own normal."""
+    normals, _ = face_normals(positions, triangles)
+    corners = positions[triangles]
+    vertex = np.zeros((len(positions), 3))
+    for corner in range(3):
+        one = corners[:, (corner + 1) % 3] - corners[:, corner]
+        other = corners[:, (corner + 2) % 3] - corners[:, corner]
+        cosine = np.einsum("fx,fx->f", one, other) / np.maximum(
+            np.linalg.norm(one, axis=1) * np.linalg.norm(other, axis=1), 1e-300)
+        angle = np.arccos(np.clip(cosine, -1.0, 1.0))
+        np.add.at(vertex, triangles[smooth, corner], (normals * angle[:, None])[smooth])
+    vertex /= np.maximum(np.linalg.norm(vertex, axis=1, keepdims=True), 1e-300)
+    result = np.repeat(normals[:, None, :], 3, axis=1)
+    result[smooth] = vertex[triangles[smooth]]
+    return result
 
 
 @dataclass
@@ -215,23 +252,28 @@ def tile_samples(tile: Tile, resolution: int) -> TileSamples:
     # A grid of resolution x resolution cells has diagonals of sqrt(2) cells, and a sloped
     # one longer: two cells lets a 64 x 64 heightfield at resolution 64 be its own samples.
     spacing = float(tile.period.max()) / resolution
-    positions, triangles, parent = refine(tile.positions, tile.triangles, 2.0 * spacing)
+    positions, triangles, parent, corner_bary = refine(tile.positions, tile.triangles, 2.0 * spacing)
     normals, keep = face_normals(positions, triangles)
     positions_used, triangles, parent, normals = positions, triangles[keep], parent[keep], normals[keep]
+    # Smooth faces shade with their parent's corner normals, interpolated as the renderer does
+    # (measured: averaging the refined faces' own normals drifted towards flat shading, 2% too
+    # bright on a woven tile against Cycles).
+    shading = np.einsum("fcb,fbx->fcx", corner_bary[keep], tile.corner_normals[parent]).reshape(-1, 3)
     areas = triangle_areas(positions[triangles])
     corner_point = triangles.reshape(-1)
     corner_face = np.repeat(np.arange(len(triangles)), 3)
     smooth = tile.smooth[parent][corner_face]
-    # Corners share a sample when they sit at one point, with one material, and either both
-    # faces are smooth or their planes agree.
-    plane = np.round(normals[corner_face] / COPLANAR).astype(np.int64)
-    plane[smooth] = 0
+    # Corners share a sample when they sit at one point, with one material, and the same
+    # normal: their faces' planes where flat, their shading normals where smooth (a sharp edge
+    # in a smooth surface splits its samples).
+    plane = np.round(np.where(smooth[:, None], shading, normals[corner_face]) / COPLANAR).astype(np.int64)
     keys = np.column_stack([corner_point, tile.material[parent][corner_face], smooth.astype(np.int64), plane])
     _, sample_of_corner = np.unique(keys, axis=0, return_inverse=True)
     sample_of_corner = sample_of_corner.reshape(-1)
     count = int(sample_of_corner.max()) + 1
     weighted = np.zeros((count, 3))
-    np.add.at(weighted, sample_of_corner, normals[corner_face] * areas[corner_face, None])
+    corner_normal = np.where(smooth[:, None], shading, normals[corner_face])
+    np.add.at(weighted, sample_of_corner, corner_normal * areas[corner_face, None])
     length = np.linalg.norm(weighted, axis=1, keepdims=True)
     normal = weighted / np.maximum(length, 1e-300)
     area = np.zeros(count)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from dataclasses import dataclass, field
 
 import bpy
 
@@ -13,11 +14,18 @@ import numpy as np
 from ...core.appearance import gonio
 from ...core.appearance.tile import Tile
 from ...core.errors import AppearanceRefused, OutputRefused
+from ...core.outputs.atomic import atomic_file
 from . import compat
 from .extract import _linked_texture, _surface_node, world_matrix
 
 # Fresnel reflectance of Blender's default dielectric (IOR 1.5) at normal incidence.
 DEFAULT_F0 = 0.04
+
+
+def preferred_threads() -> int:
+    """The Threads preference (0: all cores)."""
+    from .volume_job import preferred_threads as threads
+    return threads()
 
 
 def tile_objects(scene: bpy.types.Scene, name: str) -> list:
@@ -91,7 +99,7 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
     """
     warnings: list[str] = []
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    positions, triangles, albedo, specular, roughness, smooth, material = [], [], [], [], [], [], []
+    positions, triangles, albedo, specular, roughness, smooth, material, normals = [], [], [], [], [], [], [], []
     offset = 0
     materials: dict = {}
     for obj in tile_objects(scene, name):
@@ -111,8 +119,17 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
             mesh.loop_triangles.foreach_get("material_index", slots)
             shading = np.empty(faces, bool)
             mesh.loop_triangles.foreach_get("use_smooth", shading)
+            # The corner normals Cycles shades with (smooth, sharp edges, custom normals), to world space.
+            split = np.empty(faces * 9, np.float32)
+            mesh.loop_triangles.foreach_get("split_normals", split)
+            inverse_transpose = np.linalg.inv(matrix[:3, :3]).T
+            split = split.reshape(-1, 3).astype(np.float64) @ inverse_transpose.T
+            split /= np.maximum(np.linalg.norm(split, axis=1, keepdims=True), 1e-300)
+            split = split.reshape(-1, 3, 3)
             if np.linalg.det(matrix[:3, :3]) < 0:
-                indices = indices.reshape(-1, 3)[:, ::-1].ravel()  # a mirroring transform turns faces inside out
+                # A mirroring transform turns faces inside out.
+                indices = indices.reshape(-1, 3)[:, ::-1].ravel()
+                split = split[:, ::-1]
             slot_materials = [slot.material for slot in obj.material_slots] or [None]
             for slot in np.unique(slots):
                 chosen = slot_materials[min(int(slot), len(slot_materials) - 1)]
@@ -127,6 +144,7 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
                 material.append(np.full(int(rows.sum()), index))
                 triangles.append(indices.reshape(-1, 3)[rows] + offset)
                 smooth.append(shading[rows])
+                normals.append(split[rows])
             positions.append(points)
             offset += count
         finally:
@@ -145,59 +163,158 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
         roughness = np.full_like(roughness, -1.0)
         exponent = float(phong[1])
     tile = Tile.of(np.concatenate(positions), np.concatenate(triangles), period, None, albedo, specular, roughness,
-                   np.concatenate(smooth), np.concatenate(material), exponent)
+                   np.concatenate(smooth), np.concatenate(material), exponent, np.concatenate(normals))
     tile.warnings[:0] = warnings
     return tile
 
 
+# Beside each file VisiBake writes: its report, which also marks the file as VisiBake's to replace.
+SIDECAR = ".visibake.json"
+
+
 def _refuse_foreign_file(path: str, overwrite: bool) -> None:
-    if os.path.lexists(path) and not overwrite:
-        raise OutputRefused(f"{path} exists; VisiBake does not overwrite a file it may not have written "
-                            "(remove it, choose another path, or pass --overwrite)")
+    if os.path.lexists(path) and not overwrite and not os.path.isfile(path + SIDECAR):
+        raise OutputRefused(f"{path} exists and VisiBake did not write it; VisiBake does not overwrite it (remove "
+                            "it, choose another path, or pass --overwrite)")
     folder = os.path.dirname(path) or "."
     if not os.path.isdir(folder):
         raise OutputRefused(f"the folder {folder} does not exist")
 
 
+@dataclass
+class BRDFOutcome:
+    """What a BRDF run wrote: the report (``report["files"]``), and how to take it back."""
+
+    report: dict
+    written: list = field(default_factory=list)
+    folders: list = field(default_factory=list)
+
+    def rollback(self) -> None:
+        for path in self.written:
+            if os.path.isfile(path):
+                os.remove(path)
+        for folder in reversed(self.folders):
+            if os.path.isdir(folder) and not os.listdir(folder):
+                os.rmdir(folder)
+        self.written.clear()
+        self.folders.clear()
+
+
+class BRDFJob:
+    """Simulate a tile's BRDF on ``lights`` x ``views`` hemisphere directions and write it as
+    a MERL ``.binary`` (isotropic, filled by core.appearance.merl.fill_from_samples) or a
+    tabulated ``.npz`` (core.appearance.tabulated), with its report beside it (FILE.visibake.json).
+
+    ``tile`` is a core Tile, or a callable reading it on the main thread (the panel reads the
+    scene there). ``progress(stage, fraction)`` may raise core.errors.Cancelled.
+    """
+
+    needs_main_thread = False
+
+    def __init__(self, tile, out_path: str, output_format: str, lights: int, views: int,
+                 settings: gonio.GonioSettings, overwrite: bool = False, progress=None, make_folder: bool = False):
+        """make_folder: create the output's folder when it is missing (the panel's default
+        folder beside the .blend); it goes again if the run fails."""
+        self.make_folder = make_folder
+        self.tile_source = tile
+        self.out_path = os.path.abspath(out_path)
+        self.output_format = output_format
+        self.lights, self.views = int(lights), int(views)
+        self.settings = settings
+        self.overwrite = overwrite
+        self.progress = progress
+        self.started = time.perf_counter()
+        self.outcome = BRDFOutcome({"command": "brdf", "files": [], "warnings": []})
+
+    def modal_steps(self) -> list:
+        """(name, step, on a worker thread) for ModalBake."""
+        return [("read", self.read, False), ("compute", self.compute, True), ("finish", self.finish, False)]
+
+    def expected_work(self) -> dict:
+        return {}
+
+    def run(self) -> BRDFOutcome:
+        try:
+            self.read()
+            self.compute()
+            return self.finish()
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        self.outcome.rollback()
+
+    def read(self) -> None:
+        """Main thread: the tile (a callable reads it from the scene, and may refuse first)."""
+        self.tile = self.tile_source() if callable(self.tile_source) else self.tile_source
+        folder = os.path.dirname(self.out_path)
+        if self.make_folder and not os.path.isdir(folder):
+            if os.path.lexists(folder):
+                raise OutputRefused(f"{folder} is not a folder")
+        else:
+            _refuse_foreign_file(self.out_path, self.overwrite)
+        if self.output_format not in ("merl", "table"):
+            raise AppearanceRefused(f"unknown BRDF format {self.output_format!r}: use merl or table")
+        if not 1 <= self.lights <= 10_000 or not 1 <= self.views <= 10_000:
+            raise AppearanceRefused(f"light and view directions take 1 to 10000 each, got {self.lights} and "
+                                    f"{self.views}")
+        self.settings.check()
+
+    def compute(self) -> None:
+        light_set = gonio.hemisphere_directions(self.lights)
+        view_set = gonio.hemisphere_directions(self.views)
+        self.result = gonio.simulate_brdf(self.tile, light_set, view_set, self.settings, self.progress)
+        if self.progress is not None:
+            self.progress("writing", 0.0)
+        result = self.result
+        if self.output_format == "merl":
+            from ...core.appearance import merl
+            pairs_light = np.repeat(result.light, len(result.view), axis=0)
+            pairs_view = np.tile(result.view, (len(result.light), 1))
+            self.table = merl.fill_from_samples(pairs_light, pairs_view, result.values.reshape(-1, 3))
+
+    def finish(self) -> BRDFOutcome:
+        from ...core.appearance import merl, tabulated
+
+        settings, result = self.settings, self.result
+        written_settings = {"directions": settings.directions, "bounces": settings.bounces,
+                            "resolution": settings.resolution, "view_rays": settings.view_rays,
+                            "seed": settings.seed, "lights": self.lights, "views": self.views}
+        folder = os.path.dirname(self.out_path)
+        if self.make_folder and not os.path.isdir(folder):
+            os.makedirs(folder)
+            self.outcome.folders.append(folder)
+        if self.output_format == "merl":
+            merl.write_merl(self.out_path, self.table)
+        else:
+            bsdf = tabulated.TabulatedBSDF(result.light.astype(np.float32), result.view.astype(np.float32),
+                                           result.values.astype(np.float32),
+                                           np.repeat(result.transparency[:, None], 3, axis=1).astype(np.float32),
+                                           self.tile.period, "m", json.dumps(written_settings))
+            tabulated.save_tabulated(self.out_path, bsdf)
+        self.outcome.written.append(self.out_path)
+        # Directional albedo per light: the reflected share, over the view set's equal-area cells.
+        albedo = (result.values * result.view[None, :, 2, None]).sum(axis=1) * 2 * np.pi / len(result.view)
+        report = self.outcome.report
+        report.update({"output": self.out_path, "format": self.output_format, "settings": written_settings,
+                       "samples": result.stats.get("samples"), "stats": result.stats,
+                       "max_directional_albedo": float(albedo.max()),
+                       "mean_brdf": [float(x) for x in result.values.mean(axis=(0, 1))],
+                       "max_transparency": float(result.transparency.max(initial=0.0)),
+                       "seconds": round(time.perf_counter() - self.started, 3)})
+        report["warnings"].extend(result.warnings)
+        report["files"] = [self.out_path, self.out_path + SIDECAR]
+        with atomic_file(self.out_path + SIDECAR, "w", encoding="utf-8") as handle:
+            json.dump(report, handle, indent=1, default=float)
+        self.outcome.written.append(self.out_path + SIDECAR)
+        return self.outcome
+
+
 def run_brdf(tile: Tile, out_path: str, output_format: str, lights: int, views: int, settings: gonio.GonioSettings,
              overwrite: bool = False, progress=None) -> dict:
-    """Simulate the tile's BRDF on ``lights`` x ``views`` hemisphere directions and write it as
-    a MERL ``.binary`` (isotropic, filled by core.appearance.merl.fill_from_samples) or a
-    tabulated ``.npz`` (core.appearance.tabulated). Returns the report (a JSON-able dict)."""
-    from ...core.appearance import merl, tabulated
-
-    out_path = os.path.abspath(out_path)
-    _refuse_foreign_file(out_path, overwrite)
-    if not 1 <= lights <= 10_000 or not 1 <= views <= 10_000:
-        raise AppearanceRefused(f"--lights and --views take 1 to 10000 directions, got {lights} and {views}")
-    started = time.perf_counter()
-    light_set = gonio.hemisphere_directions(lights)
-    view_set = gonio.hemisphere_directions(views)
-    result = gonio.simulate_brdf(tile, light_set, view_set, settings, progress)
-    if progress is not None:
-        progress("writing", 0.0)
-    written_settings = {"directions": settings.directions, "bounces": settings.bounces,
-                        "resolution": settings.resolution, "view_rays": settings.view_rays, "seed": settings.seed,
-                        "lights": lights, "views": views}
-    if output_format == "merl":
-        pairs_light = np.repeat(result.light, len(result.view), axis=0)
-        pairs_view = np.tile(result.view, (len(result.light), 1))
-        table = merl.fill_from_samples(pairs_light, pairs_view, result.values.reshape(-1, 3))
-        merl.write_merl(out_path, table)
-    else:
-        bsdf = tabulated.TabulatedBSDF(result.light.astype(np.float32), result.view.astype(np.float32),
-                                       result.values.astype(np.float32),
-                                       np.repeat(result.transparency[:, None], 3, axis=1).astype(np.float32),
-                                       tile.period, "m", json.dumps(written_settings))
-        tabulated.save_tabulated(out_path, bsdf)
-    # Directional albedo per light: the reflected share, over the view set's equal-area cells.
-    albedo = (result.values * result.view[None, :, 2, None]).sum(axis=1) * 2 * np.pi / len(result.view)
-    return {"output": out_path, "format": output_format, "settings": written_settings,
-            "samples": result.stats.get("samples"), "stats": result.stats, "warnings": result.warnings,
-            "max_directional_albedo": float(albedo.max()),
-            "mean_brdf": [float(x) for x in result.values.mean(axis=(0, 1))],
-            "max_transparency": float(result.transparency.max(initial=0.0)),
-            "seconds": round(time.perf_counter() - started, 3)}
+    """:class:`BRDFJob` at once (the command line); returns its report."""
+    return BRDFJob(tile, out_path, output_format, lights, views, settings, overwrite, progress).run().report
 
 
 def run_btf(tile: Tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,

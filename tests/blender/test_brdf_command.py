@@ -137,3 +137,26 @@ def test_btf_writes_the_utia_layout(visibake, tmp_path):
     assert visibake.cli.main(["btf", str(blend), "--tile", "Groove", "--out", str(out), "--image-size", "8",
                               "--directions", "16", "--resolution", "4", "--no-progress"]) == 2
     assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_the_panel_operator_simulates_the_active_object(visibake, appearance, tmp_path):
+    merl, _ = appearance
+    blend = groove_scene(tmp_path / "tile.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    scene = bpy.context.scene
+    props = scene.visibake
+    props.output_dir = str(tmp_path / "materials")  # missing: the operator makes it
+    props.appearance_lights, props.appearance_views = 5, 5
+    props.appearance_directions, props.appearance_resolution = 16, 4
+    bpy.context.view_layer.objects.active = None
+    with pytest.raises(RuntimeError, match="make a mesh object active"):  # an error report raises in scripts
+        bpy.ops.visibake.simulate_brdf()
+    assert not (tmp_path / "materials").exists()
+    bpy.context.view_layer.objects.active = scene.objects["Groove"]
+    assert bpy.ops.visibake.simulate_brdf() == {"FINISHED"}
+    out = tmp_path / "materials" / "Groove.binary"
+    assert os.path.getsize(out) == merl.FILE_BYTES
+    assert (tmp_path / "materials" / "Groove.binary.visibake.json").exists()
+    assert "visibake_brdf_report" in scene
+    # Its own file is VisiBake's to replace on the next click.
+    assert bpy.ops.visibake.simulate_brdf() == {"FINISHED"}

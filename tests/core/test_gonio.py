@@ -92,11 +92,14 @@ class TestTile:
 
     def test_refinement_keeps_the_surface_and_shares_midpoints(self):
         positions, triangles, _ = brdf_tiles.v_groove_tile(0.5)
-        fine, faces, parent = refine(positions, triangles, 0.1)
+        fine, faces, parent, corner_bary = refine(positions, triangles, 0.1)
         corners = fine[faces]
         assert np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)) <= 0.1
         assert triangle_areas(corners).sum() == pytest.approx(triangle_areas(positions[triangles]).sum())
         assert np.array_equal(np.bincount(parent), np.full(len(triangles), len(faces) // len(triangles)))
+        # Each corner's barycentric weights in its parent put it where it is.
+        placed = np.einsum("fcb,fbx->fcx", corner_bary, positions[triangles][parent])
+        assert np.allclose(placed, fine[faces])
         # Watertight: every interior edge is shared by two faces.
         edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
         _, counts = np.unique(edges, axis=0, return_counts=True)
@@ -111,6 +114,19 @@ class TestTile:
         assert samples.area.sum() == pytest.approx(2 * math.hypot(0.5, 0.5))
         flat = tile_samples(Tile.of(*brdf_tiles.flat_tile()), 8)
         assert len(flat) == 9 * 9
+
+    def test_smooth_samples_take_the_interpolated_corner_normals(self):
+        # A smooth ridge: a sample halfway along the first face's edge from its corner 0 to its
+        # corner 2 leans as the interpolation of those corners' normals, not as its faces.
+        positions = np.array([[0, 0, 0], [0.5, 0, 0.5], [1, 0, 0], [0, 1, 0], [0.5, 1, 0.5], [1, 1, 0]], float)
+        triangles = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]], np.int32)
+        tile = Tile.of(positions, triangles, (1, 1), smooth=True)
+        samples = tile_samples(tile, 8)
+        quarter = np.isclose(samples.position[:, 0], 0.25) & np.isclose(samples.position[:, 1], 0.5)
+        normal = samples.normal[quarter][0]
+        expected = 0.5 * (tile.corner_normals[0, 0] + tile.corner_normals[0, 2])
+        assert not np.allclose(tile.corner_normals[0, 0], tile.corner_normals[0, 2])
+        assert np.allclose(normal, expected / np.linalg.norm(expected), atol=1e-9)
 
 
 class TestSimulatedBRDF:

@@ -1,0 +1,74 @@
+"""Simulate BRDF: the active mesh object as a micro-geometry tile (adapter.tile_io.BRDFJob)."""
+import json
+import os
+
+import bpy
+
+from ..core.appearance import gonio
+from .adapter import tile_io
+from .bake import _BakeOperator
+
+EXTENSIONS = {"merl": ".binary", "table": ".npz"}
+
+
+def tile_object(context):
+    """The active object when it is a mesh (the tile), else None."""
+    obj = context.active_object
+    return obj if obj is not None and obj.type == "MESH" else None
+
+
+def output_path(context, obj) -> str:
+    """``<Output Folder>/<object>.binary`` (or .npz), the folder beside the saved .blend when
+    none is set ('visibake_materials'); '' if neither."""
+    folder = bpy.path.abspath(context.scene.visibake.output_dir)
+    if not folder and bpy.data.filepath:
+        folder = os.path.join(os.path.dirname(bpy.data.filepath), "visibake_materials")
+    if not folder or obj is None:
+        return ""
+    name = bpy.path.clean_name(obj.name)
+    return os.path.join(folder, name + EXTENSIONS[context.scene.visibake.appearance_format])
+
+
+def summary(report: dict) -> str:
+    return (f"VisiBake: BRDF of {report['settings']['lights']} x {report['settings']['views']} directions -> "
+            f"{os.path.basename(report['output'])} in {report['seconds']:.1f} s (largest directional albedo "
+            f"{report['max_directional_albedo']:.3f})")
+
+
+class VISIBAKE_OT_simulate_brdf(_BakeOperator, bpy.types.Operator):
+    """Simulate the BRDF of the active mesh object as one period of a surface repeating in X and Y (its \
+bounding box), and write it as a MERL or tabulated file in the Output Folder"""
+
+    bl_idname = "visibake.simulate_brdf"
+    bl_label = "Simulate BRDF"
+    bl_options = {"REGISTER"}
+
+    def _job(self, context, progress) -> tile_io.BRDFJob:
+        props = context.scene.visibake
+        obj = tile_object(context)
+        path = output_path(context, obj)
+        scene = context.scene
+
+        def read_tile():
+            if obj is None:
+                raise tile_io.AppearanceRefused("make a mesh object active: it is the tile")
+            if not path:
+                raise tile_io.OutputRefused("set an Output Folder (or save the file): the BRDF is written there")
+            return tile_io.read_tile(scene, obj.name)
+
+        settings = gonio.GonioSettings(directions=props.appearance_directions, bounces=props.appearance_bounces,
+                                       resolution=props.appearance_resolution, seed=props.seed,
+                                       threads=tile_io.preferred_threads())
+        return tile_io.BRDFJob(read_tile, path or os.path.join(os.getcwd(), "unset.binary"), props.appearance_format,
+                               props.appearance_lights, props.appearance_views, settings, False, progress,
+                               make_folder=True)
+
+    def _finished(self, context, outcome) -> set:
+        context.scene["visibake_brdf_report"] = json.dumps(outcome.report, default=float)
+        for warning in outcome.report["warnings"]:
+            self.report({"WARNING"}, warning)
+        self.report({"INFO"}, summary(outcome.report))
+        return {"FINISHED"}
+
+
+classes = (VISIBAKE_OT_simulate_brdf,)
