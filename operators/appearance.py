@@ -46,6 +46,7 @@ bounding box), and write it as a MERL or tabulated file in the Output Folder"""
     def _job(self, context, progress) -> tile_io.BRDFJob:
         props = context.scene.visibake
         obj = tile_object(context)
+        self._tile_name = obj.name if obj is not None else ""
         path = output_path(context, obj)
         scene = context.scene
 
@@ -67,6 +68,11 @@ bounding box), and write it as a MERL or tabulated file in the Output Folder"""
         context.scene["visibake_brdf_report"] = json.dumps(outcome.report, default=float)
         for warning in outcome.report["warnings"]:
             self.report({"WARNING"}, warning)
+        fit = outcome.report.get("principled_fit")
+        if fit is not None:
+            material = tile_io.make_material(f"{self._tile_name} (VisiBake)", fit)
+            self.report({"INFO"}, f"VisiBake: material {material.name!r} fitted to the BRDF (relative RMSE "
+                                  f"{100 * fit['relative_rmse']:.1f}%)")
         self.report({"INFO"}, summary(outcome.report))
         return {"FINISHED"}
 

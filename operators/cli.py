@@ -189,6 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
                            "face (default: each material's own)")
     _setting_option(brdf, "--seed", SETTINGS["seed"])
     _setting_option(brdf, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    brdf.add_argument("--material", metavar="NAME",
+                      help="also make a Principled BSDF material NAME fitted to the BRDF (keep it with --save)")
+    brdf.add_argument("--save", metavar="OUT.blend", help="save the scene (with the fitted material) as OUT.blend")
     brdf.add_argument("--overwrite", action="store_true", help="replace FILE if it exists")
     brdf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     brdf.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -515,9 +518,21 @@ def run_brdf(args) -> int:
         raise BakeRefused(f"--out {args.out!r}: a MERL file ends in .binary (or .merl, as pbrt expects)")
     if output_format == "table" and not args.out.lower().endswith(".npz"):
         raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
+    _check_destinations(args, None)
     tile, settings = _tile_and_settings(args)
     report = _run_appearance(args, lambda progress: tile_io.run_brdf(
         tile, args.out, output_format, args.lights, args.views, settings, args.overwrite, progress))
+    fit = report.get("principled_fit")
+    if fit is not None:
+        print(f"visibake: Principled BSDF fit ({fit['model']}): base colour "
+              f"({', '.join(f'{x:.3f}' for x in fit['base_color'])}), roughness {fit['roughness']:.3f}, specular "
+              f"IOR level {fit['specular_ior_level']:.3f}, anisotropic {fit['anisotropic']:.3f}, sheen "
+              f"{fit['sheen_weight']:.3f}; relative RMSE of the fit {100 * fit['relative_rmse']:.1f}%", flush=True)
+        if args.material:
+            made = tile_io.make_material(args.material, fit)
+            print(f"visibake: material {made.name!r} made from the fit", flush=True)
+    if args.save:
+        _save_blend(args.save, [])
     print(f"visibake: {args.lights} x {args.views} BRDF samples of {args.tile!r} ({report['samples']:,} surface "
           f"samples, {settings.directions} directions, {settings.bounces} bounces) -> {report['output']!r} in "
           f"{report['seconds']:.1f} s; largest directional albedo {report['max_directional_albedo']:.3f}", flush=True)

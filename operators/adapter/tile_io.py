@@ -168,6 +168,8 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
     return tile
 
 
+# The most (light, view) pairs the Principled fit takes.
+FIT_PAIRS = 2500
 # Beside each file VisiBake writes: its report, which also marks the file as VisiBake's to replace.
 SIDECAR = ".visibake.json"
 
@@ -212,10 +214,13 @@ class BRDFJob:
     needs_main_thread = False
 
     def __init__(self, tile, out_path: str, output_format: str, lights: int, views: int,
-                 settings: gonio.GonioSettings, overwrite: bool = False, progress=None, make_folder: bool = False):
+                 settings: gonio.GonioSettings, overwrite: bool = False, progress=None, make_folder: bool = False,
+                 fit_material: bool = True):
         """make_folder: create the output's folder when it is missing (the panel's default
-        folder beside the .blend); it goes again if the run fails."""
+        folder beside the .blend); it goes again if the run fails. fit_material: fit Blender's
+        Principled BSDF to the samples (core.appearance.fit), for the report and make_material."""
         self.make_folder = make_folder
+        self.fit_material = fit_material
         self.tile_source = tile
         self.out_path = os.path.abspath(out_path)
         self.output_format = output_format
@@ -268,11 +273,22 @@ class BRDFJob:
         if self.progress is not None:
             self.progress("writing", 0.0)
         result = self.result
+        pairs_light = np.repeat(result.light, len(result.view), axis=0)
+        pairs_view = np.tile(result.view, (len(result.light), 1))
         if self.output_format == "merl":
             from ...core.appearance import merl
-            pairs_light = np.repeat(result.light, len(result.view), axis=0)
-            pairs_view = np.tile(result.view, (len(result.light), 1))
             self.table = merl.fill_from_samples(pairs_light, pairs_view, result.values.reshape(-1, 3))
+        self.fit = None
+        lit = pairs_light[:, 2] > 0
+        if self.fit_material and np.any(lit):
+            from ...core.appearance.fit import fit_principled
+            if self.progress is not None:
+                self.progress("fitting a Principled BSDF", 0.0)
+            # At most FIT_PAIRS pairs, every k-th (the fit's cost grows with them, its answer hardly).
+            rows = np.nonzero(lit)[0]
+            rows = rows[::max(1, len(rows) // FIT_PAIRS)]
+            self.fit = fit_principled(pairs_light[rows], pairs_view[rows], result.values.reshape(-1, 3)[rows],
+                                      transparency=float(result.transparency.mean()) or None)
 
     def finish(self) -> BRDFOutcome:
         from ...core.appearance import merl, tabulated
@@ -304,6 +320,17 @@ class BRDFJob:
                        "max_transparency": float(result.transparency.max(initial=0.0)),
                        "seconds": round(time.perf_counter() - self.started, 3)})
         report["warnings"].extend(result.warnings)
+        if self.fit is not None:
+            fitted = self.fit
+            report["principled_fit"] = {
+                "model": fitted.model, "relative_rmse": float(fitted.rmse),
+                "per_channel_rmse": [float(x) for x in fitted.per_channel_rmse],
+                "base_color": [float(x) for x in fitted.base_color], "roughness": float(fitted.roughness),
+                "specular_ior_level": float(fitted.specular_ior_level), "ior": float(fitted.ior),
+                "anisotropic": float(fitted.anisotropic), "anisotropic_rotation": float(fitted.anisotropic_rotation),
+                "sheen_weight": float(fitted.sheen_weight), "sheen_roughness": float(fitted.sheen_roughness),
+                "sheen_tint": [float(x) for x in fitted.sheen_tint],
+                "transmission_weight": float(fitted.transmission_weight), "metallic": float(fitted.metallic)}
         report["files"] = [self.out_path, self.out_path + SIDECAR]
         with atomic_file(self.out_path + SIDECAR, "w", encoding="utf-8") as handle:
             json.dump(report, handle, indent=1, default=float)
@@ -344,3 +371,49 @@ def run_btf(tile: Tile, out_dir: str, image_format: str, image_size: int, settin
             "images": stats["images"], "image_size": image_size, "settings": written_settings,
             "samples": stats.get("samples"), "stats": stats, "warnings": list(tile.warnings),
             "seconds": round(time.perf_counter() - started, 3)}
+
+
+# Marks a material VisiBake made from a fit (so that a later fit may replace it, never a user's).
+FIT_MARK = "visibake_principled_fit"
+
+
+def make_material(name: str, fit: dict):
+    """A Principled BSDF material named ``name`` with the fitted parameters (report's
+    ``principled_fit``). A material of that name that VisiBake did not make is left alone: the
+    new one gets a free name. Returns the material."""
+    from . import compat
+
+    material = bpy.data.materials.get(name)
+    if material is None or not material.get(FIT_MARK):
+        material = bpy.data.materials.new(name)
+        material[FIT_MARK] = True
+        material.use_fake_user = True  # kept in the file until the artist assigns it
+    compat.ensure_node_tree(material)
+    tree = material.node_tree
+    tree.nodes.clear()
+    shader = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    output.location = (300, 0)
+    tree.links.new(shader.outputs[0], output.inputs["Surface"])
+    inputs = shader.inputs
+    inputs["Base Color"].default_value = (*fit["base_color"], 1.0)
+    for socket, key in (("Roughness", "roughness"), ("Metallic", "metallic"), ("IOR", "ior"),
+                        ("Specular IOR Level", "specular_ior_level"), ("Anisotropic", "anisotropic"),
+                        ("Anisotropic Rotation", "anisotropic_rotation"), ("Sheen Weight", "sheen_weight"),
+                        ("Sheen Roughness", "sheen_roughness"), ("Transmission Weight", "transmission_weight")):
+        if socket in inputs:
+            inputs[socket].default_value = fit[key]
+    if "Sheen Tint" in inputs:
+        inputs["Sheen Tint"].default_value = (*fit["sheen_tint"], 1.0)
+    if fit["anisotropic"] > 0:
+        # The fit's rotation is measured from the tile's +x: the tangent runs along object X.
+        axis = tree.nodes.new("ShaderNodeCombineXYZ")
+        axis.inputs["X"].default_value = 1.0
+        axis.location = (-500, -300)
+        to_world = tree.nodes.new("ShaderNodeVectorTransform")
+        to_world.vector_type, to_world.convert_from, to_world.convert_to = "VECTOR", "OBJECT", "WORLD"
+        to_world.location = (-300, -300)
+        tree.links.new(axis.outputs[0], to_world.inputs[0])
+        tree.links.new(to_world.outputs[0], inputs["Tangent"])
+    material["visibake_fit_rmse"] = fit["relative_rmse"]
+    return material

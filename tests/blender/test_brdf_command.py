@@ -62,8 +62,11 @@ def test_brdf_writes_a_merl_file_that_reads_back(visibake, appearance, tmp_path)
     blend = groove_scene(tmp_path / "tile.blend")
     out = tmp_path / "groove.binary"
     report = tmp_path / "report.json"
-    assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(out), "--report", str(report)]
-                             + FAST) == 0
+    saved = tmp_path / "with_material.blend"
+    assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(out), "--report", str(report),
+                              "--material", "Groove fit", "--save", str(saved)] + FAST) == 0
+    bpy.ops.wm.open_mainfile(filepath=str(saved))
+    assert "Groove fit" in bpy.data.materials
     assert os.path.getsize(out) == merl.FILE_BYTES
     table = merl.read_merl(str(out))
     assert np.all(np.isfinite(table))
@@ -158,5 +161,15 @@ def test_the_panel_operator_simulates_the_active_object(visibake, appearance, tm
     assert os.path.getsize(out) == merl.FILE_BYTES
     assert (tmp_path / "materials" / "Groove.binary.visibake.json").exists()
     assert "visibake_brdf_report" in scene
-    # Its own file is VisiBake's to replace on the next click.
+    made = bpy.data.materials["Groove (VisiBake)"]
+    principled = next(n for n in made.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    # A grey Lambert groove fits a grey base colour, darker than the albedo (the walls shade each other).
+    base = principled.inputs["Base Color"].default_value[:3]
+    assert np.allclose(base, base[0], atol=0.02) and 0.2 < base[0] < ALBEDO + 0.05
+    # Its own file and material are VisiBake's to replace on the next click; a user's material of
+    # that name is not.
     assert bpy.ops.visibake.simulate_brdf() == {"FINISHED"}
+    assert "Groove (VisiBake).001" not in bpy.data.materials
+    del made["visibake_principled_fit"]
+    assert bpy.ops.visibake.simulate_brdf() == {"FINISHED"}
+    assert "Groove (VisiBake).001" in bpy.data.materials
