@@ -22,7 +22,7 @@ from ..core.errors import BakeRefused, Cancelled
 from ..core.lights import setups as lighting_setups
 from ..core.outputs import summary as report_texts
 from ..core.outputs.destinations import FILE, FOLDER, check_destinations
-from ..core.settings import PREFERENCE_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
+from ..core.settings import APPEARANCE_SETTINGS, PREFERENCE_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
 from .adapter import job
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
@@ -175,12 +175,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="FILE.binary (MERL, isotropic) or FILE.npz (tabulated light x view values)")
     brdf.add_argument("--format", choices=("merl", "table"),
                       help="default: merl for .binary, table for .npz")
-    brdf.add_argument("--lights", type=int, default=100, metavar="N", help="light directions over the hemisphere")
-    brdf.add_argument("--views", type=int, default=100, metavar="N", help="view directions over the hemisphere")
-    brdf.add_argument("--directions", type=int, default=128, metavar="N",
-                      help="the global direction set of the visibility tables")
-    brdf.add_argument("--bounces", type=int, default=2, metavar="K", help="inter-reflections after the direct light")
-    brdf.add_argument("--resolution", type=int, default=64, metavar="R", help="samples across the period")
+    for option, metavar in (("--lights", "N"), ("--views", "N"), ("--directions", "N"), ("--bounces", "K"),
+                            ("--resolution", "R")):
+        spec = APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")]
+        brdf.add_argument(option, type=int, default=spec.default, metavar=metavar, help=spec.help)
     brdf.add_argument("--view-rays", type=int, default=128, metavar="R",
                       help="rays across the period per view (R x R), which measure masking")
     brdf.add_argument("--period", metavar="X,Y", help="the repeat in X and Y (default: the tile's bounding box)")
@@ -205,10 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="exr: linear RGB float; png: 8-bit sRGB")
     btf.add_argument("--image-size", type=int, default=256, metavar="N", help="N x N pixels per image")
     btf.add_argument("--rays-per-pixel", type=int, default=4, metavar="N", help="jittered rays per pixel")
-    for option, default, text in (("--directions", 128, "the global direction set of the visibility tables"),
-                                  ("--bounces", 2, "inter-reflections after the direct light"),
-                                  ("--resolution", 64, "samples across the period")):
-        btf.add_argument(option, type=int, default=default, metavar="N", help=text)
+    for option in ("--directions", "--bounces", "--resolution"):
+        spec = APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")]
+        btf.add_argument(option, type=int, default=spec.default, metavar="N", help=spec.help)
     btf.add_argument("--period", metavar="X,Y", help="the repeat in X and Y (default: the tile's bounding box)")
     btf.add_argument("--phong", metavar="KS,EXP", help="the paper's Lambert plus Phong micro-BRDF on every face")
     _setting_option(btf, "--seed", SETTINGS["seed"])
@@ -490,7 +487,7 @@ def _tile_and_settings(args):
     seed = scene.visibake.seed if args.seed is None else args.seed
     settings = gonio.GonioSettings(directions=args.directions, bounces=args.bounces, resolution=args.resolution,
                                    view_rays=getattr(args, "view_rays", 128), seed=seed,
-                                   threads=args.threads if args.threads is not None else 0)
+                                   threads=args.threads if args.threads is not None else tile_io.preferred_threads())
     return tile, settings
 
 
