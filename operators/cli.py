@@ -43,12 +43,16 @@ SCENE_SETTING_OPTIONS = {
     # The Volumes section's settings are options of the volume command ("COMMAND OPTION").
     "volume_resolution": "volume --resolution", "volume_directions": "volume --directions",
     "volume_bounces": "volume --bounces", "volume_points": "volume --points",
+    # The Materials from Micro-Geometry section's: options of the brdf command.
+    "appearance_lights": "brdf --lights", "appearance_views": "brdf --views",
+    "appearance_directions": "brdf --directions", "appearance_bounces": "brdf --bounces",
+    "appearance_resolution": "brdf --resolution", "appearance_format": "brdf --format",
 }
 # Every operator of the panel, and the command that does the same.
 OPERATOR_COMMANDS = {
     "visibake.bake": "bake", "visibake.relight": "relight", "visibake.preview_add": "preview",
     "visibake.preview_remove": "preview --remove", "visibake.clear_cache": "clear-cache",
-    "visibake.bake_volume": "volume",
+    "visibake.bake_volume": "volume", "visibake.simulate_brdf": "brdf",
 }
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
@@ -174,11 +178,11 @@ def build_parser() -> argparse.ArgumentParser:
     brdf.add_argument("--out", metavar="FILE", required=True,
                       help="FILE.binary (MERL, isotropic) or FILE.npz (tabulated light x view values)")
     brdf.add_argument("--format", choices=("merl", "table"),
-                      help="default: merl for .binary, table for .npz")
+                      help="merl (.binary) or table (.npz); default: as FILE's extension says")
     for option, metavar in (("--lights", "N"), ("--views", "N"), ("--directions", "N"), ("--bounces", "K"),
                             ("--resolution", "R")):
-        spec = APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")]
-        brdf.add_argument(option, type=int, default=spec.default, metavar=metavar, help=spec.help)
+        _setting_option(brdf, option, APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")], metavar,
+                        default=True)
     brdf.add_argument("--view-rays", type=int, default=128, metavar="R",
                       help="rays across the period per view (R x R), which measure masking")
     brdf.add_argument("--period", metavar="X,Y", help="the repeat in X and Y (default: the tile's bounding box)")
@@ -204,8 +208,8 @@ def build_parser() -> argparse.ArgumentParser:
     btf.add_argument("--image-size", type=int, default=256, metavar="N", help="N x N pixels per image")
     btf.add_argument("--rays-per-pixel", type=int, default=4, metavar="N", help="jittered rays per pixel")
     for option in ("--directions", "--bounces", "--resolution"):
-        spec = APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")]
-        btf.add_argument(option, type=int, default=spec.default, metavar="N", help=spec.help)
+        _setting_option(btf, option, APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")], "N",
+                        default=True)
     btf.add_argument("--period", metavar="X,Y", help="the repeat in X and Y (default: the tile's bounding box)")
     btf.add_argument("--phong", metavar="KS,EXP", help="the paper's Lambert plus Phong micro-BRDF on every face")
     _setting_option(btf, "--seed", SETTINGS["seed"])
@@ -483,6 +487,14 @@ def _tile_and_settings(args):
         raise BakeRefused(f"--phong {args.phong!r}: the weight lies in [0, 1] and the exponent is >= 0")
     _load_input(args)
     scene = bpy.context.scene
+    # The scene's Materials from Micro-Geometry settings travel in the .blend; the options override them.
+    for name in ("lights", "views", "directions", "bounces", "resolution"):
+        spec = APPEARANCE_SETTINGS["appearance_" + name]
+        given = getattr(args, name, None)
+        value = getattr(scene.visibake, spec.name) if given is None else given
+        if hasattr(args, name) and not spec.minimum <= value <= spec.maximum:
+            raise BakeRefused(f"--{name} {value}: use a value from {spec.minimum} to {spec.maximum}")
+        setattr(args, name, value)
     tile = tile_io.read_tile(scene, args.tile, period, phong)
     seed = scene.visibake.seed if args.seed is None else args.seed
     settings = gonio.GonioSettings(directions=args.directions, bounces=args.bounces, resolution=args.resolution,

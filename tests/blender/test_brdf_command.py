@@ -91,8 +91,8 @@ def test_brdf_writes_a_table_from_a_collection(visibake, appearance, tmp_path):
 
 @pytest.mark.parametrize("arguments, message", [
     (["--tile", "Nothing"], "no object or collection"),
-    (["--tile", "Groove", "--directions", "0"], "directions must be between"),
-    (["--tile", "Groove", "--directions", "1000000"], "directions must be between"),
+    (["--tile", "Groove", "--directions", "0"], "--directions 0: use a value from 8 to 4096"),
+    (["--tile", "Groove", "--directions", "1000000"], "--directions 1000000: use a value from 8 to 4096"),
     (["--tile", "Empty"], "has no faces"),
     (["--tile", "Groove", "--period", "1,zero"], "two numbers"),
 ])

@@ -108,9 +108,13 @@ def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, 
     drawn = _draw(main.VIEW3D_PT_visibake)
     settings = set(bpy.context.scene.visibake.bl_rna.properties.keys()) - {"rna_type", "name", "active_object_index"}
     volumes = _draw(main.VIEW3D_PT_visibake_volumes)
-    assert settings <= set(_props(drawn)) | set(_props(volumes))  # every scene setting is on the panel
+    appearance = _draw(main.VIEW3D_PT_visibake_appearance)
+    # Every scene setting is on the panel.
+    assert settings <= set(_props(drawn)) | set(_props(volumes)) | set(_props(appearance))
     assert {p for p in settings if p.startswith("volume_")} == set(_props(volumes))  # the volumes' in their section
     assert _operators(volumes) == ["visibake.bake_volume"]
+    assert {p for p in settings if p.startswith("appearance_")} == set(_props(appearance))
+    assert _operators(appearance) == ["visibake.simulate_brdf"]
     active_object = {options["property"] for name, options in drawn
                      if name == "prop" and options["owner"] == "VisiBakeObjectSettings"}
     device = [options["property"] for name, options in drawn
