@@ -466,9 +466,9 @@ def pixel_rays(scene: PeriodicScene, samples: TileSamples, view: np.ndarray, wid
     column = pixel % width
     row = pixel // width
     top = scene.z_range[1] + 0.01 * float(scene.period.max()) + 1e-6
-    # A ray through the macro plane (z = 0 of the tile's lowest point would shift the image
-    # with the view); the reference plane is the top of the slab, so that the image is the
-    # texture seen from above along -v, as a camera rectified to the tile's plane sees it.
+    # Pixel (column, row) is where its rays cross the plane just above the tile's highest
+    # point: the image is the tile seen through that plane along -v, as a photograph rectified
+    # to it shows a rough sample (a point of height z appears shifted by (top - z) tan(theta_v)).
     points = np.column_stack([scene.origin[0] + (column + jitter[0]) / width * scene.period[0],
                               scene.origin[1] + (row + jitter[1]) / height * scene.period[1],
                               np.full(len(pixel), top)])
