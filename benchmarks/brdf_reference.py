@@ -427,7 +427,8 @@ def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, 
             mesh.materials.append(material)
             obj = bpy.data.objects.new(name, mesh)
             obj.is_holdout = holdout
-            obj.shadow_terminator_geometry_offset = 0.0
+            if hasattr(obj, "shadow_terminator_geometry_offset"):  # not in every Blender's bpy
+                obj.shadow_terminator_geometry_offset = 0.0
             scene.collection.objects.link(obj)
             created["meshes"].append(mesh)
             created["objects"].append(obj)
