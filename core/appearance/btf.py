@@ -390,8 +390,10 @@ class BTFWriter:
 
         if os.path.lexists(self.folder) and not os.path.isdir(self.folder):
             raise OutputRefused(f"BTF folder {self.folder} is a file, not a folder; nothing was written")
+        self._made_folder = not os.path.isdir(self.folder)
         os.makedirs(self.folder, exist_ok=True)
         previous = _previous_manifest(self.folder)
+        self._had_manifest = previous is not None
         self._previous_files = set(previous["files"]) if previous else set()
         # The manifest's temporary name too: a run stopped while replacing the manifest leaves it.
         owned = self._previous_files | ({MANIFEST, MANIFEST + ".tmp"} if previous else set())
@@ -469,6 +471,27 @@ class BTFWriter:
                 if folder != self.folder and not os.listdir(folder):
                     os.rmdir(folder)
         return self._write_manifest(complete=True)
+
+    def abort(self) -> None:
+        """Take back a run that did not finish. In a folder that held no earlier VisiBake BTF,
+        the images it wrote, its manifest and the folders it made go. Over an earlier BTF the
+        provisional manifest (complete: false) stays, listing both runs' files, so the folder
+        stays VisiBake's to write again."""
+        if self._had_manifest:
+            return
+        for relative in sorted(self._written):
+            path = os.path.join(self.folder, *relative.split("/"))
+            if os.path.isfile(path) and not os.path.islink(path):
+                os.remove(path)
+            folder = os.path.dirname(path)
+            if folder != self.folder and os.path.isdir(folder) and not os.listdir(folder):
+                os.rmdir(folder)
+        self._written.clear()
+        manifest = os.path.join(self.folder, MANIFEST)
+        if os.path.isfile(manifest):
+            os.remove(manifest)
+        if self._made_folder and os.path.isdir(self.folder) and not os.listdir(self.folder):
+            os.rmdir(self.folder)
 
     def _write_manifest(self, complete: bool) -> str:
         files = self.planned if complete else sorted(set(self.planned) | self._previous_files)

@@ -364,9 +364,13 @@ def run_btf(tile: Tile, out_dir: str, image_format: str, image_size: int, settin
                                settings=written_settings)
     except ValueError as error:
         raise OutputRefused(str(error)) from None
-    stats = gonio.simulate_btf(tile, directions, directions, (image_size, image_size), writer.write, settings,
-                               per_pixel, progress)
-    manifest = writer.finish()
+    try:
+        stats = gonio.simulate_btf(tile, directions, directions, (image_size, image_size), writer.write, settings,
+                                   per_pixel, progress)
+        manifest = writer.finish()
+    except BaseException:
+        writer.abort()  # an error or a cancel leaves no half BTF behind
+        raise
     return {"output": os.path.abspath(out_dir), "manifest": manifest, "format": image_format,
             "images": stats["images"], "image_size": image_size, "settings": written_settings,
             "samples": stats.get("samples"), "stats": stats, "warnings": list(tile.warnings),

@@ -135,6 +135,11 @@ def test_btf_writes_the_utia_layout(visibake, tmp_path):
     assert image.shape == (8, 8, 3)
     # Lit and seen from above, the grey groove's walls are mid-grey (not black, not white).
     assert 0.15 < image.mean() < 0.9
+    # A run refused halfway (the tile would need too many faces) leaves no folder behind.
+    halfway = tmp_path / "refused"
+    assert visibake.cli.main(["btf", str(blend), "--tile", "Groove", "--out", str(halfway), "--image-size", "8",
+                              "--directions", "16", "--resolution", "2048", "--no-progress"]) == 2
+    assert not halfway.exists()
     # A second run into its own folder is allowed; a folder with a stranger's file is not.
     (out / "notes.txt").write_text("mine")
     assert visibake.cli.main(["btf", str(blend), "--tile", "Groove", "--out", str(out), "--image-size", "8",

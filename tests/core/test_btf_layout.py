@@ -274,3 +274,23 @@ def test_reader_orders_a_folder_without_manifest_as_ubo(tmp_path):
     os.remove(tmp_path / btf.image_name(15, 60, 45, 20, "exr"))
     with pytest.raises(ValueError, match="lacks"):
         btf.read_btf_folder(str(tmp_path))
+
+
+def test_abort_takes_back_a_fresh_run_and_keeps_an_earlier_btf(tmp_path):
+    folder = tmp_path / "new" / "btf"
+    writer = btf.BTFWriter(str(folder), "png", 4, 4, (1.0, 1.0), light_angles=([0, 15], [0, 0]),
+                           view_angles=([0], [0]))
+    writer.write(0, 0, np.full((4, 4, 3), 0.5))
+    writer.abort()
+    assert not folder.exists()  # the images, the manifest and the folder it made
+    # Over a complete earlier BTF, an unfinished run leaves a provisional manifest: still VisiBake's.
+    first = btf.BTFWriter(str(folder), "png", 4, 4, (1.0, 1.0), light_angles=([0], [0]), view_angles=([0], [0]))
+    first.write(0, 0, np.full((4, 4, 3), 0.5))
+    first.finish()
+    second = btf.BTFWriter(str(folder), "png", 4, 4, (1.0, 1.0), light_angles=([0, 15], [0, 0]),
+                           view_angles=([0], [0]))
+    second.write(1, 0, np.full((4, 4, 3), 0.25))
+    second.abort()
+    manifest = json.loads((folder / "btf.json").read_text())
+    assert manifest["complete"] is False
+    btf.BTFWriter(str(folder), "png", 4, 4, (1.0, 1.0))  # no foreign files: a third run may write
