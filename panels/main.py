@@ -177,14 +177,19 @@ class VIEW3D_PT_visibake_report(bpy.types.Panel):
 NO_VOLUMES = "No volumes (Volume objects, meshes with a Principled Volume)"
 
 
-class VIEW3D_PT_visibake_volumes(bpy.types.Panel):
-    bl_label = "Volumes"
-    bl_idname = "VIEW3D_PT_visibake_volumes"
+class _Section:
+    """A closed-by-default section under VisiBake's main panel."""
+
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "VisiBake"
     bl_parent_id = "VIEW3D_PT_visibake"
     bl_options = {"DEFAULT_CLOSED"}
+
+
+class VIEW3D_PT_visibake_volumes(_Section, bpy.types.Panel):
+    bl_label = "Volumes"
+    bl_idname = "VIEW3D_PT_visibake_volumes"
 
     def draw(self, context):
         from ..operators import volume
@@ -214,14 +219,9 @@ class VIEW3D_PT_visibake_volumes(bpy.types.Panel):
                 layout.label(text="The last volume report cannot be read")
 
 
-class VIEW3D_PT_visibake_appearance(bpy.types.Panel):
+class VIEW3D_PT_visibake_appearance(_Section, bpy.types.Panel):
     bl_label = "Materials from Micro-Geometry"
     bl_idname = "VIEW3D_PT_visibake_appearance"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "VisiBake"
-    bl_parent_id = "VIEW3D_PT_visibake"
-    bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
         from ..operators import appearance

@@ -105,12 +105,10 @@ class VisibilityTables:
 class ViewWeights:
     """What each view sees: weights (V, S) float32, the share of the view's rays that land on
     each sample (barycentric), so that L_mean(v) = weights[v] @ L(samples, v); back_share
-    (V,) the share that met a face from behind; through_share (V,) the share that passed
-    through the surface."""
+    (V,) the share that met a face from behind."""
 
     weights: np.ndarray
     back_share: np.ndarray
-    through_share: np.ndarray
 
 
 @dataclass
@@ -177,7 +175,6 @@ def view_weights(samples: TileSamples, scene: PeriodicScene, views: np.ndarray, 
     count = len(samples)
     weights = np.zeros((len(views), count), np.float32)
     back = np.zeros(len(views))
-    through = np.zeros(len(views))
     low, high = scene.z_range
     top = high + 0.01 * float(scene.period.max()) + 1e-6
     rng = np.random.default_rng(seed)
@@ -193,11 +190,10 @@ def view_weights(samples: TileSamples, scene: PeriodicScene, views: np.ndarray, 
         faces = hits.triangle[met]
         facing = samples.face_normal[faces] @ v > 0
         back[index] = np.count_nonzero(~facing) / len(points)
-        through[index] = np.count_nonzero(hits.fate == ESCAPED_DOWN) / len(points)
         corners = samples.triangles[faces[facing]]
         shares = hits.barycentric[met][facing] / len(points)
         np.add.at(weights[index], corners.ravel(), shares.ravel())
-    return ViewWeights(weights, back, through)
+    return ViewWeights(weights, back)
 
 
 # Where each face is probed for the sun: the centroids of its four midpoint sub-triangles, as

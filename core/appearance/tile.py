@@ -106,12 +106,6 @@ class Tile:
         return tile
 
     @property
-    def height_range(self) -> tuple[float, float]:
-        """(lowest, highest) z of the tile's vertices in use."""
-        z = self.positions[np.unique(self.triangles), 2]
-        return float(z.min()), float(z.max())
-
-    @property
     def glossy(self) -> bool:
         """Whether any face has a glossy lobe (the transport is view-dependent only then)."""
         return bool(np.any(self.specular > 0))
