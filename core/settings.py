@@ -357,9 +357,9 @@ VOLUME_SETTINGS = _table(
 # section and `visibake brdf` (whose options default to these).
 APPEARANCE_SETTINGS = _table(
     Setting("appearance_lights", int, 100, "Light Directions", minimum=1, maximum=10000, soft_max=400,
-            help="Light directions over the hemisphere the tile's BRDF is sampled at"),
+            help="Light directions the tile's BRDF is sampled at, over the hemisphere (the sphere for a BSDF)"),
     Setting("appearance_views", int, 100, "View Directions", minimum=1, maximum=10000, soft_max=400,
-            help="View directions over the hemisphere, for each light"),
+            help="View directions for each light, over the hemisphere (the sphere for a BSDF)"),
     Setting("appearance_directions", int, 128, "Directions", minimum=8, maximum=4096, soft_max=1024,
             help="Global directions of the tile's visibility tables (the inter-reflections' quadrature)"),
     Setting("appearance_bounces", int, 2, "Bounces", minimum=0, maximum=64, soft_max=8,
@@ -368,6 +368,12 @@ APPEARANCE_SETTINGS = _table(
             help="Samples across the tile's period (its mesh is refined to this)"),
     Setting("appearance_format", str, "merl", "Format", help="The file the BRDF is written to",
             choices=(("merl", "MERL", "An isotropic MERL .binary table, as renderers' measured-BRDF readers take"),
-                     ("table", "Table", "The light x view samples and the transparency, as .npz "
-                                        "(anisotropic and see-through tiles)"))),
+                     ("table", "Table", "The light x view samples over the hemisphere and the transparency, "
+                                        "as .npz (anisotropic tiles)"),
+                     ("bsdf", "BSDF (Sphere)", "The light x view samples over the whole sphere, transmission "
+                                               "included, as .npz (see-through and translucent tiles)"))),
+    Setting("appearance_image_size", int, 256, "BTF Image Size", minimum=8, maximum=4096, soft_max=1024,
+            help="Pixels a side of each BTF image (81 x 81 images, the tile rectified to texture space)"),
+    Setting("appearance_image_format", str, "exr", "BTF Images", help="The file format of the BTF's images",
+            choices=(("exr", "EXR", "Linear RGB, 32-bit float"), ("png", "PNG", "8-bit sRGB"))),
 )

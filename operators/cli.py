@@ -21,6 +21,7 @@ import bpy
 from ..core.errors import BakeRefused, Cancelled
 from ..core.lights import setups as lighting_setups
 from ..core.outputs import summary as report_texts
+from ..core.outputs.atomic import remove_written
 from ..core.outputs.destinations import FILE, FOLDER, check_destinations
 from ..core.settings import APPEARANCE_SETTINGS, PREFERENCE_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
 from .adapter import job
@@ -47,12 +48,13 @@ SCENE_SETTING_OPTIONS = {
     "appearance_lights": "brdf --lights", "appearance_views": "brdf --views",
     "appearance_directions": "brdf --directions", "appearance_bounces": "brdf --bounces",
     "appearance_resolution": "brdf --resolution", "appearance_format": "brdf --format",
+    "appearance_image_size": "btf --image-size", "appearance_image_format": "btf --format",
 }
 # Every operator of the panel, and the command that does the same.
 OPERATOR_COMMANDS = {
     "visibake.bake": "bake", "visibake.relight": "relight", "visibake.preview_add": "preview",
     "visibake.preview_remove": "preview --remove", "visibake.clear_cache": "clear-cache",
-    "visibake.bake_volume": "volume", "visibake.simulate_brdf": "brdf",
+    "visibake.bake_volume": "volume", "visibake.simulate_brdf": "brdf", "visibake.simulate_btf": "btf",
 }
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
@@ -177,8 +179,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="the tile: a mesh object or a collection, one period of a surface repeating in X and Y")
     brdf.add_argument("--out", metavar="FILE", required=True,
                       help="FILE.binary (MERL, isotropic) or FILE.npz (tabulated light x view values)")
-    brdf.add_argument("--format", choices=("merl", "table"),
-                      help="merl (.binary) or table (.npz); default: as FILE's extension says")
+    brdf.add_argument("--format", choices=("merl", "table", "bsdf"),
+                      help="merl (.binary), table (.npz, the hemisphere) or bsdf (.npz, the whole sphere: lights and "
+                           "views below the tile too, for see-through and translucent tiles); default: as FILE's "
+                           "extension says")
     for option, metavar in (("--lights", "N"), ("--views", "N"), ("--directions", "N"), ("--bounces", "K"),
                             ("--resolution", "R")):
         _setting_option(brdf, option, APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")], metavar,
@@ -203,9 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     btf.add_argument("--tile", metavar="NAME", required=True, help="the tile: a mesh object or a collection")
     btf.add_argument("--out", metavar="DIR", required=True,
                      help="write DIR/tvTTT_pvPPP/tlTTT_plPPP_tvTTT_pvPPP.<format> and DIR/btf.json")
-    btf.add_argument("--format", choices=("exr", "png"), default="exr",
-                     help="exr: linear RGB float; png: 8-bit sRGB")
-    btf.add_argument("--image-size", type=int, default=256, metavar="N", help="N x N pixels per image")
+    _setting_option(btf, "--format", APPEARANCE_SETTINGS["appearance_image_format"], default=True,
+                    note="exr: linear RGB float; png: 8-bit sRGB")
+    _setting_option(btf, "--image-size", APPEARANCE_SETTINGS["appearance_image_size"], "N", default=True)
     btf.add_argument("--rays-per-pixel", type=int, default=4, metavar="N", help="jittered rays per pixel")
     for option in ("--directions", "--bounces", "--resolution"):
         _setting_option(btf, option, APPEARANCE_SETTINGS["appearance_" + option.removeprefix("--")], "N",
@@ -488,13 +492,16 @@ def _tile_and_settings(args):
     _load_input(args)
     scene = bpy.context.scene
     # The scene's Materials from Micro-Geometry settings travel in the .blend; the options override them.
-    for name in ("lights", "views", "directions", "bounces", "resolution"):
+    for name in ("lights", "views", "directions", "bounces", "resolution", "image_size"):
         spec = APPEARANCE_SETTINGS["appearance_" + name]
         given = getattr(args, name, None)
         value = getattr(scene.visibake, spec.name) if given is None else given
         if hasattr(args, name) and not spec.minimum <= value <= spec.maximum:
-            raise BakeRefused(f"--{name} {value}: use a value from {spec.minimum} to {spec.maximum}")
+            raise BakeRefused(f"--{name.replace('_', '-')} {value}: use a value from {spec.minimum} to "
+                              f"{spec.maximum}")
         setattr(args, name, value)
+    if args.command == "btf" and args.format is None:
+        args.format = scene.visibake.appearance_image_format
     tile = tile_io.read_tile(scene, args.tile, period, phong)
     seed = scene.visibake.seed if args.seed is None else args.seed
     settings = gonio.GonioSettings(directions=args.directions, bounces=args.bounces, resolution=args.resolution,
@@ -525,7 +532,7 @@ def run_brdf(args) -> int:
     output_format = args.format or ("table" if args.out.lower().endswith(".npz") else "merl")
     if output_format == "merl" and not args.out.lower().endswith((".binary", ".merl")):
         raise BakeRefused(f"--out {args.out!r}: a MERL file ends in .binary (or .merl, as pbrt expects)")
-    if output_format == "table" and not args.out.lower().endswith(".npz"):
+    if output_format in ("table", "bsdf") and not args.out.lower().endswith(".npz"):
         raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
     _check_destinations(args, None)
     tile, settings = _tile_and_settings(args)
@@ -606,12 +613,7 @@ def run(args) -> int:
         # attributes, what it wrote into the output folder, and the files named by options that
         # did not exist before), so no half of it stays behind.
         outcome.rollback()
-        for path in set(written) - existed:
-            if os.path.isfile(path):
-                os.remove(path)
-        for folder in made_folders:
-            if os.path.isdir(folder) and not os.listdir(folder):
-                os.rmdir(folder)
+        remove_written(set(written) - existed, reversed(made_folders))
         if isinstance(error, OSError):
             raise BakeRefused(f"could not write {error.filename or 'the results'}: {error.strerror or error}; "
                               "nothing was kept") from error

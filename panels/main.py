@@ -234,20 +234,29 @@ class VIEW3D_PT_visibake_appearance(_Section, bpy.types.Panel):
         layout.label(text=f"Tile: {tile.name} (one period, repeating in X and Y)" if tile
                      else "Make the tile's mesh object active", icon="MOD_ARRAY")
         column = layout.column()
-        for name in ("appearance_lights", "appearance_views", "appearance_directions", "appearance_bounces",
-                     "appearance_resolution", "appearance_format"):
+        for name in ("appearance_directions", "appearance_bounces", "appearance_resolution"):
+            column.prop(props, name)
+        column.separator()
+        for name in ("appearance_lights", "appearance_views", "appearance_format"):
             column.prop(props, name)
         path = appearance.output_path(context, tile)
         layout.label(text=f"Into {path}" if path else "Set an Output Folder (or save the file)")
         row = layout.row()
         row.enabled = tile is not None and bool(path)
         row.operator("visibake.simulate_brdf", icon="MATERIAL")
-        report = context.scene.get("visibake_brdf_report")
-        if report:
-            try:
-                layout.label(text=appearance.summary(json.loads(report)).removeprefix("VisiBake: "))
-            except (TypeError, ValueError, KeyError):
-                layout.label(text="The last BRDF report cannot be read")
+        column = layout.column()
+        for name in ("appearance_image_size", "appearance_image_format"):
+            column.prop(props, name)
+        row = layout.row()
+        row.enabled = tile is not None and bool(path)
+        row.operator("visibake.simulate_btf", icon="TEXTURE")
+        for key, what in (("visibake_brdf_report", "BRDF"), ("visibake_btf_report", "BTF")):
+            report = context.scene.get(key)
+            if report:
+                try:
+                    layout.label(text=appearance.summary(json.loads(report)).removeprefix("VisiBake: "))
+                except (TypeError, ValueError, KeyError):
+                    layout.label(text=f"The last {what} report cannot be read")
 
 
 classes = (VIEW3D_PT_visibake, VISIBAKE_UL_objects, VIEW3D_PT_visibake_objects, VIEW3D_PT_visibake_report,

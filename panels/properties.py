@@ -111,6 +111,8 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     appearance_bounces: setting_property(APPEARANCE_SETTINGS["appearance_bounces"])
     appearance_resolution: setting_property(APPEARANCE_SETTINGS["appearance_resolution"])
     appearance_format: setting_property(APPEARANCE_SETTINGS["appearance_format"])
+    appearance_image_size: setting_property(APPEARANCE_SETTINGS["appearance_image_size"])
+    appearance_image_format: setting_property(APPEARANCE_SETTINGS["appearance_image_format"])
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OutputRefused
-from ..outputs.atomic import atomic_file
+from ..outputs.atomic import atomic_file, remove_written
 from ..outputs.images import srgb_to_linear, write_exr
 from ..outputs.names import inside_folder
 
@@ -479,19 +479,12 @@ class BTFWriter:
         stays VisiBake's to write again."""
         if self._had_manifest:
             return
-        for relative in sorted(self._written):
-            path = os.path.join(self.folder, *relative.split("/"))
-            if os.path.isfile(path) and not os.path.islink(path):
-                os.remove(path)
-            folder = os.path.dirname(path)
-            if folder != self.folder and os.path.isdir(folder) and not os.listdir(folder):
-                os.rmdir(folder)
+        images = [os.path.join(self.folder, *relative.split("/")) for relative in sorted(self._written)]
+        images = [path for path in images if not os.path.islink(path)]
+        subfolders = sorted({os.path.dirname(path) for path in images} - {self.folder})
+        remove_written(images + [os.path.join(self.folder, MANIFEST)],
+                       ([self.folder] if self._made_folder else []) + subfolders)
         self._written.clear()
-        manifest = os.path.join(self.folder, MANIFEST)
-        if os.path.isfile(manifest):
-            os.remove(manifest)
-        if self._made_folder and os.path.isdir(self.folder) and not os.listdir(self.folder):
-            os.rmdir(self.folder)
 
     def _write_manifest(self, complete: bool) -> str:
         files = self.planned if complete else sorted(set(self.planned) | self._previous_files)

@@ -25,7 +25,11 @@ The steps, each the same for every light direction (the Method of Dependent Test
 
 The micro-BRDF is the mixture (1 - specular) * albedo / pi + specular * lobe, with the lobe
 GGX (from a roughness) or the paper's Phong (core.kernels.appearance_kernels.lobe): its
-directional albedo is at most 1 by construction. Faces are one-sided: their backs are black.
+directional albedo is at most 1 by construction. Faces are one-sided (their backs are black)
+unless translucent: a face of transmission t is a thin sheet that passes the share t of its
+diffuse light to its other side, whose samples are its twins (core.appearance.tile), so
+fibres let light through diffusely and lights and views may lie on either side (the BSDF
+over the whole sphere).
 """
 from __future__ import annotations
 
@@ -117,7 +121,9 @@ class BRDFSamples:
 
     light : (L, 3) float64 unit, towards the light; view : (V, 3) float64 unit, towards the
         viewer (tile frame, z up)
-    values : (L, V, 3) float64 BRDF, 1/sr (0 where the light is below the horizon)
+    values : (L, V, 3) float64 BSDF, 1/sr: reflection where the light and the view lie on
+        one side of the tile, transmission where they lie on opposite sides (0 for a light
+        in the tile's plane)
     transparency : (L,) float64 share of each light's rays that passes straight through
     stats : what it took (seconds per stage, counts) for the report
     warnings : what was noticed
@@ -141,6 +147,31 @@ def hemisphere_directions(count: int) -> np.ndarray:
     return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), z])
 
 
+def sphere_directions(count: int) -> np.ndarray:
+    """``count`` (>= 1) unit directions spread evenly over the whole sphere (a Fibonacci
+    spiral, equal-area rings in z from +1 to -1), for BSDFs: below the horizon are lights
+    shining on the tile's underside and views of what it lets through. Returns (count, 3)
+    float64."""
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    radius = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    angle = index * np.pi * (3.0 - np.sqrt(5.0))
+    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), z])
+
+
+def seen_corners(samples: TileSamples, faces: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples that shade the side of ``faces`` (n,) int32 a ray along ``direction``
+    ((n, 3) or (3,) float64) arrives at: (corners (n, 3) int32, from_behind (n,) bool). A
+    translucent face's back has samples of its own; an opaque face's back answers with its
+    front's (the caller decides whether a back counts as black)."""
+    from_behind = np.einsum("nx,nx->n", samples.face_normal[faces], np.broadcast_to(direction, (len(faces), 3))) > 0
+    corners = samples.triangles[faces]
+    back = samples.back_triangles[faces]
+    own_back = from_behind & (back[:, 0] >= 0)
+    corners[own_back] = back[own_back]
+    return corners, from_behind & ~own_back
+
+
 def build_tables(samples: TileSamples, scene: PeriodicScene, directions: np.ndarray) -> VisibilityTables:
     """Trace every sample along every direction above its horizon on the periodic surface."""
     count = len(samples)
@@ -153,7 +184,7 @@ def build_tables(samples: TileSamples, scene: PeriodicScene, directions: np.ndar
     hit_corner = np.full((count, n, 3), -1, np.int32)
     hit_weight = np.zeros((count, n, 3), np.float32)
     met = hits.fate == HIT
-    hit_corner[rows[met], columns[met]] = samples.triangles[hits.triangle[met]]
+    hit_corner[rows[met], columns[met]] = seen_corners(samples, hits.triangle[met], directions[columns[met]])[0]
     hit_weight[rows[met], columns[met]] = hits.barycentric[met]
     # A finite set's cosine weights sum to pi over an open hemisphere only on average: scaled
     # per sample so that they do, a white groove cannot reflect more than it receives.
@@ -163,11 +194,19 @@ def build_tables(samples: TileSamples, scene: PeriodicScene, directions: np.ndar
     return VisibilityTables(directions, hit_corner, hit_weight, cos_weight)
 
 
+def _outside(scene: PeriodicScene, towards: np.ndarray) -> float:
+    """The height just outside the tile's slab on the side ``towards`` (3,) points to: where
+    parallel rays coming from that side start."""
+    margin = 0.01 * float(scene.period.max()) + 1e-6
+    return scene.z_range[1] + margin if towards[2] > 0 else scene.z_range[0] - margin
+
+
 def view_weights(samples: TileSamples, scene: PeriodicScene, views: np.ndarray, rays: int,
                  seed: int = 0) -> ViewWeights:
     """Trace each view's grid of parallel rays and spread each hit over its face's corners.
 
-    views : (V, 3) float64 unit, above the horizon. The rays pass through rays x rays cells
+    views : (V, 3) float64 unit, above or below the horizon (a view from below looks up at
+    the tile's underside, and through it). The rays pass through rays x rays cells
     of the period, each at a random point of its cell (from ``seed``): a regular grid aliases
     with a tile's regular structure (measured: 0.3% too much weight on a V-groove's lit
     samples), a jittered one is unbiased.
@@ -175,8 +214,6 @@ def view_weights(samples: TileSamples, scene: PeriodicScene, views: np.ndarray, 
     count = len(samples)
     weights = np.zeros((len(views), count), np.float32)
     back = np.zeros(len(views))
-    low, high = scene.z_range
-    top = high + 0.01 * float(scene.period.max()) + 1e-6
     rng = np.random.default_rng(seed)
     cells = np.arange(rays)
     gx, gy = np.meshgrid(cells, cells, indexing="ij")
@@ -184,14 +221,13 @@ def view_weights(samples: TileSamples, scene: PeriodicScene, views: np.ndarray, 
         jitter = rng.random((2, rays * rays))
         points = np.column_stack([scene.origin[0] + (gx.ravel() + jitter[0]) / rays * scene.period[0],
                                   scene.origin[1] + (gy.ravel() + jitter[1]) / rays * scene.period[1],
-                                  np.full(rays * rays, top)])
+                                  np.full(rays * rays, _outside(scene, v))])
         hits = scene.trace(points, np.tile(-v, (len(points), 1)))
         met = hits.fate == HIT
-        faces = hits.triangle[met]
-        facing = samples.face_normal[faces] @ v > 0
-        back[index] = np.count_nonzero(~facing) / len(points)
-        corners = samples.triangles[faces[facing]]
-        shares = hits.barycentric[met][facing] / len(points)
+        corners, black = seen_corners(samples, hits.triangle[met], -v)
+        back[index] = np.count_nonzero(black) / len(points)
+        corners = corners[~black]
+        shares = hits.barycentric[met][~black] / len(points)
         np.add.at(weights[index], corners.ravel(), shares.ravel())
     return ViewWeights(weights, back)
 
@@ -212,7 +248,11 @@ def direct_irradiance(samples: TileSamples, scene: PeriodicScene, light: np.ndar
     at 75 degrees). The hat-weighted averages of the probes integrate to the exact lit area
     over any face the samples interpolate across.
     """
-    faces = samples.triangles
+    # The faces' fronts, and the backs of translucent ones (facing the other way).
+    translucent = samples.back_triangles[:, 0] >= 0
+    faces = np.concatenate([samples.triangles, samples.back_triangles[translucent]])
+    face_normal = np.concatenate([samples.face_normal, -samples.face_normal[translucent]])
+    face_area = np.concatenate([samples.face_area, samples.face_area[translucent]])
     corners_normal = samples.normal[faces]  # (F, 3, 3)
     normal = np.einsum("pc,fcx->fpx", FACE_PROBES, corners_normal)
     normal /= np.maximum(np.linalg.norm(normal, axis=2, keepdims=True), 1e-300)
@@ -221,12 +261,12 @@ def direct_irradiance(samples: TileSamples, scene: PeriodicScene, light: np.ndar
     facing = np.nonzero(cosine > 0)[0]
     shaded = np.zeros(len(cosine))
     if len(facing):
-        geometric = np.repeat(samples.face_normal, len(FACE_PROBES), axis=0)[facing]
+        geometric = np.repeat(face_normal, len(FACE_PROBES), axis=0)[facing]
         origins = offset_ray_origins(position.reshape(-1, 3)[facing], geometric).astype(np.float64)
         hits = scene.trace(origins, np.tile(light, (len(facing), 1)))
         open_sky = hits.fate == (ESCAPED_UP if light[2] > 0 else ESCAPED_DOWN)
         shaded[facing[open_sky]] = cosine[facing[open_sky]]
-    weight = (FACE_PROBES[None] * samples.face_area[:, None, None]).reshape(-1, 3)  # (F * P, 3)
+    weight = (FACE_PROBES[None] * face_area[:, None, None]).reshape(-1, 3)  # (F * P, 3)
     corner = np.repeat(faces, len(FACE_PROBES), axis=0)
     total = np.zeros(len(samples))
     norm = np.zeros(len(samples))
@@ -236,14 +276,15 @@ def direct_irradiance(samples: TileSamples, scene: PeriodicScene, light: np.ndar
 
 
 def transparency(scene: PeriodicScene, light: np.ndarray, rays: int) -> float:
-    """The share of parallel rays along -``light`` from above the tile that pass through it."""
+    """The share of parallel rays along -``light`` from the light's side of the tile (above or
+    below) that pass through it to the other side."""
     u = (np.arange(rays) + 0.5) / rays
     gx, gy = np.meshgrid(u, u, indexing="ij")
-    top = scene.z_range[1] + 0.01 * float(scene.period.max()) + 1e-6
     points = np.column_stack([scene.origin[0] + gx.ravel() * scene.period[0],
-                              scene.origin[1] + gy.ravel() * scene.period[1], np.full(gx.size, top)])
+                              scene.origin[1] + gy.ravel() * scene.period[1], np.full(gx.size, _outside(scene, light))])
     hits = scene.trace(points, np.tile(-light, (len(points), 1)))
-    return float(np.count_nonzero(hits.fate == ESCAPED_DOWN) / len(points))
+    through = ESCAPED_DOWN if light[2] > 0 else ESCAPED_UP
+    return float(np.count_nonzero(hits.fate == through) / len(points))
 
 
 def _unit(vectors, name: str) -> np.ndarray:
@@ -262,9 +303,22 @@ class _Prepared:
     scene: PeriodicScene
     directions: np.ndarray
     tables: VisibilityTables
-    diffuse_albedo: np.ndarray  # (S, 3) float32 (1 - specular) * albedo / pi
+    diffuse_albedo: np.ndarray  # (S, 3) float32 (1 - specular) (1 - transmission) albedo / pi, reflected
+    transmit_albedo: np.ndarray  # (S, 3) float32 (1 - specular) transmission albedo / pi, to the twin's side
     stats: dict
     warnings: list
+
+    def sent_diffuse(self, irradiance: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(R, B, 3) float64: the diffuse radiance the samples ``rows`` (R,) int64 (default:
+        all) send, from the irradiance (S, B, 3) on their own side and, through a
+        translucent face, on their twin's."""
+        rows = np.arange(len(self.samples)) if rows is None else rows
+        sent = self.diffuse_albedo[rows][:, None, :] * irradiance[rows]
+        twin = self.samples.twin[rows]
+        has = np.nonzero(twin >= 0)[0]
+        if len(has):
+            sent[has] += self.transmit_albedo[rows[has]][:, None, :] * irradiance[twin[has]]
+        return sent
 
 
 def _prepare(tile: Tile, settings: GonioSettings, report) -> _Prepared:
@@ -283,8 +337,10 @@ def _prepare(tile: Tile, settings: GonioSettings, report) -> _Prepared:
     tables = build_tables(samples, scene, directions)
     stats["tables_s"] = round(time.perf_counter() - mark, 3)
     stats["table_mib"] = round(tables.nbytes / 2 ** 20, 1)
-    diffuse_albedo = ((1.0 - samples.specular)[:, None] * samples.albedo / np.pi).astype(np.float32)
-    return _Prepared(samples, scene, directions, tables, diffuse_albedo, stats, list(tile.warnings))
+    diffuse = (1.0 - samples.specular)[:, None] * samples.albedo / np.pi
+    transmission = samples.transmission[:, None]
+    return _Prepared(samples, scene, directions, tables, ((1.0 - transmission) * diffuse).astype(np.float32),
+                     (transmission * diffuse).astype(np.float32), stats, list(tile.warnings))
 
 
 @dataclass
@@ -309,7 +365,6 @@ def _light_batches(tile: Tile, prepared: _Prepared, lights: np.ndarray, settings
     """Yield a _LitBatch per batch of light directions: direct light, then the bounces."""
     import time
     samples, tables, directions = prepared.samples, prepared.tables, prepared.directions
-    diffuse_albedo = prepared.diffuse_albedo
     glossy = tile.glossy
     n = len(directions)
     count = len(samples)
@@ -334,8 +389,7 @@ def _light_batches(tile: Tile, prepared: _Prepared, lights: np.ndarray, settings
                                  np.repeat(samples.roughness, n), tile.phong_exponent,
                                  np.tile(light, (count * n, 1)), np.tile(-directions, (count, 1)), lobe)
                 sent_glossy[:, :, k] = lobe.reshape(count, n) * direct[:, k:k + 1]
-            outgoing = (diffuse_albedo[:, None, None, :] * direct[:, None, :, None]
-                        + sent_glossy[..., None]).astype(np.float32)
+            outgoing = (prepared.sent_diffuse(irradiance)[:, None] + sent_glossy[..., None]).astype(np.float32)
             arriving = np.empty_like(outgoing)
             for bounce in range(settings.bounces):
                 kernels.run(module.incoming_radiance, threads, outgoing, tables.hit_corner, tables.hit_weight, arriving)
@@ -343,18 +397,18 @@ def _light_batches(tile: Tile, prepared: _Prepared, lights: np.ndarray, settings
                 reached = np.einsum("sn,snbc->sbc", tables.cos_weight, arriving, dtype=np.float64)
                 irradiance += reached
                 if bounce + 1 < settings.bounces:
-                    diffuse = (diffuse_albedo[:, None, :] * reached).astype(np.float32)
+                    diffuse = prepared.sent_diffuse(reached).astype(np.float32)
                     kernels.run(module.glossy_outgoing, threads, arriving, directions, samples.normal,
                                 samples.specular, samples.roughness, tile.phong_exponent, tables.cos_weight, diffuse,
                                 outgoing)
         else:
-            sent = (diffuse_albedo[:, None, :] * direct[:, :, None]).astype(np.float32)
+            sent = prepared.sent_diffuse(irradiance).astype(np.float32)
             reached = np.empty((count, b, 3))
             for _ in range(settings.bounces):
                 kernels.run(module.gather_diffuse, threads, sent, tables.hit_corner, tables.hit_weight,
                             tables.cos_weight, reached)
                 irradiance += reached
-                sent = (diffuse_albedo[:, None, :] * reached).astype(np.float32)
+                sent = prepared.sent_diffuse(reached).astype(np.float32)
         times["bounces_s"] = times.get("bounces_s", 0.0) + time.perf_counter() - mark
         yield _LitBatch(first, chunk, direct, irradiance, incoming_total)
 
@@ -365,7 +419,7 @@ def _outgoing_towards(tile: Tile, prepared: _Prepared, lit: _LitBatch, view: np.
     (unit) under each light of the batch: diffuse, the glossy lobe over the bounces' light,
     and the glossy lobe over the sun's."""
     samples = prepared.samples
-    out = prepared.diffuse_albedo[rows][:, None, :] * lit.irradiance[rows]
+    out = prepared.sent_diffuse(lit.irradiance, rows)
     if lit.incoming is None:
         return out
     towards = np.empty((len(rows), len(lit.lights), 3))
@@ -380,14 +434,21 @@ def _outgoing_towards(tile: Tile, prepared: _Prepared, lit: _LitBatch, view: np.
     return out
 
 
-def _start(settings: GonioSettings | None, lights, views):
+# Views closer to the tile's plane than this (|z|) are refused: their parallel rays would
+# cross thousands of periods before they meet the surface or leave its slab.
+MIN_VIEW_Z = 1e-3
+
+
+def _start(settings: GonioSettings | None, lights, views, sphere: bool = True):
     settings = settings or GonioSettings()
     settings.check()
     module = require_kernels()
     lights = _unit(lights, "light")
     views = _unit(views, "view")
-    if np.any(views[:, 2] <= 0):
+    if not sphere and np.any(views[:, 2] <= 0):
         raise AppearanceRefused("view directions must lie above the tile (z > 0)")
+    if np.any(np.abs(views[:, 2]) < MIN_VIEW_Z):
+        raise AppearanceRefused(f"view directions must not lie in the tile's plane (|z| >= {MIN_VIEW_Z})")
     return settings, module, lights, views
 
 
@@ -395,9 +456,10 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
                   progress: Callable[[str, float], None] | None = None) -> BRDFSamples:
     """The tile's BRDF at every (light, view) pair (see the module's docstring).
 
-    lights, views : (L, 3), (V, 3) directions (normalised here), z up; views must lie above
-        the horizon, lights may lie anywhere (below the horizon the BRDF is 0 and only the
-        transparency is meaningful).
+    lights, views : (L, 3), (V, 3) directions (normalised here), z up, anywhere on the sphere
+        but views not in the tile's plane: a light below the horizon shines on the tile's
+        underside, a view below it sees the underside and what the tile lets through (its
+        BSDF's transmission; with the light above, sampled with sphere_directions).
     ``progress(stage, fraction)`` is called between steps and may raise core.errors.Cancelled.
     """
     import time
@@ -425,7 +487,7 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
         b = len(lit.lights)
         if lit.incoming is None:
             # Lambert: the outgoing light is the same towards every view, one product for all pairs.
-            diffuse_out = prepared.diffuse_albedo[:, None, :] * lit.irradiance
+            diffuse_out = prepared.sent_diffuse(lit.irradiance)
             values[lit.first:lit.first + b] += np.einsum("vs,sbc->bvc", seen.weights, diffuse_out)
         else:
             for index, view in enumerate(views):
@@ -435,10 +497,11 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
         times["gather_views_s"] += time.perf_counter() - mark
         report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b) / len(lights)))
 
-    cosine = lights[:, 2]
-    lit_from_above = cosine > 1e-9
-    values[lit_from_above] /= cosine[lit_from_above, None, None]
-    values[~lit_from_above] = 0.0
+    # The macro surface receives |cos theta_l| from a sun of unit irradiance on either side.
+    cosine = np.abs(lights[:, 2])
+    lit = cosine > 1e-9
+    values[lit] /= cosine[lit, None, None]
+    values[~lit] = 0.0
     if not np.all(np.isfinite(values)):
         raise RuntimeError("the BRDF simulation produced non-finite values (a bug)")
     stats.update({key: round(value, 3) for key, value in times.items()})
@@ -469,12 +532,10 @@ def pixel_rays(scene: PeriodicScene, samples: TileSamples, view: np.ndarray, wid
                               scene.origin[1] + (row + jitter[1]) / height * scene.period[1],
                               np.full(len(pixel), top)])
     hits = scene.trace(points, np.tile(-view, (len(points), 1)))
-    met = hits.fate == HIT
-    faces = hits.triangle[met]
-    facing = samples.face_normal[faces] @ view > 0
-    keep = np.nonzero(met)[0][facing]
-    return (pixel[keep], samples.triangles[hits.triangle[keep]],
-            (hits.barycentric[keep] / per_pixel).astype(np.float32))
+    met = np.nonzero(hits.fate == HIT)[0]
+    corners, black = seen_corners(samples, hits.triangle[met], -view)
+    keep = met[~black]
+    return pixel[keep], corners[~black], (hits.barycentric[keep] / per_pixel).astype(np.float32)
 
 
 def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, settings: GonioSettings | None = None,
@@ -490,7 +551,7 @@ def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, 
     is called once per pair. Returns the stats.
     """
     import time
-    settings, module, lights, views = _start(settings, lights, views)
+    settings, module, lights, views = _start(settings, lights, views, sphere=False)
     width, height = (int(v) for v in image_size)
     if not (1 <= width <= 8192 and 1 <= height <= 8192):
         raise AppearanceRefused(f"the image size must be 1 to 8192 pixels a side, got {width} x {height}")

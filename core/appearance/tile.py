@@ -48,6 +48,8 @@ class Tile:
     phong_exponent : float
     corner_normals : (T, 3, 3) float64 unit shading normals at each triangle's corners (as
         the renderer shades: Blender's corner normals), or None for smooth_corner_normals
+    transmission : (T,) float32 in [0, 1] the share of the diffuse light a face passes to its
+        other side (a thin translucent sheet, as a fibre's wall; 0: opaque)
     warnings : what was noticed about the tile (for the report)
     """
 
@@ -62,11 +64,13 @@ class Tile:
     material: np.ndarray
     phong_exponent: float = 8.0
     corner_normals: np.ndarray | None = None
+    transmission: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
 
     @classmethod
     def of(cls, positions, triangles, period=None, origin=None, albedo=(0.8, 0.8, 0.8), specular=0.0,
-           roughness=-1.0, smooth=False, material=0, phong_exponent: float = 8.0, corner_normals=None) -> Tile:
+           roughness=-1.0, smooth=False, material=0, phong_exponent: float = 8.0, corner_normals=None,
+           transmission=0.0) -> Tile:
         """A tile with per-triangle properties broadcast from scalars; the period defaults to
         the bounding box in XY. Refuses (core.errors.AppearanceRefused) what cannot be simulated."""
         positions = np.asarray(positions, np.float64).reshape(-1, 3)
@@ -90,7 +94,8 @@ class Tile:
                    np.broadcast_to(np.asarray(specular, np.float32), (count,)).copy(),
                    np.broadcast_to(np.asarray(roughness, np.float32), (count,)).copy(),
                    np.broadcast_to(np.asarray(smooth, bool), (count,)).copy(),
-                   np.broadcast_to(np.asarray(material, np.int32), (count,)).copy(), float(phong_exponent))
+                   np.broadcast_to(np.asarray(material, np.int32), (count,)).copy(), float(phong_exponent),
+                   transmission=np.broadcast_to(np.asarray(transmission, np.float32), (count,)).copy())
         if corner_normals is None:
             tile.corner_normals = smooth_corner_normals(positions, triangles, tile.smooth)
         else:
@@ -102,6 +107,8 @@ class Tile:
             raise AppearanceRefused("the tile's faces all have zero area")
         if np.any(tile.albedo < 0) or np.any(tile.albedo > 1) or np.any(tile.specular < 0) or np.any(tile.specular > 1):
             raise AppearanceRefused("the tile's base colours and specular weights must lie in [0, 1]")
+        if not np.all((tile.transmission >= 0) & (tile.transmission <= 1)):
+            raise AppearanceRefused("the tile's transmission weights must lie in [0, 1]")
         tile.warnings.extend(border_mismatch(tile))
         return tile
 
@@ -109,6 +116,11 @@ class Tile:
     def glossy(self) -> bool:
         """Whether any face has a glossy lobe (the transport is view-dependent only then)."""
         return bool(np.any(self.specular > 0))
+
+    @property
+    def translucent(self) -> bool:
+        """Whether any face passes light to its other side (its samples then have twins)."""
+        return self.transmission is not None and bool(np.any(self.transmission > 0))
 
 
 def border_mismatch(tile: Tile) -> list[str]:
@@ -220,8 +232,12 @@ class TileSamples:
     position : (S, 3) float64; normal : (S, 3) float64 unit; area : (S,) float64 (a third
         of the faces around it), scene units squared
     albedo : (S, 3) float32; specular : (S,) float32; roughness : (S,) float32
-    triangles : (F, 3) int32 the refined faces, indexing samples
+    triangles : (F, 3) int32 the refined faces, indexing samples (their fronts)
     face_normal : (F, 3) float64 unit; face_area : (F,) float64
+    transmission : (S,) float32 the share of diffuse light passed to the twin's side
+    twin : (S,) int64 the sample on the other side of a translucent face (-1: none)
+    back_triangles : (F, 3) int32 the samples of each face's back (-1 rows: the face is
+        opaque, its back black)
     """
 
     position: np.ndarray
@@ -233,6 +249,9 @@ class TileSamples:
     triangles: np.ndarray
     face_normal: np.ndarray
     face_area: np.ndarray
+    transmission: np.ndarray
+    twin: np.ndarray
+    back_triangles: np.ndarray
 
     def __len__(self) -> int:
         return len(self.position)
@@ -260,25 +279,44 @@ def tile_samples(tile: Tile, resolution: int) -> TileSamples:
     # Corners share a sample when they sit at one point, with one material, and the same
     # normal: their faces' planes where flat, their shading normals where smooth (a sharp edge
     # in a smooth surface splits its samples).
-    plane = np.round(np.where(smooth[:, None], shading, normals[corner_face]) / COPLANAR).astype(np.int64)
-    keys = np.column_stack([corner_point, tile.material[parent][corner_face], smooth.astype(np.int64), plane])
-    _, sample_of_corner = np.unique(keys, axis=0, return_inverse=True)
-    sample_of_corner = sample_of_corner.reshape(-1)
-    count = int(sample_of_corner.max()) + 1
-    weighted = np.zeros((count, 3))
     corner_normal = np.where(smooth[:, None], shading, normals[corner_face])
-    np.add.at(weighted, sample_of_corner, corner_normal * areas[corner_face, None])
+    # A translucent face's back is a surface of its own: its corners again, facing the other
+    # way, whose samples are the twins of the front's (the light one side receives, the other
+    # sends on).
+    transmission = np.zeros(len(tile.triangles), np.float32) if tile.transmission is None else tile.transmission
+    translucent = transmission[parent] > 0
+    back = np.nonzero(translucent[corner_face])[0]
+    front_count = len(corner_point)
+    all_point = np.concatenate([corner_point, corner_point[back]])
+    all_face = np.concatenate([corner_face, corner_face[back]])
+    all_normal = np.concatenate([corner_normal, -corner_normal[back]])
+    side = np.concatenate([np.zeros(front_count, np.int64), np.ones(len(back), np.int64)])
+    plane = np.round(all_normal / COPLANAR).astype(np.int64)
+    keys = np.column_stack([all_point, tile.material[parent][all_face], tile.smooth[parent][all_face],
+                            translucent[all_face], side, plane]).astype(np.int64)
+    _, sample_of = np.unique(keys, axis=0, return_inverse=True)
+    sample_of = sample_of.reshape(-1)
+    count = int(sample_of.max()) + 1
+    weighted = np.zeros((count, 3))
+    np.add.at(weighted, sample_of, all_normal * areas[all_face, None])
     length = np.linalg.norm(weighted, axis=1, keepdims=True)
     normal = weighted / np.maximum(length, 1e-300)
     area = np.zeros(count)
-    np.add.at(area, sample_of_corner, areas[corner_face] / 3.0)
+    np.add.at(area, sample_of, areas[all_face] / 3.0)
     position = np.zeros((count, 3))
-    position[sample_of_corner] = positions_used[corner_point]
+    position[sample_of] = positions_used[all_point]
+    front = sample_of[:front_count]
+    twin = np.full(count, -1, np.int64)
+    twin[sample_of[front_count:]] = front[back]
+    twin[front[back]] = sample_of[front_count:]
+    back_triangles = np.full(front_count, -1, np.int32)
+    back_triangles[back] = sample_of[front_count:]
 
     def per_sample(values: np.ndarray) -> np.ndarray:
         out = np.zeros((count, *values.shape[1:]), values.dtype)
-        out[sample_of_corner] = values[parent][corner_face]
+        out[sample_of] = values[parent][all_face]
         return out
 
     return TileSamples(position, normal, area, per_sample(tile.albedo), per_sample(tile.specular),
-                       per_sample(tile.roughness), sample_of_corner.reshape(-1, 3).astype(np.int32), normals, areas)
+                       per_sample(tile.roughness), front.reshape(-1, 3).astype(np.int32), normals, areas,
+                       per_sample(transmission), twin, back_triangles.reshape(-1, 3))

@@ -22,3 +22,15 @@ def atomic_file(path: str, mode: str = "wb", encoding: str | None = None):
         if os.path.exists(temporary):
             os.remove(temporary)
         raise
+
+
+def remove_written(files, folders) -> None:
+    """Take back what a failed or cancelled run wrote: each of ``files`` (paths) that exists,
+    then each of ``folders`` (paths, in the order they were made: parents before children)
+    that is left empty, the last made first. A folder that holds anything else stays."""
+    for path in files:
+        if os.path.isfile(path):
+            os.remove(path)
+    for folder in reversed(list(folders)):
+        if os.path.isdir(folder) and not os.listdir(folder):
+            os.rmdir(folder)

@@ -14,7 +14,7 @@ import numpy as np
 from ...core.appearance import gonio
 from ...core.appearance.tile import Tile
 from ...core.errors import AppearanceRefused, OutputRefused
-from ...core.outputs.atomic import atomic_file
+from ...core.outputs.atomic import atomic_file, remove_written
 from . import compat
 from .extract import _linked_texture, _surface_node, world_matrix
 
@@ -52,23 +52,26 @@ def _fresnel_average(f0: float) -> float:
     return f0 + (1.0 - f0) / 21.0
 
 
-def micro_material(material, warnings: list[str]) -> tuple[np.ndarray, float, float]:
-    """(albedo (3,), specular weight, GGX roughness) of the micro-BRDF for a Blender material.
+def micro_material(material, warnings: list[str]) -> tuple[np.ndarray, float, float, float]:
+    """(albedo (3,), specular weight, GGX roughness, transmission) of the micro-BRDF for a
+    Blender material.
 
     A Principled BSDF gives its base colour as the Lambert albedo, its roughness to the GGX
     lobe, and the lobe's weight is its dielectric layer's average reflectance (Schlick, from
     IOR and Specular IOR Level: about 0.086 at the defaults); a Diffuse BSDF is Lambert only.
+    Its Transmission Weight makes the face a thin translucent sheet, a fibre's wall: that
+    share of the diffuse light passes to the other side, diffusely (core.appearance.tile).
     A linked image's mean colour stands for a textured base colour.
     """
     if material is None:
-        return np.full(3, 0.8), 0.0, 0.5
+        return np.full(3, 0.8), 0.0, 0.5, 0.0
     node = _surface_node(material) if compat.uses_nodes(material) else None
     if node is None:
-        return np.array(material.diffuse_color[:3], np.float64), 0.0, 0.5
+        return np.array(material.diffuse_color[:3], np.float64), 0.0, 0.5, 0.0
     if node.bl_idname not in {"ShaderNodeBsdfPrincipled", "ShaderNodeBsdfDiffuse"}:
         warnings.append(f"material {material.name!r}: surface shader {node.bl_idname} is not supported in a tile; "
                         "simulated as grey diffuse")
-        return np.full(3, 0.8), 0.0, 0.5
+        return np.full(3, 0.8), 0.0, 0.5, 0.0
     principled = node.bl_idname == "ShaderNodeBsdfPrincipled"
     socket = node.inputs["Base Color" if principled else "Color"]
     albedo = np.array(socket.default_value[:3], np.float64)
@@ -79,15 +82,20 @@ def micro_material(material, warnings: list[str]) -> tuple[np.ndarray, float, fl
         albedo = pixels.reshape(-1, image.channels)[:, :3].mean(axis=0).astype(np.float64)
         warnings.append(f"material {material.name!r}: its base colour texture is simulated as its mean colour")
     if not principled:
-        return albedo, 0.0, 0.5
+        return albedo, 0.0, 0.5, 0.0
     ior = float(node.inputs["IOR"].default_value)
     level = float(node.inputs["Specular IOR Level"].default_value)
     f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * level if ior > 0 else DEFAULT_F0
     specular = _fresnel_average(min(max(f0, 0.0), 1.0)) if level > 0 else 0.0
-    if node.inputs["Metallic"].default_value > 0 or node.inputs["Transmission Weight"].default_value > 0:
-        warnings.append(f"material {material.name!r}: metallic and transmission are not simulated in a tile yet")
+    if node.inputs["Metallic"].default_value > 0:
+        warnings.append(f"material {material.name!r}: metallic is not simulated in a tile yet (simulated as a "
+                        "dielectric)")
+    transmission = min(max(float(node.inputs["Transmission Weight"].default_value), 0.0), 1.0)
+    if transmission > 0:
+        warnings.append(f"material {material.name!r}: its transmission is simulated as a thin translucent sheet "
+                        "(light passes diffusely, as through a fibre's wall, not refracted as through glass)")
     roughness = float(node.inputs["Roughness"].default_value)
-    return albedo, specular, roughness
+    return albedo, specular, roughness, transmission
 
 
 def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Tile:
@@ -100,6 +108,7 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
     warnings: list[str] = []
     depsgraph = bpy.context.evaluated_depsgraph_get()
     positions, triangles, albedo, specular, roughness, smooth, material, normals = [], [], [], [], [], [], [], []
+    transmission = []
     offset = 0
     materials: dict = {}
     for obj in tile_objects(scene, name):
@@ -136,11 +145,12 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
                 key = chosen.name if chosen is not None else ""
                 if key not in materials:
                     materials[key] = (len(materials), *micro_material(chosen, warnings))
-                index, rgb, weight, rough = materials[key]
+                index, rgb, weight, rough, passed = materials[key]
                 rows = slots == slot
                 albedo.append(np.tile(rgb, (int(rows.sum()), 1)))
                 specular.append(np.full(int(rows.sum()), weight))
                 roughness.append(np.full(int(rows.sum()), rough))
+                transmission.append(np.full(int(rows.sum()), passed))
                 material.append(np.full(int(rows.sum()), index))
                 triangles.append(indices.reshape(-1, 3)[rows] + offset)
                 smooth.append(shading[rows])
@@ -163,13 +173,27 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
         roughness = np.full_like(roughness, -1.0)
         exponent = float(phong[1])
     tile = Tile.of(np.concatenate(positions), np.concatenate(triangles), period, None, albedo, specular, roughness,
-                   np.concatenate(smooth), np.concatenate(material), exponent, np.concatenate(normals))
+                   np.concatenate(smooth), np.concatenate(material), exponent, np.concatenate(normals),
+                   np.concatenate(transmission))
     tile.warnings[:0] = warnings
     return tile
 
 
 # The most (light, view) pairs the Principled fit takes.
 FIT_PAIRS = 2500
+# merl: isotropic, hemisphere; table: light x view over the hemisphere; bsdf: over the sphere.
+OUTPUT_FORMATS = ("merl", "table", "bsdf")
+
+
+def directional_shares(result: gonio.BRDFSamples, sphere: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(reflected, transmitted) (L, 3) float64: the share of each light's power the tile sends
+    to the light's side and, diffusely, to the other (the straight-through transparency
+    apart), integrated over the view set's equal-area cells (2 pi / V on the hemisphere, 4 pi
+    / V on the sphere)."""
+    cell = (4 if sphere else 2) * np.pi / len(result.view)
+    projected = result.values * np.abs(result.view[None, :, 2, None]) * cell
+    same_side = (np.sign(result.light[:, None, 2]) == np.sign(result.view[None, :, 2]))[..., None]
+    return (projected * same_side).sum(axis=1), (projected * ~same_side).sum(axis=1)
 # Beside each file VisiBake writes: its report, which also marks the file as VisiBake's to replace.
 SIDECAR = ".visibake.json"
 
@@ -192,20 +216,17 @@ class BRDFOutcome:
     folders: list = field(default_factory=list)
 
     def rollback(self) -> None:
-        for path in self.written:
-            if os.path.isfile(path):
-                os.remove(path)
-        for folder in reversed(self.folders):
-            if os.path.isdir(folder) and not os.listdir(folder):
-                os.rmdir(folder)
+        remove_written(self.written, self.folders)
         self.written.clear()
         self.folders.clear()
 
 
 class BRDFJob:
-    """Simulate a tile's BRDF on ``lights`` x ``views`` hemisphere directions and write it as
-    a MERL ``.binary`` (isotropic, filled by core.appearance.merl.fill_from_samples) or a
-    tabulated ``.npz`` (core.appearance.tabulated), with its report beside it (FILE.visibake.json).
+    """Simulate a tile's BSDF on ``lights`` x ``views`` directions and write it as a MERL
+    ``.binary`` (isotropic, filled by core.appearance.merl.fill_from_samples), or a tabulated
+    ``.npz`` (core.appearance.tabulated) over the hemisphere ("table") or the whole sphere
+    ("bsdf": lights and views below the tile too, its transmission), with its report beside it
+    (FILE.visibake.json).
 
     ``tile`` is a core Tile, or a callable reading it on the main thread (the panel reads the
     scene there). ``progress(stage, fraction)`` may raise core.errors.Cancelled.
@@ -259,27 +280,36 @@ class BRDFJob:
                 raise OutputRefused(f"{folder} is not a folder")
         else:
             _refuse_foreign_file(self.out_path, self.overwrite)
-        if self.output_format not in ("merl", "table"):
-            raise AppearanceRefused(f"unknown BRDF format {self.output_format!r}: use merl or table")
+        if self.output_format not in OUTPUT_FORMATS:
+            raise AppearanceRefused(f"unknown BRDF format {self.output_format!r}: use {', '.join(OUTPUT_FORMATS)}")
         if not 1 <= self.lights <= 10_000 or not 1 <= self.views <= 10_000:
             raise AppearanceRefused(f"light and view directions take 1 to 10000 each, got {self.lights} and "
                                     f"{self.views}")
         self.settings.check()
 
+    def direction_sets(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lights (L, 3), views (V, 3)) float64 unit: the sphere for a BSDF, else the hemisphere."""
+        if self.output_format == "bsdf":
+            return gonio.sphere_directions(self.lights), gonio.sphere_directions(self.views)
+        return gonio.hemisphere_directions(self.lights), gonio.hemisphere_directions(self.views)
+
     def compute(self) -> None:
-        light_set = gonio.hemisphere_directions(self.lights)
-        view_set = gonio.hemisphere_directions(self.views)
+        light_set, view_set = self.direction_sets()
         self.result = gonio.simulate_brdf(self.tile, light_set, view_set, self.settings, self.progress)
         if self.progress is not None:
             self.progress("writing", 0.0)
         result = self.result
+        if self.output_format != "bsdf" and (self.tile.translucent or result.transparency.max(initial=0.0) > 0.001):
+            result.warnings.append("the tile lets light through (translucent faces or gaps): --format bsdf (BSDF "
+                                   "(Sphere) in the panel) samples the whole sphere, its transmission included")
         pairs_light = np.repeat(result.light, len(result.view), axis=0)
         pairs_view = np.tile(result.view, (len(result.light), 1))
         if self.output_format == "merl":
             from ...core.appearance import merl
             self.table = merl.fill_from_samples(pairs_light, pairs_view, result.values.reshape(-1, 3))
         self.fit = None
-        lit = pairs_light[:, 2] > 0
+        # The Principled fit models reflection: the pairs with the light and the view above.
+        lit = (pairs_light[:, 2] > 0) & (pairs_view[:, 2] > 0)
         if self.fit_material and np.any(lit):
             from ...core.appearance.fit import fit_principled
             if self.progress is not None:
@@ -288,7 +318,7 @@ class BRDFJob:
             rows = np.nonzero(lit)[0]
             rows = rows[::max(1, len(rows) // FIT_PAIRS)]
             self.fit = fit_principled(pairs_light[rows], pairs_view[rows], result.values.reshape(-1, 3)[rows],
-                                      transparency=float(result.transparency.mean()) or None)
+                                      transparency=float(result.transparency[result.light[:, 2] > 0].mean()) or None)
 
     def finish(self) -> BRDFOutcome:
         from ...core.appearance import merl, tabulated
@@ -303,19 +333,19 @@ class BRDFJob:
             self.outcome.folders.append(folder)
         if self.output_format == "merl":
             merl.write_merl(self.out_path, self.table)
-        else:
+        else:  # "table" and "bsdf"
             bsdf = tabulated.TabulatedBSDF(result.light.astype(np.float32), result.view.astype(np.float32),
                                            result.values.astype(np.float32),
                                            np.repeat(result.transparency[:, None], 3, axis=1).astype(np.float32),
                                            self.tile.period, "m", json.dumps(written_settings))
             tabulated.save_tabulated(self.out_path, bsdf)
         self.outcome.written.append(self.out_path)
-        # Directional albedo per light: the reflected share, over the view set's equal-area cells.
-        albedo = (result.values * result.view[None, :, 2, None]).sum(axis=1) * 2 * np.pi / len(result.view)
+        reflected, transmitted = directional_shares(result, self.output_format == "bsdf")
         report = self.outcome.report
         report.update({"output": self.out_path, "format": self.output_format, "settings": written_settings,
                        "samples": result.stats.get("samples"), "stats": result.stats,
-                       "max_directional_albedo": float(albedo.max()),
+                       "max_directional_albedo": float(reflected.max()),
+                       "max_directional_transmittance": float(transmitted.max(initial=0.0)),
                        "mean_brdf": [float(x) for x in result.values.mean(axis=(0, 1))],
                        "max_transparency": float(result.transparency.max(initial=0.0)),
                        "seconds": round(time.perf_counter() - self.started, 3)})
@@ -331,6 +361,11 @@ class BRDFJob:
                 "sheen_weight": float(fitted.sheen_weight), "sheen_roughness": float(fitted.sheen_roughness),
                 "sheen_tint": [float(x) for x in fitted.sheen_tint],
                 "transmission_weight": float(fitted.transmission_weight), "metallic": float(fitted.metallic)}
+            if self.output_format == "bsdf" and np.any(result.light[:, 2] > 0):
+                # What passes diffusely, as a Translucent BSDF's colour: the transmittance of
+                # the lights from above (a Lambert sheet's f_t = colour / pi sends colour).
+                colour = transmitted[result.light[:, 2] > 0].mean(axis=0)
+                report["principled_fit"]["translucent_color"] = [float(x) for x in colour]
         report["files"] = [self.out_path, self.out_path + SIDECAR]
         with atomic_file(self.out_path + SIDECAR, "w", encoding="utf-8") as handle:
             json.dump(report, handle, indent=1, default=float)
@@ -344,37 +379,90 @@ def run_brdf(tile: Tile, out_path: str, output_format: str, lights: int, views: 
     return BRDFJob(tile, out_path, output_format, lights, views, settings, overwrite, progress).run().report
 
 
+class BTFJob:
+    """Simulate the tile's BTF on the 81 x 81 directions of Bonn's UBO2003 and write it in the
+    UTIA folder layout (core.appearance.btf), as ModalBake's steps or at once (:meth:`run`).
+
+    ``tile`` is a core Tile, or a callable reading it on the main thread. An error or a cancel
+    leaves no half BTF behind (core.appearance.btf.BTFWriter.abort).
+    """
+
+    needs_main_thread = False
+
+    def __init__(self, tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,
+                 per_pixel: int = 4, overwrite: bool = False, progress=None):
+        self.tile_source = tile
+        self.out_dir = os.path.abspath(out_dir)
+        self.image_format, self.image_size, self.per_pixel = image_format, int(image_size), int(per_pixel)
+        self.settings = settings
+        self.overwrite = overwrite
+        self.progress = progress
+        self.writer = None
+        self.started = time.perf_counter()
+
+    def modal_steps(self) -> list:
+        """(name, step, on a worker thread) for ModalBake."""
+        return [("read", self.read, False), ("compute", self.compute, True), ("finish", self.finish, False)]
+
+    def expected_work(self) -> dict:
+        return {}
+
+    def run(self) -> BRDFOutcome:
+        try:
+            self.read()
+            self.compute()
+            return self.finish()
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+
+    def read(self) -> None:
+        """Main thread: the tile, the checks, and the writer (which claims the folder)."""
+        from ...core.appearance import btf
+
+        self.tile = self.tile_source() if callable(self.tile_source) else self.tile_source
+        if not 8 <= self.image_size <= 4096:
+            raise AppearanceRefused(f"--image-size takes 8 to 4096 pixels, got {self.image_size}")
+        if self.image_format not in ("exr", "png"):
+            raise AppearanceRefused(f"unknown BTF image format {self.image_format!r}: use exr or png")
+        self.settings.check()
+        self.written_settings = {
+            "directions": self.settings.directions, "bounces": self.settings.bounces,
+            "resolution": self.settings.resolution, "seed": self.settings.seed, "rays_per_pixel": self.per_pixel,
+            "pixel_value": "pi * radiance / sun irradiance (a white Lambert plane lit from above is 1; the BRDF is "
+                           "the value over pi cos(theta_l))"}
+        try:
+            self.writer = btf.BTFWriter(self.out_dir, self.image_format, self.image_size, self.image_size,
+                                        self.tile.period, overwrite=self.overwrite, settings=self.written_settings)
+        except ValueError as error:
+            raise OutputRefused(str(error)) from None
+
+    def compute(self) -> None:
+        from ...core.appearance import btf
+
+        thetas, phis = btf.ubo_directions()
+        directions = btf.unit_vector(thetas, phis)
+        self.stats = gonio.simulate_btf(self.tile, directions, directions, (self.image_size, self.image_size),
+                                        self.writer.write, self.settings, self.per_pixel, self.progress)
+
+    def finish(self) -> BRDFOutcome:
+        manifest = self.writer.finish()
+        stats = self.stats
+        return BRDFOutcome({
+            "command": "btf", "output": self.out_dir, "manifest": manifest, "format": self.image_format,
+            "images": stats["images"], "image_size": self.image_size, "settings": self.written_settings,
+            "samples": stats.get("samples"), "stats": stats, "warnings": list(self.tile.warnings),
+            "seconds": round(time.perf_counter() - self.started, 3)})
+
+
 def run_btf(tile: Tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,
             per_pixel: int = 4, overwrite: bool = False, progress=None) -> dict:
-    """Simulate the tile's BTF on the 81 x 81 directions of Bonn's UBO2003 and write it in
-    the UTIA folder layout (core.appearance.btf). Returns the report (a JSON-able dict)."""
-    from ...core.appearance import btf
-
-    if not 8 <= image_size <= 4096:
-        raise AppearanceRefused(f"--image-size takes 8 to 4096 pixels, got {image_size}")
-    started = time.perf_counter()
-    thetas, phis = btf.ubo_directions()
-    directions = btf.unit_vector(thetas, phis)
-    written_settings = {"directions": settings.directions, "bounces": settings.bounces,
-                        "resolution": settings.resolution, "seed": settings.seed, "rays_per_pixel": per_pixel,
-                        "pixel_value": "pi * radiance / sun irradiance (a white Lambert plane lit from above is 1; "
-                                       "the BRDF is the value over pi cos(theta_l))"}
-    try:
-        writer = btf.BTFWriter(out_dir, image_format, image_size, image_size, tile.period, overwrite=overwrite,
-                               settings=written_settings)
-    except ValueError as error:
-        raise OutputRefused(str(error)) from None
-    try:
-        stats = gonio.simulate_btf(tile, directions, directions, (image_size, image_size), writer.write, settings,
-                                   per_pixel, progress)
-        manifest = writer.finish()
-    except BaseException:
-        writer.abort()  # an error or a cancel leaves no half BTF behind
-        raise
-    return {"output": os.path.abspath(out_dir), "manifest": manifest, "format": image_format,
-            "images": stats["images"], "image_size": image_size, "settings": written_settings,
-            "samples": stats.get("samples"), "stats": stats, "warnings": list(tile.warnings),
-            "seconds": round(time.perf_counter() - started, 3)}
+    """:class:`BTFJob` at once (the command line); returns its report (a JSON-able dict)."""
+    return BTFJob(tile, out_dir, image_format, image_size, settings, per_pixel, overwrite, progress).run().report
 
 
 # Marks a material VisiBake made from a fit (so that a later fit may replace it, never a user's).
@@ -398,7 +486,19 @@ def make_material(name: str, fit: dict):
     shader = tree.nodes.new("ShaderNodeBsdfPrincipled")
     output = tree.nodes.new("ShaderNodeOutputMaterial")
     output.location = (300, 0)
-    tree.links.new(shader.outputs[0], output.inputs["Surface"])
+    translucent = fit.get("translucent_color")
+    if translucent is not None and max(translucent) > 0:
+        # The tile's diffuse transmission: a Translucent BSDF added to the fitted reflection.
+        passing = tree.nodes.new("ShaderNodeBsdfTranslucent")
+        passing.inputs["Color"].default_value = (*translucent, 1.0)
+        passing.location = (0, -400)
+        both = tree.nodes.new("ShaderNodeAddShader")
+        both.location = (150, 0)
+        tree.links.new(shader.outputs[0], both.inputs[0])
+        tree.links.new(passing.outputs[0], both.inputs[1])
+        tree.links.new(both.outputs[0], output.inputs["Surface"])
+    else:
+        tree.links.new(shader.outputs[0], output.inputs["Surface"])
     inputs = shader.inputs
     inputs["Base Color"].default_value = (*fit["base_color"], 1.0)
     for socket, key in (("Roughness", "roughness"), ("Metallic", "metallic"), ("IOR", "ior"),

@@ -19,6 +19,7 @@ import numpy as np
 
 from ...core import kernels
 from ...core.errors import VolumeRefused
+from ...core.outputs.atomic import remove_written
 from ...core.outputs.names import inside_folder, unique_components
 from ...core.visibility.directions import direction_set
 from ...core.volume import cache as volume_cache
@@ -44,12 +45,7 @@ class VolumeOutcome:
         for obj in self.created:
             if obj.name in bpy.data.objects:
                 volume_io.remove_baked_object(obj)
-        for path in self.written:
-            if os.path.isfile(path):
-                os.remove(path)
-        for folder in reversed(self.folders):
-            if os.path.isdir(folder) and not os.listdir(folder):
-                os.rmdir(folder)
+        remove_written(self.written, self.folders)
         self.created.clear()
         self.written.clear()
 

@@ -20,7 +20,7 @@ def appearance(visibake):
             importlib.import_module(name + ".core.appearance.tabulated"))
 
 
-def groove_scene(path, name="Groove", material="principled", in_collection=False):
+def groove_scene(path, name="Groove", material="principled", in_collection=False, transmission=0.0):
     """A .blend with a V-groove tile (one period of 1 x 1 in XY, depth 0.5) named ``name``."""
     bpy.ops.wm.read_homefile(use_empty=True)
     vertices = [(0, 0, 0.5), (0.5, 0, 0), (1, 0, 0.5), (0, 1, 0.5), (0.5, 1, 0), (1, 1, 0.5)]
@@ -43,6 +43,7 @@ def groove_scene(path, name="Groove", material="principled", in_collection=False
         shader = tree.nodes.new("ShaderNodeBsdfPrincipled")
         shader.inputs["Base Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1)
         shader.inputs["Specular IOR Level"].default_value = 0.0
+        shader.inputs["Transmission Weight"].default_value = transmission
     else:
         shader = tree.nodes.new("ShaderNodeBsdfDiffuse")
         shader.inputs["Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1)
@@ -87,6 +88,33 @@ def test_brdf_writes_a_table_from_a_collection(visibake, appearance, tmp_path):
     assert bsdf.values.shape == (6, 6, 3)
     assert np.all(bsdf.values >= 0) and np.all(np.isfinite(bsdf.values))
     assert np.allclose(bsdf.period, [1.0, 1.0])
+
+
+def test_a_translucent_tile_gives_a_bsdf_over_the_sphere(visibake, appearance, tmp_path, capfd):
+    _, tabulated = appearance
+    blend = groove_scene(tmp_path / "tile.blend", transmission=0.5)
+    out = tmp_path / "sheet.npz"
+    saved = tmp_path / "with_material.blend"
+    assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(out), "--format", "bsdf",
+                              "--material", "Sheet", "--save", str(saved)] + FAST) == 0
+    assert "thin translucent sheet" in capfd.readouterr().err
+    bsdf = tabulated.load_tabulated(str(out))
+    below = bsdf.view[:, 2] < 0
+    assert np.any(below) and np.any(bsdf.light[:, 2] < 0)
+    lit_above = bsdf.light[:, 2] > 0
+    # Half of the diffuse light passes: what is seen from below under a light from above is
+    # of the order of what is seen from above.
+    seen_through = bsdf.values[lit_above][:, below].mean()
+    seen_above = bsdf.values[lit_above][:, ~below].mean()
+    assert 0.2 * seen_above < seen_through < 2.0 * seen_above
+    bpy.ops.wm.open_mainfile(filepath=str(saved))
+    nodes = {node.bl_idname: node for node in bpy.data.materials["Sheet"].node_tree.nodes}
+    colour = nodes["ShaderNodeBsdfTranslucent"].inputs["Color"].default_value
+    assert 0.05 < colour[0] < 0.6 and "ShaderNodeAddShader" in nodes
+    # The same tile as a hemisphere table says that it lets light through.
+    assert visibake.cli.main(["brdf", str(blend), "--tile", "Groove", "--out", str(tmp_path / "half.npz")]
+                             + FAST) == 0
+    assert "--format bsdf" in capfd.readouterr().err
 
 
 @pytest.mark.parametrize("arguments, message", [
@@ -178,3 +206,24 @@ def test_the_panel_operator_simulates_the_active_object(visibake, appearance, tm
     del made["visibake_principled_fit"]
     assert bpy.ops.visibake.simulate_brdf() == {"FINISHED"}
     assert "Groove (VisiBake).001" in bpy.data.materials
+
+
+def test_the_panel_operator_simulates_a_btf(visibake, tmp_path):
+    blend = groove_scene(tmp_path / "tile.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    scene = bpy.context.scene
+    props = scene.visibake
+    props.output_dir = str(tmp_path / "materials")
+    props.appearance_directions, props.appearance_resolution, props.appearance_bounces = 16, 4, 1
+    props.appearance_image_size, props.appearance_image_format = 8, "png"
+    bpy.context.view_layer.objects.active = scene.objects["Groove"]
+    assert bpy.ops.visibake.simulate_btf() == {"FINISHED"}
+    out = tmp_path / "materials" / "Groove_btf"
+    assert len(list(out.rglob("*.png"))) == 81 * 81 and (out / "btf.json").exists()
+    assert "visibake_btf_report" in scene
+    # The folder is VisiBake's: a second click writes it again; a stranger's file in it refuses.
+    assert bpy.ops.visibake.simulate_btf() == {"FINISHED"}
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(RuntimeError, match="notes.txt|VisiBake did not write|not"):
+        bpy.ops.visibake.simulate_btf()
+    assert (out / "notes.txt").read_text() == "mine"

@@ -114,7 +114,7 @@ def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, 
     assert {p for p in settings if p.startswith("volume_")} == set(_props(volumes))  # the volumes' in their section
     assert _operators(volumes) == ["visibake.bake_volume"]
     assert {p for p in settings if p.startswith("appearance_")} == set(_props(appearance))
-    assert _operators(appearance) == ["visibake.simulate_brdf"]
+    assert _operators(appearance) == ["visibake.simulate_brdf", "visibake.simulate_btf"]
     active_object = {options["property"] for name, options in drawn
                      if name == "prop" and options["owner"] == "VisiBakeObjectSettings"}
     device = [options["property"] for name, options in drawn

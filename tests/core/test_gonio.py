@@ -207,10 +207,74 @@ class TestSimulatedBRDF:
         with pytest.raises(AppearanceRefused, match="directions must be between"):
             gonio.simulate_brdf(tile, [[0, 0, 1]], [[0, 0, 1]], small_settings(directions=count))
 
-    def test_views_below_the_tile_are_refused(self):
+    def test_views_in_the_tiles_plane_are_refused(self):
+        tile = Tile.of(*brdf_tiles.flat_tile())
+        with pytest.raises(AppearanceRefused, match="plane"):
+            gonio.simulate_brdf(tile, [[0, 0, 1]], [[1, 0, 0]], small_settings())
+
+    def test_a_btf_refuses_views_from_below(self):
         tile = Tile.of(*brdf_tiles.flat_tile())
         with pytest.raises(AppearanceRefused, match="above the tile"):
-            gonio.simulate_brdf(tile, [[0, 0, 1]], [[0, 0, -1]], small_settings())
+            gonio.simulate_btf(tile, [[0, 0, 1]], [[0, 0, -1]], (4, 4), lambda *a: None, small_settings())
+
+
+class TestTranslucentTiles:
+    """Thin translucent sheets (a fibre's wall): the BSDF over the whole sphere."""
+
+    def test_a_translucent_face_has_twins_on_its_back(self):
+        tile = Tile.of(*brdf_tiles.flat_tile(), transmission=0.3)
+        samples = tile_samples(tile, 4)
+        opaque = tile_samples(Tile.of(*brdf_tiles.flat_tile()), 4)
+        assert len(samples) == 2 * len(opaque)
+        assert np.all(samples.twin >= 0)
+        assert np.array_equal(samples.twin[samples.twin], np.arange(len(samples)))
+        assert np.allclose(samples.normal, -samples.normal[samples.twin])
+        assert np.allclose(samples.position, samples.position[samples.twin])
+        assert np.all(samples.back_triangles >= 0)
+        assert np.all(opaque.twin == -1) and np.all(opaque.back_triangles == -1)
+
+    def test_a_flat_sheet_reflects_and_transmits_its_shares_on_both_sides(self):
+        albedo, t = 0.6, 0.25
+        tile = Tile.of(*brdf_tiles.flat_tile(), albedo=albedo, transmission=t)
+        lights = np.array([direction(0, 0), direction(50, 30), -direction(40, 100)])
+        views = np.array([direction(20, 200), direction(60, 0), -direction(30, 10), -direction(70, 250)])
+        result = gonio.simulate_brdf(tile, lights, views, small_settings(resolution=8))
+        same_side = np.sign(lights[:, 2])[:, None] == np.sign(views[:, 2])[None, :]
+        expected = np.where(same_side, (1 - t) * albedo / np.pi, t * albedo / np.pi)
+        assert np.allclose(result.values[..., 1], expected, rtol=1e-5)
+        assert np.all(result.transparency == 0)
+
+    def test_an_opaque_sheet_is_black_from_below(self):
+        tile = Tile.of(*brdf_tiles.flat_tile(), albedo=0.6)
+        result = gonio.simulate_brdf(tile, [direction(30, 0), -direction(30, 0)],
+                                     [direction(10, 0), -direction(10, 0)], small_settings(resolution=4))
+        assert result.values[0, 0, 0] == pytest.approx(0.6 / np.pi, rel=1e-5)
+        assert np.all(result.values[0, 1] == 0) and np.all(result.values[1] == 0)
+
+    def test_a_white_translucent_groove_conserves_energy_and_is_reciprocal(self):
+        # An open V-groove sheet, white, half of its diffuse light passed through: all light
+        # leaves up or down after enough bounces, and transmission is symmetric under
+        # swapping the light and the view.
+        tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=1.0, transmission=0.5)
+        directions = np.array([direction(theta, phi) for theta, phi in ((0, 0), (30, 40), (55, 200))])
+        both = np.concatenate([directions, -directions])
+        result = gonio.simulate_brdf(tile, both, both, small_settings(bounces=8, resolution=24, directions=256))
+        values = result.values[..., 0]
+        asymmetry = np.abs(values - values.T) / (values + values.T + 1e-3)
+        assert np.max(asymmetry) < 0.04, np.round(asymmetry, 3)
+        views = gonio.sphere_directions(400)
+        dense = gonio.simulate_brdf(tile, directions, views, small_settings(bounces=8, resolution=24))
+        albedo = (dense.values[..., 0] * np.abs(views[:, 2])).sum(axis=1) * 4 * np.pi / len(views)
+        transmitted = (dense.values[..., 0] * np.abs(views[:, 2]) * (views[:, 2] < 0)).sum(axis=1) * 4 * np.pi / len(
+            views)
+        assert np.all(albedo > 0.93) and np.all(albedo < 1.03), albedo
+        assert np.all(transmitted > 0.2) and np.all(transmitted < 0.8), transmitted
+
+    def test_sphere_directions_are_even_and_cover_both_sides(self):
+        d = gonio.sphere_directions(1000)
+        assert np.allclose(np.linalg.norm(d, axis=1), 1)
+        assert abs(np.count_nonzero(d[:, 2] > 0) - 500) <= 1
+        assert np.linalg.norm(d.mean(axis=0)) < 0.01
 
 
 class TestBTF:
