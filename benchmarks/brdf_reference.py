@@ -12,11 +12,17 @@ VisiBake.
 
 Quantity and units
 ------------------
-f(l, v) = L_mean / (E cos theta_l), in 1/sr, where E = 1 W/m^2 is the irradiance of the
+f(l, v) = L_mean / (E |cos theta_l|), in 1/sr, where E = 1 W/m^2 is the irradiance of the
 sun on a plane perpendicular to it (a Cycles sun of strength 1 with angle 0), so
-E cos theta_l is the irradiance on the macro plane z = const, and L_mean (W/m^2/sr) is
+E |cos theta_l| is the irradiance on the macro plane z = const, and L_mean (W/m^2/sr) is
 the outgoing radiance averaged over one period as seen along v (below). A flat white
 Lambert tile gives 1/pi at every pair (tests/blender/test_brdf_reference.py checks this).
+
+Light and view may lie on either side of the tile (z > 0: above, z < 0: below; not in its
+plane): a sun along l with l_z < 0 shines on the tile's underside, a view with v_z < 0 is
+a camera below looking up at the underside and at what the tile lets through. Then f is
+the BSDF: reflection where l and v lie on one side, transmission where they lie on
+opposite sides, normalised by |cos theta_l| as VisiBake's ``simulate_brdf`` does.
 
 Scene
 -----
@@ -32,10 +38,21 @@ holdout neighbours), and with 3 bounces ridge and groove agree within the noise
 
 Both objects have the same material: a Diffuse BSDF of colour ``albedo`` (roughness 0:
 Lambert), or with ``roughness`` given a Principled BSDF (base colour ``albedo``, that
-roughness, default specular: IOR 1.5, Specular IOR Level 0.5). Flat shading (the
-triangles' own normals) unless ``smooth``. The world is black (strength 0). The sun is
-along l (strength 1, angle 0: collimated, so direct light is noise-free). An
-orthographic camera looks along -v.
+roughness, default specular: IOR 1.5, Specular IOR Level 0.5). With ``transmission`` t > 0
+(Lambert only) the material is a thin translucent sheet: Add Shader(Diffuse BSDF of colour
+(1 - t) albedo, Translucent BSDF of colour t albedo), i.e. (1 - t) albedo / pi reflected
+on the side the light arrives and t albedo / pi sent diffusely to the other side, the
+thin-sheet model of ``core.appearance.gonio``. Flat shading (the triangles' own normals)
+unless ``smooth``. The world is black (strength 0). The sun is along l (strength 1, angle
+0: collimated, so direct light is noise-free), above or below the tile. An orthographic
+camera looks along -v, from above or from below.
+
+Faces are two-sided in Cycles: a ray that meets a face from behind shades it with the
+normal flipped towards the ray (``SD_BACKFACING``), so the back of a face reflects like
+its front. For a translucent tile that is VisiBake's model too (a translucent face's back
+is a surface of its own, with the same material, its samples the twins of the front's).
+For an opaque tile it is not (VisiBake's backs are black), but an opaque closed or
+height-field tile seen and lit from above never shows a back.
 
 How the period average is taken (and why it is exact)
 -----------------------------------------------------
@@ -72,7 +89,9 @@ leave in any direction; with ``max_angle`` (75 deg) as the grazing limit, a boun
 lies up to h tan(max_angle) away, and its own shadow ray again up to h tan theta_l.
 ``repeats=None`` uses nx = ceil(reach / px) + 1 (ny likewise) with
 reach = max(h tan theta_l, h tan theta_v) + min(bounces, 2) h tan(max_angle) over all
-pairs (tangents of angles above 89 deg are taken at 89 deg). For the V-groove
+pairs, theta the angle from the tile's normal on the direction's own side (arccos |z|:
+a view or light below the tile is as oblique as its mirror image above), tangents of
+angles above 89 deg taken at 89 deg. For the V-groove
 (depth = period / 2) at 8 bounces that is 7 rings; with the same seeds, 14 rings change
 the values by at most 0.01%, 4 rings by at most 0.11%, and 2 rings make them 0.06-0.7%
 lower (light lost through the sides of the array).
@@ -91,8 +110,8 @@ off: with it, bpy 5.0.1 ignores a change of seed between renders.
 Render settings (fixed)
 -----------------------
 Cycles on the CPU, ``samples`` per pixel, no adaptive sampling, no denoising, no light
-tree threshold, clamping off (direct and indirect), Filter Glossy 0, reflective
-caustics on, path guiding off, the Tabulated Sobol pattern, pixel filter BOX of width 1
+tree threshold, clamping off (direct and indirect), Filter Glossy 0, reflective (and
+refractive) caustics on, path guiding off, the Tabulated Sobol pattern, pixel filter BOX of width 1
 px, film transparent, view transform Standard (look None, exposure 0, gamma 1), output
 OPEN_EXR 32-bit float RGBA, read back linear with the OpenEXR package (bpy.data.images
 where OpenEXR is missing); EXR RGB is premultiplied by alpha, i.e. exactly the covered
@@ -103,7 +122,12 @@ bounces to K. Cycles counts scattering events *after* the camera hit, and sample
 sun at every vertex: K = 0 gives direct light only (camera hit, shadow ray to the sun),
 K = 1 adds light that reflected once before the surface seen, and so on: a path has at
 most K + 1 surface vertices. This is checked: K = 0 on the V-groove matches the closed
-form of direct light (``brdf_tiles.v_groove_direct_brdf``).
+form of direct light (``brdf_tiles.v_groove_direct_brdf``). With ``transmission`` > 0 the
+transmission bounces are K too: Cycles counts a scattering through a Translucent BSDF (a
+LABEL_TRANSMIT | LABEL_DIFFUSE closure) as a *transmission* bounce, not a diffuse one
+(``path_state_next`` in Cycles' kernel), so with transmission bounces 0 every path that
+crossed a sheet would end there; the total of K still caps a path at K + 1 surface
+vertices of either kind, VisiBake's K bounces of reflected and transmitted light alike.
 
 Noise
 -----
@@ -209,7 +233,8 @@ def _tan(theta: float) -> float:
 def neighbour_rings(height: float, period, pairs, bounces: int, max_angle: float = 75.0) -> tuple[int, int]:
     """(nx, ny): rings of neighbour copies on each side of the central one (see the module doc)."""
     pairs = np.asarray(pairs, np.float64).reshape(-1, 2, 3)
-    thetas = np.arccos(np.clip(pairs[:, :, 2], -1.0, 1.0))
+    # the angle from the normal on the direction's own side: below the tile as above it
+    thetas = np.arccos(np.clip(np.abs(pairs[:, :, 2]), 0.0, 1.0))
     reach = height * max(_tan(float(t)) for t in thetas.ravel())
     reach += min(int(bounces), 2) * height * _tan(math.radians(max_angle))
     px, py = np.asarray(period, np.float64).reshape(2)
@@ -233,7 +258,7 @@ def _mesh(name: str, positions: np.ndarray, triangles: np.ndarray, smooth: bool)
     return mesh
 
 
-def _material(albedo, roughness):
+def _material(albedo, roughness, transmission: float = 0.0):
     from tools.blender_compat import compat
 
     material = bpy.data.materials.new("BRDF tile")
@@ -241,6 +266,19 @@ def _material(albedo, roughness):
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     colour = (*[float(c) for c in albedo], 1.0)
+    t = float(transmission)
+    if t > 0.0:
+        # a thin translucent sheet: (1 - t) albedo / pi reflected, t albedo / pi to the other side
+        reflect = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        reflect.inputs["Color"].default_value = (*[(1.0 - t) * float(c) for c in albedo], 1.0)
+        reflect.inputs["Roughness"].default_value = 0.0
+        through = tree.nodes.new("ShaderNodeBsdfTranslucent")
+        through.inputs["Color"].default_value = (*[t * float(c) for c in albedo], 1.0)
+        add = tree.nodes.new("ShaderNodeAddShader")
+        tree.links.new(reflect.outputs["BSDF"], add.inputs[0])
+        tree.links.new(through.outputs["BSDF"], add.inputs[1])
+        tree.links.new(add.outputs["Shader"], out.inputs["Surface"])
+        return material
     if roughness is None:
         bsdf = tree.nodes.new("ShaderNodeBsdfDiffuse")
         bsdf.inputs["Color"].default_value = colour
@@ -253,7 +291,7 @@ def _material(albedo, roughness):
     return material
 
 
-def _settings(scene, samples: int, bounces: int, path: str) -> None:
+def _settings(scene, samples: int, bounces: int, path: str, transmission_bounces: int = 0) -> None:
     scene.render.engine = "CYCLES"
     cycles = scene.cycles
     cycles.device = "CPU"
@@ -282,7 +320,8 @@ def _settings(scene, samples: int, bounces: int, path: str) -> None:
     cycles.max_bounces = int(bounces)
     cycles.diffuse_bounces = int(bounces)
     cycles.glossy_bounces = int(bounces)
-    cycles.transmission_bounces = 0
+    # a Translucent BSDF scatters as a transmission bounce (see "Bounces" in the module doc)
+    cycles.transmission_bounces = int(transmission_bounces)
     cycles.volume_bounces = 0
     cycles.transparent_max_bounces = 0
     cycles.min_light_bounces = 0
@@ -332,7 +371,9 @@ def _read_exr(path: str, width: int, height: int) -> np.ndarray:
 def _frame(camera_obj, camera, centre_positions: np.ndarray, all_corners: np.ndarray, v: np.ndarray,
            resolution: int, scene) -> float:
     """Point the orthographic camera along -v, framing the central copy with a border of
-    PAD_PIXELS; set the image size; return the pixel side s."""
+    PAD_PIXELS; set the image size; return the pixel side s. Everything is measured along v
+    and across it, so a view from below (v_z < 0: the camera below the tile, looking up)
+    is framed as one from above."""
     camera_obj.rotation_mode = "QUATERNION"
     camera_obj.rotation_quaternion = Vector(v.tolist()).to_track_quat("Z", "Y")
     rot = np.array(camera_obj.rotation_quaternion.to_matrix(), np.float64)
@@ -349,7 +390,8 @@ def _frame(camera_obj, camera, centre_positions: np.ndarray, all_corners: np.nda
     camera.sensor_fit = "AUTO"
     camera.ortho_scale = max(rx, ry) * s
     camera.shift_x = camera.shift_y = 0.0
-    # above every copy: the camera plane is where camera rays start
+    # beyond every copy along v (above the array, or below it for a view from below): the
+    # camera plane is where camera rays start
     top = float((all_corners @ v).max())
     low = float((all_corners @ v).min())
     rc, uc = 0.5 * (r.max() + r.min()), 0.5 * (u.max() + u.min())
@@ -363,14 +405,15 @@ def _frame(camera_obj, camera, centre_positions: np.ndarray, all_corners: np.nda
 def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, repeats=None,
                 resolution: int = 64, roughness: float | None = None, bounces: int = 0, seeds=(1, 2),
                 smooth: bool = False, max_angle: float = 75.0, workdir: str | None = None,
-                keep_scene: bool = False) -> BrdfReference:
+                keep_scene: bool = False, transmission: float = 0.0) -> BrdfReference:
     """The BRDF of a periodic tile at each (light, view) pair, rendered by Cycles.
 
     positions, triangles, period : a tile of benchmarks/brdf_tiles.py (one period in
         [0, px] x [0, py], z up)
     albedo : float or RGB
     pairs : (n, 2, 3) or a sequence of (l, v): unit vectors towards the light and the
-        viewer, z up, both above the horizon (they are normalised)
+        viewer, z up (they are normalised), above (z > 0) or below (z < 0) the tile but
+        not in its plane: below, the sun shines on the underside / the camera looks up
     samples : Cycles samples per pixel per seed render
     repeats : rings of neighbour copies on each side, int or (nx, ny); None computes them
         from the tile height and the angles (:func:`neighbour_rings`)
@@ -381,6 +424,9 @@ def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, 
     smooth : smooth shading (vertex normals) instead of the flat triangles
     workdir : where the EXRs go (a temporary folder, removed, when None)
     keep_scene : leave the scene (named "BRDF reference") in bpy.data, e.g. to inspect it
+    transmission : t in [0, 1], the share of the diffuse light a face passes to its other
+        side (a thin translucent sheet: Diffuse (1 - t) albedo + Translucent t albedo);
+        Lambert only (not with ``roughness``)
 
     The renders happen in a new scene of the current session; the session's own scenes,
     objects and settings are not touched (the new scene and its data are removed after,
@@ -392,8 +438,13 @@ def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, 
     albedo = np.broadcast_to(np.asarray(albedo, np.float64), (3,))
     pairs = np.asarray(pairs, np.float64).reshape(-1, 2, 3)
     pairs = pairs / np.linalg.norm(pairs, axis=2, keepdims=True)
-    if (pairs[:, :, 2] <= 0.0).any():
-        raise ValueError("light and view directions must be above the horizon (z > 0)")
+    if (np.abs(pairs[:, :, 2]) <= 1e-6).any():
+        raise ValueError("light and view directions must not lie in the tile's plane (|z| > 1e-6)")
+    transmission = float(transmission)
+    if not 0.0 <= transmission <= 1.0:
+        raise ValueError(f"transmission must lie in [0, 1], got {transmission}")
+    if transmission > 0.0 and roughness is not None:
+        raise ValueError("transmission is for the Lambert material only (roughness None)")
     seeds = [int(s) for s in seeds]
     if len(seeds) < 2:
         raise ValueError("at least two seeds are needed for a noise estimate")
@@ -419,7 +470,7 @@ def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, 
     scene = bpy.data.scenes.new("BRDF reference")
     created = {"meshes": [], "objects": [], "materials": [], "lights": [], "cameras": [], "worlds": []}
     try:
-        material = _material(albedo, roughness)
+        material = _material(albedo, roughness, transmission)
         created["materials"].append(material)
         for name, pos, tri, holdout in (("BRDF centre", positions, triangles, False),
                                         ("BRDF neighbours", ring_positions, ring_triangles, True)):
@@ -468,12 +519,12 @@ def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, 
         for k, (l, v) in enumerate(pairs):
             sun.rotation_quaternion = Vector(l.tolist()).to_track_quat("Z", "Y")
             path = os.path.join(workdir, f"pair{k:03d}.exr")
-            _settings(scene, samples, bounces, path)
+            _settings(scene, samples, bounces, path, bounces if transmission > 0.0 else 0)
             s = _frame(camera_obj, camera, positions, corners, v, resolution, scene)
             rx, ry = scene.render.resolution_x, scene.render.resolution_y
             sizes.append((rx, ry))
-            # radiance integral over S_0 -> L_mean -> f
-            scale = s * s / (cell * v[2]) / (SUN_STRENGTH * l[2])
+            # radiance integral over S_0 -> L_mean -> f (|cos|: either side of the tile)
+            scale = s * s / (cell * abs(v[2])) / (SUN_STRENGTH * abs(l[2]))
             images = []
             start = time.perf_counter()
             for m, seed in enumerate(seeds):
@@ -487,15 +538,18 @@ def cycles_brdf(positions, triangles, period, albedo, pairs, samples: int = 64, 
             n = len(seeds)
             var = stack[..., :3].var(axis=0, ddof=1)  # per pixel, per channel
             noise[k] = np.sqrt(var.sum((0, 1)) / n) * scale
-            coverage[k] = stack[..., 3].mean(0).sum() * s * s / (cell * v[2])
+            coverage[k] = stack[..., 3].mean(0).sum() * s * s / (cell * abs(v[2]))
         values = seed_values.mean(0)
         seed_noise = seed_values.std(0, ddof=1) / math.sqrt(len(seeds))
         settings = {
             "samples": int(samples), "seeds": seeds, "bounces": int(bounces), "resolution": int(resolution),
             "image_sizes": sizes, "repeats": [int(nx), int(ny)], "tile_height": height,
             "tile_triangles": int(len(triangles)), "albedo": albedo.tolist(),
-            "material": "Diffuse BSDF (roughness 0)" if roughness is None
+            "material": (f"Add Shader(Diffuse BSDF {1.0 - transmission:g} x albedo, Translucent BSDF "
+                         f"{transmission:g} x albedo)") if transmission > 0.0
+            else "Diffuse BSDF (roughness 0)" if roughness is None
             else f"Principled BSDF (roughness {roughness}, Specular IOR Level 0.5, IOR 1.5)",
+            "transmission": transmission, "transmission_bounces": int(bounces) if transmission > 0.0 else 0,
             "smooth": bool(smooth), "max_angle": float(max_angle), "sun_strength": SUN_STRENGTH,
             "pixel_filter": "BOX, 1 px", "sampling_pattern": scene.cycles.sampling_pattern,
             "noise": "standard error of the mean over seeds, from the per-pixel variance",
@@ -563,6 +617,8 @@ def main(argv=None) -> int:
     parser.add_argument("--bounces", type=int, default=0, help="Cycles diffuse bounces (0 = direct only)")
     parser.add_argument("--albedo", type=float, nargs="+", default=[0.8])
     parser.add_argument("--roughness", type=float, default=None, help="Principled BSDF with this roughness")
+    parser.add_argument("--transmission", type=float, default=0.0,
+                        help="a thin translucent sheet: this share of the diffuse light to the other side")
     parser.add_argument("--depth", type=float, default=0.5, help="V-groove depth / heightfield amplitude")
     parser.add_argument("--repeats", type=int, default=None, help="neighbour rings (default: computed)")
     parser.add_argument("--out", required=True, help="JSON file to write")
@@ -573,7 +629,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     ref = cycles_brdf(positions, triangles, period, albedo, pairs, samples=args.samples,
                       repeats=args.repeats, resolution=args.resolution, roughness=args.roughness,
-                      bounces=args.bounces, seeds=range(1, args.seeds + 1))
+                      bounces=args.bounces, seeds=range(1, args.seeds + 1), transmission=args.transmission)
     total = time.perf_counter() - start
     result = {
         "tile": args.tile, "depth": args.depth if args.tile in ("vgroove", "heightfield") else None,
@@ -584,7 +640,7 @@ def main(argv=None) -> int:
         "machine": _machine(), "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "units": "BRDF in 1/sr: mean radiance over one period / (sun irradiance * cos theta_l)",
     }
-    if args.tile == "vgroove" and args.bounces == 0 and args.roughness is None:
+    if args.tile == "vgroove" and args.bounces == 0 and args.roughness is None and args.transmission == 0.0:
         from benchmarks.brdf_tiles import v_groove_direct_brdf
 
         result["analytic_direct"] = [np.broadcast_to(v_groove_direct_brdf(args.depth, albedo, l, v), (3,)).tolist()

@@ -28,7 +28,16 @@ Lambert material (albedo 0.8).
 2. Slices (``--plot``): a light at theta_l = 45 deg, phi_l = 0, views in the plane of
    incidence, theta_v from -75 to 75 deg (negative: phi_v = 180, the forward side);
    VisiBake as a line (61 views), Cycles as points with +-2 standard errors (7 views).
-3. Speed: ``simulate_brdf`` for 100 light x 100 view directions (``hemisphere_directions(100)``
+3. Translucent (``translucent`` in the JSON; ``--only translucent`` runs it alone and
+   updates that key of the existing JSON, leaving the rest as it was): the open V-groove
+   sheet (``v_groove_tile(0.5)``, a single-layer height field) with albedo 0.8 and
+   transmission 0.5 (a thin sheet: (1 - t) albedo / pi reflected, t albedo / pi to the
+   other side; Cycles: Add Shader(Diffuse 0.4, Translucent 0.4)), 4 bounces, over 20 (l, v)
+   pairs on the whole sphere (``sphere_pairs``): reflection from above, transmission with
+   the light above and the view below, transmission with the light below and the view
+   above, reflection from below, five of each (theta up to 75 deg from the normal on the
+   direction's side). Reported as in 1., and per kind of pair (``by_kind``).
+4. Speed: ``simulate_brdf`` for 100 light x 100 view directions (``hemisphere_directions(100)``
    both, 10,000 samples) on a 64 x 64 heightfield (0.05 sin(2 pi x) cos(4 pi y) + uniform
    noise of amplitude 0.004, smooth shading so that its samples at resolution 64 are its
    65 x 65 vertices), 128 directions, 2 bounces; Lambert (specular 0) and glossy (specular
@@ -46,6 +55,7 @@ Reproduce
     .venv/bin/python benchmarks/brdf_vs_cycles.py \\
         [--out docs/appearance/brdf_vs_cycles.json] [--plot docs/appearance/brdf_slices.png]
     .venv/bin/python benchmarks/brdf_vs_cycles.py --quick     # 4 pairs, low samples: a smoke test
+    .venv/bin/python benchmarks/brdf_vs_cycles.py --only translucent   # the translucent case alone
     make bench BENCH_PROFILE=appearance
 
 ``--quick`` writes to benchmarks/results/ unless --out / --plot are given.
@@ -79,6 +89,9 @@ V_DEPTH = 0.5
 TARGET_RMSE = 0.03
 TARGET_SPEED_S = 60.0
 SLICE_LIGHT = (45.0, 0.0)
+TRANSMISSION = 0.5
+# The kinds of (l, v) pair on the sphere: (light above, view above) and so on.
+PAIR_KINDS = {"reflect_above": (1, 1), "transmit_down": (1, -1), "transmit_up": (-1, 1), "reflect_below": (-1, -1)}
 
 
 @contextlib.contextmanager
@@ -105,6 +118,29 @@ def tiles():
             "woven": (*woven, True, "plain weave (woven_tile defaults), smooth shading")}
 
 
+def sphere_pairs(count: int, max_theta: float = 75.0, seed: int = 1):
+    """``count`` (light, view) pairs over the whole sphere, (count, 2, 3), and their kinds
+    (PAIR_KINDS, cycling in that order): the first of each kind fixed (45 / 30 deg on
+    opposite azimuths; normal through normal; 45 below / 30 above on one azimuth; 60 / 45
+    below at azimuths 90 deg apart), then pseudo-random ones (fixed seed), theta from the
+    normal on the direction's own side uniform in [0, max_theta], azimuth uniform."""
+    fixed = [((45, 0), (30, 180)), ((0, 0), (0, 0)), ((45, 0), (30, 0)), ((60, 30), (45, 120))]
+    kinds = list(PAIR_KINDS)
+    rng = np.random.default_rng(seed)
+    pairs, labels = [], []
+    for k in range(count):
+        kind = kinds[k % len(kinds)]
+        if k < len(fixed):
+            (tl, pl), (tv, pv) = fixed[k]
+        else:
+            tl, tv = rng.uniform(0.0, max_theta, 2)
+            pl, pv = rng.uniform(0.0, 360.0, 2)
+        side_l, side_v = PAIR_KINDS[kind]
+        pairs.append((direction(tl if side_l > 0 else 180.0 - tl, pl), direction(tv if side_v > 0 else 180.0 - tv, pv)))
+        labels.append(kind)
+    return np.array(pairs, np.float64).reshape(-1, 2, 3), labels
+
+
 def heightfield(n: int = 64):
     x = np.arange(n) / n
     xx, yy = np.meshgrid(x, x)  # heights[j, i] at (x_i, y_j)
@@ -112,11 +148,11 @@ def heightfield(n: int = 64):
     return brdf_tiles.heightfield_tile(0.05 * np.sin(2 * np.pi * xx) * np.cos(4 * np.pi * yy) + noise)
 
 
-def run_cycles(tile, pairs, samples, bounces, smooth):
+def run_cycles(tile, pairs, samples, bounces, smooth, transmission=0.0):
     positions, triangles, period = tile
     with quiet():
         ref = cycles_brdf(positions, triangles, period, ALBEDO, pairs, samples=samples, bounces=bounces,
-                          smooth=smooth)
+                          smooth=smooth, transmission=transmission)
     return ref
 
 
@@ -144,11 +180,15 @@ def stats_of(result, wall):
     return {"wall_s": round(wall, 3), **{k: v for k, v in result.stats.items()}}
 
 
-def accuracy(name, spec, pairs, args, log):
+def accuracy(name, spec, pairs, args, log, transmission=0.0):
     positions, triangles, period, smooth, description = spec
     out = {"tile": description, "smooth": smooth, "triangles": int(len(triangles)), "albedo": ALBEDO,
            "bounces": args.bounces}
-    cy = run_cycles((positions, triangles, period), pairs, args.samples, args.bounces, smooth)
+    material = {}
+    if transmission > 0.0:
+        out["transmission"] = transmission
+        material["transmission"] = transmission
+    cy = run_cycles((positions, triangles, period), pairs, args.samples, args.bounces, smooth, transmission)
     rel_noise = cy.noise[:, 0] / cy.values[:, 0]
     out["cycles"] = {"samples": args.samples, "seeds": 2, "resolution": 64, "values": cy.values[:, 0].tolist(),
                      "noise": cy.noise[:, 0].tolist(), "rel_noise": rel_noise.tolist(),
@@ -159,7 +199,7 @@ def accuracy(name, spec, pairs, args, log):
         f"{100 * rel_noise.max():.2f}%")
     references = {"cycles": cy}
     if args.ref_samples:
-        hi = run_cycles((positions, triangles, period), pairs, args.ref_samples, args.bounces, smooth)
+        hi = run_cycles((positions, triangles, period), pairs, args.ref_samples, args.bounces, smooth, transmission)
         out["cycles_ref"] = {"samples": args.ref_samples, "values": hi.values[:, 0].tolist(),
                              "noise": hi.noise[:, 0].tolist(), "total_s": float(hi.seconds.sum()),
                              "max_rel_noise": float((hi.noise[:, 0] / hi.values[:, 0]).max()),
@@ -168,7 +208,8 @@ def accuracy(name, spec, pairs, args, log):
         log(f"[{name}] Cycles {args.ref_samples} spp: {hi.seconds.sum():.1f} s")
     out["visibake"] = {}
     for label, settings in args.vb_settings:
-        result, wall = run_visibake(positions, triangles, period, smooth, pairs[:, 0], pairs[:, 1], settings)
+        result, wall = run_visibake(positions, triangles, period, smooth, pairs[:, 0], pairs[:, 1], settings,
+                                    **material)
         values = np.stack([result.values[i, i] for i in range(len(pairs))])
         entry = {"settings": vars(settings).copy(), "values": values[:, 0].tolist(),
                  "grid": f"{len(pairs)} lights x {len(pairs)} views", "stats": stats_of(result, wall),
@@ -179,6 +220,38 @@ def accuracy(name, spec, pairs, args, log):
         c = entry["vs_cycles"]
         log(f"[{name}] VisiBake {label}: {wall:.1f} s, rel RMSE {100 * c['rel_rmse']:.2f}% (Cycles noise "
             f"{100 * c['cycles_rel_noise_rms']:.2f}%), mean ratio {c['mean_ratio']:.4f}")
+    return out
+
+
+def translucent(args, log):
+    """The open V-groove sheet, translucent, over the whole sphere (item 3 of the module doc)."""
+    pairs, kinds = sphere_pairs(args.translucent_pairs)
+    positions, triangles, period = brdf_tiles.v_groove_tile(V_DEPTH)
+    spec = (positions, triangles, period, False,
+            f"open V-groove sheet (v_groove_tile({V_DEPTH}), one layer), flat shading, transmission {TRANSMISSION}")
+    started = time.perf_counter()
+    out = accuracy("translucent", spec, pairs, args, log, transmission=TRANSMISSION)
+    out["pairs"] = pairs.tolist()
+    out["pairs_theta_phi_deg"] = [[[math.degrees(math.acos(d[2])), math.degrees(math.atan2(d[1], d[0])) % 360]
+                                   for d in pair] for pair in pairs]
+    out["kinds"] = kinds
+    out["kind_meaning"] = {kind: f"light {'above' if sl > 0 else 'below'}, view {'above' if sv > 0 else 'below'}"
+                           for kind, (sl, sv) in PAIR_KINDS.items()}
+    cy = np.asarray(out["cycles"]["values"])
+    noise = np.asarray(out["cycles"]["noise"])
+    for label, entry in out["visibake"].items():
+        vb = np.asarray(entry["values"])
+        entry["by_kind"] = {}
+        for kind in PAIR_KINDS:
+            rows = np.array([k == kind for k in kinds])
+            if not rows.any():
+                continue
+            c = compare(vb[rows, None], cy[rows, None], noise[rows, None])
+            entry["by_kind"][kind] = {key: c[key] for key in ("rel_rmse", "cycles_rel_noise_rms", "mean_ratio",
+                                                              "max_abs_rel_error")}
+            log(f"[translucent] VisiBake {label} {kind}: rel RMSE {100 * c['rel_rmse']:.2f}% (Cycles noise "
+                f"{100 * c['cycles_rel_noise_rms']:.2f}%), mean ratio {c['mean_ratio']:.4f}")
+    out["total_s"] = round(time.perf_counter() - started, 1)
     return out
 
 
@@ -295,6 +368,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="4 pairs and low samples: a smoke test (< 1 min)")
     parser.add_argument("--out", default=None, help="JSON (default docs/appearance/brdf_vs_cycles.json)")
     parser.add_argument("--plot", default=None, help="PNG of the slices (default docs/appearance/brdf_slices.png)")
+    parser.add_argument("--only", choices=("translucent",), default=None,
+                        help="run this case alone and update its key in the existing JSON (--out)")
     args = parser.parse_args(argv)
     quick = args.quick
     folder = os.path.join(ROOT, "benchmarks", "results") if quick else os.path.join(ROOT, "docs", "appearance")
@@ -302,6 +377,7 @@ def main(argv=None) -> int:
     args.out = args.out or os.path.join(folder, f"brdf_vs_cycles{suffix}.json")
     args.plot = args.plot or os.path.join(folder, f"brdf_slices{suffix}.png")
     args.pairs = 4 if quick else 20
+    args.translucent_pairs = 4 if quick else 20
     args.samples = 4 if quick else 16
     args.ref_samples = 0 if quick else 64
     args.bounces = 4
@@ -317,12 +393,15 @@ def main(argv=None) -> int:
         print(message, flush=True)
 
     started = time.perf_counter()
+    command = " ".join([os.path.relpath(sys.argv[0], ROOT) if sys.argv[0] else "brdf_vs_cycles.py",
+                        *(argv if argv is not None else sys.argv[1:])])
+    if args.only == "translucent":
+        return only_translucent(args, command, log, started)
     pairs = default_pairs(args.pairs)
     result = {
         "what": "tile BRDF (1/sr) of VisiBake's simulate_brdf against Cycles (benchmarks/brdf_reference.py)",
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": _machine(),
-        "command": " ".join([os.path.relpath(sys.argv[0], ROOT) if sys.argv[0] else "brdf_vs_cycles.py",
-                             *(argv if argv is not None else sys.argv[1:])]),
+        "command": command,
         "quick": quick, "units": "BRDF in 1/sr; times in wall seconds",
         "error_definition": "rel_rmse = sqrt(mean((vb - cy)^2)) / mean(cy) over the pairs, first channel; "
                             "cycles_rel_noise_rms = sqrt(mean(noise^2)) / mean(cy); rel_errors = vb / cy - 1",
@@ -334,6 +413,8 @@ def main(argv=None) -> int:
     log(f"kernels loaded in {result['kernel_warmup_s']:.1f} s (outside every timing)")
     specs = tiles()
     result["accuracy"] = {name: accuracy(name, spec, pairs, args, log) for name, spec in specs.items()}
+    result["translucent"] = translucent(args, log)
+    result["translucent"].update({"date": result["date"], "command": command})
     result["direct_check"] = direct_check(pairs, args, log)
     slice_data = {}
     for name, spec in specs.items():
@@ -347,7 +428,7 @@ def main(argv=None) -> int:
         "accuracy": {name: {label: {"rel_rmse": entry["vs_cycles"]["rel_rmse"],
                                     "meets_target": entry["vs_cycles"]["rel_rmse"] <= TARGET_RMSE}
                             for label, entry in data["visibake"].items()}
-                     for name, data in result["accuracy"].items()},
+                     for name, data in (*result["accuracy"].items(), ("translucent", result["translucent"]))},
         "speed_s": {label: result["speed"][label]["stats"]["wall_s"] for label in ("lambert", "glossy")},
     }
     result["total_s"] = round(time.perf_counter() - started, 1)
@@ -355,6 +436,30 @@ def main(argv=None) -> int:
     with open(args.out, "w") as fh:
         json.dump(result, fh, indent=1)
     log(f"wrote {args.out} ({result['total_s']:.0f} s)")
+    return 0
+
+
+def only_translucent(args, command, log, started) -> int:
+    """``--only translucent``: run that case and put it into the existing JSON (``--out``),
+    every other key as it was (a missing file starts empty)."""
+    result = {}
+    if os.path.exists(args.out):
+        with open(args.out) as fh:
+            result = json.load(fh)
+    warmup = warm_up()
+    log(f"kernels loaded in {warmup:.1f} s (outside every timing)")
+    entry = translucent(args, log)
+    entry.update({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": command,
+                  "machine": _machine(), "kernel_warmup_s": warmup})
+    result["translucent"] = entry
+    summary = result.setdefault("summary", {}).setdefault("accuracy", {})
+    summary["translucent"] = {label: {"rel_rmse": e["vs_cycles"]["rel_rmse"],
+                                      "meets_target": e["vs_cycles"]["rel_rmse"] <= TARGET_RMSE}
+                              for label, e in entry["visibake"].items()}
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as fh:
+        json.dump(result, fh, indent=1)
+    log(f"wrote {args.out} (translucent: {time.perf_counter() - started:.0f} s)")
     return 0
 
 

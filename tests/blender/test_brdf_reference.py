@@ -122,3 +122,17 @@ def test_woven_tile_threads_keep_their_gap_and_face_out():
         axis = ((k % 2) + 0.5) * period[across] / 2.0
         side = np.abs(centroid[part, across] - axis) > 0.1
         assert np.all((normals[part, across] * (centroid[part, across] - axis))[side] > 0)
+
+
+def test_a_flat_translucent_sheet_reflects_and_transmits_its_shares_on_both_sides():
+    """The harness's thin sheet (Diffuse (1 - t) albedo + Translucent t albedo) against the
+    closed forms VisiBake's model gives: (1 - t) albedo / pi on the light's side, t albedo /
+    pi on the other, lit and seen from above or below."""
+    albedo, t = 0.8, 0.5
+    below = np.array([1.0, 1.0, -1.0])
+    pairs = [(direction(30, 0), direction(20, 180)), (direction(30, 0), direction(25, 90) * below),
+             (direction(40, 60) * below, direction(10, 0)), (direction(40, 60) * below, direction(35, 270) * below)]
+    values, noise = cycles_brdf(*brdf_tiles.flat_tile(), albedo=albedo, pairs=pairs, samples=4, resolution=32,
+                                transmission=t, bounces=2)
+    truth = np.array([1 - t, t, t, 1 - t])[:, None] * albedo / math.pi * np.ones((1, 3))
+    assert np.all(_within(values, truth, noise)), (values * math.pi, truth * math.pi, noise)
