@@ -43,39 +43,113 @@ w periodic with period 180 (the reciprocity fold: phi_d near 0 and near 180 are
 neighbours); cell centres sit at half-integers. A cell's value is the Gaussian-weighted
 mean of the samples around it (Nadaraya-Watson), each sample also weighted by
 ``light_z * view_z``, with a bandwidth of its own: the smallest rung of a geometric ladder
-(``FILL_SIGMAS``, sigma along theta_h; ``FILL_ASPECT`` = 2 times that along theta_d and
-phi_d) whose kernel holds ``FILL_MIN_WEIGHT`` = 6 samples' worth of weight, blended with the
+(``FILL_SIGMAS``, sigma along theta_h; ``FILL_ASPECT`` = 2 times that along theta_d; along
+phi_d, on theta_h row u, that times ``(FILL_PHI_ARC_ROW / u)^2`` with FILL_PHI_ARC_ROW =
+160) whose kernel holds ``FILL_MIN_WEIGHT`` = 10 samples' worth of weight, blended with the
 rung below so that the bandwidth, and the table, change smoothly from cell to cell. Samples
 of an anisotropic tile that share (theta_h, theta_d, phi_d) but differ in phi_h are
 averaged: the isotropic table of the tile.
 
+The width along phi_d follows the geometry: a step of phi_d turns the pair about the half
+vector, which, an isotropic BRDF ignoring turns about the normal, moves it by about
+theta_h * delta_phi_d; and theta_h grows like u^2. So the kernel spans the same arc on every
+row, 3.2 times aspect (of the theta_h width) on the last row, the whole of phi_d near the
+peak, where every phi_d is nearly the same pair and the samples are few.
+
 It runs as a normalised convolution: the samples are splatted onto the grid (trilinearly,
-which keeps a sample's position to second order), then each rung is a separable Gaussian
-blur, three dense float32 matrix products (along theta_h and theta_d truncated at the
-grid's edges, along phi_d circulant). All of it is numpy and BLAS, its cost independent of
-the number of samples, with no neighbour search and no per-cell loop, so there is neither
-scipy nor a compiled kernel. 10^4 samples fill in 1.8-2.2 s on 2 (shared) cores.
+which keeps a sample's position to second order), then each rung is a Gaussian blur, three
+dense float32 matrix products (along theta_h and theta_d truncated at the grid's edges,
+along phi_d circulant, one matrix per theta_h row). The same linear, positive map applies
+to the values and to the weights, so constants stay exact. All of it is numpy and BLAS, its
+cost independent of the number of samples, with no neighbour search and no per-cell loop,
+so there is neither scipy nor a compiled kernel. 10^4 samples fill in 1.4-2.4 s on 2 (shared)
+cores.
 
-Why this method, from measurements (100 x 100 Fibonacci hemisphere pairs; relative RMSE of
-:func:`evaluate` at 2,000 uniform random pairs in cells with data, against the analytic
-BRDF; in brackets the floor, a table of the exact values at the cell centres):
+Choosing the directions
+-----------------------
+Which pairs the samples are matters as much as the fill: :func:`merl_direction_sets` picks
+them. Fibonacci light and view sets (``gonio.hemisphere_directions``) put no 100 x 100 pair
+below theta_h row 10 (1.1 degrees) and ~40 in rows 10-19, since uniform pairs fall in row u
+with density ~u^3 while every row has as many cells. The same set for lights and views (what
+the BRDF job did) also wastes half its pairs: (a, b) and (b, a) fill the same cell (with the
+old fill, Phong 0.076 against 0.059 from a view set turned 1 radian away). The
+chosen sets keep the smaller set a Fibonacci spiral and give each of its directions a
+partner in the larger set near its mirror (-x, -y, z), at a theta_h drawn evenly over rows
+0-30 (``PARTNER_THETA_H_ROWS``) and a phi_d drawn evenly too (the R2 sequence); 20% of the
+larger set more go to second partners, the rest is a spiral; views stay at z >= 0.02.
 
-- A constant BRDF fills back exactly (every cell is a weighted mean; 2e-6 from float32).
-- Lambert + Blinn-Phong 50: 0.064 (0.012). GGX alpha 0.2 with Schlick Fresnel and Smith
-  masking, + Lambert: 0.117 (0.018); alpha 0.5: 0.090 (0.016); anisotropic GGX (0.15, 0.4)
-  against its phi_h average: 0.117 (0.018).
+Measurements (``benchmarks/merl_fill.py``, its table in ``docs/appearance/merl_fill.json``;
+100 x 100 pairs; relative RMSE of :func:`evaluate` against the analytic BRDF in cells with
+data, at 20,000 pairs uniform in solid angle, "all", and at 4,000 uniform in cell-index
+space with theta_h index < 20, "peak"), old = Fibonacci x the same Fibonacci set with the
+old fill (phi_d width 2 x theta_h's on every row, min_weight 6), fib = the same sets with
+today's fill, new = merl_direction_sets (mean of seeds 0-2) with today's fill, floor = a
+table of the exact values at the cell centres:
+
+=============================  =============  =============  =============  =============
+BRDF (all / peak)              old            fib            new            floor
+=============================  =============  =============  =============  =============
+Lambert                        0 / 0          0 / 0          0 / 0          0 / 0
+Lambert + Blinn-Phong 50       0.076 / 0.260  0.029 / 0.152  0.015 / 0.023  0.012 / 0.003
+GGX 0.2 + Lambert              0.115 / 0.522  0.064 / 0.462  0.049 / 0.193  0.011 / 0.028
+GGX 0.5 + Lambert              0.072 / 0.372  0.039 / 0.323  0.034 / 0.145  0.006 / 0.016
+Oren-Nayar 0.5                 0.049 / 0      0.039 / 0      0.036 / 0      0.015 / 0
+Minnaert 0.7                   0.120 / 0.259  0.113 / 0.223  0.118 / 0.125  0.098 / 0.028
+Phong 50 x (1 + cos 2phi_h)/2  0.087 / 0.257  0.040 / 0.149  0.059 / 0.068  0.012 / 0.003
+=============================  =============  =============  =============  =============
+
+(GGX: Schlick Fresnel from F0 = the specular colour, separable Smith masking. The last row
+is an anisotropic BRDF against its phi_h average: how many different phi_h a cell's kernel
+gathers, as with noisy samples.) What wins, and what it costs:
+
+- The partners fill the peak: with the old fill they take Phong's peak from 0.260 to 0.130,
+  with today's from 0.152 to 0.023 (the floor 0.003), and halve GGX's (0.46 -> 0.19 at
+  alpha 0.2, 0.32 -> 0.15 at 0.5); at theta_d > 70 degrees (the grazing peak, which a
+  microfacet BRDF's 1/(cos theta_i cos theta_o) makes hard) 0.67 -> 0.39 at alpha 0.2.
+  Tried instead, at the same pair count: exact mirrors (row 0 only, and (a, m(b)) and
+  (b, m(a)) share a cell: hardly better than Fibonacci); partners over rows 0-10 (too few
+  rows), 0-20 (best at the peak, worse overall), 0-45 (as good overall, worse at the peak
+  and on the anisotropic row below); only half the views partners, the rest a spiral (no
+  better, and less even); polar-uniform lights (more near the normal: GGX worse); partners
+  placed by a smooth field on the mirrored spiral (good isotropic numbers, poor phi_h
+  coverage).
+- The phi_d width: on the new sets the old fill scores Phong 0.037 / 0.130 and GGX 0.2
+  0.080 / 0.380; today's 0.015 / 0.023 and 0.049 / 0.193 (on Fibonacci sets it helps too:
+  the "fib" column). Wider still keeps helping the lobes, which hardly depend on phi_d, but
+  Minnaert (which does, through cos theta_i cos theta_o) is best at FILL_PHI_ARC_ROW 120-160
+  and worse past it (at min_weight 6: 0.110-0.111, 0.122 at 240, 0.139 with phi_d flat), as
+  is Oren-Nayar; hence 160. A stretch of (k / u)^1 (a fixed arc in u, not in theta_h) did
+  worse at the peak, a constant stretch worse still.
+- What the partners cost: they are a jittered copy of the mirrored spiral, less even than a
+  spiral, so a kernel of min_weight samples gathers fewer distinct phi_h (and averages noise
+  less): the anisotropic row's cells with theta_h index >= 45 err 0.058 against 0.029 on
+  Fibonacci sets (0.050 old). min_weight 10 (not 6) buys much of that back at a small price
+  on the lobes (seed 0, all / peak; at 6: Phong 0.015 / 0.020, GGX 0.2 0.046 / 0.185, the
+  anisotropic row 0.077 / 0.109, Minnaert 0.114; at 10: 0.015 / 0.025, 0.050 / 0.202,
+  0.062 / 0.080, 0.122; at 14: 0.016 / 0.030, 0.054 / 0.219, 0.053 / 0.069, 0.127). Far
+  from the peak the new sets are on a par with Fibonacci (theta_h index >= 45: GGX 0.2
+  0.070 against 0.066).
+- A constant BRDF fills back exactly with any sets (every cell is a weighted mean; 2e-6 from
+  float32).
+
+Earlier measurements, of the fill's other choices (100 x 100 Fibonacci pairs, the view set
+turned 1 radian from the lights, the old fill; 2,000 uniform random pairs; a GGX with a
+floor of 0.018):
+
+- Lambert + Blinn-Phong 50: 0.064 (floor 0.012). GGX alpha 0.2 with Schlick Fresnel and
+  Smith masking, + Lambert: 0.117 (0.018); alpha 0.5: 0.090 (0.016); anisotropic GGX
+  (0.15, 0.4) against its phi_h average: 0.117 (0.018).
 - An isotropic kernel (aspect 1) gives 0.100 / 0.117 / 0.078 / 0.110 on the same four:
   the lobe's top (theta_h index < 30) holds ~300 of the 10^4 samples, none below index 10,
   and a round kernel wide enough to reach them there blurs theta_h, along which BRDFs are
   sharpest. Aspect 3 takes Phong to 0.051 but GGX to 0.17: a kernel that long along theta_d
   mixes in grazing samples, where microfacet BRDFs grow like 1/(cos theta_i cos theta_o).
   The ``light_z * view_z`` weights (the BRDF's weight in rendering) damp exactly those
-  (GGX 0.2 at aspect 2: 0.136 without, 0.117 with) and keep constants exact. min_weight
-  from 3 to 10 changes these by a few per cent.
-- Random pairs seldom land on the lobe's top, which is where the error is: per cell,
-  against the exact centre values, the relative RMS error is 25-30% (Phong) and 50-57%
-  (GGX 0.2) over theta_h index < 20, 2% and 10% past index 45.
-- That is the samples' density more than the method: 300 x 300 pairs halve the errors.
+  (GGX 0.2 at aspect 2: 0.136 without, 0.117 with) and keep constants exact.
+- Per cell, against the exact centre values, the relative RMS error was 25-30% (Phong) and
+  50-57% (GGX 0.2) over theta_h index < 20, 2% and 10% past index 45; 300 x 300 pairs
+  halved the errors: the samples' density more than the method, which the partners above
+  address.
 
 Cells whose centre's light or view is at or below the horizon (``~valid_cells()``) get
 ``NO_DATA``, as in the MERL measurements.
@@ -105,9 +179,21 @@ FILE_BYTES = HEADER.nbytes + 3 * CELLS * 8
 # latter (past it the kernel is flat across the table anyway). Chosen by measurement: see
 # the module's docstring.
 FILL_SIGMAS = (0.75, 1.1, 1.6, 2.4, 3.5, 5.0, 7.5, 11.0, 16.0, 24.0, 36.0, 54.0, 80.0, 120.0)
-FILL_MIN_WEIGHT = 6.0
+FILL_MIN_WEIGHT = 10.0
 FILL_ASPECT = 2.0
 FILL_SIGMA_CAP = 240.0
+# The theta_h row (in cell-index units; past the table's 90 rows, so it widens every row) at
+# which the kernel's width along phi_d is FILL_ASPECT times its width along theta_h; on row u
+# it is that times (FILL_PHI_ARC_ROW / u)^2, the same arc theta_h * delta_phi_d on every row.
+FILL_PHI_ARC_ROW = 160.0
+
+# merl_direction_sets: the views' lowest elevation (cos theta; a view ray that grazes the tile
+# crosses many periods before it meets a face), the share of the larger set beyond one partner
+# per direction of the smaller set that goes to near-mirror partners, and the theta_h rows
+# (cell-index units) the near-mirror pairs spread over.
+VIEW_MIN_Z = 0.02
+EXTRA_PARTNER_SHARE = 0.2
+PARTNER_THETA_H_ROWS = 30.0
 
 _HALF_PI = np.pi / 2.0
 
@@ -417,6 +503,104 @@ def evaluate(table, light, view):
     return out
 
 
+# --- choosing the directions ---------------------------------------------------------------
+
+
+_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+_PLASTIC = 1.324717957244746  # the real root of x^3 = x + 1
+
+
+def _spiral(count, lowest_z, turn):
+    """(count, 3) float64 unit directions spread evenly over the cap z in [lowest_z, 1]: a
+    Fibonacci spiral, equal-area rings in z (``gonio.hemisphere_directions`` when
+    ``lowest_z`` and ``turn`` are 0), turned by ``turn`` radians about z."""
+    index = np.arange(count) + 0.5
+    z = 1.0 - index / count * (1.0 - lowest_z)
+    radius = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    angle = index * _GOLDEN_ANGLE + turn
+    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), z])
+
+
+def _near_mirrors(anchors, theta_h, tilt_azimuth, lowest_z):
+    """(K, 3) float64: each anchor (K, 3) reflected about its own half vector, the normal
+    tilted by ``theta_h`` (K,) towards ``tilt_azimuth`` (K,), radians from the anchor's
+    azimuth; so the pair (anchor, partner) has exactly that theta_h. A partner that would
+    lie below ``lowest_z`` is made again with the tilt towards the anchor, which raises it,
+    and theta_h grown as far as that takes."""
+    anchor_azimuth = np.arctan2(anchors[:, 1], anchors[:, 0])
+
+    def reflected(about, theta, azimuth):
+        s = np.sin(theta)
+        half = np.column_stack([s * np.cos(azimuth), s * np.sin(azimuth), np.cos(theta)])
+        return 2.0 * np.einsum("ij,ij->i", about, half)[:, None] * half - about
+
+    partners = reflected(anchors, theta_h, anchor_azimuth + tilt_azimuth)
+    low = partners[:, 2] < lowest_z
+    if np.any(low):
+        # Tilted towards the anchor, the partner sits at polar angle theta_anchor - 2 theta_h.
+        anchor_polar = np.arccos(np.clip(anchors[low, 2], -1.0, 1.0))
+        least = 0.5 * (anchor_polar - np.arccos(lowest_z)) + 1e-9
+        partners[low] = reflected(anchors[low], np.maximum(theta_h[low], least), anchor_azimuth[low])
+    return _unit(partners)
+
+
+def merl_direction_sets(lights: int, views: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Light and view directions whose grid of pairs fills a MERL table well, the specular
+    peak (small theta_h) included, for :func:`fill_from_samples` (why this choice: the
+    module's docstring).
+
+    The smaller set (the lights when there are as many views) is a Fibonacci spiral over
+    the hemisphere. Every direction of it gets one partner from the larger set placed near
+    its mirror direction, (-x, -y, z), at an exact theta_h spread evenly over the first
+    ``PARTNER_THETA_H_ROWS`` theta_h rows (each partner pair its own row and tilt, from a
+    two-dimensional low-discrepancy sequence); a further ``EXTRA_PARTNER_SHARE`` of the larger set goes to
+    second partners (spread evenly over the smaller set), and the rest of the larger set is
+    a Fibonacci spiral of its own. With as many lights as views every view is a partner.
+
+    Parameters
+    ----------
+    lights, views : int
+        How many directions of each, >= 1.
+    seed : int
+        Draws the sets' turn about the normal, the turn of the larger set's spiral relative
+        to the smaller one, and the shifts of the partners' sequences: the same seed gives
+        the same sets.
+
+    Returns
+    -------
+    light, view : (lights, 3), (views, 3) float64
+        Unit directions in the tile's frame (z the normal). Lights have z > 0; views have
+        z >= ``VIEW_MIN_Z`` (a light near the horizon gets a view partner further from its
+        mirror, tilted up just enough).
+    """
+    lights, views = int(lights), int(views)
+    if lights < 1 or views < 1:
+        raise ValueError(f"merl_direction_sets needs at least one light and one view, got {lights} and {views}")
+    rng = np.random.default_rng(seed)
+    turn, spiral_turn = rng.uniform(0.0, 2.0 * np.pi, 2)
+    row_shift, azimuth_shift = rng.uniform(0.0, 1.0, 2)
+    views_move = views >= lights
+    small, large = (lights, views) if views_move else (views, lights)
+    # The anchors are the smaller set; the views, whichever they are, keep above VIEW_MIN_Z.
+    anchors = _spiral(small, 0.0 if views_move else VIEW_MIN_Z, turn)
+    partner_count = min(large, small + int(round(EXTRA_PARTNER_SHARE * large)))
+    j = np.arange(partner_count)
+    anchor_of = j * small // partner_count
+    # The R2 sequence (steps 1/g and 1/g^2, g the plastic number) gives the partner pairs'
+    # theta_h rows and tilts (which set phi_d), evenly over their square. Not the golden
+    # ratio: the anchors, pole first, step by the golden angle, and anchor azimuth plus
+    # tilt, the pair's phi_h, was then the same for every partner pair (an anisotropic
+    # tile's phi_h average saw one phi_h). Drawing phi_h itself from R2 instead of the tilt
+    # did worse at the peak (anisotropic Phong, seeds 0-2: 0.092 against 0.068).
+    rows = PARTNER_THETA_H_ROWS * np.mod(j / _PLASTIC + row_shift, 1.0)
+    theta_h = (rows / THETA_H_RES) ** 2 * _HALF_PI
+    tilt_azimuth = 2.0 * np.pi * np.mod(j / _PLASTIC ** 2 + azimuth_shift, 1.0)
+    partners = _near_mirrors(anchors[anchor_of], theta_h, tilt_azimuth, VIEW_MIN_Z)
+    rest = _spiral(large - partner_count, VIEW_MIN_Z if views_move else 0.0, turn + spiral_turn)
+    moved = np.concatenate([partners, rest])
+    return (anchors, moved) if views_move else (moved, anchors)
+
+
 # --- filling from samples --------------------------------------------------------------------
 
 
@@ -458,32 +642,48 @@ def _splat(u, v, w, values, cosines):
     return moments.reshape(5, THETA_H_RES, THETA_D_RES, PHI_D_RES)
 
 
-def _gaussian_matrix(n, sigma, periodic):
-    """(n, n) float32: the Gaussian of ``sigma`` cells between cell centres, 1 at distance 0;
-    circulant (all periodic images summed) when ``periodic``."""
+def _gaussian_matrix(n, sigma):
+    """(n, n) float32: the Gaussian of ``sigma`` cells between cell centres, 1 at distance 0."""
     d = (np.arange(n)[:, None] - np.arange(n)[None, :]).astype(np.float64)
-    if not periodic:
-        return np.exp(-0.5 * (d / sigma) ** 2).astype(np.float32)
-    images = int(np.ceil(6.0 * sigma / n)) + 1
-    return sum(np.exp(-0.5 * ((d + m * n) / sigma) ** 2) for m in range(-images, images + 1)).astype(np.float32)
+    return np.exp(-0.5 * (d / sigma) ** 2).astype(np.float32)
 
 
-def _blur(moments, sigma_h, sigma_d):
+def _circulant_gaussians(n, sigmas):
+    """(len(sigmas), n, n) float32: per sigma the periodic Gaussian of that many cells
+    between cell centres (all periodic images summed, 1 at distance 0 with no image near),
+    built from its first row since a circulant matrix repeats it."""
+    sigmas = np.asarray(sigmas, dtype=np.float64)
+    offsets = np.arange(n, dtype=np.float64)
+    images = int(np.ceil(6.0 * sigmas.max() / n)) + 1
+    shifted = offsets[None, :] + n * np.arange(-images, images + 1)[:, None]  # (images, n)
+    rows = np.exp(-0.5 * (shifted[None, :, :] / sigmas[:, None, None]) ** 2).sum(axis=1)  # (S, n)
+    lag = (np.arange(n)[:, None] - np.arange(n)[None, :]) % n
+    # Contiguous: a strided matrix sends matmul off BLAS onto a loop 50 times slower.
+    return np.ascontiguousarray(rows[:, lag], dtype=np.float32)
+
+
+def _blur(moments, sigma_h, sigma_d, sigma_phi):
     """``moments`` (C, 90, 90, 180) float32 convolved with a Gaussian of ``sigma_h`` cells
-    along theta_h and ``sigma_d`` cells along theta_d and phi_d: three matrix products, along
-    theta_h and theta_d with the grid's edges truncating the kernel, along phi_d periodically.
-    float32 halves the time; the fill's ratios need nowhere near float64's precision."""
+    along theta_h, ``sigma_d`` cells along theta_d and, on theta_h row i, ``sigma_phi[i]``
+    cells along phi_d ((90,) float64): three matrix products, along theta_h and theta_d with
+    the grid's edges truncating the kernel, along phi_d periodically, one matrix per row.
+    The phi_d product comes last, so its per-row width applies to the already blurred rows:
+    the operator is not a convolution any more, but it is the same linear, positive map on
+    the values and on the weights, which is all a normalised convolution needs (constants
+    stay exact). float32 halves the time; the fill's ratios need nowhere near float64's
+    precision."""
     c = moments.shape[0]
-    gh = _gaussian_matrix(THETA_H_RES, sigma_h, False)
-    gd = _gaussian_matrix(THETA_D_RES, sigma_d, False)
-    gp = _gaussian_matrix(PHI_D_RES, sigma_d, True)
+    gh = _gaussian_matrix(THETA_H_RES, sigma_h)
+    gd = _gaussian_matrix(THETA_D_RES, sigma_d)
+    gp = _circulant_gaussians(PHI_D_RES, sigma_phi)  # symmetric, one per theta_h row
     out = np.matmul(gh, moments.reshape(c, THETA_H_RES, THETA_D_RES * PHI_D_RES))
     out = np.matmul(gd, out.reshape(c * THETA_H_RES, THETA_D_RES, PHI_D_RES))
-    out = out.reshape(-1, PHI_D_RES) @ gp  # gp is symmetric
+    out = np.matmul(out.reshape(c, THETA_H_RES, THETA_D_RES, PHI_D_RES), gp)
     return out.reshape(moments.shape)
 
 
-def fill_from_samples(light, view, values, *, min_weight=FILL_MIN_WEIGHT, aspect=FILL_ASPECT, sigmas=FILL_SIGMAS):
+def fill_from_samples(light, view, values, *, min_weight=FILL_MIN_WEIGHT, aspect=FILL_ASPECT, sigmas=FILL_SIGMAS,
+                      phi_arc_row=FILL_PHI_ARC_ROW):
     """An isotropic MERL table from scattered BRDF samples (the method and why: the module's
     docstring).
 
@@ -499,10 +699,16 @@ def fill_from_samples(light, view, values, *, min_weight=FILL_MIN_WEIGHT, aspect
         How many samples' worth of kernel weight a cell gathers before its bandwidth stops
         growing: larger is smoother (and averages more noise away), smaller is sharper.
     aspect : float
-        The kernel's width along theta_d and phi_d over its width along theta_h.
+        The kernel's width along theta_d (and along phi_d on row ``phi_arc_row``) over its
+        width along theta_h.
     sigmas : sequence of float
         The theta_h bandwidths (Gaussian sigma in cell-index units) to try, increasing; the
         last should reach across the table so that every cell gets a value.
+    phi_arc_row : float or None
+        The theta_h row (cell-index units, > 0, may lie past 90) on which the kernel's width
+        along phi_d is ``aspect`` times its width along theta_h; on row u it is that times
+        ``(phi_arc_row / u)**2`` (u the row's centre), which keeps the arc theta_h * delta_phi_d
+        it spans the same on every row. None: ``aspect`` times on every row, as along theta_d.
 
     Returns
     -------
@@ -537,12 +743,18 @@ def fill_from_samples(light, view, values, *, min_weight=FILL_MIN_WEIGHT, aspect
         raise ValueError(f"sigmas must be positive and increasing, got {sigmas}")
     if not (min_weight > 0.0 and aspect > 0.0):
         raise ValueError(f"min_weight and aspect must be positive, got {min_weight} and {aspect}")
+    if phi_arc_row is not None and not phi_arc_row > 0.0:
+        raise ValueError(f"phi_arc_row must be positive or None, got {phi_arc_row}")
+    row_centres = np.arange(THETA_H_RES) + 0.5
+    phi_stretch = np.ones(THETA_H_RES) if phi_arc_row is None else (phi_arc_row / row_centres) ** 2
 
     moments = _splat(*_index_coordinates(light, view), values, light[:, 2] * view[:, 2]).astype(np.float32)
     valid = valid_cells()
 
     def rung(i, channels=slice(None)):
-        return _blur(moments[channels], sigmas[i], min(aspect * sigmas[i], FILL_SIGMA_CAP))
+        sigma_d = aspect * sigmas[i]
+        return _blur(moments[channels], sigmas[i], min(sigma_d, FILL_SIGMA_CAP),
+                     np.minimum(sigma_d * phi_stretch, FILL_SIGMA_CAP))
 
     # The narrow rungs no cell fills need only their weights (a fifth of the work) to be
     # skipped; the rung before the first one that fills a cell is computed in full for the

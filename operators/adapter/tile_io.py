@@ -288,9 +288,14 @@ class BRDFJob:
         self.settings.check()
 
     def direction_sets(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lights (L, 3), views (V, 3)) float64 unit: the sphere for a BSDF, else the hemisphere."""
+        """(lights (L, 3), views (V, 3)) float64 unit: the sphere for a BSDF; for a MERL table,
+        sets whose pairs fill its specular peak (core.appearance.merl.merl_direction_sets);
+        else the hemisphere."""
         if self.output_format == "bsdf":
             return gonio.sphere_directions(self.lights), gonio.sphere_directions(self.views)
+        if self.output_format == "merl":
+            from ...core.appearance import merl
+            return merl.merl_direction_sets(self.lights, self.views, seed=self.settings.seed)
         return gonio.hemisphere_directions(self.lights), gonio.hemisphere_directions(self.views)
 
     def compute(self) -> None:
@@ -317,8 +322,12 @@ class BRDFJob:
             # At most FIT_PAIRS pairs, every k-th (the fit's cost grows with them, its answer hardly).
             rows = np.nonzero(lit)[0]
             rows = rows[::max(1, len(rows) // FIT_PAIRS)]
-            self.fit = fit_principled(pairs_light[rows], pairs_view[rows], result.values.reshape(-1, 3)[rows],
-                                      transparency=float(result.transparency[result.light[:, 2] > 0].mean()) or None)
+            # Light through the gaps passes straight, not refracted: the material mixes in a
+            # Transparent BSDF of that share, and the fitted surface is what the rest reflects.
+            self.gaps = float(result.transparency[result.light[:, 2] > 0].mean())
+            solid = max(1.0 - self.gaps, 1e-3)
+            self.fit = fit_principled(pairs_light[rows], pairs_view[rows],
+                                      result.values.reshape(-1, 3)[rows] / solid)
 
     def finish(self) -> BRDFOutcome:
         from ...core.appearance import merl, tabulated
@@ -360,7 +369,9 @@ class BRDFJob:
                 "anisotropic": float(fitted.anisotropic), "anisotropic_rotation": float(fitted.anisotropic_rotation),
                 "sheen_weight": float(fitted.sheen_weight), "sheen_roughness": float(fitted.sheen_roughness),
                 "sheen_tint": [float(x) for x in fitted.sheen_tint],
-                "transmission_weight": float(fitted.transmission_weight), "metallic": float(fitted.metallic)}
+                "transmission_weight": float(fitted.transmission_weight), "metallic": float(fitted.metallic),
+                "diffuse_roughness": float(getattr(fitted, "diffuse_roughness", 0.0)),
+                "transparency": self.gaps}
             if self.output_format == "bsdf" and np.any(result.light[:, 2] > 0):
                 # What passes diffusely, as a Translucent BSDF's colour: the transmittance of
                 # the lights from above (a Lambert sheet's f_t = colour / pi sends colour).
@@ -496,16 +507,29 @@ def make_material(name: str, fit: dict):
         both.location = (150, 0)
         tree.links.new(shader.outputs[0], both.inputs[0])
         tree.links.new(passing.outputs[0], both.inputs[1])
-        tree.links.new(both.outputs[0], output.inputs["Surface"])
+        surface = both
     else:
-        tree.links.new(shader.outputs[0], output.inputs["Surface"])
+        surface = shader
+    gaps = fit.get("transparency", 0.0)
+    if gaps > 1e-3:
+        # The straight-through share (the weave's gaps): a Transparent BSDF mixed in.
+        through = tree.nodes.new("ShaderNodeBsdfTransparent")
+        through.location = (150, -300)
+        mix = tree.nodes.new("ShaderNodeMixShader")
+        mix.location = (250, 0)
+        mix.inputs["Fac"].default_value = gaps
+        tree.links.new(surface.outputs[0], mix.inputs[1])
+        tree.links.new(through.outputs[0], mix.inputs[2])
+        surface = mix
+    tree.links.new(surface.outputs[0], output.inputs["Surface"])
     inputs = shader.inputs
     inputs["Base Color"].default_value = (*fit["base_color"], 1.0)
     for socket, key in (("Roughness", "roughness"), ("Metallic", "metallic"), ("IOR", "ior"),
                         ("Specular IOR Level", "specular_ior_level"), ("Anisotropic", "anisotropic"),
                         ("Anisotropic Rotation", "anisotropic_rotation"), ("Sheen Weight", "sheen_weight"),
-                        ("Sheen Roughness", "sheen_roughness"), ("Transmission Weight", "transmission_weight")):
-        if socket in inputs:
+                        ("Sheen Roughness", "sheen_roughness"), ("Transmission Weight", "transmission_weight"),
+                        ("Diffuse Roughness", "diffuse_roughness")):
+        if socket in inputs and key in fit:
             inputs[socket].default_value = fit[key]
     if "Sheen Tint" in inputs:
         inputs["Sheen Tint"].default_value = (*fit["sheen_tint"], 1.0)
