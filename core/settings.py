@@ -377,3 +377,25 @@ APPEARANCE_SETTINGS = _table(
     Setting("appearance_image_format", str, "exr", "BTF Images", help="The file format of the BTF's images",
             choices=(("exr", "EXR", "Linear RGB, 32-bit float"), ("png", "PNG", "8-bit sRGB"))),
 )
+
+# Light fields (issue 19, core.lightfield): the panel's Light Field section and `visibake
+# lightfield` (whose options default to these). The camera grid is the HCI benchmark's.
+LIGHTFIELD_SETTINGS = _table(
+    Setting("lightfield_columns", int, 9, "Views Across", minimum=1, maximum=64, soft_max=17,
+            help="Columns of the grid of views (HCI's num_cams_x)"),
+    Setting("lightfield_rows", int, 9, "Views Down", minimum=1, maximum=64, soft_max=17,
+            help="Rows of the grid of views (HCI's num_cams_y)"),
+    Setting("lightfield_baseline_mm", float, 50.0, "Baseline (mm)", minimum=0.001, maximum=1e6, soft_max=500.0,
+            help="Distance between neighbouring views, in millimetres"),
+    Setting("lightfield_focus_m", float, 2.0, "Focus Distance (m)", minimum=0.001, maximum=1e6, soft_max=100.0,
+            help="Distance along the camera's axis where the views agree (zero disparity), in metres"),
+    Setting("lightfield_width", int, 512, "View Width", minimum=8, maximum=8192, soft_max=2048,
+            help="Pixels across each view"),
+    Setting("lightfield_height", int, 512, "View Height", minimum=8, maximum=8192, soft_max=2048,
+            help="Pixels down each view"),
+    Setting("lightfield_format", str, "hci", "Layout", help="How the views are laid out in the folder",
+            choices=(("hci", "HCI", "input_CamNNN.png/.exr, parameters.cfg and the centre view's depth and "
+                                    "disparity (the HCI 4D light field benchmark)"),
+                     ("stanford", "Stanford", "out_RR_CC_Y_X_.png rectified views (the Stanford light field "
+                                              "archive), with the same parameters and ground truth"))),
+)

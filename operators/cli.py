@@ -23,7 +23,15 @@ from ..core.lights import setups as lighting_setups
 from ..core.outputs import summary as report_texts
 from ..core.outputs.atomic import remove_written
 from ..core.outputs.destinations import FILE, FOLDER, check_destinations
-from ..core.settings import APPEARANCE_SETTINGS, PREFERENCE_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
+from ..core.settings import (
+    APPEARANCE_SETTINGS,
+    LIGHTFIELD_SETTINGS,
+    PREFERENCE_SETTINGS,
+    PRESETS,
+    SETTINGS,
+    VOLUME_SETTINGS,
+    Setting,
+)
 from .adapter import job
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
@@ -49,12 +57,18 @@ SCENE_SETTING_OPTIONS = {
     "appearance_directions": "brdf --directions", "appearance_bounces": "brdf --bounces",
     "appearance_resolution": "brdf --resolution", "appearance_format": "brdf --format",
     "appearance_image_size": "btf --image-size", "appearance_image_format": "btf --format",
+    # The Light Field section's: options of the lightfield command.
+    "lightfield_columns": "lightfield --views", "lightfield_rows": "lightfield --views",
+    "lightfield_baseline_mm": "lightfield --baseline-mm", "lightfield_focus_m": "lightfield --focus-distance-m",
+    "lightfield_width": "lightfield --image-size", "lightfield_height": "lightfield --image-size",
+    "lightfield_format": "lightfield --format",
 }
 # Every operator of the panel, and the command that does the same.
 OPERATOR_COMMANDS = {
     "visibake.bake": "bake", "visibake.relight": "relight", "visibake.preview_add": "preview",
     "visibake.preview_remove": "preview --remove", "visibake.clear_cache": "clear-cache",
     "visibake.bake_volume": "volume", "visibake.simulate_brdf": "brdf", "visibake.simulate_btf": "btf",
+    "visibake.render_lightfield": "lightfield",
 }
 PREFERENCE_OPTIONS = {
     "device": "--device", "threads": "--threads", "cache_dir": "--cache-dir",
@@ -89,6 +103,38 @@ def _setting_option(parser, option: str, spec: Setting, metavar: str | None = No
     parser.add_argument(option, **keywords)
 
 
+def _bake_setting_options(sub) -> None:
+    """The bake's settings as options of ``sub`` (bake, relight, demo, and lightfield's --bake-first)."""
+    sub.add_argument("--preset", choices=tuple(name.lower() for name in PRESETS),
+                     help=_help(SETTINGS["preset"], note="options below override it"))
+    _setting_option(sub, "--directions", SETTINGS["directions"], "N", default=True)
+    _setting_option(sub, "--bounces", SETTINGS["bounces"], "K", default=True)
+    _setting_option(sub, "--resolution", SETTINGS["resolution"], "PX", default=True)
+    _setting_option(sub, "--texel-density", SETTINGS["texel_density"], "T")
+    _setting_option(sub, "--mode", SETTINGS["mode"], default=True)
+    _setting_option(sub, "--shadows", SETTINGS["shadows"], default=True)
+    # Parsed by _apply_settings, so that an unknown pass is refused with the choices.
+    subset = f"a comma-separated subset of {','.join(SETTINGS['passes'].values)}"
+    sub.add_argument("--passes", metavar="P,Q", help=_help(SETTINGS["passes"], default=True, note=subset))
+    _setting_option(sub, "--rotate", SETTINGS["rotate"])
+    _setting_option(sub, "--seed", SETTINGS["seed"])
+    _setting_option(sub, "--margin", SETTINGS["margin"], "PX", default=True)
+    _setting_option(sub, "--footprint-samples", SETTINGS["footprint_samples"], "N", default=True)
+    _setting_option(sub, "--interleave", SETTINGS["interleave"], "T", default=True)
+    sub.add_argument("--no-sharp-contacts", action="store_true",
+                     help="read short rays' light from the target's texels (see Sharp Contacts)")
+    sub.add_argument("--no-stitch-seams", action="store_true",
+                     help="leave UV seams as baked, as Cycles does (see Stitch Seams)")
+    _setting_option(sub, "--light-groups", SETTINGS["light_groups"])
+    _setting_option(sub, "--cache-dir", SETTINGS["cache_dir"], "DIR")
+    sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
+    _setting_option(sub, "--refine", SETTINGS["refine_vertex_objects"])
+    _setting_option(sub, "--vertex-lookup", SETTINGS["vertex_lookup"], default=True)
+    _setting_option(sub, "--device", PREFERENCE_SETTINGS["device"], note="default: the preference, else auto")
+    _setting_option(sub, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    sub.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="visibake", description="Bake lighting from precomputed visibility (VisiBake).")
@@ -121,38 +167,11 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
         sub.add_argument("--objects", metavar="A,B",
                          help="comma-separated objects to bake (default: all visible meshes)")
-        sub.add_argument("--preset", choices=tuple(name.lower() for name in PRESETS),
-                         help=_help(SETTINGS["preset"], note="options below override it"))
-        _setting_option(sub, "--directions", SETTINGS["directions"], "N", default=True)
-        _setting_option(sub, "--bounces", SETTINGS["bounces"], "K", default=True)
-        _setting_option(sub, "--resolution", SETTINGS["resolution"], "PX", default=True)
-        _setting_option(sub, "--texel-density", SETTINGS["texel_density"], "T")
-        _setting_option(sub, "--mode", SETTINGS["mode"], default=True)
-        _setting_option(sub, "--shadows", SETTINGS["shadows"], default=True)
-        # Parsed by _apply_settings, so that an unknown pass is refused with the choices.
-        subset = f"a comma-separated subset of {','.join(SETTINGS['passes'].values)}"
-        sub.add_argument("--passes", metavar="P,Q", help=_help(SETTINGS["passes"], default=True, note=subset))
-        _setting_option(sub, "--rotate", SETTINGS["rotate"])
-        _setting_option(sub, "--seed", SETTINGS["seed"])
-        _setting_option(sub, "--margin", SETTINGS["margin"], "PX", default=True)
-        _setting_option(sub, "--footprint-samples", SETTINGS["footprint_samples"], "N", default=True)
-        _setting_option(sub, "--interleave", SETTINGS["interleave"], "T", default=True)
-        sub.add_argument("--no-sharp-contacts", action="store_true",
-                         help="read short rays' light from the target's texels (see Sharp Contacts)")
-        sub.add_argument("--no-stitch-seams", action="store_true",
-                         help="leave UV seams as baked, as Cycles does (see Stitch Seams)")
+        _bake_setting_options(sub)
         sub.add_argument("--save", metavar="OUT.blend", help="save the scene with its UV maps and baked images")
         sub.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
         sub.add_argument("--previews", action="store_true", default=None,
                          help="also write tone-mapped PNGs (<pass>.preview.ply for vertex-mode objects)")
-        _setting_option(sub, "--light-groups", SETTINGS["light_groups"])
-        _setting_option(sub, "--cache-dir", SETTINGS["cache_dir"], "DIR")
-        sub.add_argument("--no-cache", action="store_true", help="neither read nor write the visibility cache")
-        _setting_option(sub, "--refine", SETTINGS["refine_vertex_objects"])
-        _setting_option(sub, "--vertex-lookup", SETTINGS["vertex_lookup"], default=True)
-        _setting_option(sub, "--device", PREFERENCE_SETTINGS["device"], note="default: the preference, else auto")
-        _setting_option(sub, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
-        sub.add_argument("--no-progress", action="store_true", help="no progress bar")
     volume = commands.add_parser(
         "volume", help="bake the light scattered in a .blend's Volume objects into VDB grids and a baked Volume object")
     volume.add_argument("input", help="the .blend whose volumes to bake")
@@ -222,6 +241,30 @@ def build_parser() -> argparse.ArgumentParser:
                      help="write into DIR even if it holds files VisiBake did not write (they are not deleted)")
     btf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     btf.add_argument("--no-progress", action="store_true", help="no progress bar")
+    lightfield = commands.add_parser(
+        "lightfield", help="render a baked .blend's light field: a grid of views from parallel off-axis cameras, "
+                           "in the HCI benchmark's layout")
+    lightfield.add_argument("input", help="the baked .blend (or one to bake first: --bake-first)")
+    lightfield.add_argument("--out", metavar="DIR", required=True,
+                            help="write DIR/input_CamNNN.exr and .png, DIR/parameters.cfg and the centre view's "
+                                 "gt_depth_lowres.pfm and gt_disp_lowres.pfm")
+    lightfield.add_argument("--camera", metavar="NAME", help="the centre camera (default: the scene's camera)")
+    lightfield.add_argument("--views", metavar="CxR",
+                            help="columns x rows of views, e.g. 9x9 (default: the scene's Light Field settings, 9x9)")
+    _setting_option(lightfield, "--baseline-mm", LIGHTFIELD_SETTINGS["lightfield_baseline_mm"], "MM", default=True)
+    _setting_option(lightfield, "--focus-distance-m", LIGHTFIELD_SETTINGS["lightfield_focus_m"], "M", default=True)
+    lightfield.add_argument("--image-size", metavar="WxH", help="pixels of each view, e.g. 512x512 (default 512x512)")
+    _setting_option(lightfield, "--format", LIGHTFIELD_SETTINGS["lightfield_format"], default=True)
+    lightfield.add_argument("--bake-first", action="store_true",
+                            help="bake the objects the views see first (the bake's options below apply); objects "
+                                 "no view sees still cast shadows but are not baked")
+    lightfield.add_argument("--objects", metavar="A,B",
+                            help="with --bake-first: the objects to bake (default: every visible mesh a view sees)")
+    lightfield.add_argument("--overwrite", action="store_true",
+                            help="write into DIR even if it holds files VisiBake did not write (they are kept)")
+    lightfield.add_argument("--save", metavar="OUT.blend", help="save the scene (with what --bake-first baked)")
+    lightfield.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
+    _bake_setting_options(lightfield)
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
                          help="wire the results into the objects' materials for preview (see preview; use with --save)")
@@ -569,7 +612,81 @@ def run_btf(args) -> int:
     return EXIT_OK
 
 
+def _pair_of_counts(text: str, option: str) -> tuple[int, int]:
+    """'9x9' as (9, 9); refuses anything else."""
+    parts = text.lower().replace("*", "x").split("x")
+    if len(parts) != 2 or not all(part.strip().isdigit() for part in parts):
+        raise BakeRefused(f"{option} {text!r}: give two whole numbers as AxB, e.g. 9x9")
+    return int(parts[0]), int(parts[1])
+
+
+def run_lightfield(args) -> int:
+    """``lightfield``: render a baked scene's light field (adapter.lightfield_io), baking the
+    objects the views see first with --bake-first."""
+    from .adapter import lightfield_io
+
+    _check_destinations(args, None)
+    _load_input(args)
+    scene = bpy.context.scene
+    props = scene.visibake
+    columns, rows = (_pair_of_counts(args.views, "--views") if args.views
+                     else (props.lightfield_columns, props.lightfield_rows))
+    width, height = (_pair_of_counts(args.image_size, "--image-size") if args.image_size
+                     else (props.lightfield_width, props.lightfield_height))
+    values = {"lightfield_columns": (columns, "--views"), "lightfield_rows": (rows, "--views"),
+              "lightfield_width": (width, "--image-size"), "lightfield_height": (height, "--image-size"),
+              "lightfield_baseline_mm": (props.lightfield_baseline_mm if args.baseline_mm is None else args.baseline_mm,
+                                         "--baseline-mm"),
+              "lightfield_focus_m": (props.lightfield_focus_m if args.focus_distance_m is None
+                                     else args.focus_distance_m, "--focus-distance-m")}
+    for name, (value, option) in values.items():
+        reason = LIGHTFIELD_SETTINGS[name].check(value, option)
+        if reason is not None:
+            raise BakeRefused(reason)
+    output_format = args.format or props.lightfield_format
+    progress = _Progress(not args.no_progress)
+    extra: dict = {}
+    try:
+        if args.bake_first:
+            _apply_settings(args, props)
+            _, _, views, clip = lightfield_io.plan_views(scene, args.camera, (columns, rows),
+                                                         values["lightfield_baseline_mm"][0],
+                                                         values["lightfield_focus_m"][0], (width, height), [])
+            seen, unseen = lightfield_io.objects_in_views(_select_objects(args, scene), views, *clip)
+            if not seen:
+                raise BakeRefused("--bake-first: no object to bake is in any view (check --camera and --objects)")
+            baked = job.run_bake(bpy.context, seen, None, False, progress, device_name=args.device,
+                                 threads=args.threads)
+            extra["bake"] = {"objects": [o.name for o in seen], "skipped_unseen": [o.name for o in unseen],
+                             "seconds": baked.report.get("total_seconds"),
+                             "warnings": baked.report.get("warnings", [])}
+        outcome = lightfield_io.LightFieldJob(
+            scene, args.camera, args.out, (columns, rows), values["lightfield_baseline_mm"][0],
+            values["lightfield_focus_m"][0], (width, height), output_format, args.device or "auto", args.overwrite,
+            progress, extra).run()
+    finally:
+        progress.close()
+    report = outcome.report
+    made_folders: list = []
+    if args.save:
+        _save_blend(args.save, made_folders)
+    if args.report:
+        job.write_report(args.report, report)
+    for warning in report["warnings"]:
+        print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    if extra.get("bake", {}).get("skipped_unseen"):
+        print(f"visibake: --bake-first skipped {len(extra['bake']['skipped_unseen'])} object(s) no view sees: "
+              f"{', '.join(extra['bake']['skipped_unseen'][:8])}", flush=True)
+    print(f"visibake: light field of {report['views']} views ({columns}x{rows}) at {width}x{height} -> "
+          f"{report['output']!r}: rendered in {report['render_s']:.2f} s ({report['renderer']}), files written in "
+          f"{report['write_s']:.2f} s; disparity {report['disparity_range'][0]:.1f} to "
+          f"{report['disparity_range'][1]:.1f} px", flush=True)
+    return EXIT_OK
+
+
 def run(args) -> int:
+    if args.command == "lightfield":
+        return run_lightfield(args)
     if args.command == "brdf":
         return run_brdf(args)
     if args.command == "btf":

@@ -259,5 +259,36 @@ class VIEW3D_PT_visibake_appearance(_Section, bpy.types.Panel):
                     layout.label(text=f"The last {what} report cannot be read")
 
 
+class VIEW3D_PT_visibake_lightfield(_Section, bpy.types.Panel):
+    bl_label = "Light Field"
+    bl_idname = "VIEW3D_PT_visibake_lightfield"
+
+    def draw(self, context):
+        from ..operators import lightfield
+
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.visibake
+        camera = context.scene.camera
+        layout.label(text=f"Around camera {camera.name} (bake the scene first)" if camera
+                     else "Set the scene's camera: the grid is centred on it", icon="CAMERA_DATA")
+        column = layout.column()
+        for name in ("lightfield_columns", "lightfield_rows", "lightfield_baseline_mm", "lightfield_focus_m",
+                     "lightfield_width", "lightfield_height", "lightfield_format"):
+            column.prop(props, name)
+        folder = lightfield.output_folder(context)
+        layout.label(text=f"Into {folder}" if folder else "Set an Output Folder (or save the file)")
+        row = layout.row()
+        row.enabled = camera is not None and bool(folder)
+        row.operator("visibake.render_lightfield", icon="RENDER_STILL")
+        report = context.scene.get("visibake_lightfield_report")
+        if report:
+            try:
+                layout.label(text=lightfield.summary(json.loads(report)).removeprefix("VisiBake: "))
+            except (TypeError, ValueError, KeyError):
+                layout.label(text="The last light field report cannot be read")
+
+
 classes = (VIEW3D_PT_visibake, VISIBAKE_UL_objects, VIEW3D_PT_visibake_objects, VIEW3D_PT_visibake_report,
-           VIEW3D_PT_visibake_volumes, VIEW3D_PT_visibake_appearance)
+           VIEW3D_PT_visibake_volumes, VIEW3D_PT_visibake_appearance, VIEW3D_PT_visibake_lightfield)

@@ -7,7 +7,15 @@ files store: never rename one.
 """
 import bpy
 
-from ..core.settings import APPEARANCE_SETTINGS, OBJECT_SETTINGS, PRESETS, SETTINGS, VOLUME_SETTINGS, Setting
+from ..core.settings import (
+    APPEARANCE_SETTINGS,
+    LIGHTFIELD_SETTINGS,
+    OBJECT_SETTINGS,
+    PRESETS,
+    SETTINGS,
+    VOLUME_SETTINGS,
+    Setting,
+)
 
 
 def setting_property(spec: Setting, **options):
@@ -113,6 +121,13 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     appearance_format: setting_property(APPEARANCE_SETTINGS["appearance_format"])
     appearance_image_size: setting_property(APPEARANCE_SETTINGS["appearance_image_size"])
     appearance_image_format: setting_property(APPEARANCE_SETTINGS["appearance_image_format"])
+    lightfield_columns: setting_property(LIGHTFIELD_SETTINGS["lightfield_columns"])
+    lightfield_rows: setting_property(LIGHTFIELD_SETTINGS["lightfield_rows"])
+    lightfield_baseline_mm: setting_property(LIGHTFIELD_SETTINGS["lightfield_baseline_mm"])
+    lightfield_focus_m: setting_property(LIGHTFIELD_SETTINGS["lightfield_focus_m"])
+    lightfield_width: setting_property(LIGHTFIELD_SETTINGS["lightfield_width"])
+    lightfield_height: setting_property(LIGHTFIELD_SETTINGS["lightfield_height"])
+    lightfield_format: setting_property(LIGHTFIELD_SETTINGS["lightfield_format"])
 
 
 class VisiBakeObjectSettings(bpy.types.PropertyGroup):

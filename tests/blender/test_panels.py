@@ -109,8 +109,11 @@ def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, 
     settings = set(bpy.context.scene.visibake.bl_rna.properties.keys()) - {"rna_type", "name", "active_object_index"}
     volumes = _draw(main.VIEW3D_PT_visibake_volumes)
     appearance = _draw(main.VIEW3D_PT_visibake_appearance)
+    lightfield = _draw(main.VIEW3D_PT_visibake_lightfield)
     # Every scene setting is on the panel.
-    assert settings <= set(_props(drawn)) | set(_props(volumes)) | set(_props(appearance))
+    assert settings <= set(_props(drawn)) | set(_props(volumes)) | set(_props(appearance)) | set(_props(lightfield))
+    assert {p for p in settings if p.startswith("lightfield_")} == set(_props(lightfield))
+    assert _operators(lightfield) == ["visibake.render_lightfield"]
     assert {p for p in settings if p.startswith("volume_")} == set(_props(volumes))  # the volumes' in their section
     assert _operators(volumes) == ["visibake.bake_volume"]
     assert {p for p in settings if p.startswith("appearance_")} == set(_props(appearance))
