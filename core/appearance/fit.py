@@ -28,7 +28,25 @@ Layers from the top, each attenuating the weight ``w`` (RGB, starting at 1) of t
   directional albedo, Fms = Fss E_avg / (1 - Fss (1 - E_avg)), Fss from the Kulla-Conty fit.
   Layer albedo ``(E + Fms (1 - E)) * mix(F0, 1, s(rough, mu_v, ior))`` with s the VNDF average of
   the Fresnel's interpolation factor (Cycles' ``ggx_gen_schlick_ior_s`` table).
-* diffuse: Lambert ``base_color * w / pi`` (Diffuse Roughness 0, Subsurface 0).
+* diffuse (Subsurface 0): Lambert ``base_color * w / pi`` at Diffuse Roughness 0 (Cycles takes
+  the Lambert closure below 1e-5); otherwise Cycles' Oren-Nayar closure (closure/bsdf_oren_nayar.h:
+  Fujii's "improved" Oren-Nayar plus the OpenPBR energy-compensating multiple-scattering term),
+  with sigma = diffuse_roughness in [0, 1] and rho = clamp(base_color, 0, 1)::
+
+      f_d = w * base_color * (A + B t + M(rho) (1 - E(mu_l)) (1 - E(mu_v)))
+      A = 1 / (pi + sigma (pi/2 - 2/3)),   B = sigma A
+      t = s / max(mu_l, mu_v) if s > 0 else s,   s = l.v - mu_l mu_v
+      E(mu) = pi A + B G(theta),  G = sin(theta) (theta - 2/3 - sin(theta) cos(theta))
+                                      + 2/3 tan(theta) (1 - sin(theta)^3)
+      E_avg = pi A + B (2 pi - 5.6) / 3
+      M(rho) = rho^2 E_avg / (pi (1 - E_avg) (1 - rho (1 - E_avg)))
+
+  E is the single-scattering lobe's exact directional albedo, E_avg a fit of its cosine-weighted
+  mean; the multiple-scattering term returns the missing 1 - E (for white, up to E_avg's fit).
+  Like Cycles, the closure weight is base_color and M carries rho^2 again (rho^3 in all, where
+  the OpenPBR text has rho^2; principled_check's coloured sets confirm it: rho^3 at Cycles' noise,
+  rho^2 3-4% off). The term is reciprocal in (l, v). It is isotropic: the back-scatter of
+  grooves in every direction (Oren-Nayar's V-cavities), not of one family of parallel grooves.
 
 Approximations (all small next to the fit's own error; measured against Cycles renders in
 ``benchmarks/principled_check.py``):
@@ -41,7 +59,7 @@ Approximations (all small next to the fit's own error; measured against Cycles r
   grid in (sqrt(cos theta_v), roughness), fitted to Cycles' 32 x 32 table for roughness >= 0.05
   (RMS error of a, b, albedo: about 0.013, 0.003, 0.0014). Not exact at sheen_roughness < 0.1.
 * transmission's reflection lobe has no energy compensation; coat, subsurface, emission, thin
-  film, specular tint and diffuse roughness are not modelled (left at their defaults).
+  film and specular tint are not modelled (left at their defaults).
 
 The tangent: anisotropy needs a tangent; the model takes the tile's +x axis as the tangent that
 ``anisotropic_rotation`` rotates (counter-clockwise about +z, 1 = 360 degrees), i.e. in Blender the
@@ -56,7 +74,7 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["PrincipledFit", "PrincipledParams", "fit_principled", "principled_brdf", "weighted_rmse"]
+__all__ = ["PrincipledFit", "PrincipledParams", "fit_principled", "oren_nayar_brdf", "principled_brdf", "weighted_rmse"]
 
 # Least-squares linear-spline fit (knots: rows sqrt(cos theta_v) = i/10, columns sheen
 # roughness = j/10) to Cycles' sheen LTC table (a, b, albedo); see the module doc.
@@ -116,6 +134,7 @@ class PrincipledParams:
     sheen_roughness: float = 0.5
     sheen_tint: np.ndarray = field(default_factory=lambda: np.ones(3))
     transmission_weight: float = 0.0
+    diffuse_roughness: float = 0.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -264,6 +283,42 @@ def _ggx_single(ax, ay, rot, l, v, h, eta=None, f0_metal=None):
     return D * G / (4.0 * lz * vz)
 
 
+# Below this Diffuse Roughness Cycles uses its Lambert closure (svm/closure.h, CLOSURE_WEIGHT_CUTOFF).
+DIFFUSE_ROUGHNESS_CUTOFF = 1e-5
+
+
+def _oren_nayar_g(mu):
+    """G(theta) of the Oren-Nayar directional albedo E = pi A + B G, for cos theta = mu in [0, 1]."""
+    mu = np.clip(np.asarray(mu, np.float64), 0.0, 1.0)
+    safe = np.maximum(mu, 1e-6)
+    sin = np.sqrt(np.maximum(1.0 - safe * safe, 0.0))
+    theta = np.arccos(safe)
+    g = sin * (theta - 2.0 / 3.0 - sin * safe) + (2.0 / 3.0) * (sin / safe) * (1.0 - sin ** 3)
+    # at grazing angles tan(theta) is ill-conditioned: the first-order expansion about mu = 0
+    return np.where(mu < 1e-6, (math.pi / 2 - 2.0 / 3.0) - mu, g)
+
+
+def oren_nayar_brdf(light, view, base_color, sigma: float) -> np.ndarray:
+    """Cycles' Oren-Nayar diffuse closure of colour ``base_color`` (K, 3), 1/sr, no layering
+    weight (see the module doc); Lambert base_color / pi below the cutoff."""
+    l = np.asarray(light, np.float64).reshape(-1, 3)
+    v = np.asarray(view, np.float64).reshape(-1, 3)
+    base = np.clip(np.asarray(base_color, np.float64), 0.0, None).reshape(-1, 3)
+    sigma = min(max(float(sigma), 0.0), 1.0)
+    if sigma < DIFFUSE_ROUGHNESS_CUTOFF:
+        return np.broadcast_to(base / math.pi, (len(l), 3)).copy()
+    mu_l, mu_v = np.maximum(l[:, 2], 0.0), np.maximum(v[:, 2], 0.0)
+    a = 1.0 / (math.pi + sigma * (math.pi / 2 - 2.0 / 3.0))
+    b = sigma * a
+    s = (l * v).sum(1) - mu_l * mu_v
+    t = np.where(s > 0.0, s / np.maximum(np.maximum(mu_l, mu_v), 1e-300), s)
+    e_avg = math.pi * a + b * (2.0 * math.pi - 5.6) / 3.0
+    rho = np.minimum(base, 1.0)
+    m = rho * rho * e_avg / (math.pi * (1.0 - e_avg) * (1.0 - rho * (1.0 - e_avg)))
+    missing = (1.0 - (math.pi * a + b * _oren_nayar_g(mu_l))) * (1.0 - (math.pi * a + b * _oren_nayar_g(mu_v)))
+    return base * ((a + b * t)[:, None] + m * missing[:, None])
+
+
 def principled_brdf(light, view, params: PrincipledParams) -> np.ndarray:
     """The Principled BSDF's reflection (1/sr), (K, 3), for unit light/view directions (K, 3)."""
     p = params
@@ -351,8 +406,11 @@ def principled_brdf(light, view, params: PrincipledParams) -> np.ndarray:
         layer_albedo = E * boost * (f0 + (1.0 - f0) * s)
         w = w * np.clip(1.0 - layer_albedo, 0.0, 1.0)[:, None]
 
-    # diffuse (Lambert)
-    out += w * base[None, :] / math.pi
+    # diffuse: Lambert, or Oren-Nayar with Diffuse Roughness
+    if p.diffuse_roughness >= DIFFUSE_ROUGHNESS_CUTOFF:
+        out += w * oren_nayar_brdf(l, v, base[None, :], p.diffuse_roughness)
+    else:
+        out += w * base[None, :] / math.pi
     return out
 
 
@@ -396,6 +454,7 @@ class PrincipledFit:
     sheen_tint: np.ndarray = field(default_factory=lambda: np.ones(3))
     transmission_weight: float = 0.0
     metallic: float = 0.0
+    diffuse_roughness: float = 0.0
     rmse: float = float("nan")
     per_channel_rmse: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     model: str = ""
@@ -407,7 +466,8 @@ class PrincipledFit:
                                 anisotropic=self.anisotropic, anisotropic_rotation=self.anisotropic_rotation,
                                 sheen_weight=self.sheen_weight, sheen_roughness=self.sheen_roughness,
                                 sheen_tint=np.asarray(self.sheen_tint, np.float64),
-                                transmission_weight=self.transmission_weight)
+                                transmission_weight=self.transmission_weight,
+                                diffuse_roughness=self.diffuse_roughness)
 
     def evaluate(self, light, view) -> np.ndarray:
         return principled_brdf(light, view, self.params())
@@ -420,6 +480,7 @@ class PrincipledFit:
                  f"  Base Color            {rgb(self.base_color)}",
                  f"  Metallic              {self.metallic:.3f}",
                  f"  Roughness             {self.roughness:.3f}",
+                 f"  Diffuse Roughness     {self.diffuse_roughness:.3f}",
                  f"  IOR                   {self.ior:.3f}",
                  f"  Specular IOR Level    {self.specular_ior_level:.3f}",
                  f"  Anisotropic           {self.anisotropic:.3f}",
@@ -482,7 +543,7 @@ def _logit(p):
 
 
 _BOUNDS = {"roughness": (0.03, 1.0), "specular_ior_level": (0.0, 1.0), "sheen_roughness": (0.05, 1.0),
-           "anisotropic": (0.0, 1.0)}
+           "anisotropic": (0.0, 1.0), "diffuse_roughness": (0.0, 1.0)}
 
 
 class _Problem:
@@ -498,6 +559,8 @@ class _Problem:
         self.names = ["b0", "b1", "b2", "roughness"]
         if "specular_ior_level" not in fixed:
             self.names.append("specular_ior_level")
+        if "rough_diffuse" in variant:
+            self.names.append("diffuse_roughness")
         if "sheen" in variant:
             self.names += ["s0", "s1", "s2", "sheen_roughness"]
         if "aniso" in variant:
@@ -516,6 +579,8 @@ class _Problem:
         p.ior = float(self.fixed.get("ior", 1.5))
         if "specular_ior_level" in d:
             p.specular_ior_level = float(self._bounded("specular_ior_level", d["specular_ior_level"]))
+        if "diffuse_roughness" in d:
+            p.diffuse_roughness = float(self._bounded("diffuse_roughness", d["diffuse_roughness"]))
         if "s0" in d:
             amount = _sig(np.array([d["s0"], d["s1"], d["s2"]]))
             p.sheen_weight = float(amount.max())
@@ -591,7 +656,8 @@ def _initial_base(l, v, f):
 
 def fit_principled(light, view, values, weights=None, transparency: float | None = None,
                    fit_specular: bool = True, ior: float = 1.5, try_sheen: bool = True,
-                   try_anisotropy: bool = True, improvement: float = 0.10) -> PrincipledFit:
+                   try_anisotropy: bool = True, improvement: float = 0.10,
+                   try_diffuse_roughness: bool = True) -> PrincipledFit:
     """Fit the Principled BSDF to a sampled BRDF.
 
     light, view : (K, 3) unit directions (tile frame, z up, above the horizon)
@@ -600,8 +666,10 @@ def fit_principled(light, view, values, weights=None, transparency: float | None
     transparency : the caller's transmitted fraction; passed through as Transmission Weight
         (its reflection lobe is modelled, its transmission is not in a BRDF table)
     fit_specular : fit Specular IOR Level (else 0.5); ior : the IOR (not fitted)
-    try_sheen, try_anisotropy : also fit those variants; a richer variant replaces the simpler
-        one only if it lowers the relative RMSE by more than ``improvement`` (10%)
+    try_diffuse_roughness, try_sheen, try_anisotropy : also fit those variants, in that order,
+        each on top of the variant chosen so far; a richer variant replaces the simpler one only
+        if it lowers the relative RMSE by more than ``improvement`` (10%). Diffuse Roughness
+        (Oren-Nayar, in [0, 1]) is the back-scatter of rough or grooved diffuse surfaces.
 
     Minimises the cos theta_l cos theta_v weighted squared difference of log(f + eps),
     eps = 2% of the weighted mean BRDF per channel (relative errors; the specular peak does not
@@ -625,21 +693,40 @@ def fit_principled(light, view, values, weights=None, transparency: float | None
         rmse, per = weighted_rmse(principled_brdf(l, v, p), f, l, v, w)
         return p, rmse, per
 
+    def variant_of(p: PrincipledParams) -> str:
+        return " ".join(name for name, on in (("rough_diffuse", p.diffuse_roughness > 0.0),
+                                              ("sheen", p.sheen_weight > 0.0)) if on)
+
     iso_starts = [PrincipledParams(base_color=base0.copy(), roughness=r, ior=ior) for r in (0.15, 0.4, 0.8)]
     chosen = ("isotropic", *run("iso", iso_starts))
     candidates = {"isotropic": chosen[2]}
+    if try_diffuse_roughness:
+        p0 = chosen[1]
+        starts = []
+        for sigma in (0.5, 1.0):
+            q = PrincipledParams(**{**p0.__dict__})
+            q.diffuse_roughness = sigma
+            # Oren-Nayar darkens the diffuse level at normal incidence: start the colour higher
+            q.base_color = np.clip(p0.base_color / (1.0 - 0.2 * sigma), 0.01, 0.99)
+            starts.append(q)
+        cand = (chosen[0] + " + diffuse roughness", *run("rough_diffuse", starts))
+        candidates[cand[0]] = cand[2]
+        if cand[2] < (1.0 - improvement) * chosen[2]:
+            chosen = cand
     if try_sheen:
-        p_iso = chosen[1]
-        starts = [PrincipledParams(base_color=np.clip(p_iso.base_color * 0.8, 0.01, 0.99), roughness=p_iso.roughness,
-                                   specular_ior_level=p_iso.specular_ior_level, ior=ior, sheen_weight=0.5,
-                                   sheen_roughness=sr) for sr in (0.3, 0.7)]
-        cand = ("isotropic + sheen", *run("sheen", starts))
+        p0 = chosen[1]
+        starts = []
+        for sr in (0.3, 0.7):
+            q = PrincipledParams(**{**p0.__dict__})
+            q.base_color = np.clip(p0.base_color * 0.8, 0.01, 0.99)
+            q.sheen_weight, q.sheen_roughness, q.sheen_tint = 0.5, sr, np.ones(3)
+            starts.append(q)
+        cand = (chosen[0] + " + sheen", *run(variant_of(p0) + " sheen", starts))
         candidates[cand[0]] = cand[2]
         if cand[2] < (1.0 - improvement) * chosen[2]:
             chosen = cand
     if try_anisotropy:
         p0 = chosen[1]
-        variant = "aniso+sheen" if p0.sheen_weight > 0 else "aniso"
         starts = []
         for rot in (0.0, 0.125, 0.25, 0.375):
             q = PrincipledParams(**{**p0.__dict__})
@@ -647,7 +734,7 @@ def fit_principled(light, view, values, weights=None, transparency: float | None
             if q.sheen_weight > 0:
                 q.sheen_tint = np.maximum(q.sheen_tint, 1e-3)
             starts.append(q)
-        cand = (chosen[0] + " + anisotropic", *run(variant, starts))
+        cand = (chosen[0] + " + anisotropic", *run(variant_of(p0) + " aniso", starts))
         candidates[cand[0]] = cand[2]
         if cand[2] < (1.0 - improvement) * chosen[2]:
             chosen = cand
@@ -656,4 +743,5 @@ def fit_principled(light, view, values, weights=None, transparency: float | None
                          anisotropic_rotation=p.anisotropic_rotation, specular_ior_level=p.specular_ior_level,
                          ior=p.ior, sheen_weight=p.sheen_weight, sheen_roughness=p.sheen_roughness,
                          sheen_tint=np.asarray(p.sheen_tint, np.float64), transmission_weight=p.transmission_weight,
-                         metallic=p.metallic, rmse=rmse, per_channel_rmse=per, model=name, candidates=candidates)
+                         metallic=p.metallic, diffuse_roughness=p.diffuse_roughness, rmse=rmse,
+                         per_channel_rmse=per, model=name, candidates=candidates)

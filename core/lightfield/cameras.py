@@ -36,7 +36,8 @@ import numpy as np
 _ROTATION_TOLERANCE = 1e-6
 
 
-def _positive(name: str, value) -> float:
+def positive_number(name: str, value) -> float:
+    """``value`` as a float; ValueError naming ``name`` unless it is a finite number > 0."""
     try:
         number = float(value)
     except (TypeError, ValueError):
@@ -46,7 +47,7 @@ def _positive(name: str, value) -> float:
     return number
 
 
-def _count(name: str, value) -> int:
+def whole_count(name: str, value) -> int:
     try:
         whole = int(value)
         valid = not isinstance(value, (bool, str)) and whole == value and whole >= 1
@@ -119,11 +120,11 @@ class CentreCamera:
             raise ValueError("rotation must be a proper rotation matrix (orthonormal, determinant +1); "
                              "remove the camera object's scale first")
         set_("rotation", rotation)
-        set_("focal_length_mm", _positive("focal_length_mm", self.focal_length_mm))
-        set_("sensor_size_mm", _positive("sensor_size_mm", self.sensor_size_mm))
-        set_("resolution_x_px", _count("resolution_x_px", self.resolution_x_px))
-        set_("resolution_y_px", _count("resolution_y_px", self.resolution_y_px))
-        set_("fstop", _positive("fstop", self.fstop))
+        set_("focal_length_mm", positive_number("focal_length_mm", self.focal_length_mm))
+        set_("sensor_size_mm", positive_number("sensor_size_mm", self.sensor_size_mm))
+        set_("resolution_x_px", whole_count("resolution_x_px", self.resolution_x_px))
+        set_("resolution_y_px", whole_count("resolution_y_px", self.resolution_y_px))
+        set_("fstop", positive_number("fstop", self.fstop))
 
     @property
     def pixel_size_at_unit_distance(self) -> float:
@@ -142,11 +143,11 @@ class LightFieldGrid:
 
     def __post_init__(self):
         set_ = functools.partial(object.__setattr__, self)
-        set_("num_cams_x", _count("num_cams_x", self.num_cams_x))
-        set_("num_cams_y", _count("num_cams_y", self.num_cams_y))
-        set_("baseline_mm", _positive("baseline_mm", self.baseline_mm))
+        set_("num_cams_x", whole_count("num_cams_x", self.num_cams_x))
+        set_("num_cams_y", whole_count("num_cams_y", self.num_cams_y))
+        set_("baseline_mm", positive_number("baseline_mm", self.baseline_mm))
         # HCI's add-on takes 0 as "focused at infinity", but its disparity formula divides by it.
-        set_("focus_distance_m", _positive("focus_distance_m", self.focus_distance_m))
+        set_("focus_distance_m", positive_number("focus_distance_m", self.focus_distance_m))
 
     @property
     def view_count(self) -> int:
@@ -197,8 +198,8 @@ class GridView:
 
 
 def _check_clip(clip_start_m: float, clip_end_m: float) -> tuple[float, float]:
-    near = _positive("clip_start_m", clip_start_m)
-    far = _positive("clip_end_m", clip_end_m)
+    near = positive_number("clip_start_m", clip_start_m)
+    far = positive_number("clip_end_m", clip_end_m)
     if far <= near:
         raise ValueError(f"clip_end_m ({far}) must be greater than clip_start_m ({near})")
     return near, far

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..lights.environment import direction_to_equirectangular
 from ..outputs.images import bilinear_wrap
+from .cameras import positive_number, whole_count
 
 # The Blackman-Harris coefficients of Cycles' filter_func_blackman_harris.
 _BH = (0.35875, -0.48829, 0.14128, -0.01168)
@@ -186,20 +187,7 @@ def blackman_harris(offset_px, filter_width: float) -> np.ndarray:
 
 
 def _check_filter(supersampling, filter_width) -> tuple[int, float]:
-    try:
-        s = int(supersampling)
-        valid = not isinstance(supersampling, (bool, str)) and s == supersampling and s >= 1
-    except (TypeError, ValueError, OverflowError):
-        valid = False
-    if not valid:
-        raise ValueError(f"supersampling must be a whole number >= 1, got {supersampling!r}")
-    try:
-        width = float(filter_width)
-    except (TypeError, ValueError):
-        width = math.nan
-    if isinstance(filter_width, (bool, str)) or not (math.isfinite(width) and width > 0.0):
-        raise ValueError(f"filter_width must be a positive finite number of pixels, got {filter_width!r}")
-    return s, width
+    return whole_count("supersampling", supersampling), positive_number("filter_width", filter_width)
 
 
 def filter_margin(supersampling: int, filter_width: float) -> int:

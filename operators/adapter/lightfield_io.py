@@ -31,6 +31,7 @@ from ...core.lightfield.scene import DrawMesh, DrawScene
 from ...core.outputs.atomic import atomic_file, remove_written
 from ...core.outputs.images import write_exr
 from . import extract, layout, writeback
+from .modal import SteppedJob
 
 MANIFEST = "lightfield.json"
 FORMAT_NAME = "visibake-lightfield"
@@ -268,7 +269,7 @@ def view_stem(view, output_format: str) -> str:
     return os.path.splitext(hci.view_file_name(view.index))[0]
 
 
-class LightFieldJob:
+class LightFieldJob(SteppedJob):
     """Render and write a light field of ``scene`` (see the module's docstring).
 
     grid : (columns, rows); image_size : (width, height); output_format : 'hci' or 'stanford';
@@ -304,18 +305,6 @@ class LightFieldJob:
         return ([("read", self.read, False)]
                 + [(f"views, row {row + 1}", lambda row=row: self.render_row(row), False) for row in range(self.rows)]
                 + [("finish", self.finish, False)])
-
-    def expected_work(self) -> dict:
-        return {}
-
-    def run(self):
-        try:
-            for _, step, _ in self.modal_steps()[:-1]:
-                step()
-            return self.finish()
-        except BaseException:
-            self.abort()
-            raise
 
     def abort(self) -> None:
         self._close()

@@ -87,3 +87,23 @@ class ModalBake:
         self.error, self.done = error, True
         self.job.abort()
         return True
+
+
+class SteppedJob:
+    """A job that names its own steps (``modal_steps()``: (name, step, on a worker thread)
+    triples, the last one returning the outcome) and can take back what it did (``abort()``):
+    ModalBake advances it a tick at a time; :meth:`run` does it all at once."""
+
+    def expected_work(self) -> dict:
+        return {}
+
+    def run(self):
+        """Every step in turn (the command line, scripts); an error or a cancel aborts first."""
+        try:
+            *steps, (_, finish, _) = self.modal_steps()
+            for _, step, _ in steps:
+                step()
+            return finish()
+        except BaseException:
+            self.abort()
+            raise

@@ -17,6 +17,7 @@ from ...core.errors import AppearanceRefused, OutputRefused
 from ...core.outputs.atomic import atomic_file, remove_written
 from . import compat
 from .extract import _linked_texture, _surface_node, world_matrix
+from .modal import SteppedJob
 
 # Fresnel reflectance of Blender's default dielectric (IOR 1.5) at normal incidence.
 DEFAULT_F0 = 0.04
@@ -221,7 +222,18 @@ class BRDFOutcome:
         self.folders.clear()
 
 
-class BRDFJob:
+class _TileJob(SteppedJob):
+    """A tile's simulation as ModalBake's steps: ``read`` (main thread: the scene), ``compute``
+    (a worker thread), ``finish`` (main thread: files); ``abort`` takes back what was written."""
+
+    needs_main_thread = False
+
+    def modal_steps(self) -> list:
+        """(name, step, on a worker thread) for ModalBake."""
+        return [("read", self.read, False), ("compute", self.compute, True), ("finish", self.finish, False)]
+
+
+class BRDFJob(_TileJob):
     """Simulate a tile's BSDF on ``lights`` x ``views`` directions and write it as a MERL
     ``.binary`` (isotropic, filled by core.appearance.merl.fill_from_samples), or a tabulated
     ``.npz`` (core.appearance.tabulated) over the hemisphere ("table") or the whole sphere
@@ -231,8 +243,6 @@ class BRDFJob:
     ``tile`` is a core Tile, or a callable reading it on the main thread (the panel reads the
     scene there). ``progress(stage, fraction)`` may raise core.errors.Cancelled.
     """
-
-    needs_main_thread = False
 
     def __init__(self, tile, out_path: str, output_format: str, lights: int, views: int,
                  settings: gonio.GonioSettings, overwrite: bool = False, progress=None, make_folder: bool = False,
@@ -251,22 +261,6 @@ class BRDFJob:
         self.progress = progress
         self.started = time.perf_counter()
         self.outcome = BRDFOutcome({"command": "brdf", "files": [], "warnings": []})
-
-    def modal_steps(self) -> list:
-        """(name, step, on a worker thread) for ModalBake."""
-        return [("read", self.read, False), ("compute", self.compute, True), ("finish", self.finish, False)]
-
-    def expected_work(self) -> dict:
-        return {}
-
-    def run(self) -> BRDFOutcome:
-        try:
-            self.read()
-            self.compute()
-            return self.finish()
-        except BaseException:
-            self.abort()
-            raise
 
     def abort(self) -> None:
         self.outcome.rollback()
@@ -370,8 +364,12 @@ class BRDFJob:
                 "sheen_weight": float(fitted.sheen_weight), "sheen_roughness": float(fitted.sheen_roughness),
                 "sheen_tint": [float(x) for x in fitted.sheen_tint],
                 "transmission_weight": float(fitted.transmission_weight), "metallic": float(fitted.metallic),
-                "diffuse_roughness": float(getattr(fitted, "diffuse_roughness", 0.0)),
+                "diffuse_roughness": float(fitted.diffuse_roughness),
                 "transparency": self.gaps}
+            if fitted.diffuse_roughness > 0 and bpy.app.version < (4, 3, 0):
+                report["warnings"].append(
+                    f"the fit uses Diffuse Roughness {fitted.diffuse_roughness:.2f}, which this Blender's Principled "
+                    "BSDF does not have (4.3 and later do): a material made here has plain Lambert diffuse")
             if self.output_format == "bsdf" and np.any(result.light[:, 2] > 0):
                 # What passes diffusely, as a Translucent BSDF's colour: the transmittance of
                 # the lights from above (a Lambert sheet's f_t = colour / pi sends colour).
@@ -390,15 +388,13 @@ def run_brdf(tile: Tile, out_path: str, output_format: str, lights: int, views: 
     return BRDFJob(tile, out_path, output_format, lights, views, settings, overwrite, progress).run().report
 
 
-class BTFJob:
+class BTFJob(_TileJob):
     """Simulate the tile's BTF on the 81 x 81 directions of Bonn's UBO2003 and write it in the
     UTIA folder layout (core.appearance.btf), as ModalBake's steps or at once (:meth:`run`).
 
     ``tile`` is a core Tile, or a callable reading it on the main thread. An error or a cancel
     leaves no half BTF behind (core.appearance.btf.BTFWriter.abort).
     """
-
-    needs_main_thread = False
 
     def __init__(self, tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,
                  per_pixel: int = 4, overwrite: bool = False, progress=None):
@@ -410,22 +406,6 @@ class BTFJob:
         self.progress = progress
         self.writer = None
         self.started = time.perf_counter()
-
-    def modal_steps(self) -> list:
-        """(name, step, on a worker thread) for ModalBake."""
-        return [("read", self.read, False), ("compute", self.compute, True), ("finish", self.finish, False)]
-
-    def expected_work(self) -> dict:
-        return {}
-
-    def run(self) -> BRDFOutcome:
-        try:
-            self.read()
-            self.compute()
-            return self.finish()
-        except BaseException:
-            self.abort()
-            raise
 
     def abort(self) -> None:
         if self.writer is not None:

@@ -28,6 +28,7 @@ from ...core.volume import transport
 from ...core.volume.occluders import Occluders, SurfaceMesh
 from . import compat, device, extract, volume_io
 from .job import visibility_cache
+from .modal import SteppedJob
 
 COMBINED_FILE = "volume.vdb"
 
@@ -108,7 +109,7 @@ class _Volume:
     light: object = None
 
 
-class VolumeJob:
+class VolumeJob(SteppedJob):
     """Bake every Volume object of ``objects`` into ``out_dir``/<object>/ and add its baked object.
 
     ``progress(stage, fraction)`` may raise core.errors.Cancelled; it is called between passes.
@@ -137,16 +138,6 @@ class VolumeJob:
         self.cache = None
         self.started = time.perf_counter()
 
-    def run(self) -> VolumeOutcome:
-        """All steps in turn (the command line, scripts)."""
-        try:
-            self.read()
-            self.compute()
-            return self.finish()
-        except BaseException:
-            self.abort()
-            raise
-
     @property
     def needs_main_thread(self) -> bool:
         """The GPU sweep needs Blender's GPU context, which only the main thread holds."""
@@ -155,9 +146,6 @@ class VolumeJob:
     def modal_steps(self) -> list:
         """(name, step, on a worker thread; None: unless :attr:`needs_main_thread`) for ModalBake."""
         return [("read", self.read, False), ("compute", self.compute, None), ("finish", self.finish, False)]
-
-    def expected_work(self) -> dict:
-        return {}
 
     def read(self) -> None:
         """Main thread: the lamps, the world and each volume's medium."""
