@@ -173,6 +173,8 @@ demo: venv build
 # BENCH_PROFILE=seams: seam stitching judged on renders of the baked lighting (benchmarks/seams.py).
 # BENCH_PROFILE=volume: volume lighting against Monte Carlo and Cycles (benchmarks/volume_accuracy.py, volume_vs_cycles.py).
 # BENCH_PROFILE=appearance: tile BRDFs against Cycles, and their speed (benchmarks/brdf_vs_cycles.py -> docs/appearance/).
+# BENCH_PROFILE=lightfield: light fields of the baked demo, their speed and views against Cycles
+#   (benchmarks/lightfield_vs_cycles.py -> docs/lightfield/).
 BENCH_PROFILE ?= quick
 bench: venv
 ifeq ($(BENCH_PROFILE),accuracy)
@@ -184,6 +186,8 @@ else ifeq ($(BENCH_PROFILE),volume)
 	$(PY) benchmarks/volume_vs_cycles.py
 else ifeq ($(BENCH_PROFILE),appearance)
 	$(PY) benchmarks/brdf_vs_cycles.py
+else ifeq ($(BENCH_PROFILE),lightfield)
+	$(PY) benchmarks/lightfield_vs_cycles.py
 else
 	$(PY) benchmarks/run.py --profile $(BENCH_PROFILE)
 endif

@@ -61,7 +61,7 @@ SCENE_SETTING_OPTIONS = {
     "lightfield_columns": "lightfield --views", "lightfield_rows": "lightfield --views",
     "lightfield_baseline_mm": "lightfield --baseline-mm", "lightfield_focus_m": "lightfield --focus-distance-m",
     "lightfield_width": "lightfield --image-size", "lightfield_height": "lightfield --image-size",
-    "lightfield_format": "lightfield --format",
+    "lightfield_format": "lightfield --format", "lightfield_supersampling": "lightfield --supersampling",
 }
 # Every operator of the panel, and the command that does the same.
 OPERATOR_COMMANDS = {
@@ -255,11 +255,16 @@ def build_parser() -> argparse.ArgumentParser:
     _setting_option(lightfield, "--focus-distance-m", LIGHTFIELD_SETTINGS["lightfield_focus_m"], "M", default=True)
     lightfield.add_argument("--image-size", metavar="WxH", help="pixels of each view, e.g. 512x512 (default 512x512)")
     _setting_option(lightfield, "--format", LIGHTFIELD_SETTINGS["lightfield_format"], default=True)
+    _setting_option(lightfield, "--supersampling", LIGHTFIELD_SETTINGS["lightfield_supersampling"], "S", default=True)
     lightfield.add_argument("--bake-first", action="store_true",
                             help="bake the objects the views see first (the bake's options below apply); objects "
                                  "no view sees still cast shadows but are not baked")
     lightfield.add_argument("--objects", metavar="A,B",
                             help="with --bake-first: the objects to bake (default: every visible mesh a view sees)")
+    lightfield.add_argument("--resolution-from-views", action="store_true",
+                            help="with --bake-first: size each object's atlas to a texel per pixel where the views "
+                                 "see it nearest, never above --resolution (or the texel density); objects with a "
+                                 "resolution of their own keep it")
     lightfield.add_argument("--overwrite", action="store_true",
                             help="write into DIR even if it holds files VisiBake did not write (they are kept)")
     lightfield.add_argument("--save", metavar="OUT.blend", help="save the scene (with what --bake-first baked)")
@@ -638,32 +643,42 @@ def run_lightfield(args) -> int:
               "lightfield_baseline_mm": (props.lightfield_baseline_mm if args.baseline_mm is None else args.baseline_mm,
                                          "--baseline-mm"),
               "lightfield_focus_m": (props.lightfield_focus_m if args.focus_distance_m is None
-                                     else args.focus_distance_m, "--focus-distance-m")}
+                                     else args.focus_distance_m, "--focus-distance-m"),
+              "lightfield_supersampling": (props.lightfield_supersampling if args.supersampling is None
+                                           else args.supersampling, "--supersampling")}
     for name, (value, option) in values.items():
         reason = LIGHTFIELD_SETTINGS[name].check(value, option)
         if reason is not None:
             raise BakeRefused(reason)
     output_format = args.format or props.lightfield_format
+    if args.resolution_from_views and not args.bake_first:
+        raise BakeRefused("--resolution-from-views sizes the bake: it needs --bake-first")
     progress = _Progress(not args.no_progress)
     extra: dict = {}
     try:
         if args.bake_first:
             _apply_settings(args, props)
-            _, _, views, clip = lightfield_io.plan_views(scene, args.camera, (columns, rows),
-                                                         values["lightfield_baseline_mm"][0],
-                                                         values["lightfield_focus_m"][0], (width, height), [])
+            camera, _, views, clip = lightfield_io.plan_views(scene, args.camera, (columns, rows),
+                                                              values["lightfield_baseline_mm"][0],
+                                                              values["lightfield_focus_m"][0], (width, height), [])
             seen, unseen = lightfield_io.objects_in_views(_select_objects(args, scene), views, *clip)
             if not seen:
                 raise BakeRefused("--bake-first: no object to bake is in any view (check --camera and --objects)")
+            sizing: list[str] = []
+            densities = (lightfield_io.view_densities(seen, camera, views, (columns, rows), clip, sizing)
+                         if args.resolution_from_views else None)
             baked = job.run_bake(bpy.context, seen, None, False, progress, device_name=args.device,
-                                 threads=args.threads)
+                                 threads=args.threads, view_densities=densities)
             extra["bake"] = {"objects": [o.name for o in seen], "skipped_unseen": [o.name for o in unseen],
                              "seconds": baked.report.get("total_seconds"),
-                             "warnings": baked.report.get("warnings", [])}
+                             "warnings": sizing + baked.report.get("warnings", []),
+                             "resolution_from_views": bool(args.resolution_from_views),
+                             "resolutions": {entry["name"]: entry["resolution"] for entry in baked.report["objects"]
+                                             if entry["output"] and entry.get("mode", "atlas") == "atlas"}}
         outcome = lightfield_io.LightFieldJob(
             scene, args.camera, args.out, (columns, rows), values["lightfield_baseline_mm"][0],
             values["lightfield_focus_m"][0], (width, height), output_format, args.device or "auto", args.overwrite,
-            progress, extra).run()
+            progress, extra, values["lightfield_supersampling"][0]).run()
     finally:
         progress.close()
     report = outcome.report
@@ -674,6 +689,11 @@ def run_lightfield(args) -> int:
         job.write_report(args.report, report)
     for warning in report["warnings"]:
         print(f"visibake: warning: {warning}", file=sys.stderr, flush=True)
+    if extra.get("bake", {}).get("resolution_from_views"):
+        sizes = ", ".join(f"{name} {size[0]}" for name, size in extra["bake"]["resolutions"].items())
+        print(f"visibake: --resolution-from-views: atlases of {sizes}", flush=True)
+    for warning in extra.get("bake", {}).get("warnings", []):
+        print(f"visibake: warning (bake): {warning}", file=sys.stderr, flush=True)
     if extra.get("bake", {}).get("skipped_unseen"):
         print(f"visibake: --bake-first skipped {len(extra['bake']['skipped_unseen'])} object(s) no view sees: "
               f"{', '.join(extra['bake']['skipped_unseen'][:8])}", flush=True)

@@ -45,7 +45,8 @@ light field benchmark's), with depth and disparity for the centre view, into the
         return lightfield_io.LightFieldJob(
             context.scene, None, folder, (props.lightfield_columns, props.lightfield_rows),
             props.lightfield_baseline_mm, props.lightfield_focus_m, (props.lightfield_width, props.lightfield_height),
-            props.lightfield_format, preferences.device if preferences is not None else "auto", progress=progress)
+            props.lightfield_format, preferences.device if preferences is not None else "auto", progress=progress,
+            supersampling=props.lightfield_supersampling)
 
     def _finished(self, context, outcome) -> set:
         context.scene["visibake_lightfield_report"] = json.dumps(outcome.report, default=float)

@@ -275,7 +275,7 @@ class VIEW3D_PT_visibake_lightfield(_Section, bpy.types.Panel):
                      else "Set the scene's camera: the grid is centred on it", icon="CAMERA_DATA")
         column = layout.column()
         for name in ("lightfield_columns", "lightfield_rows", "lightfield_baseline_mm", "lightfield_focus_m",
-                     "lightfield_width", "lightfield_height", "lightfield_format"):
+                     "lightfield_width", "lightfield_height", "lightfield_supersampling", "lightfield_format"):
             column.prop(props, name)
         folder = lightfield.output_folder(context)
         layout.label(text=f"Into {folder}" if folder else "Set an Output Folder (or save the file)")

@@ -127,6 +127,7 @@ class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     lightfield_focus_m: setting_property(LIGHTFIELD_SETTINGS["lightfield_focus_m"])
     lightfield_width: setting_property(LIGHTFIELD_SETTINGS["lightfield_width"])
     lightfield_height: setting_property(LIGHTFIELD_SETTINGS["lightfield_height"])
+    lightfield_supersampling: setting_property(LIGHTFIELD_SETTINGS["lightfield_supersampling"])
     lightfield_format: setting_property(LIGHTFIELD_SETTINGS["lightfield_format"])
 
 

@@ -37,7 +37,8 @@ class RaycastRenderer:
         self.ndc_x, self.ndc_y = lfscene.supersample_ndc(self.width, self.height, self.supersampling,
                                                          self.filter_width)
         self.scene = scene
-        self._meshes = [mesh for mesh in scene.meshes if len(mesh.positions)]
+        self._scene_index = [number for number, mesh in enumerate(scene.meshes) if len(mesh.positions)]
+        self._meshes = [scene.meshes[number] for number in self._scene_index]
         self._ray_scene = None
         if self._meshes:
             self._ray_scene = RayScene(
@@ -60,32 +61,12 @@ class RaycastRenderer:
         (height * s, width * s) float32 metres along the optical axis, inf where the world is seen,
         or None unless ``want_depth``). See gpu_shaders.lightfield.ViewRenderer.render."""
         view, projection = lfscene.check_view(view_matrix, projection_matrix, clip_start, clip_end)
-        near, far = float(clip_start), float(clip_end)
         directions = self._directions(view, projection)
-        count = len(directions)
-        eye = lfscene.camera_position(view)
-        # Depth along the optical axis is clip w (row 3 of projection @ view), affine in the point.
-        w_row = (projection @ view)[3]
-        rate = directions @ w_row[:3]  # d(depth)/d(distance) along each unit direction
-        forward = rate > 0.0
-        colors = np.empty((count, 3), np.float32)
-        depth = np.full(count, np.inf)
-        hit = np.zeros(count, bool)
-        if self._ray_scene is not None and forward.any():
-            index = np.flatnonzero(forward)
-            start = (near - (eye @ w_row[:3] + w_row[3])) / rate[index]
-            stop = (far - (eye @ w_row[:3] + w_row[3])) / rate[index]
-            # embree's tnear is 0: the rays start on the near plane and end on the far one.
-            origins = eye + directions[index] * start[:, None]
-            geometry, triangle, bary, distance = self._ray_scene.intersect(
-                origins, directions[index].astype(np.float32), (stop - start).astype(np.float32))
-            found = geometry >= 0
-            rays = index[found]
-            hit[rays] = True
-            colors[rays] = self._shade(geometry[found], triangle[found], bary[found])
-            points = origins[found] + directions[rays] * distance[found, None].astype(np.float64)
-            depth[rays] = points @ w_row[:3] + w_row[3]
-        missed = ~hit
+        rays, geometry, triangle, bary, depth = self._first_hits(view, projection, directions, clip_start, clip_end)
+        colors = np.empty((len(directions), 3), np.float32)
+        colors[rays] = self._shade(geometry, triangle, bary)
+        missed = np.ones(len(directions), bool)
+        missed[rays] = False
         if missed.any():
             colors[missed] = lfscene.world_lookup(self.scene.world, directions[missed])
         grid = colors.reshape(self.rows, self.columns, 3)
@@ -93,9 +74,50 @@ class RaycastRenderer:
         depth_image = None
         if want_depth:
             s, r = self.supersampling, self.margin
-            depth_image = depth.reshape(self.rows, self.columns)[r:r + self.height * s,
-                                                                 r:r + self.width * s].astype(np.float32)
+            depth_all = np.full(len(directions), np.inf)
+            depth_all[rays] = depth
+            depth_image = depth_all.reshape(self.rows, self.columns)[r:r + self.height * s,
+                                                                     r:r + self.width * s].astype(np.float32)
         return radiance, depth_image
+
+    def nearest_depths(self, view_matrix: np.ndarray, projection_matrix: np.ndarray, clip_start: float,
+                       clip_end: float) -> np.ndarray:
+        """(number of scene meshes,) float64: per mesh of the scene, the least depth along the
+        optical axis (metres) at which one of this view's rays sees it first; inf where none does
+        (meshes without triangles included)."""
+        view, projection = lfscene.check_view(view_matrix, projection_matrix, clip_start, clip_end)
+        _, geometry, _, _, depth = self._first_hits(view, projection, self._directions(view, projection),
+                                                    clip_start, clip_end)
+        nearest = np.full(len(self._meshes), np.inf)
+        np.minimum.at(nearest, geometry, depth)
+        out = np.full(len(self.scene.meshes), np.inf)
+        out[self._scene_index] = nearest
+        return out
+
+    def _first_hits(self, view: np.ndarray, projection: np.ndarray, directions: np.ndarray, clip_start: float,
+                    clip_end: float):
+        """The rays along (n, 3) ``directions`` that hit a surface between the clip planes:
+        (rays (h,) int64 indices into directions, geometry (h,) int32 into the drawn meshes,
+        triangle (h,) int32, bary (h, 2) float32, depth (h,) float64 metres along the axis)."""
+        near, far = float(clip_start), float(clip_end)
+        eye = lfscene.camera_position(view)
+        # Depth along the optical axis is clip w (row 3 of projection @ view), affine in the point.
+        w_row = (projection @ view)[3]
+        rate = directions @ w_row[:3]  # d(depth)/d(distance) along each unit direction
+        index = np.flatnonzero(rate > 0.0)
+        if self._ray_scene is None or not len(index):
+            return (np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, 2), np.float32),
+                    np.zeros(0))
+        start = (near - (eye @ w_row[:3] + w_row[3])) / rate[index]
+        stop = (far - (eye @ w_row[:3] + w_row[3])) / rate[index]
+        # embree's tnear is 0: the rays start on the near plane and end on the far one.
+        origins = eye + directions[index] * start[:, None]
+        geometry, triangle, bary, distance = self._ray_scene.intersect(
+            origins, directions[index].astype(np.float32), (stop - start).astype(np.float32))
+        found = geometry >= 0
+        rays = index[found]
+        points = origins[found] + directions[rays] * distance[found, None].astype(np.float64)
+        return rays, geometry[found], triangle[found], bary[found], points @ w_row[:3] + w_row[3]
 
     def _directions(self, view: np.ndarray, projection: np.ndarray) -> np.ndarray:
         """(rows * columns, 3) float64 unit directions of the extended grid's rays, row-major,

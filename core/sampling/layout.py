@@ -40,33 +40,48 @@ def surface_area(positions: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.sum(triangle_areas(positions[triangles]))) if len(triangles) else 0.0
 
 
+# The smallest atlas a camera-sized object gets (one no view sees included): small enough to
+# cost nothing, large enough that xatlas's gutters still fit.
+MIN_VIEW_SIZED_RESOLUTION = 16
+
+
+def _density_size(world_area: float, uv_area: float, density: float, smallest: int) -> int:
+    """Texels across an atlas that gives ``density`` texels per unit of surface."""
+    return int(np.clip(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * density), smallest, 8192))
+
+
 def object_resolution(own_resolution: int, own_density: float, settings: LayoutSettings, world_area: float,
-                      uv_area: float) -> tuple[int, int]:
+                      uv_area: float, view_density: float = 0.0) -> tuple[int, int]:
     """Atlas size (width, height): the object's own resolution or texel density, else
     the scene's texel density, else the scene's resolution.
 
     world_area : the object's surface area in world space
     uv_area : the share of the UV square its layout covers
+    view_density : above zero, the texels per unit of surface that the cameras which will
+        see the bake need (core.lightfield.coverage): it lowers the scene's size to that,
+        never raises it, and leaves an object's own size alone
     """
     if own_resolution > 0:
         return own_resolution, own_resolution
     density = own_density if own_density > 0 else settings.texel_density
     if density > 0 and world_area > 0:
-        size = int(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * density))
-        size = int(np.clip(size, 8, 8192))
-        return size, size
-    return settings.resolution, settings.resolution
+        size = _density_size(world_area, uv_area, density, 8)
+    else:
+        size = settings.resolution
+    if view_density > 0 and own_density <= 0 and world_area > 0:
+        size = min(size, _density_size(world_area, uv_area, view_density, MIN_VIEW_SIZED_RESOLUTION))
+    return size, size
 
 
 def planned_resolution(own_resolution: int, own_density: float, settings: LayoutSettings, positions: np.ndarray,
-                       triangles: np.ndarray) -> tuple[int, int]:
+                       triangles: np.ndarray, view_density: float = 0.0) -> tuple[int, int]:
     """The atlas size an object will get, known before its UV map is looked at.
 
     With a texel density the real size depends on how much of the UV square the
     layout fills; the typical packed share stands in for it here.
     """
     return object_resolution(own_resolution, own_density, settings, surface_area(positions, triangles),
-                             TYPICAL_PACKED_UV_AREA)
+                             TYPICAL_PACKED_UV_AREA, view_density)
 
 
 def auto_vertex_reason(positions: np.ndarray, triangles: np.ndarray, own_resolution: int, own_density: float,

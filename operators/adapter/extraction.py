@@ -58,8 +58,12 @@ class Planned:
         return list({id(p.pending): p.pending for p in self.plans.values() if p.pending is not None}.values())
 
 
-def plan_extraction(context, objects, progress=None) -> Planned:
-    """Read every visible mesh (``objects`` get outputs) and choose its layout (main thread)."""
+def plan_extraction(context, objects, progress=None, view_densities: dict | None = None) -> Planned:
+    """Read every visible mesh (``objects`` get outputs) and choose its layout (main thread).
+
+    view_densities : {object name: texels per unit of surface the cameras need}, which lower
+        those objects' atlas sizes (core.sampling.layout.object_resolution); None: none
+    """
     scene = context.scene
     props = scene.visibake
     started = time.perf_counter()
@@ -75,7 +79,8 @@ def plan_extraction(context, objects, progress=None) -> Planned:
             if mesh.output or not extract.makes_instances(obj):
                 warnings.append(f"object {obj.name!r} has no face with a finite, non-zero area and was skipped")
             continue
-        planned.plans[obj.name] = _plan(obj, mesh, layout_settings(props), planned.budget, props.directions)
+        planned.plans[obj.name] = _plan(obj, mesh, layout_settings(props), planned.budget, props.directions,
+                                        (view_densities or {}).get(obj.name, 0.0) if mesh.output else 0.0)
         _share_unwrap(planned, obj)
         planned.objects.append(obj)
         planned.meshes.append(mesh)
@@ -240,7 +245,7 @@ def _complete_plan(obj, mesh, plan, budget: dict, props) -> layout.LayoutPlan:
         return layout.vertex_plan(f"vertex tables: {error}")
 
 
-def _plan(obj, mesh, props, budget: dict, directions: int) -> layout.LayoutPlan:
+def _plan(obj, mesh, props, budget: dict, directions: int, view_density: float = 0.0) -> layout.LayoutPlan:
     """The layout of one object: an atlas (its UV map, or one to unwrap) or vertex tables.
 
     Mode vertex always takes vertex tables; mode auto takes them where the mesh is too
@@ -254,20 +259,21 @@ def _plan(obj, mesh, props, budget: dict, directions: int) -> layout.LayoutPlan:
         return layout.vertex_plan("vertex mode was asked for")
     # Checked before any work at the planned size: validating a UV map rasterises it
     # at the bake resolution.
-    budget[obj.name] = layout.planned_resolution(obj, props, mesh.positions, mesh.triangles)
+    budget[obj.name] = layout.planned_resolution(obj, props, mesh.positions, mesh.triangles, view_density)
     check_budget(list(budget.values()), directions)
     existing = None
     if mode == "auto":
         # A valid UV map of the user's is a request for textures; only a mesh that would
         # have to be unwrapped is considered for vertex tables.
-        existing = layout.existing_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props)
+        existing = layout.existing_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, view_density)
         reason = None if existing is not None else layout.auto_vertex_reason(
             obj, mesh.positions, mesh.triangles, mesh.loop_count, props)
         if reason is not None:
             budget[obj.name] = (3 * len(mesh.triangles), 1)
             check_budget(list(budget.values()), directions)
             return layout.vertex_plan(f"vertex tables: {reason}")
-    plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output)
+    plan = existing or layout.plan_layout(obj, mesh.uv_maps, mesh.positions, mesh.triangles, props, mesh.output,
+                                          view_density)
     budget[obj.name] = plan.resolution
     check_budget(list(budget.values()), directions)
     return plan

@@ -221,7 +221,8 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
 
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
              progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
-             refine: bool | None = None, threads: int | None = None, keep_preparation: bool = False) -> JobResult:
+             refine: bool | None = None, threads: int | None = None, keep_preparation: bool = False,
+             view_densities: dict | None = None) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -242,9 +243,11 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     keep_preparation : keep what this bake prepared in memory (within the preference Resident
         Memory) for the next Relight of this session, and let a Relight reuse the kept one
         (core.pipeline.resident); the panel's buttons do, a command (one bake a process) does not
+    view_densities : {object name: texels per unit of surface} that the cameras which will see
+        the bake need (core.lightfield.coverage): they lower those objects' atlas sizes
     """
     return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
-                   threads, keep_preparation).run()
+                   threads, keep_preparation, view_densities).run()
 
 
 class BakeJob:
@@ -259,11 +262,13 @@ class BakeJob:
     """
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
-                 setups=None, device_name=None, refine=None, threads=None, keep_preparation=False):
+                 setups=None, device_name=None, refine=None, threads=None, keep_preparation=False,
+                 view_densities=None):
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine, self.threads = device_name, refine, threads
         self.keep_preparation = keep_preparation
+        self.view_densities = view_densities
         self.extracted = None
         self.results = None
 
@@ -315,7 +320,7 @@ class BakeJob:
         self.started = time.perf_counter()
         self.shadow_rays_per_sample = sum(shadow_rays_per_sample(extract.read_light(lamp), settings)
                                           for lamp in extract.scene_lights(context.scene))
-        self.planned = plan_extraction(context, objects, self.progress)
+        self.planned = plan_extraction(context, objects, self.progress, self.view_densities)
 
     def unwrap(self, in_child: bool = False) -> None:
         """The unwraps the layouts need (no bpy: any thread). ``in_child``: in child

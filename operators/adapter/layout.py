@@ -117,15 +117,16 @@ def _own_size(obj) -> tuple[int, float]:
     return obj.visibake.resolution, obj.visibake.texel_density
 
 
-def object_resolution(obj, settings, world_area: float, uv_area: float) -> tuple[int, int]:
+def object_resolution(obj, settings, world_area: float, uv_area: float, view_density: float = 0.0) -> tuple[int, int]:
     """Atlas size of ``obj`` (core.sampling.layout.object_resolution)."""
-    return policy.object_resolution(*_own_size(obj), settings, world_area, uv_area)
+    return policy.object_resolution(*_own_size(obj), settings, world_area, uv_area, view_density)
 
 
-def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarray) -> tuple[int, int]:
+def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarray,
+                       view_density: float = 0.0) -> tuple[int, int]:
     """The atlas size ``obj`` will get, known before its UV map is looked at
     (core.sampling.layout.planned_resolution)."""
-    return policy.planned_resolution(*_own_size(obj), settings, positions, triangles)
+    return policy.planned_resolution(*_own_size(obj), settings, positions, triangles, view_density)
 
 
 def _base_triangles(mesh: bpy.types.Mesh):
@@ -157,26 +158,28 @@ def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndar
 
 
 def plan_layout(obj, evaluated_uv: dict[str, np.ndarray], evaluated_positions, evaluated_triangles,
-                settings, output: bool) -> LayoutPlan:
+                settings, output: bool, view_density: float = 0.0) -> LayoutPlan:
     """Choose the UV layout ``obj`` bakes on, changing nothing yet.
 
-    ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it.
-    A plan that needs an unwrap carries it as ``pending``: run it, then
-    :func:`complete_layout` writes the UV map.
+    ``evaluated_*`` describe the evaluated mesh in world space, as the bake sees it;
+    ``view_density``: see core.sampling.layout.object_resolution. A plan that needs an unwrap
+    carries it as ``pending``: run it, then :func:`complete_layout` writes the UV map.
     """
     plan, rejected, world_area = _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
-                                                  settings)
+                                                  settings, view_density)
     if plan is not None:
         return plan
-    return _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area)
+    return _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area,
+                       view_density)
 
 
-def existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings) -> LayoutPlan | None:
+def existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings,
+                    view_density: float = 0.0) -> LayoutPlan | None:
     """The layout of a UV map the object already has and that is valid for baking, or None."""
-    return _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings)[0]
+    return _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings, view_density)[0]
 
 
-def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings):
+def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings, view_density):
     mesh = obj.data
     world_area = policy.surface_area(evaluated_positions, evaluated_triangles)
     candidates = []
@@ -191,7 +194,7 @@ def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles
         if corner_uv is None:
             continue
         uv_area = float(np.sum(triangle_areas(corner_uv.astype(np.float64))))
-        resolution = object_resolution(obj, settings, world_area, uv_area)
+        resolution = object_resolution(obj, settings, world_area, uv_area, view_density)
         problems = uv_layout_problems(corner_uv, *resolution)
         if not problems:
             why = "VisiBake's own UV map" if name == UV_MAP_NAME else "the mesh's UV map is valid for baking"
@@ -200,13 +203,13 @@ def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles
     return None, rejected, world_area
 
 
-def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area):
+def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output, rejected, world_area, view_density):
     mesh = obj.data
     if UV_MAP_NAME in mesh.uv_layers and not owns_uv_map(mesh, UV_MAP_NAME) and output:
         raise LayoutError(f"object {obj.name!r}: it has a UV map named {UV_MAP_NAME!r} that VisiBake did not "
                           "create; rename it so VisiBake can add its own")
     reason = "; ".join(rejected) if rejected else "the mesh has no UV map"
-    resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA)
+    resolution = object_resolution(obj, settings, world_area, TYPICAL_PACKED_UV_AREA, view_density)
     if output:
         positions, triangles, loops = _base_triangles(mesh)
         if len(triangles) == 0:

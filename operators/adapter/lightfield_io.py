@@ -25,7 +25,7 @@ import bpy
 import numpy as np
 
 from ...core.errors import BakeRefused, OutputRefused
-from ...core.lightfield import hci
+from ...core.lightfield import coverage, hci
 from ...core.lightfield.cameras import CentreCamera, LightFieldGrid, grid_views
 from ...core.lightfield.scene import DrawMesh, DrawScene
 from ...core.outputs.atomic import atomic_file, remove_written
@@ -35,9 +35,14 @@ from .modal import SteppedJob
 
 MANIFEST = "lightfield.json"
 FORMAT_NAME = "visibake-lightfield"
+# The default of the Supersamples setting: 3 x 3 is within 0.3% of a 4 x 4 render on 4 x 4
+# blocks (docs/benchmarks.md, "Light fields, part 2").
 SUPERSAMPLING = 3
 # Cycles' default pixel filter: Blackman-Harris, 1.5 pixels wide.
 FILTER_WIDTH = 1.5
+# What view_densities gives an object no probe view sees: far below any real density, so
+# core.sampling.layout gives it its smallest camera-sized atlas.
+HIDDEN_DENSITY = 1e-9
 
 
 class LightFieldRefused(BakeRefused):
@@ -110,6 +115,47 @@ def _image_radiance(image) -> np.ndarray:
     return pixels.reshape(height, width, image.channels)[:, :, :3].copy()
 
 
+def _corner_positions(obj, evaluated, mesh, corners: np.ndarray) -> np.ndarray:
+    """(len(corners), 3) float32 world positions of the evaluated ``mesh``'s loop ``corners``."""
+    points = np.empty(len(mesh.loops), np.int32)
+    mesh.loops.foreach_get("vertex_index", points)
+    coordinates = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", coordinates)
+    matrix = extract.world_matrix(obj, evaluated)
+    local = coordinates.reshape(-1, 3)[points[corners]].astype(np.float64)
+    return (local @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+
+
+def _triangle_corners(obj, depsgraph) -> np.ndarray:
+    """(3 n, 3) float32 world positions of the corners of ``obj``'s evaluated triangles."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        corners = np.empty(len(mesh.loop_triangles) * 3, np.int32)
+        mesh.loop_triangles.foreach_get("loops", corners)
+        return _corner_positions(obj, evaluated, mesh, corners)
+    finally:
+        evaluated.to_mesh_clear()
+
+
+def view_densities(objects, camera: CentreCamera, views, grid: tuple[int, int], clip: tuple[float, float],
+                   warnings: list[str]) -> dict:
+    """{object name: texels per unit of surface} a bake of ``objects`` needs for these views
+    (core.lightfield.coverage: a texel per pixel where the probe views see the object
+    nearest); an object that no probe sees gets a tiny density, so the smallest atlas."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    width, height = camera.resolution_x_px, camera.resolution_y_px
+    depths = coverage.nearest_depths([_triangle_corners(obj, depsgraph) for obj in objects],
+                                     coverage.probe_views(views, *grid), clip, width, height)
+    densities = coverage.texel_densities(depths, coverage.focal_pixels(views[0].projection_matrix, width, height))
+    hidden = [obj.name for obj, density in zip(objects, densities) if density <= 0]
+    if hidden:
+        warnings.append(f"{len(hidden)} object(s) in the views' frusta are hidden in the grid's corner and centre "
+                        f"views and get the smallest atlas: {', '.join(hidden[:5])}{' ...' if len(hidden) > 5 else ''}")
+    return {obj.name: float(density) if density > 0 else HIDDEN_DENSITY for obj, density in zip(objects, densities)}
+
+
 def draw_scene(scene, objects, warnings: list[str]) -> tuple[DrawScene, dict]:
     """The baked scene as the view renderer draws it, and what went into it.
 
@@ -129,13 +175,7 @@ def draw_scene(scene, objects, warnings: list[str]) -> tuple[DrawScene, dict]:
                 continue
             corners = np.empty(triangles * 3, np.int32)
             mesh.loop_triangles.foreach_get("loops", corners)
-            points = np.empty(len(mesh.loops), np.int32)
-            mesh.loops.foreach_get("vertex_index", points)
-            coordinates = np.empty(len(mesh.vertices) * 3, np.float32)
-            mesh.vertices.foreach_get("co", coordinates)
-            matrix = extract.world_matrix(obj, evaluated)
-            local = coordinates.reshape(-1, 3)[points[corners]].astype(np.float64)
-            positions = (local @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+            positions = _corner_positions(obj, evaluated, mesh, corners)
             radiance = np.zeros((triangles * 3, 3), np.float32)
             uv = image = None
             source = writeback.find_image(obj.name, "lighting")
@@ -191,6 +231,9 @@ def plan_views(scene, camera_name: str | None, grid: tuple[int, int], baseline_m
                image_size: tuple[int, int], warnings: list[str]):
     """(CentreCamera, LightFieldGrid, [GridView] in HCI order, (clip_start, clip_end)) of the
     grid around camera ``camera_name`` (None: the scene's camera)."""
+    # The cameras and the objects' boxes are read from matrix_world, which a script's recent
+    # move leaves stale until the view layer is evaluated.
+    (bpy.context.view_layer if scene == bpy.context.scene else scene.view_layers[0]).update()
     camera_obj = scene.objects.get(camera_name) if camera_name else scene.camera
     if camera_name and camera_obj is None:
         raise LightFieldRefused(f"--camera {camera_name!r}: no object of that name in the scene")
@@ -273,15 +316,16 @@ class LightFieldJob(SteppedJob):
     """Render and write a light field of ``scene`` (see the module's docstring).
 
     grid : (columns, rows); image_size : (width, height); output_format : 'hci' or 'stanford';
-    device : 'auto', 'gpu' or 'cpu' (the embree twin). ``progress(stage, fraction)`` may
-    raise core.errors.Cancelled.
+    device : 'auto', 'gpu' or 'cpu' (the embree twin); supersampling : s, s x s samples per
+    pixel. ``progress(stage, fraction)`` may raise core.errors.Cancelled.
     """
 
     needs_main_thread = True
 
     def __init__(self, scene, camera_name: str | None, out_dir: str, grid: tuple[int, int], baseline_mm: float,
                  focus_m: float, image_size: tuple[int, int], output_format: str = "hci", device: str = "auto",
-                 overwrite: bool = False, progress=None, extra_report: dict | None = None):
+                 overwrite: bool = False, progress=None, extra_report: dict | None = None,
+                 supersampling: int = SUPERSAMPLING):
         self.scene = scene
         self.camera_name = camera_name
         self.out_dir = os.path.abspath(out_dir)
@@ -289,6 +333,7 @@ class LightFieldJob(SteppedJob):
         self.baseline_mm, self.focus_m = float(baseline_mm), float(focus_m)
         self.width, self.height = (int(v) for v in image_size)
         self.output_format = output_format
+        self.supersampling = int(supersampling)
         self.device = device
         self.overwrite = overwrite
         self.progress = progress
@@ -332,7 +377,9 @@ class LightFieldJob(SteppedJob):
             (self.width, self.height), self.warnings)
         self._claim_folder()
         self._say("reading the baked scene", 0.0)
-        drawn, self.counts = draw_scene(self.scene, extract.scene_meshes(self.scene), self.warnings)
+        seen, unseen = objects_in_views(extract.scene_meshes(self.scene), self.views, *self.clip)
+        drawn, self.counts = draw_scene(self.scene, seen, self.warnings)
+        self.counts["unseen"] = [obj.name for obj in unseen]
         self.renderer, self.renderer_name = self._renderer(drawn)
         self.display = _DisplayImages(self.scene, self.width, self.height)
 
@@ -378,7 +425,7 @@ class LightFieldJob(SteppedJob):
                 from ...gpu_shaders import runtime
 
                 runtime.ensure_context()
-                return (gpu_lightfield.ViewRenderer(drawn, self.width, self.height, SUPERSAMPLING, FILTER_WIDTH),
+                return (gpu_lightfield.ViewRenderer(drawn, self.width, self.height, self.supersampling, FILTER_WIDTH),
                         f"gpu ({runtime.device_info().renderer})")
             except Exception as error:  # noqa: BLE001  (no GPU context here: the CPU twin draws the same)
                 if self.device == "gpu":
@@ -386,7 +433,7 @@ class LightFieldJob(SteppedJob):
                 self.warnings.append(f"no GPU context ({error}); the views are ray cast on the CPU")
         from ...core.lightfield.raycast import RaycastRenderer
 
-        return RaycastRenderer(drawn, self.width, self.height, SUPERSAMPLING, FILTER_WIDTH), "cpu (embree)"
+        return RaycastRenderer(drawn, self.width, self.height, self.supersampling, FILTER_WIDTH), "cpu (embree)"
 
     def render_row(self, row: int) -> None:
         """Render and write the views of one row (the centre view with its depth)."""
@@ -407,7 +454,7 @@ class LightFieldJob(SteppedJob):
             self.written.append(stem + ".png")
             self.display.write(stem + ".png", radiance)
             if depth is not None:
-                self.centre_depth = _block_median(depth, SUPERSAMPLING)
+                self.centre_depth = _block_median(depth, self.supersampling)
             self.times["write_s"] += time.perf_counter() - mark
         self._say("views", (row + 1) / self.rows)
 
@@ -426,7 +473,7 @@ class LightFieldJob(SteppedJob):
             "output": self.out_dir, "format": self.output_format, "views": len(self.views),
             "grid": [self.columns, self.rows], "image_size": [self.width, self.height],
             "baseline_mm": self.baseline_mm, "focus_distance_m": self.focus_m, "renderer": self.renderer_name,
-            "supersampling": SUPERSAMPLING, "pixel_filter": f"Blackman-Harris, {FILTER_WIDTH} px",
+            "supersampling": self.supersampling, "pixel_filter": f"Blackman-Harris, {FILTER_WIDTH} px",
             "disparity_range": [disp_min, disp_max], "objects": self.counts,
             "render_s": round(self.times["render_s"], 3), "write_s": round(self.times["write_s"], 3),
             "seconds": round(time.perf_counter() - self.started, 3), "files": len(files)})

@@ -114,6 +114,9 @@ def test_a_baked_plane_gives_the_hci_layout_and_its_ground_truth(visibake, lf, t
     assert np.allclose(png[dim], images[4][dim], atol=0.01)
     report = json.loads(report_path.read_text())
     assert report["views"] == 9 and report["bake"]["skipped_unseen"] == ["FarAway"]
+    # What no view sees is neither drawn nor warned about as unbaked.
+    assert report["objects"]["unseen"] == ["FarAway"] and "FarAway" not in report["objects"]["unbaked"]
+    assert not any("FarAway" in warning for warning in report["warnings"])
     assert json.loads((out / "lightfield.json").read_text())["files"]
 
 
@@ -144,7 +147,8 @@ def test_stanford_names_and_refusals(visibake, lf, tmp_path, capfd):
     # Bad input: exit 2 with the reason, nothing written.
     for arguments, message in ((["--views", "3by3"], "--views '3by3'"), (["--camera", "Nope"], "no object"),
                                (["--camera", "Ground"], "needs a camera"), (["--baseline-mm", "0"], "--baseline-mm"),
-                               (["--image-size", "4x4"], "--image-size")):
+                               (["--image-size", "4x4"], "--image-size"),
+                               (["--supersampling", "5"], "--supersampling")):
         target = tmp_path / "refused"
         assert visibake.cli.main(["lightfield", str(blend), "--out", str(target), "--no-progress"] + arguments) == 2
         assert message in capfd.readouterr().err
@@ -158,8 +162,9 @@ def test_stanford_names_and_refusals(visibake, lf, tmp_path, capfd):
     assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
     # Its own folder is VisiBake's to write again, and a smaller grid leaves no stale view.
     assert visibake.cli.main(["lightfield", str(blend), "--out", str(out), "--format", "stanford",
-                              "--no-progress"] + grid_options("1x1", "16x16")) == 0
+                              "--supersampling", "2", "--no-progress"] + grid_options("1x1", "16x16")) == 0
     assert len(list(out.glob("*.png"))) == 1
+    assert json.loads((out / "lightfield.json").read_text())["report"]["supersampling"] == 2
 
 
 def test_the_panel_renders_the_light_field_of_the_scene_camera(visibake, lf, tmp_path):
@@ -178,3 +183,43 @@ def test_the_panel_renders_the_light_field_of_the_scene_camera(visibake, lf, tmp
     bpy.context.scene.camera = None
     with pytest.raises(RuntimeError, match="needs a camera"):
         bpy.ops.visibake.render_lightfield()
+
+
+def test_views_are_planned_from_where_a_script_just_moved_things(visibake, tmp_path):
+    """A script's move leaves matrix_world stale until the view layer is evaluated: the grid
+    and the seen objects must follow the new places, not the last evaluated ones."""
+    io = importlib.import_module(extension_module_name() + ".operators.adapter.lightfield_io")
+    plane_scene(tmp_path / "scene.blend", far_cube=True)
+    scene = bpy.context.scene
+    camera = bpy.data.objects["Camera"]
+    far = bpy.data.objects["FarAway"]
+    camera.location = (1.0, 2.0, PLANE_DEPTH)
+    far.location = (1.0, 2.0, 0.5)  # now right under the camera
+    _, _, views, clip = io.plan_views(scene, None, (3, 3), BASELINE_MM, FOCUS_M, (WIDTH, HEIGHT), [])
+    assert np.allclose(np.linalg.inv(views[4].view_matrix)[:3, 3], (1.0, 2.0, PLANE_DEPTH))
+    seen, unseen = io.objects_in_views([far], views, *clip)
+    assert seen == [far] and unseen == []
+
+
+def test_resolution_from_views_gives_a_texel_per_pixel_at_the_nearest_depth(visibake, tmp_path, capfd):
+    """The ground, fronto-parallel 3 m from every view, gets f / 3 texels per metre (f: the focal
+    length in pixels) over its full-square UV map; the small emitter, below the smallest
+    camera-sized atlas, gets that; nothing is sized above --resolution."""
+    blend = plane_scene(tmp_path / "scene.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    ground_area = sum(polygon.area for polygon in bpy.data.objects["Ground"].data.polygons)
+    report_path = tmp_path / "report.json"
+    bake = ["--directions", "16", "--bounces", "0", "--no-cache", "--no-progress"]
+    assert visibake.cli.main(["lightfield", str(blend), "--out", str(tmp_path / "lf"), "--bake-first",
+                              "--resolution-from-views", "--resolution", "1024", "--report", str(report_path)]
+                             + grid_options() + bake) == 0
+    focal_pixels = 50.0 / 36.0 * WIDTH
+    expected = math.ceil(math.sqrt(ground_area) * focal_pixels / PLANE_DEPTH)
+    sizes = json.loads(report_path.read_text())["bake"]["resolutions"]
+    assert sizes["Ground"] == [expected, expected] and expected < 1024
+    assert sizes["Square"] == [16, 16]
+    assert f"atlases of Ground {expected}" in capfd.readouterr().out
+    # It sizes a bake: without --bake-first it is refused.
+    assert visibake.cli.main(["lightfield", str(blend), "--out", str(tmp_path / "no"), "--resolution-from-views",
+                              "--no-progress"] + grid_options()) == 2
+    assert "needs --bake-first" in capfd.readouterr().err

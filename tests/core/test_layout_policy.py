@@ -44,6 +44,20 @@ def test_object_resolution_takes_the_object_s_own_first(own_resolution, own_dens
     assert layout.object_resolution(own_resolution, own_density, scene, 4.0, 1.0) == expected
 
 
+@pytest.mark.parametrize("own_resolution, own_density, scene, view_density, expected", [
+    (0, 0.0, LayoutSettings(resolution=256), 10.0, (20, 20)),  # the cameras need 2 m x 10/m: lowered
+    (0, 0.0, LayoutSettings(resolution=16), 10.0, (16, 16)),  # never raised above the scene's size
+    (0, 0.0, LayoutSettings(resolution=64, texel_density=50.0), 10.0, (20, 20)),  # the scene's density lowered
+    (0, 0.0, LayoutSettings(resolution=256), 1e-9, (16, 16)),  # unseen: the smallest view-sized atlas
+    (64, 0.0, LayoutSettings(resolution=256), 10.0, (64, 64)),  # the object's own resolution stays
+    (0, 50.0, LayoutSettings(resolution=256), 10.0, (100, 100)),  # and so does its own density
+    (0, 0.0, LayoutSettings(resolution=256), 0.0, (256, 256)),  # no cameras: the scene's size
+])
+def test_cameras_lower_an_atlas_to_what_they_see(own_resolution, own_density, scene, view_density, expected):
+    assert layout.object_resolution(own_resolution, own_density, scene, 4.0, 1.0, view_density) == expected
+    assert layout.MIN_VIEW_SIZED_RESOLUTION == 16
+
+
 def test_the_planned_resolution_assumes_the_typical_packed_share():
     positions, triangles = grid(2, size=2.0)
     planned = layout.planned_resolution(0, 10.0, LayoutSettings(), positions, triangles)
