@@ -1,0 +1,1 @@
+"""Scale-out: what crosses from the machine that prepares a bake to workers without Blender."""
