@@ -98,8 +98,9 @@ def _blocked_bits(sample_set, shadowing, light) -> tuple[np.ndarray, int]:
     rays_traced = 0
     blockers = shadowing.blocker_scene(light)
     receives = shadowing.receivers(light, sample_set)
+    # The samples' indices in the whole bake seed their scramble, as in numpy's pass.
     parts = light_contributions(light, sample_set.position, sample_set.normal, shadowing.area_light_samples,
-                                np.arange(len(sample_set.position)), shadowing.seed)
+                                sample_set.sample_ids(), shadowing.seed)
     for index, part in enumerate(parts):
         above = np.einsum("kd,kd->k", part.to_light, sample_set.geometric) > 0.0
         lit = above & np.any(part.irradiance > 0, axis=1)

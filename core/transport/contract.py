@@ -53,6 +53,10 @@ class SampleSet:
         which the first P points are ``footprint``'s; None: there is none
     derived : light-independent arrays the passes derive from the samples, kept with them
         so that every relight of a preparation reuses them (keyed by the pass's own name)
+    ids : (K,) int64 each sample's index in the whole bake, which seeds its randomness (the
+        direct-light sampler's scramble) and indexes ``dense_footprint``; None: 0..K-1 (the
+        set is the whole bake). A set of some rows of the bake (:meth:`rows`) keeps them, so
+        its samples' direct light is bitwise theirs in the whole set.
     """
 
     position: np.ndarray
@@ -67,6 +71,7 @@ class SampleSet:
     footprint_normals: np.ndarray | None = None
     dense_footprint: object = None
     derived: dict = field(default_factory=dict, repr=False, compare=False)
+    ids: np.ndarray | None = None
 
     @classmethod
     def on_surface(cls, position: np.ndarray, normal: np.ndarray,
@@ -77,6 +82,30 @@ class SampleSet:
 
     def __len__(self) -> int:
         return len(self.position)
+
+    def sample_ids(self) -> np.ndarray:
+        """(K,) int64 each sample's index in the whole bake: :attr:`ids`, or 0..K-1 without them."""
+        if self.ids is None:
+            return np.arange(len(self.position), dtype=np.int64)
+        return np.asarray(self.ids, np.int64)
+
+    def rows(self, start: int, stop: int) -> SampleSet:
+        """Samples [start, stop) of this set (0 <= start <= stop <= K), as a worker of a bake split
+        by sample rows evaluates them: every per-sample array sliced (views), ``ids`` their
+        indices in the whole bake, ``dense_footprint`` shared (it takes those indices), and
+        ``derived`` empty (what a pass derives belongs to the set it was derived from)."""
+        count = len(self.position)
+        if not 0 <= start <= stop <= count:
+            raise ValueError(f"rows [{start}, {stop}) outside the set's {count} samples")
+        cut = slice(start, stop)
+
+        def sliced(values):
+            return None if values is None else values[cut]
+
+        return SampleSet(self.position[cut], self.normal[cut], self.geometric[cut], self.origins[cut],
+                         sliced(self.owner), sliced(self.footprint), sliced(self.footprint_corners),
+                         sliced(self.terminator), sliced(self.terminator_cutoff), sliced(self.footprint_normals),
+                         self.dense_footprint, ids=self.sample_ids()[cut])
 
 
 @dataclass

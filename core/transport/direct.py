@@ -37,7 +37,9 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
     footprint = None if fractions_mode else samples.footprint
     irradiance = np.zeros((len(samples.position), 3))
     shadow_rays = 0
-    sample_ids = np.arange(len(samples.position))
+    # Each sample's index in the whole bake, not in this set: a set of some rows of the bake
+    # (SampleSet.rows) then draws the same points and gets bitwise the same light.
+    sample_ids = samples.sample_ids()
     points = [lamp_points(light, shadowing.area_light_samples) for light in lights]
     if footprint is not None:
         points = [max(count, footprint.shape[1]) for count in points]
@@ -158,10 +160,13 @@ def _lit(part: LightContribution, shading: np.ndarray) -> np.ndarray:
 
 
 def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, blockers, receives, points: int):
-    """(len(edges), 3) the lamp's irradiance at samples ``edges`` over their dense footprints
-    (SampleSet.dense_footprint, EDGE_FOOTPRINT_POINTS each), every point traced; and the rays."""
-    offsets, normals = samples.dense_footprint(edges, EDGE_FOOTPRINT_POINTS)
-    lamp = LampPoints(light, samples.position[edges], samples.normal[edges], shadowing.area_light_samples, edges,
+    """(len(edges), 3) the lamp's irradiance at samples ``edges`` (rows of ``samples``) over their
+    dense footprints (SampleSet.dense_footprint, EDGE_FOOTPRINT_POINTS each), every point traced;
+    and the rays."""
+    # The dense footprint and the scramble belong to the samples' indices in the whole bake.
+    ids = samples.sample_ids()[edges]
+    offsets, normals = samples.dense_footprint(ids, EDGE_FOOTPRINT_POINTS)
+    lamp = LampPoints(light, samples.position[edges], samples.normal[edges], shadowing.area_light_samples, ids,
                       shadowing.seed, offsets, max(points, EDGE_FOOTPRINT_POINTS), normals, _threads(shadowing))
     light_sum = np.zeros((len(edges), 3))
     rays = 0

@@ -8,7 +8,7 @@ landing point. Directions below the horizon are never traced.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -318,6 +318,22 @@ class TraceRequest:
     rotations: np.ndarray | None = None
     group: np.ndarray | None = None
 
+    def rows(self, start: int, stop: int) -> TraceRequest:
+        """The request of samples [start, stop) only (0 <= start <= stop <= K): the per-sample
+        arrays (positions, geometric_normals, footprint, group) sliced, everything else shared.
+
+        Nothing a ray depends on is indexed by the sample's place in the whole set (a ray's
+        footprint point is chosen by its direction, i % P; its rotation by ``group[k]``), so
+        :func:`trace_table` of the rows equals columns [start, stop) of the whole table bitwise
+        (:func:`concatenate_columns` joins them). The slices are views, not copies."""
+        samples = len(self.positions)
+        if not 0 <= start <= stop <= samples:
+            raise ValueError(f"rows [{start}, {stop}) outside the request's {samples} samples")
+        cut = slice(start, stop)
+        return replace(self, positions=self.positions[cut], geometric_normals=self.geometric_normals[cut],
+                       footprint=None if self.footprint is None else self.footprint[cut],
+                       group=None if self.group is None else self.group[cut])
+
     def horizon_normals(self) -> np.ndarray:
         """(K, 3) the geometric normals in each sample's frame of the direction set: a
         direction d_i is above sample k's horizon where d_i . horizon_normals[k] > 0."""
@@ -531,6 +547,52 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
         if progress is not None:
             progress(stop / samples)
     return _finish(directions, arrays, traced_per_sample, rays_cast, geometry)
+
+
+def concatenate_columns(tables: list[VisibilityTable]) -> VisibilityTable:
+    """One table from the tables of consecutive sample ranges of one request (traced from
+    :meth:`TraceRequest.rows` in order): equal to the whole request's :func:`trace_table`.
+
+    The (N, k) and (N, k, 2) arrays and the (k,) int32 per-sample counts are joined along the
+    sample axis; rays_cast, rays_below_horizon and backface_hits are summed; directions (N, 3)
+    float64 and vertex_cells (O,) int64 (or None) are shared and must be equal in all.
+
+    Raises ValueError for no table, or tables of different directions, vertex cells or
+    counts of entries per sample."""
+    tables = list(tables)
+    if not tables:
+        raise ValueError("no table to concatenate")
+    first = tables[0]
+    for table in tables[1:]:
+        if not np.array_equal(table.directions, first.directions):
+            raise ValueError("the tables were traced for different directions")
+        if (table.vertex_cells is None) != (first.vertex_cells is None) or (
+                first.vertex_cells is not None and not np.array_equal(table.vertex_cells, first.vertex_cells)):
+            raise ValueError("the tables have different vertex-mode objects")
+    for table in tables:
+        samples = table.hit_object.shape[1]
+        shapes = (table.hit_object.shape, table.hit_uv_code.shape, table.hit_distance_code.shape)
+        if shapes != ((len(first.directions), samples), (len(first.directions), samples, 2),
+                      (len(first.directions), samples)):
+            raise ValueError(f"a table's arrays do not have one row per direction: {shapes}")
+        for name in ("traced_per_sample", "backface_per_sample"):
+            per_sample = getattr(table, name)
+            if per_sample is None or len(per_sample) != samples:
+                raise ValueError(f"a table's {name} is missing or not one per sample")
+
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(table, name) for table in tables], axis=1)
+
+    def per_sample(name: str) -> np.ndarray:
+        return np.concatenate([getattr(table, name) for table in tables])
+
+    return VisibilityTable(directions=first.directions, hit_object=joined("hit_object"),
+                           hit_uv_code=joined("hit_uv_code"), hit_distance_code=joined("hit_distance_code"),
+                           vertex_cells=first.vertex_cells, rays_cast=sum(int(t.rays_cast) for t in tables),
+                           rays_below_horizon=sum(int(t.rays_below_horizon) for t in tables),
+                           backface_hits=sum(int(t.backface_hits) for t in tables),
+                           backface_per_sample=per_sample("backface_per_sample"),
+                           traced_per_sample=per_sample("traced_per_sample"))
 
 
 @dataclass

@@ -1,0 +1,155 @@
+"""Scale-out (issue 20): the rules for joining a scheduler, and the visibility table traced in
+row ranges by a real Dask scheduler and two worker processes on 127.0.0.1, started and
+stopped here, bit-identical to the table traced in one process, also after a worker is
+killed in the middle of the run."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from core.distributed import engine
+from core.distributed.package import write_package
+from core.distributed.rows import row_ranges, trace_request
+from core.pipeline.prepare import prepare
+from core.scene import Light, Scene
+from core.settings import BakeSettings
+from core.visibility.table import trace_table
+from core_scenes import box_interior, quad_mesh
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+TABLE_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code")
+
+
+def test_loopback_tcp_is_joined_and_anything_else_needs_tls_or_insecure():
+    assert engine.check_scheduler_address("tcp://127.0.0.1:8786") == "tcp://127.0.0.1:8786"
+    assert engine.check_scheduler_address("tcp://localhost:8786")
+    assert engine.check_scheduler_address("tcp://[::1]:8786")
+    with pytest.raises(engine.ClusterRefused, match="not encrypted.*--insecure"):
+        engine.check_scheduler_address("tcp://10.20.30.40:8786")
+    assert engine.check_scheduler_address("tcp://10.20.30.40:8786", insecure=True)
+    with pytest.raises(engine.ClusterRefused, match="needs the certificates"):
+        engine.check_scheduler_address("tls://10.20.30.40:8786")
+    tls = engine.TLSFiles("ca.pem", "cert.pem", "key.pem")
+    assert engine.check_scheduler_address("tls://10.20.30.40:8786", tls)
+    for wrong in ("10.20.30.40:8786", "http://127.0.0.1:8786", "tcp://127.0.0.1", "tcp://:8786"):
+        with pytest.raises(engine.ClusterRefused, match="tcp://HOST:PORT"):
+            engine.check_scheduler_address(wrong)
+    with pytest.raises(engine.ClusterRefused, match="at least 1"):
+        with engine.cluster_client(workers=0):
+            pass
+
+
+def test_row_ranges_cover_the_samples_and_depend_on_the_counts_alone():
+    for samples, parts in ((10, 3), (7, 7), (1000, 4), (5, 8)):
+        ranges = row_ranges(samples, parts)
+        assert ranges == row_ranges(samples, parts)
+        assert [i for r in ranges for i in r] == list(range(samples))
+
+
+def _bake(tmp_path, resolution):
+    """A closed box with a card inside, interleaved rotations and texel footprints: a packaged
+    bake and its table traced in this process."""
+    card = quad_mesh("Card", [(-0.2, -0.2, -0.1), (0.2, -0.2, -0.1), (0.2, 0.2, 0.1), (-0.2, 0.2, 0.1)],
+                     resolution=resolution // 2)
+    scene = Scene([box_interior(resolution=resolution), card],
+                  [Light("Lamp", "POINT", np.ones(3), 50.0, position=np.array([0.1, 0.2, 0.3]))])
+    settings = BakeSettings(directions=128, bounces=1, interleave=2, footprint_samples=4, seed=3)
+    path = tmp_path / "bake.vbpkg"
+    write_package(path, scene, settings)
+    p = prepare(scene, settings, table_needed=False)
+    return path.read_bytes(), len(p.position), trace_table(p.ray_scene, trace_request(p))
+
+
+def _same_table(table, reference):
+    for name in TABLE_ARRAYS:
+        assert np.array_equal(getattr(table, name), getattr(reference, name)), name
+    assert table.rays_cast == reference.rays_cast
+    assert np.array_equal(table.buried(), reference.buried())
+
+
+class _Cluster:
+    """``dask scheduler`` and ``dask worker`` processes on 127.0.0.1 (the repository on their
+    path, this test session's compiled-kernel cache shared)."""
+
+    def __init__(self, folder: Path, workers: int):
+        self.scheduler_file = folder / "scheduler.json"
+        environment = dict(os.environ, PYTHONPATH=str(REPO_ROOT), DASK_DISTRIBUTED__WORKER__DAEMON="False")
+        self.scheduler = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--no-dashboard", "--scheduler-file", str(self.scheduler_file)],
+            env=environment, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 60
+        while not self.scheduler_file.exists():
+            if time.monotonic() > deadline or self.scheduler.poll() is not None:
+                self.close()
+                raise RuntimeError("the dask scheduler did not start")
+            time.sleep(0.2)
+        self.workers = [subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(self.scheduler_file),
+             "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name", f"w{number}",
+             "--local-directory", str(folder / f"w{number}")],
+            env=environment, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for number in range(workers)]
+
+    def client(self, workers: int):
+        from distributed import Client
+
+        client = Client(scheduler_file=str(self.scheduler_file), timeout=60)
+        client.wait_for_workers(workers, timeout=120)
+        return client
+
+    def close(self):
+        for process in [*getattr(self, "workers", []), self.scheduler]:
+            if process.poll() is None:
+                process.terminate()
+        for process in [*getattr(self, "workers", []), self.scheduler]:
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    running = _Cluster(tmp_path, workers=2)
+    yield running
+    running.close()
+
+
+def test_two_workers_trace_the_table_in_rows_bit_identical(cluster, tmp_path):
+    package, samples, reference = _bake(tmp_path, 48)
+    client = cluster.client(2)
+    try:
+        fractions = []
+        table = engine.trace_table_on(client, package, samples, parts=5, progress=fractions.append)
+        assert fractions[-1] == 1.0 and len(fractions) == 5
+        _same_table(table, reference)
+        ran_on = {worker for worker, keys in client.has_what().items() if keys}
+        assert len(client.scheduler_info()["workers"]) == 2 and ran_on
+    finally:
+        client.close()
+
+
+def test_a_worker_killed_mid_run_changes_nothing(cluster, tmp_path):
+    package, samples, reference = _bake(tmp_path, 96)
+    client = cluster.client(2)
+    try:
+        victim = cluster.workers[0]
+        killed = []
+
+        def kill_once(fraction):
+            # After the first part is in, the first worker is killed while the rest run or wait.
+            if not killed:
+                victim.send_signal(signal.SIGKILL)
+                killed.append(fraction)
+
+        table = engine.trace_table_on(client, package, samples, parts=12, progress=kill_once)
+        victim.wait(timeout=30)
+        assert killed and victim.returncode == -signal.SIGKILL
+        _same_table(table, reference)
+    finally:
+        client.close()
