@@ -18,9 +18,11 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
+import numpy as np
+
 from ..errors import BakeRefused
 from ..visibility.table import VisibilityTable, concatenate_columns
-from .rows import row_ranges, trace_rows
+from .rows import gather_rows, row_ranges, trace_rows
 
 # How often the scheduler runs a task again after the worker running it died.
 TASK_RETRIES = 3
@@ -91,22 +93,57 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, tls
         yield client
 
 
-def trace_table_on(client, package: bytes, samples: int, parts: int, progress=None) -> VisibilityTable:
-    """The whole table of a packaged bake, traced as ``parts`` row ranges on ``client``'s
-    workers and joined in row order: bit-identical to tracing it in one process.
+class RowWork:
+    """One packaged bake's sample rows on a cluster: ``parts`` row ranges, each traced by a
+    worker that keeps its table, then gathered there every bounce.
 
-    package : the package file's bytes (sent to every worker once); samples : the bake's K
-    progress : callable(fraction) after each finished part, or None
+    Results come back in row order and are joined, so they equal the one-process bake's bit
+    for bit, whichever worker ran which range, and after a worker died (its ranges are traced
+    again elsewhere, to the same bits).
+
+    client : a dask.distributed Client; package : the package file's bytes (sent to every
+    worker once); samples : the bake's K; parts : row ranges (at least the worker count, so
+    that every worker has rows)
     """
-    from distributed import as_completed
 
-    shared = client.scatter(package, broadcast=True)
-    ranges = row_ranges(samples, parts)
-    futures = [client.submit(trace_rows, shared, r.start, r.stop, pure=False, retries=TASK_RETRIES,
-                             key=f"visibake-trace-rows-{r.start}-{r.stop}-{id(shared)}") for r in ranges]
-    done = 0
-    for _ in as_completed(futures):
-        done += 1
-        if progress is not None:
-            progress(done / len(futures))
-    return concatenate_columns(client.gather(futures))
+    def __init__(self, client, package: bytes, samples: int, parts: int):
+        self.client = client
+        self.ranges = row_ranges(samples, parts)
+        self.package = client.scatter(package, broadcast=True)
+        self.placement: dict[range, str] = {}  # the worker that traced each range (and keeps its table)
+
+    def _run(self, function, arguments, progress=None) -> list:
+        """``function(package, start, stop, *arguments)`` per range, on the worker that holds the
+        range's table where it is still alive; results in row order."""
+        from distributed import as_completed
+
+        futures = []
+        for r in self.ranges:
+            # A range goes back to the worker keeping its table; if that one died, anywhere.
+            where = {"workers": [self.placement[r]], "allow_other_workers": True} if r in self.placement else {}
+            futures.append(self.client.submit(function, self.package, r.start, r.stop, *arguments, pure=False,
+                                              retries=TASK_RETRIES, **where))
+        done = 0
+        for _ in as_completed(futures):
+            done += 1
+            if progress is not None:
+                progress(done / len(futures))
+        results = self.client.gather(futures)
+        holders = self.client.who_has(futures)
+        for r, future in zip(self.ranges, futures):
+            if holders.get(future.key):
+                self.placement[r] = holders[future.key][0]
+        return results
+
+    def trace(self, progress=None) -> VisibilityTable:
+        """The whole table, traced by ranges (each kept where it was traced) and joined.
+
+        progress : callable(fraction) after each finished range, or None
+        """
+        return concatenate_columns(self._run(trace_rows, (), progress))
+
+    def gather(self, radiance: np.ndarray, world: np.ndarray, progress=None) -> np.ndarray:
+        """(K, C) float64: the gather of every sample from ``radiance`` (layout.size, C) float32
+        and ``world`` (N, C) or (C,), by ranges on the workers (the atlas is sent to each once)."""
+        shared = self.client.scatter(np.asarray(radiance), broadcast=True)
+        return np.concatenate(self._run(gather_rows, (shared, np.asarray(world)), progress))

@@ -7,23 +7,33 @@ the samples as the one-process bake does (deterministic: every worker builds the
 then traces only its rows' table. The driver joins the rows' tables with
 core.visibility.table.concatenate_columns: the result equals the one-process table bit for bit.
 
-What a worker prepared is kept in its process, keyed by the package's checksum, so the next
-task of the same bake (another range, or a bounce) does not read or prepare it again.
+What a worker prepared, and the tables of the rows it traced, are kept in its process, keyed
+by the package's checksum, so the next task of the same bake (a bounce's gather of the same
+rows) neither prepares nor traces again. Each bounce sends the whole radiance atlas out and
+gets each range's rows back (:func:`gather_rows`).
 """
 from __future__ import annotations
 
+import io
+import json
 import os
 import tempfile
+import zipfile
 from dataclasses import replace
 
+import numpy as np
+
 from ..pipeline.prepare import Prepared, prepare, scene_hit_geometry
-from ..transport.contract import direction_chunks
+from ..transport.contract import GatherGeometry, GatherSource, direction_chunks
+from ..transport.gather import gather, gather_normalisation
 from ..visibility.table import TraceRequest, VisibilityTable, trace_table
-from .package import read_package
+from .package import MANIFEST_NAME, read_package
 
 # checksum -> Prepared (no table): one entry per bake this worker process takes part in.
 _prepared: dict[str, Prepared] = {}
-# The most bakes a worker keeps prepared at once; the oldest is forgotten first.
+# (checksum, start, stop) -> the VisibilityTable of those rows, traced by this worker process.
+_tables: dict[tuple[str, int, int], VisibilityTable] = {}
+# The most bakes a worker keeps prepared at once; the oldest is forgotten first, with its tables.
 KEPT_PREPARATIONS = 2
 
 
@@ -39,40 +49,79 @@ def trace_request(p: Prepared) -> TraceRequest:
                         None if p.footprint is None else p.footprint[0], p.rotations, p.group)
 
 
-def prepared_from_package(path: str, threads: int = 0) -> tuple[str, Prepared]:
-    """(checksum, the package's preparation without its table), read once per worker process.
-
-    ``threads``: this machine's worker threads (0: all cores); the package's own setting
-    belongs to the machine that wrote it and may exceed this one's cores.
-    """
-    package = read_package(path)
-    kept = _prepared.get(package.checksum)
-    if kept is None:
-        settings = replace(package.settings, threads=threads)
-        kept = prepare(package.scene, settings, table_needed=False)
-        while len(_prepared) >= KEPT_PREPARATIONS:
-            _prepared.pop(next(iter(_prepared)))
-        _prepared[package.checksum] = kept
-    return package.checksum, kept
+def _claimed_checksum(package: bytes) -> str | None:
+    """The checksum a package's manifest states, unverified (None if it cannot be read): it
+    only finds a preparation this process made from a package it verified in full."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(package)) as archive:
+            return json.loads(archive.read(MANIFEST_NAME)).get("checksum")
+    except (zipfile.BadZipFile, KeyError, ValueError):
+        return None
 
 
-def trace_rows(package: str | bytes, start: int, stop: int, threads: int = 0) -> VisibilityTable:
-    """The visibility table of sample rows [start, stop) of a packaged bake.
+def prepared_from_package(package: str | bytes, threads: int = 0) -> tuple[str, Prepared]:
+    """(checksum, the package's preparation without its table), read and prepared once per
+    worker process.
 
-    package : the package's path on this machine, or its bytes (written to a temporary file
-        here: a worker on another machine need not share the driver's disk)
-    Returns a VisibilityTable over all N directions and stop - start samples.
+    package : the package's path on this machine, or its bytes (a worker on another machine
+        need not share the driver's disk)
+    threads : this machine's worker threads (0: all cores); the package's own setting belongs
+        to the machine that wrote it and may exceed this one's cores
     """
     if isinstance(package, bytes):
+        claimed = _claimed_checksum(package)
+        if claimed in _prepared:
+            return claimed, _prepared[claimed]
         handle, path = tempfile.mkstemp(suffix=".vbpkg")
         try:
             with os.fdopen(handle, "wb") as stream:
                 stream.write(package)
-            _, p = prepared_from_package(path, threads)
+            read = read_package(path)
         finally:
             os.remove(path)
     else:
-        _, p = prepared_from_package(package, threads)
+        read = read_package(package)
+    kept = _prepared.get(read.checksum)
+    if kept is None:
+        kept = prepare(read.scene, replace(read.settings, threads=threads), table_needed=False)
+        while len(_prepared) >= KEPT_PREPARATIONS:
+            forgotten = next(iter(_prepared))
+            _prepared.pop(forgotten)
+            for key in [key for key in _tables if key[0] == forgotten]:
+                _tables.pop(key)
+        _prepared[read.checksum] = kept
+    return read.checksum, kept
+
+
+def _rows_table(checksum: str, p: Prepared, start: int, stop: int) -> VisibilityTable:
+    """The table of rows [start, stop), traced here once and kept: a retried or moved task
+    traces it again, to the same bits."""
     if not 0 <= start <= stop <= len(p.position):
         raise ValueError(f"rows [{start}, {stop}) outside the bake's {len(p.position)} samples")
-    return trace_table(p.ray_scene, trace_request(p).rows(start, stop))
+    key = (checksum, start, stop)
+    if key not in _tables:
+        _tables[key] = trace_table(p.ray_scene, trace_request(p).rows(start, stop))
+    return _tables[key]
+
+
+def trace_rows(package: str | bytes, start: int, stop: int, threads: int = 0) -> VisibilityTable:
+    """The visibility table of sample rows [start, stop) of a packaged bake (kept in this
+    process for the rows' gathers). Returns a VisibilityTable over all N directions and
+    stop - start samples."""
+    checksum, p = prepared_from_package(package, threads)
+    return _rows_table(checksum, p, start, stop)
+
+
+def gather_rows(package: str | bytes, start: int, stop: int, radiance: np.ndarray, world: np.ndarray,
+                exclude: np.ndarray | None = None, threads: int = 0) -> np.ndarray:
+    """The gather (core.transport.gather.gather) of sample rows [start, stop): (stop - start, C)
+    float64, equal bit for bit to those rows of the gather over every sample.
+
+    radiance : (layout.size, C) float32, the whole packed radiance atlas; world : (N, C) or (C,)
+    exclude : (stop - start, O) bool rows of the exclusion mask, or None
+    """
+    checksum, p = prepared_from_package(package, threads)
+    table = _rows_table(checksum, p, start, stop)
+    normals = p.frame_normal[start:stop]
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, threads), p.layout, threads)
+    return gather(geometry, GatherSource(radiance, world, exclude))

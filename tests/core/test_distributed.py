@@ -1,7 +1,7 @@
-"""Scale-out (issue 20): the rules for joining a scheduler, and the visibility table traced in
-row ranges by a real Dask scheduler and two worker processes on 127.0.0.1, started and
-stopped here, bit-identical to the table traced in one process, also after a worker is
-killed in the middle of the run."""
+"""Scale-out (issue 20): the rules for joining a scheduler, and the visibility table traced and
+gathered in row ranges by a real Dask scheduler and two worker processes on 127.0.0.1,
+started and stopped here: bit-identical to one process, also after a worker is killed in the
+middle of the run."""
 import os
 import signal
 import subprocess
@@ -18,6 +18,8 @@ from core.distributed.rows import row_ranges, trace_request
 from core.pipeline.prepare import prepare
 from core.scene import Light, Scene
 from core.settings import BakeSettings
+from core.transport.contract import GatherSource
+from core.transport.gather import gather
 from core.visibility.table import trace_table
 from core_scenes import box_interior, quad_mesh
 
@@ -53,7 +55,7 @@ def test_row_ranges_cover_the_samples_and_depend_on_the_counts_alone():
 
 def _bake(tmp_path, resolution):
     """A closed box with a card inside, interleaved rotations and texel footprints: a packaged
-    bake and its table traced in this process."""
+    bake, its sample count, and its preparation with the table traced in this process."""
     card = quad_mesh("Card", [(-0.2, -0.2, -0.1), (0.2, -0.2, -0.1), (0.2, 0.2, 0.1), (-0.2, 0.2, 0.1)],
                      resolution=resolution // 2)
     scene = Scene([box_interior(resolution=resolution), card],
@@ -62,7 +64,8 @@ def _bake(tmp_path, resolution):
     path = tmp_path / "bake.vbpkg"
     write_package(path, scene, settings)
     p = prepare(scene, settings, table_needed=False)
-    return path.read_bytes(), len(p.position), trace_table(p.ray_scene, trace_request(p))
+    p.table = trace_table(p.ray_scene, trace_request(p))
+    return path.read_bytes(), len(p.position), p
 
 
 def _same_table(table, reference):
@@ -120,22 +123,28 @@ def cluster(tmp_path):
     running.close()
 
 
-def test_two_workers_trace_the_table_in_rows_bit_identical(cluster, tmp_path):
-    package, samples, reference = _bake(tmp_path, 48)
+def test_two_workers_trace_and_gather_by_rows_bit_identical(cluster, tmp_path):
+    package, samples, p = _bake(tmp_path, 48)
     client = cluster.client(2)
     try:
+        work = engine.RowWork(client, package, samples, parts=5)
         fractions = []
-        table = engine.trace_table_on(client, package, samples, parts=5, progress=fractions.append)
+        _same_table(work.trace(progress=fractions.append), p.table)
         assert fractions[-1] == 1.0 and len(fractions) == 5
-        _same_table(table, reference)
-        ran_on = {worker for worker, keys in client.has_what().items() if keys}
-        assert len(client.scheduler_info()["workers"]) == 2 and ran_on
+        assert len(set(work.placement.values())) == 2  # both workers hold rows
+        # Two bounces' worth of gathers from made-up light, against the gather over every sample.
+        rng = np.random.default_rng(7)
+        for _ in range(2):
+            radiance = rng.uniform(0.0, 10.0, (p.layout.size, 3)).astype(np.float32) ** 3
+            world = rng.uniform(0.0, 1.0, (len(p.directions), 3))
+            expected = gather(p.gather_geometry(), GatherSource(radiance, world))
+            assert np.array_equal(work.gather(radiance, world), expected)
     finally:
         client.close()
 
 
 def test_a_worker_killed_mid_run_changes_nothing(cluster, tmp_path):
-    package, samples, reference = _bake(tmp_path, 96)
+    package, samples, p = _bake(tmp_path, 96)
     client = cluster.client(2)
     try:
         victim = cluster.workers[0]
@@ -147,9 +156,14 @@ def test_a_worker_killed_mid_run_changes_nothing(cluster, tmp_path):
                 victim.send_signal(signal.SIGKILL)
                 killed.append(fraction)
 
-        table = engine.trace_table_on(client, package, samples, parts=12, progress=kill_once)
+        work = engine.RowWork(client, package, samples, parts=12)
+        table = work.trace(progress=kill_once)
         victim.wait(timeout=30)
         assert killed and victim.returncode == -signal.SIGKILL
-        _same_table(table, reference)
+        _same_table(table, p.table)
+        # The dead worker's rows are traced again by the other one for the gather, to the same bits.
+        radiance = np.random.default_rng(3).uniform(0.0, 5.0, (p.layout.size, 3)).astype(np.float32)
+        world = np.full(3, 0.25)
+        assert np.array_equal(work.gather(radiance, world), gather(p.gather_geometry(), GatherSource(radiance, world)))
     finally:
         client.close()
