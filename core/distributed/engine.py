@@ -103,11 +103,13 @@ class RowWork:
 
     client : a dask.distributed Client; package : the package file's bytes (sent to every
     worker once); samples : the bake's K; parts : row ranges (at least the worker count, so
-    that every worker has rows)
+    that every worker has rows); threads : each task's worker threads (0: all the cores of
+    its machine; with several worker processes on one machine, its share)
     """
 
-    def __init__(self, client, package: bytes, samples: int, parts: int):
+    def __init__(self, client, package: bytes, samples: int, parts: int, threads: int = 0):
         self.client = client
+        self.threads = int(threads)
         self.ranges = row_ranges(samples, parts)
         self.package = client.scatter(package, broadcast=True)
         self.placement: dict[range, str] = {}  # the worker that traced each range (and keeps its table)
@@ -122,7 +124,7 @@ class RowWork:
             # A range goes back to the worker keeping its table; if that one died, anywhere.
             where = {"workers": [self.placement[r]], "allow_other_workers": True} if r in self.placement else {}
             futures.append(self.client.submit(function, self.package, r.start, r.stop, *arguments, pure=False,
-                                              retries=TASK_RETRIES, **where))
+                                              retries=TASK_RETRIES, threads=self.threads, **where))
         done = 0
         for _ in as_completed(futures):
             done += 1
