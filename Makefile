@@ -175,6 +175,8 @@ demo: venv build
 # BENCH_PROFILE=appearance: tile BRDFs against Cycles, and their speed (benchmarks/brdf_vs_cycles.py -> docs/appearance/).
 # BENCH_PROFILE=lightfield: light fields of the baked demo, their speed and views against Cycles
 #   (benchmarks/lightfield_vs_cycles.py -> docs/lightfield/).
+# BENCH_PROFILE=scaleout: the demo's table traced and gathered by rows on 1, 2 and 4 local Dask
+#   workers against one process (benchmarks/scaleout.py; the workers import the checkout's core).
 BENCH_PROFILE ?= quick
 bench: venv
 ifeq ($(BENCH_PROFILE),accuracy)
@@ -188,6 +190,8 @@ else ifeq ($(BENCH_PROFILE),appearance)
 	$(PY) benchmarks/brdf_vs_cycles.py
 else ifeq ($(BENCH_PROFILE),lightfield)
 	$(PY) benchmarks/lightfield_vs_cycles.py
+else ifeq ($(BENCH_PROFILE),scaleout)
+	PYTHONPATH=$(CURDIR) $(PY) benchmarks/scaleout.py
 else
 	$(PY) benchmarks/run.py --profile $(BENCH_PROFILE)
 endif
