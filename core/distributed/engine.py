@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import BakeRefused
 from ..visibility.table import VisibilityTable, concatenate_columns
-from .rows import gather_rows, row_ranges, trace_rows
+from .rows import gather_rows, row_ranges, row_summaries, trace_rows
 
 # How often the scheduler runs a task again after the worker running it died.
 TASK_RETRIES = 3
@@ -149,3 +149,8 @@ class RowWork:
         and ``world`` (N, C) or (C,), by ranges on the workers (the atlas is sent to each once)."""
         shared = self.client.scatter(np.asarray(radiance), broadcast=True)
         return np.concatenate(self._run(gather_rows, (shared, np.asarray(world)), progress))
+
+    def summaries(self) -> dict:
+        """The rows' per-sample summaries (core.distributed.rows.row_summaries), joined: each (K,)."""
+        parts = self._run(row_summaries, ())
+        return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}

@@ -24,6 +24,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..pipeline.prepare import Prepared, prepare, scene_hit_geometry
+from ..transport.contacts import exposed_share
 from ..transport.contract import GatherGeometry, GatherSource, direction_chunks
 from ..transport.gather import gather, gather_normalisation
 from ..visibility.table import TraceRequest, VisibilityTable, trace_table
@@ -125,3 +126,18 @@ def gather_rows(package: str | bytes, start: int, stop: int, radiance: np.ndarra
     normals = p.frame_normal[start:stop]
     geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, threads), p.layout, threads)
     return gather(geometry, GatherSource(radiance, world, exclude))
+
+
+def row_summaries(package: str | bytes, start: int, stop: int, threads: int = 0) -> dict:
+    """What the driver needs of rows [start, stop)'s table besides their gathers, per sample,
+    equal bit for bit to those rows of the whole preparation's (core.pipeline.prepare.Prepared):
+
+    gather_scale : (k,) float64 each sample's gather normalisation (Prepared.gather_scale)
+    exposed : (k,) float64 its share of footprint points not buried (Prepared.exposed)
+    buried : (k,) bool whether its texel lies inside other geometry (VisibilityTable.buried)
+    """
+    checksum, p = prepared_from_package(package, threads)
+    table = _rows_table(checksum, p, start, stop)
+    slots = 1 if p.footprint is None else p.footprint[0].shape[1]
+    return {"gather_scale": gather_normalisation(table, p.frame_normal[start:stop], threads),
+            "exposed": exposed_share(table, slots, threads), "buried": table.buried()}

@@ -132,6 +132,10 @@ def test_two_workers_trace_and_gather_by_rows_bit_identical(cluster, tmp_path):
         _same_table(work.trace(progress=fractions.append), p.table)
         assert fractions[-1] == 1.0 and len(fractions) == 5
         assert len(set(work.placement.values())) == 2  # both workers hold rows
+        summaries = work.summaries()
+        assert np.array_equal(summaries["gather_scale"], p.gather_scale())
+        assert np.array_equal(summaries["exposed"], p.exposed())
+        assert np.array_equal(summaries["buried"], p.table.buried())
         # Two bounces' worth of gathers from made-up light, against the gather over every sample.
         rng = np.random.default_rng(7)
         for _ in range(2):
