@@ -140,6 +140,9 @@ class RowWork:
     def trace(self, progress=None) -> VisibilityTable:
         """The whole table, traced by ranges (each kept where it was traced) and joined.
 
+        It brings every range's table back to this process, which a bake split for memory
+        must not do: it is for checks and for small bakes; :meth:`summaries` and
+        :meth:`gather` are what the driver of a split bake needs.
         progress : callable(fraction) after each finished range, or None
         """
         return concatenate_columns(self._run(trace_rows, (), progress))
