@@ -44,6 +44,10 @@ class TLSFiles:
 def is_loopback(host: str) -> bool:
     """True where ``host`` (a name or an address) resolves to loopback addresses only."""
     try:
+        return ipaddress.ip_address(host).is_loopback  # a literal address needs no resolver
+    except ValueError:
+        pass
+    try:
         addresses = {info[4][0] for info in socket.getaddrinfo(host, None)}
     except OSError:
         return False
