@@ -395,7 +395,7 @@ LIGHTFIELD_SETTINGS = _table(
             help="Pixels down each view"),
     Setting("lightfield_supersampling", int, 3, "Supersamples", minimum=1, maximum=4,
             help="Samples per pixel along each axis, filtered as Cycles' default pixel filter: 3 is the closest "
-                 "to Cycles' anti-aliasing; 2 renders about 1.6x faster, 1 about 2.5x (aliased edges)"),
+                 "to Cycles' anti-aliasing; 2 renders about 1.5x faster, 1 about 2.5x (aliased edges)"),
     Setting("lightfield_format", str, "hci", "Layout", help="How the views are laid out in the folder",
             choices=(("hci", "HCI", "input_CamNNN.png/.exr, parameters.cfg and the centre view's depth and "
                                     "disparity (the HCI 4D light field benchmark)"),
