@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     package = open(path, "rb").read()
 
     # The repository's own core, as the workers import it (not the extension's copy).
-    from core.distributed import engine, rows
+    from core.distributed import engine
     from core.distributed.package import read_package
     from core.pipeline.prepare import prepare
     from core.transport.contract import GatherSource
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
     p = prepare(read.scene, read.settings, table_needed=False)
     prepare_s = time.perf_counter() - started
     started = time.perf_counter()
-    p.table = trace_table(p.ray_scene, rows.trace_request(p))
+    p.table = trace_table(p.ray_scene, p.trace_request())
     trace_s = time.perf_counter() - started
     rng = np.random.default_rng(1)
     sources = [GatherSource(rng.uniform(0.0, 4.0, (p.layout.size, 3)).astype(np.float32),

@@ -179,6 +179,12 @@ class Prepared:
                                         s.footprint_samples, self.rotations, self.group)
         return self._shadowing
 
+    def trace_request(self) -> TraceRequest:
+        """The request this preparation's table is traced from (all samples; TraceRequest.rows
+        narrows it to a range of them)."""
+        return table_request(self.meshes, self.settings, self.directions, self.position, self.geometric,
+                             self.footprint, self.rotations, self.group)
+
     def gather_geometry(self) -> GatherGeometry:
         """The light-independent half of every gather over this preparation. The normals are
         in each sample's frame of the direction set (its interleaved rotation), so a gather
@@ -354,8 +360,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     visibility_rays = 0
     if table_needed:
         stages.start("cache" if cache is not None else "visibility")
-        request = TraceRequest(directions, position, geometric, scene_hit_geometry(meshes), settings.chunk_rays,
-                               None if footprint is None else footprint[0], rotations, group)
+        request = table_request(meshes, settings, directions, position, geometric, footprint, rotations, group)
         table, status, visibility_rays = _cached_or_traced_table(TableJob(
             meshes, object_keys, key, settings, request, sample_offset, ray_scene, cache, require_cached_table,
             stages, skipped, warnings))
@@ -481,6 +486,14 @@ def trace_frame(meshes) -> tuple[np.ndarray, str | None]:
                         "rays are traced in float32, so its shadows and contacts may be off by about 1%; bake it "
                         "with fewer distant objects")
     return centre, None
+
+
+def table_request(meshes, settings: BakeSettings, directions, position, geometric, footprint, rotations,
+                  group) -> TraceRequest:
+    """The visibility table's TraceRequest of a preparation's samples (the Prepared fields of
+    the same names; ``footprint`` the (points, corners, normals) tuple or None)."""
+    return TraceRequest(directions, position, geometric, scene_hit_geometry(meshes), settings.chunk_rays,
+                        None if footprint is None else footprint[0], rotations, group)
 
 
 def scene_hit_geometry(meshes) -> HitGeometry:

@@ -14,7 +14,7 @@ import pytest
 
 from core.distributed import engine
 from core.distributed.package import write_package
-from core.distributed.rows import row_ranges, trace_request
+from core.distributed.rows import row_ranges
 from core.pipeline.prepare import prepare
 from core.scene import Light, Scene
 from core.settings import BakeSettings
@@ -64,7 +64,7 @@ def _bake(tmp_path, resolution):
     path = tmp_path / "bake.vbpkg"
     write_package(path, scene, settings)
     p = prepare(scene, settings, table_needed=False)
-    p.table = trace_table(p.ray_scene, trace_request(p))
+    p.table = trace_table(p.ray_scene, p.trace_request())
     return path.read_bytes(), len(p.position), p
 
 

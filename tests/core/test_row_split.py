@@ -7,12 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from core.pipeline.prepare import prepare, scene_hit_geometry
+from core.pipeline.prepare import prepare
 from core.scene import Light, Scene
 from core.settings import BakeSettings
 from core.transport.contract import SampleSet, direction_chunks
 from core.transport.direct import lamp_irradiance
-from core.visibility.table import TraceRequest, VisibilityTable, concatenate_columns, trace_table
+from core.visibility.table import VisibilityTable, concatenate_columns, trace_table
 from core_scenes import grid_mesh, quad_mesh
 
 TABLE_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code", "traced_per_sample", "backface_per_sample")
@@ -28,12 +28,6 @@ def _scene(lights=()):
     card = grid_mesh("Card", size=0.5, segments=3, z=0.3, mode="vertex")
     card.positions = card.positions + np.array([0.45, 0.3, 0.0])
     return Scene([ground, blocker, card], list(lights))
-
-
-def _request(p) -> TraceRequest:
-    """The table request as core.pipeline.prepare.prepare makes it."""
-    return TraceRequest(p.directions, p.position, p.geometric, scene_hit_geometry(p.meshes), p.settings.chunk_rays,
-                        None if p.footprint is None else p.footprint[0], p.rotations, p.group)
 
 
 def _assert_same_table(joined: VisibilityTable, whole: VisibilityTable):
@@ -52,7 +46,7 @@ def traced():
     # chunk so that the whole trace and every range run in several batches.
     settings = BakeSettings(directions=48, bounces=1, footprint_samples=8, interleave=3, chunk_rays=48 * 37)
     p = prepare(_scene(), settings, table_needed=True)
-    return p, _request(p)
+    return p, p.trace_request()
 
 
 def test_the_table_of_row_ranges_joined_equals_the_whole_table_bitwise(traced):
