@@ -21,8 +21,8 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from ..errors import BakeRefused
-from ..visibility.table import VisibilityTable, concatenate_columns
-from .rows import gather_rows, row_ranges, row_summaries, trace_rows
+from .rows import row_ranges, run_task
+from .split import SplitTable
 
 # How often the scheduler runs a task again after the worker running it died.
 TASK_RETRIES = 3
@@ -97,38 +97,59 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, tls
         yield client
 
 
-class RowWork:
-    """One packaged bake's sample rows on a cluster: ``parts`` row ranges, each traced by a
-    worker that keeps its table, then gathered there every bounce.
+class ClusterRows:
+    """Row ranges of one packaged bake kept on a cluster's workers: the executor of a split
+    table (core.distributed.split.SplitTable) whose tasks run where each range's table is.
 
-    Results come back in row order and are joined, so they equal the one-process bake's bit
-    for bit, whichever worker ran which range, and after a worker died (its ranges are traced
-    again elsewhere, to the same bits).
+    Each range is traced by one worker, which keeps its table; every later task of the range
+    goes back to that worker while it lives. Results come back in row order and are joined,
+    so they equal the one-process bake's bit for bit, whichever worker ran which range, and
+    after a worker died (its ranges are traced again elsewhere, to the same bits).
 
     client : a dask.distributed Client; package : the package file's bytes (sent to every
-    worker once); samples : the bake's K; parts : row ranges (at least the worker count, so
-    that every worker has rows); threads : each task's worker threads (0: all the cores of
-    its machine; with several worker processes on one machine, its share)
+    worker once); parts : row ranges (at least the worker count, so that every worker has
+    rows); threads : each task's worker threads (0: all the cores of its machine; with several
+    worker processes on one machine, its share)
     """
 
-    def __init__(self, client, package: bytes, samples: int, parts: int, threads: int = 0):
+    # Arrays larger than this go to the workers once (scattered), not inside every task.
+    SCATTER_BYTES = 1 << 16
+    local_bytes = 0  # the driver holds none of the table
+
+    def __init__(self, client, package: bytes, parts: int, threads: int = 0):
         self.client = client
+        self.parts = int(parts)
         self.threads = int(threads)
-        self.ranges = row_ranges(samples, parts)
+        self.ranges: list[range] = []
         self.package = client.scatter(package, broadcast=True)
         self.placement: dict[range, str] = {}  # the worker that traced each range (and keeps its table)
 
-    def _run(self, function, arguments, progress=None) -> list:
-        """``function(package, start, stop, *arguments)`` per range, on the worker that holds the
-        range's table where it is still alive; results in row order."""
+    def start(self, prepared, progress=None) -> SplitTable:
+        """Trace every range of the package's bake on the workers (``prepared`` is the driver's
+        preparation of the same scene, without its table)."""
+        self.ranges = row_ranges(len(prepared.position), self.parts)
+        stats = self.run("table_stats", [()] * len(self.ranges), (), progress)
+        differing = {s["samples"] for s in stats} - {len(prepared.position)}
+        if differing:
+            raise RuntimeError(f"the workers prepared {sorted(differing)} samples where this bake has "
+                               f"{len(prepared.position)}: they did not prepare the same package")
+        return SplitTable(self, stats)
+
+    def run(self, task: str, per_range: list[tuple], shared: tuple, progress=None) -> list:
+        """``core.distributed.row_tasks.<task>(prepared, kept rows, *per_range[i], *shared,
+        threads)`` for each range i on the worker holding it where it is still alive; results
+        in row order. progress : callable(fraction) after each finished range, or None."""
         from distributed import as_completed
 
+        shared = tuple(self.client.scatter(value, broadcast=True)
+                       if isinstance(value, np.ndarray) and value.nbytes > self.SCATTER_BYTES else value
+                       for value in shared)
         futures = []
-        for r in self.ranges:
+        for r, own in zip(self.ranges, per_range):
             # A range goes back to the worker keeping its table; if that one died, anywhere.
             where = {"workers": [self.placement[r]], "allow_other_workers": True} if r in self.placement else {}
-            futures.append(self.client.submit(function, self.package, r.start, r.stop, *arguments, pure=False,
-                                              retries=TASK_RETRIES, threads=self.threads, **where))
+            futures.append(self.client.submit(run_task, self.package, r.start, r.stop, task, *own, *shared,
+                                              pure=False, retries=TASK_RETRIES, threads=self.threads, **where))
         done = 0
         for _ in as_completed(futures):
             done += 1
@@ -140,24 +161,3 @@ class RowWork:
             if holders.get(future.key):
                 self.placement[r] = holders[future.key][0]
         return results
-
-    def trace(self, progress=None) -> VisibilityTable:
-        """The whole table, traced by ranges (each kept where it was traced) and joined.
-
-        It brings every range's table back to this process, which a bake split for memory
-        must not do: it is for checks and for small bakes; :meth:`summaries` and
-        :meth:`gather` are what the driver of a split bake needs.
-        progress : callable(fraction) after each finished range, or None
-        """
-        return concatenate_columns(self._run(trace_rows, (), progress))
-
-    def gather(self, radiance: np.ndarray, world: np.ndarray, progress=None) -> np.ndarray:
-        """(K, C) float64: the gather of every sample from ``radiance`` (layout.size, C) float32
-        and ``world`` (N, C) or (C,), by ranges on the workers (the atlas is sent to each once)."""
-        shared = self.client.scatter(np.asarray(radiance), broadcast=True)
-        return np.concatenate(self._run(gather_rows, (shared, np.asarray(world)), progress))
-
-    def summaries(self) -> dict:
-        """The rows' per-sample summaries (core.distributed.rows.row_summaries), joined: each (K,)."""
-        parts = self._run(row_summaries, ())
-        return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}

@@ -4,13 +4,12 @@ sample rows, so that every sample's sums run in the same order as in one process
 A worker is given a scene package (core.distributed.package) and a row range [start, stop)
 of the bake's samples (every object's samples concatenated, in object order). It prepares
 the samples as the one-process bake does (deterministic: every worker builds the same ones),
-then traces only its rows' table. The driver joins the rows' tables with
-core.visibility.table.concatenate_columns: the result equals the one-process table bit for bit.
+then traces only its rows' table (:func:`keep_rows`).
 
 What a worker prepared, and the tables (and gather normalisations) of the rows it traced, are
-kept in its process, keyed by the package's checksum, so the next task of the same bake (a bounce's gather of the same
-rows) neither prepares nor traces again. Each bounce sends the whole radiance atlas out and
-gets each range's rows back (:func:`gather_rows`).
+kept in its process, keyed by the package's checksum, so the next task of the same bake (a
+bounce's gather of the same rows) neither prepares nor traces again (:func:`run_task` runs
+any task of core.distributed.row_tasks on them).
 """
 from __future__ import annotations
 
@@ -24,27 +23,37 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..pipeline.prepare import Prepared, prepare
-from ..transport.contacts import exposed_share
-from ..transport.contract import GatherGeometry, GatherSource, direction_chunks
-from ..transport.gather import gather, gather_normalisation
+from ..transport.contract import direction_chunks
+from ..transport.gather import gather_normalisation
 from ..visibility.table import VisibilityTable, trace_table
 from .package import MANIFEST_NAME, read_package
 
 # checksum -> Prepared (no table): one entry per bake this worker process takes part in.
 _prepared: dict[str, Prepared] = {}
 # (checksum, start, stop) -> those rows' table and gather normalisation, made by this worker process.
-_rows: dict[tuple[str, int, int], _Rows] = {}
+_rows: dict[tuple[str, int, int], KeptRows] = {}
 # The most bakes a worker keeps prepared at once; the oldest is forgotten first, with its rows.
 KEPT_PREPARATIONS = 2
 
 
 @dataclass(frozen=True)
-class _Rows:
-    """What a worker keeps of its rows: table (VisibilityTable over N directions and the rows)
-    and scale ((rows,) float64 gather normalisation, which every bounce's gather reuses)."""
+class KeptRows:
+    """What is kept of a range of rows [start, stop): table (VisibilityTable over N directions
+    and the rows) and scale ((rows,) float64 gather normalisation, which every bounce's gather
+    reuses)."""
 
+    start: int
+    stop: int
     table: VisibilityTable
     scale: np.ndarray
+
+
+def keep_rows(p: Prepared, start: int, stop: int, threads: int = 0) -> KeptRows:
+    """Trace rows [start, stop) of preparation ``p`` (made without its table) and normalise them."""
+    if not 0 <= start <= stop <= len(p.position):
+        raise ValueError(f"rows [{start}, {stop}) outside the bake's {len(p.position)} samples")
+    table = trace_table(p.ray_scene, p.trace_request().rows(start, stop))
+    return KeptRows(start, stop, table, gather_normalisation(table, p.frame_normal[start:stop], threads))
 
 
 def row_ranges(samples: int, parts: int) -> list[range]:
@@ -97,48 +106,20 @@ def prepared_from_package(package: str | bytes, threads: int = 0) -> tuple[str, 
     return read.checksum, kept
 
 
-def _kept_rows(package: str | bytes, start: int, stop: int, threads: int) -> tuple[Prepared, _Rows]:
+def _kept_rows(package: str | bytes, start: int, stop: int, threads: int) -> tuple[Prepared, KeptRows]:
     """The preparation and rows [start, stop)'s table and normalisation, made here once and
     kept: a retried or moved task makes them again, to the same bits."""
     checksum, p = prepared_from_package(package, threads)
-    if not 0 <= start <= stop <= len(p.position):
-        raise ValueError(f"rows [{start}, {stop}) outside the bake's {len(p.position)} samples")
     key = (checksum, start, stop)
     if key not in _rows:
-        table = trace_table(p.ray_scene, p.trace_request().rows(start, stop))
-        _rows[key] = _Rows(table, gather_normalisation(table, p.frame_normal[start:stop], threads))
+        _rows[key] = keep_rows(p, start, stop, threads)
     return p, _rows[key]
 
 
-def trace_rows(package: str | bytes, start: int, stop: int, threads: int = 0) -> VisibilityTable:
-    """The visibility table of sample rows [start, stop) of a packaged bake (kept in this
-    process for the rows' gathers). Returns a VisibilityTable over all N directions and
-    stop - start samples."""
-    return _kept_rows(package, start, stop, threads)[1].table
+def run_task(package: str | bytes, start: int, stop: int, task: str, *arguments, threads: int = 0):
+    """``core.distributed.row_tasks.<task>`` on rows [start, stop) of a packaged bake, in this
+    (worker) process: the rows are prepared and traced on the first task, then kept."""
+    from . import row_tasks
 
-
-def gather_rows(package: str | bytes, start: int, stop: int, radiance: np.ndarray, world: np.ndarray,
-                exclude: np.ndarray | None = None, threads: int = 0) -> np.ndarray:
-    """The gather (core.transport.gather.gather) of sample rows [start, stop): (stop - start, C)
-    float64, equal bit for bit to those rows of the gather over every sample.
-
-    radiance : (layout.size, C) float32, the whole packed radiance atlas; world : (N, C) or (C,)
-    exclude : (stop - start, O) bool rows of the exclusion mask, or None
-    """
-    p, rows = _kept_rows(package, start, stop, threads)
-    geometry = GatherGeometry(rows.table, p.frame_normal[start:stop], rows.scale, p.layout, threads)
-    return gather(geometry, GatherSource(radiance, world, exclude))
-
-
-def row_summaries(package: str | bytes, start: int, stop: int, threads: int = 0) -> dict:
-    """What the driver needs of rows [start, stop)'s table besides their gathers, per sample,
-    equal bit for bit to those rows of the whole preparation's (core.pipeline.prepare.Prepared):
-
-    gather_scale : (k,) float64 each sample's gather normalisation (Prepared.gather_scale)
-    exposed : (k,) float64 its share of footprint points not buried (Prepared.exposed)
-    buried : (k,) bool whether its texel lies inside other geometry (VisibilityTable.buried)
-    """
-    p, rows = _kept_rows(package, start, stop, threads)
-    slots = 1 if p.footprint is None else p.footprint[0].shape[1]
-    return {"gather_scale": rows.scale, "exposed": exposed_share(rows.table, slots, threads),
-            "buried": rows.table.buried()}
+    p, kept = _kept_rows(package, start, stop, threads)
+    return getattr(row_tasks, task)(p, kept, *arguments, threads=threads)

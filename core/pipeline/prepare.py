@@ -271,7 +271,7 @@ class Prepared:
 
 
 def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: bool | None = None,
-            cache: VisibilityCache | None = None, require_cached_table: bool = False) -> Prepared:
+            cache: VisibilityCache | None = None, require_cached_table: bool = False, split=None) -> Prepared:
     """Samples and the visibility table of ``scene``'s meshes.
 
     Parameters
@@ -284,6 +284,9 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     require_cached_table : bool
         Refuse (:class:`BakeRefused`) instead of tracing when the table is needed and
         the cache holds no valid one: a relight must not silently become a bake.
+    split : an executor of core.distributed.split (in process, or a cluster's), or None
+        Trace the table by ranges of sample rows, kept where the executor runs them: the
+        preparation's table is then a core.distributed.split.SplitTable, never cached.
     """
     settings.validate()
     # A vertex-mode object has at most one sample per triangle corner.
@@ -358,7 +361,11 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     table = None
     status = CacheStatus() if cache is None else None
     visibility_rays = 0
-    if table_needed:
+    if table_needed and split is not None:
+        # Traced below, by rows, once the preparation exists.
+        status = CacheStatus(state="unused", message="a table held by sample rows is not cached")
+        skipped.append("visibility cache: the table is held by sample rows where they were traced")
+    elif table_needed:
         stages.start("cache" if cache is not None else "visibility")
         request = table_request(meshes, settings, directions, position, geometric, footprint, rotations, group)
         table, status, visibility_rays = _cached_or_traced_table(TableJob(
@@ -371,9 +378,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         status = status or CacheStatus(state="unused", message="no pass needs the visibility table")
     if cache is not None:
         status.abandoned_writes_removed = cache.abandoned_removed
-    stages.stop()
 
-    return Prepared(
+    prepared = Prepared(
         settings=settings, meshes=meshes, object_samples=object_samples,
         sample_offset=np.concatenate([[0], np.cumsum(counts)]), position=position,
         normal=normal, geometric=geometric,
@@ -383,8 +389,15 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
                                       settings.vertex_lookup == "nearest"), directions=directions,
         ray_scene=ray_scene, origins=ray_scene.ray_origins(position, geometric), table=table, footprint=footprint,
         terminator=terminator, rotations=rotations, group=group,
-        stage_seconds=dict(stages.times), skipped=skipped, warnings=warnings, table_key=key,
-        visibility_rays=visibility_rays, cache=cache, cache_status=status)
+        stage_seconds={}, skipped=skipped, warnings=warnings, table_key=key,
+        visibility_rays=visibility_rays, cache=None if split is not None else cache, cache_status=status)
+    if table_needed and split is not None:
+        stages.start("visibility")
+        prepared.table = split.start(prepared, stages.report)
+        prepared.visibility_rays = prepared.table.rays_cast
+    stages.stop()
+    prepared.stage_seconds = dict(stages.times)
+    return prepared
 
 
 def concatenated_footprint(object_samples, count: int, normals: np.ndarray) -> tuple | None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..distributed.split import SplitTable
 from ..errors import BakeRefused
 from ..lights.environment import world_radiance
 from ..lights.lamps import usable_lights
@@ -100,6 +101,9 @@ def relight_many(prepared: Prepared, lightings, progress=None,
     """
     p = prepared
     settings = p.settings
+    if isinstance(p.table, SplitTable) and backend.name != "cpu":
+        raise BakeRefused(f"a table held by sample rows is read by the CPU kernels where it is kept, not by the "
+                          f"{backend.name} passes: bake on the CPU device")
     stages = Stages(progress)
     wants = set(settings.passes)
     has_emission = bool(np.any(p.emission > 0))
@@ -246,7 +250,8 @@ def _seams(p: Prepared, output_meshes) -> dict:
     return found
 
 
-def bake(scene: Scene, settings: BakeSettings, progress=None, backend: TransportBackend = CPU_BACKEND) -> BakeResult:
+def bake(scene: Scene, settings: BakeSettings, progress=None, backend: TransportBackend = CPU_BACKEND,
+         split=None) -> BakeResult:
     """Bake every output object of ``scene``: :func:`prepare`, then :func:`relight`.
 
     Parameters
@@ -256,5 +261,7 @@ def bake(scene: Scene, settings: BakeSettings, progress=None, backend: Transport
     settings : BakeSettings
     progress : callable(stage: str, fraction: float) or None
         Called often; raise :class:`Cancelled` in it to stop.
+    split : an executor of core.distributed.split, or None: the table is then traced and
+        read by ranges of sample rows where the executor keeps them (the result is the same)
     """
-    return relight(prepare(scene, settings, progress), scene.lights, scene.world, progress, backend)
+    return relight(prepare(scene, settings, progress, split=split), scene.lights, scene.world, progress, backend)

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import kernels
+from ..distributed.split import SplitTable
 from ..geometry import mesh_triangle_areas
 from ..visibility.table import BACKFACE, BELOW_HORIZON, DISTANCE_VALUES
 from .contract import SampleSet
@@ -55,6 +56,8 @@ def exposed_share(table, slots: int, threads: int = 0) -> np.ndarray:
     table's direction i starts from point i % slots) that are not buried inside other
     geometry, among the points with any ray above the horizon (1 where none has). Compiled
     on ``threads`` threads (0: all cores) where the kernels load, bitwise the numpy pass."""
+    if isinstance(table, SplitTable):
+        return table.exposed_share(slots)
     module = kernels.compiled()
     if module is None:
         return _exposed_share_numpy(table, slots)
@@ -128,50 +131,55 @@ def texel_sizes(meshes, object_samples) -> np.ndarray:
     return sizes
 
 
-def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None):
-    """The table entries of prepared scene ``p`` that hit an object o nearer than
-    ``target_reach[o]`` (O,) and, if given, than their sample's ``sample_reach`` (K,), and
-    have a gather weight: (sample (m,) int64, direction (m,) int64, weight (m,) float32), the
-    weight max(0, n . d_i) times the sample's scale, by direction, then sample; None when
-    there are none. Compiled where the kernels load, bitwise the numpy pass."""
-    module = kernels.compiled()
-    if module is None:
-        return _close_entries_numpy(p, target_reach, sample_reach)
-    table = p.table
+@dataclass
+class CloseEntries:
+    """Table entries whose ray lands close by, by direction, then sample (every array (m,)).
+
+    sample, direction : int64; weight : float32 the gather weight, max(0, n . d_i) times the
+    sample's scale; obj : int64 the object hit; uv : (m, 2) float32 the atlas coordinate it
+    landed at (the table's); floor : float64 the least distance its code allows
+    (VisibilityTable.hit_distance_floor)
+    """
+
+    sample: np.ndarray
+    direction: np.ndarray
+    weight: np.ndarray
+    obj: np.ndarray
+    uv: np.ndarray
+    floor: np.ndarray
+
+
+def table_close_entries(table, target_reach: np.ndarray, sample_reach: np.ndarray | None = None, threads: int = 0,
+                        compiled: bool = True) -> tuple[np.ndarray, ...]:
+    """The entries of ``table`` that hit an object o nearer than ``target_reach[o]`` (O,) and,
+    if given, than their sample's ``sample_reach`` (K,): (sample, direction, obj) (m,) int64,
+    uv (m, 2) float32 and floor (m,) float64 (as :class:`CloseEntries`), by direction, then
+    sample. Reads the table alone, so a table of sample rows gives those rows' entries
+    (core.distributed.split). Compiled where the kernels load (``compiled``), bitwise the numpy pass."""
+    module = kernels.compiled() if compiled else None
     count = len(table.directions)
-    arguments = [np.ascontiguousarray(table.hit_object, np.int16),
-                 np.ascontiguousarray(table.hit_distance_code, np.uint16), DISTANCE_VALUES,
-                 np.ascontiguousarray(target_reach, np.float32),
-                 np.zeros(0) if sample_reach is None else np.ascontiguousarray(sample_reach, np.float64)]
-    offsets = np.zeros(count + 1, np.int64)
-    kernels.run(module.close_entries, p.settings.threads, *arguments, offsets, np.zeros(0, np.int64), False)
-    np.cumsum(offsets, out=offsets)
-    sample = np.empty(offsets[-1], np.int64)
-    kernels.run(module.close_entries, p.settings.threads, *arguments, offsets, sample, True)
-    # The cosines are numpy's matrix products, one direction at a time as in the numpy pass:
-    # BLAS sums them its own way (with fused multiply-adds where the CPU has them), which a
-    # kernel cannot follow on every platform.
-    normals = p.frame_normal.astype(np.float32)
-    cosine = np.empty(len(sample), np.float32)
-    for i in np.nonzero(np.diff(offsets))[0]:
-        rows = slice(offsets[i], offsets[i + 1])
-        cosine[rows] = normals[sample[rows]] @ table.directions[i].astype(np.float32)
-    weight = np.maximum(cosine, 0.0) * p.gather_scale().astype(np.float32)[sample]
-    keep = weight > 0
-    if not keep.any():
-        return None
-    direction = np.repeat(np.arange(count, dtype=np.int64), np.diff(offsets))
-    return sample[keep], direction[keep], weight[keep]
+    if module is None:
+        sample, direction = _table_close_entries_numpy(table, target_reach, sample_reach)
+    else:
+        arguments = [np.ascontiguousarray(table.hit_object, np.int16),
+                     np.ascontiguousarray(table.hit_distance_code, np.uint16), DISTANCE_VALUES,
+                     np.ascontiguousarray(target_reach, np.float32),
+                     np.zeros(0) if sample_reach is None else np.ascontiguousarray(sample_reach, np.float64)]
+        offsets = np.zeros(count + 1, np.int64)
+        kernels.run(module.close_entries, threads, *arguments, offsets, np.zeros(0, np.int64), False)
+        np.cumsum(offsets, out=offsets)
+        sample = np.empty(offsets[-1], np.int64)
+        kernels.run(module.close_entries, threads, *arguments, offsets, sample, True)
+        direction = np.repeat(np.arange(count, dtype=np.int64), np.diff(offsets))
+    return (sample, direction, table.hit_object[direction, sample].astype(np.int64), table.hit_uv(direction, sample),
+            table.hit_distance_floor(direction, sample))
 
 
-def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None):
-    """:func:`close_entries` in numpy."""
-    table = p.table
+def _table_close_entries_numpy(table, target_reach: np.ndarray, sample_reach: np.ndarray | None):
+    """(sample, direction) of :func:`table_close_entries` in numpy."""
     target_reach = np.asarray(target_reach, np.float32)
-    scale = p.gather_scale().astype(np.float32)
-    normals = p.frame_normal.astype(np.float32)
-    samples, directions, weights = [], [], []
-    for i, direction in enumerate(table.directions):
+    samples, directions = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for i in range(len(table.directions)):
         row = table.hit_object[i]
         hit = np.nonzero(row >= 0)[0]
         if not len(hit):
@@ -180,17 +188,43 @@ def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray |
         close = distance < target_reach[row[hit]]
         if sample_reach is not None:
             close &= distance < sample_reach[hit]
-        close = hit[close]
-        if not len(close):
-            continue
-        weight = np.maximum(normals[close] @ direction.astype(np.float32), 0.0) * scale[close]
-        keep = weight > 0
-        samples.append(close[keep])
-        directions.append(np.full(int(keep.sum()), i, np.int64))
-        weights.append(weight[keep])
-    if not samples or not sum(len(s) for s in samples):
+        samples.append(hit[close].astype(np.int64))
+        directions.append(np.full(len(samples[-1]), i, np.int64))
+    return np.concatenate(samples), np.concatenate(directions)
+
+
+def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None,
+                  compiled: bool = True) -> CloseEntries | None:
+    """The table entries of prepared scene ``p`` that hit an object o nearer than
+    ``target_reach[o]`` (O,) and, if given, than their sample's ``sample_reach`` (K,), and
+    have a gather weight (:func:`table_close_entries`, weighed); None when there are none.
+    A table held by sample rows (core.distributed.split.SplitTable) finds each range's
+    entries where it is kept; they are joined here in the same order."""
+    if isinstance(p.table, SplitTable):
+        sample, direction, obj, uv, floor = p.table.close_entries(target_reach, sample_reach)
+    else:
+        sample, direction, obj, uv, floor = table_close_entries(p.table, target_reach, sample_reach,
+                                                                p.settings.threads, compiled)
+    # The cosines are numpy's matrix products, one direction at a time: BLAS sums them its
+    # own way (with fused multiply-adds where the CPU has them), which a kernel cannot
+    # follow on every platform.
+    normals = p.frame_normal.astype(np.float32)
+    directions = np.asarray(p.table.directions, np.float32)
+    cosine = np.empty(len(sample), np.float32)
+    starts = np.searchsorted(direction, np.arange(len(directions) + 1))
+    for i in np.nonzero(np.diff(starts))[0]:
+        rows = slice(starts[i], starts[i + 1])
+        cosine[rows] = normals[sample[rows]] @ directions[i]
+    weight = np.maximum(cosine, 0.0) * p.gather_scale().astype(np.float32)[sample]
+    keep = weight > 0
+    if not keep.any():
         return None
-    return np.concatenate(samples), np.concatenate(directions), np.concatenate(weights)
+    return CloseEntries(sample[keep], direction[keep], weight[keep], obj[keep], uv[keep], floor[keep])
+
+
+def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None) -> CloseEntries | None:
+    """:func:`close_entries` in numpy."""
+    return close_entries(p, target_reach, sample_reach, compiled=False)
 
 
 def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None:
@@ -202,16 +236,14 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
     and its normals are those of the sample owning the texel it landed in (a covered
     neighbour where that texel is outside the chart; an entry with none is left to the lookup).
     """
-    table = p.table
     entries = close_entries(p, max_texels * texel_sizes(p.meshes, p.object_samples))
     if entries is None:
         return None
-    sample, direction, weight = entries
-    obj = table.hit_object[direction, sample].astype(np.int64)
-    uv = table.hit_uv(direction, sample)
-    owner = _texel_owners(p, obj, uv)
+    owner = _texel_owners(p, entries.obj, entries.uv)
     found = owner >= 0
-    sample, direction, weight, obj, uv, owner = (a[found] for a in (sample, direction, weight, obj, uv, owner))
+    sample, direction, weight, obj, uv, floor, owner = (
+        a[found] for a in (entries.sample, entries.direction, entries.weight, entries.obj, entries.uv, entries.floor,
+                           owner))
     if not len(sample):
         return None
     start = p.position[sample]
@@ -220,7 +252,7 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
         start = start + points[sample, direction % points.shape[1]]
     unit = p.sample_directions(direction, sample)
     origins = np.asarray(p.ray_scene.ray_origins(start, p.geometric[sample]), np.float64)
-    position = origins + unit * table.hit_distance_floor(direction, sample)[:, None]
+    position = origins + unit * floor[:, None]
     geometric, shading = p.geometric[owner].copy(), p.normal[owner].copy()
     # The side the ray came from is the side that is lit (the table keeps front-face hits only).
     facing = np.where(np.einsum("kd,kd->k", geometric, unit) > 0, -1.0, 1.0)[:, None]

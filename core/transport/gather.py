@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import kernels
 from .. import tolerances as tol
+from ..distributed.split import SplitTable
 from ..visibility.table import BELOW_HORIZON, MISS, VisibilityTable, decode_uv, decode_vertex_hit
 from .contract import GatherGeometry, GatherSource
 
@@ -144,6 +145,8 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: i
     -------
     scale : (K,) float64
     """
+    if isinstance(table, SplitTable):
+        return table.gather_normalisation()
     # The cosines in float32, as the gathers weigh with them: at a grazing direction the
     # float32 dot product differs from the float64 one by up to 1e-4 of itself, and the
     # weights must sum to pi as the gathers compute them.
@@ -196,6 +199,10 @@ def gather(geometry: GatherGeometry, source: GatherSource, progress=None, sample
     -------
     irradiance : (K, C) float64
     """
+    if isinstance(geometry.table, SplitTable):
+        if directions is not None:
+            raise ValueError("a table held by sample rows is gathered over all its directions")
+        return geometry.table.gather(source.radiance, source.world, source.exclude, samples, progress)
     chosen_directions = _direction_range(len(geometry.table.directions), directions)
     module = kernels.compiled()
     if module is None:
@@ -336,6 +343,8 @@ def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.nda
 
     normals : (K, 3) float; scale : (K,) float from :func:`gather_normalisation`
     """
+    if isinstance(table, SplitTable):
+        return table.ambient_occlusion()
     module = kernels.compiled()
     open_weight = np.zeros(len(normals))
     if module is not None:

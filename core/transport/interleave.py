@@ -74,9 +74,7 @@ def find_near_hits(p) -> NearHits | None:
     entries = close_entries(p, atlas, reach)
     if entries is None:
         return None
-    sample, direction, weight = entries
-    return NearHits(sample, weight, p.table.hit_object[direction, sample].astype(np.int64),
-                    p.table.hit_uv(direction, sample))
+    return NearHits(entries.sample, entries.weight, entries.obj, entries.uv)
 
 
 def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:

@@ -63,6 +63,10 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
         The table's interleaved rotations: sample k's direction i counts in the region of
         ``rotations[group[k]] @ d_i``.
     """
+    from ..distributed.split import SplitTable
+
+    if isinstance(table, SplitTable):
+        return table.shadow_fractions(regions, light_distance)
     samples = table.hit_object.shape[1]
     lit = np.zeros((samples, regions.count), np.uint16)
     traced = np.zeros((samples, regions.count), np.uint16)

@@ -1,4 +1,6 @@
 """Sharp contacts (core.transport.contacts): short rays read the lamps' light at their landing point."""
+from dataclasses import astuple
+
 import numpy as np
 import pytest
 
@@ -160,8 +162,8 @@ def test_compiled_contact_passes_are_bitwise_those_of_numpy(monkeypatch, scene):
     counts = []
     for target, by_sample in ((SHORT_HIT_TEXELS * sizes, None), (np.full(len(sizes), np.inf), reach)):
         theirs = contacts._close_entries_numpy(p, target, by_sample)
-        _bitwise(contacts.close_entries(p, target, by_sample), theirs)
-        counts.append(len(theirs[0]))
+        _bitwise(astuple(contacts.close_entries(p, target, by_sample)), astuple(theirs))
+        counts.append(len(theirs.sample))
     assert min(counts) > 0
     assert contacts.close_entries(p, np.zeros(len(sizes))) is None
     for slots in (1, 5, 16):
@@ -169,7 +171,8 @@ def test_compiled_contact_passes_are_bitwise_those_of_numpy(monkeypatch, scene):
         _bitwise((share,), (contacts._exposed_share_numpy(p.table, slots),))
     assert np.any(share < 1.0)
     # Where the short entries land, and points all over the atlases: in gutters, on borders.
-    sample, direction, _ = contacts.close_entries(p, SHORT_HIT_TEXELS * sizes)
+    entries = contacts.close_entries(p, SHORT_HIT_TEXELS * sizes)
+    sample, direction = entries.sample, entries.direction
     rng = np.random.default_rng(3)
     obj = np.concatenate([p.table.hit_object[direction, sample], rng.integers(0, len(sizes), 3000), [0, 1]])
     uv = np.concatenate([p.table.hit_uv(direction, sample), rng.random((3000, 2), np.float32),

@@ -1,7 +1,7 @@
-"""Scale-out (issue 20): the rules for joining a scheduler, and the visibility table traced and
-gathered in row ranges by a real Dask scheduler and two worker processes on 127.0.0.1,
-started and stopped here: bit-identical to one process, also after a worker is killed in the
-middle of the run."""
+"""Scale-out (issue 20): the rules for joining a scheduler, and bakes whose table is traced and
+read by row ranges on a real Dask scheduler and two worker processes on 127.0.0.1, started
+and stopped here: bit-identical to the one-process bake, also after a worker is killed in
+the middle of the run."""
 import os
 import signal
 import subprocess
@@ -16,11 +16,9 @@ from core.distributed import engine
 from core.distributed.package import write_package
 from core.distributed.rows import row_ranges
 from core.pipeline.prepare import prepare
+from core.pipeline.relight import bake
 from core.scene import Light, Scene
 from core.settings import BakeSettings
-from core.transport.contract import GatherSource
-from core.transport.gather import gather
-from core.visibility.table import trace_table
 from core_scenes import box_interior, quad_mesh
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -54,18 +52,24 @@ def test_row_ranges_cover_the_samples_and_depend_on_the_counts_alone():
 
 
 def _bake(tmp_path, resolution):
-    """A closed box with a card inside, interleaved rotations and texel footprints: a packaged
-    bake, its sample count, and its preparation with the table traced in this process."""
+    """A closed box with a card inside, interleaved rotations and texel footprints, lit by a
+    lamp: the packaged bake's bytes, its scene and settings, and its one-process bake."""
     card = quad_mesh("Card", [(-0.2, -0.2, -0.1), (0.2, -0.2, -0.1), (0.2, 0.2, 0.1), (-0.2, 0.2, 0.1)],
                      resolution=resolution // 2)
     scene = Scene([box_interior(resolution=resolution), card],
                   [Light("Lamp", "POINT", np.ones(3), 50.0, position=np.array([0.1, 0.2, 0.3]))])
-    settings = BakeSettings(directions=128, bounces=1, interleave=2, footprint_samples=4, seed=3)
+    settings = BakeSettings(directions=128, bounces=2, interleave=2, footprint_samples=4, seed=3,
+                            passes=("lighting", "indirect", "ao"))
     path = tmp_path / "bake.vbpkg"
     write_package(path, scene, settings)
-    p = prepare(scene, settings, table_needed=False)
-    p.table = trace_table(p.ray_scene, p.trace_request())
-    return path.read_bytes(), len(p.position), p
+    return path.read_bytes(), scene, settings, bake(scene, settings)
+
+
+def _same_images(ours, theirs):
+    for a, b in zip(ours.objects, theirs.objects, strict=True):
+        assert list(a.images) == list(b.images)
+        for name in a.images:
+            assert np.array_equal(a.images[name], b.images[name]), (a.name, name)
 
 
 def _same_table(table, reference):
@@ -123,51 +127,43 @@ def cluster(tmp_path):
     running.close()
 
 
-def test_two_workers_trace_and_gather_by_rows_bit_identical(cluster, tmp_path):
-    package, samples, p = _bake(tmp_path, 48)
+def test_two_workers_bake_by_rows_bit_identical(cluster, tmp_path):
+    package, scene, settings, whole = _bake(tmp_path, 48)
     client = cluster.client(2)
     try:
-        work = engine.RowWork(client, package, samples, parts=5)
+        rows = engine.ClusterRows(client, package, parts=5)
         fractions = []
-        _same_table(work.trace(progress=fractions.append), p.table)
-        assert fractions[-1] == 1.0 and len(fractions) == 5
-        assert len(set(work.placement.values())) == 2  # both workers hold rows
-        summaries = work.summaries()
-        assert np.array_equal(summaries["gather_scale"], p.gather_scale())
-        assert np.array_equal(summaries["exposed"], p.exposed())
-        assert np.array_equal(summaries["buried"], p.table.buried())
-        # Two bounces' worth of gathers from made-up light, against the gather over every sample.
-        rng = np.random.default_rng(7)
-        for _ in range(2):
-            radiance = rng.uniform(0.0, 10.0, (p.layout.size, 3)).astype(np.float32) ** 3
-            world = rng.uniform(0.0, 1.0, (len(p.directions), 3))
-            expected = gather(p.gather_geometry(), GatherSource(radiance, world))
-            assert np.array_equal(work.gather(radiance, world), expected)
+        split = bake(scene, settings, lambda stage, fraction: fractions.append(fraction) if stage == "visibility"
+                     else None, split=rows)
+        _same_images(split, whole)
+        assert len(set(rows.placement.values())) == 2  # both workers hold rows
+        assert 1.0 in fractions
+        # The rows' tables, brought back for this check only, join to the one-process table.
+        p = prepare(scene, settings, table_needed=True)
+        joined = prepare(scene, settings, table_needed=True, split=rows).table.whole()
+        _same_table(joined, p.table)
     finally:
         client.close()
 
 
 def test_a_worker_killed_mid_run_changes_nothing(cluster, tmp_path):
-    package, samples, p = _bake(tmp_path, 96)
+    package, scene, settings, whole = _bake(tmp_path, 96)
     client = cluster.client(2)
     try:
         victim = cluster.workers[0]
         killed = []
 
-        def kill_once(fraction):
-            # After the first part is in, the first worker is killed while the rest run or wait.
-            if not killed:
+        def kill_once(stage, fraction):
+            # After the first range is traced, the first worker is killed while the rest run or wait.
+            if stage == "visibility" and fraction > 0 and not killed:
                 victim.send_signal(signal.SIGKILL)
                 killed.append(fraction)
 
-        work = engine.RowWork(client, package, samples, parts=12)
-        table = work.trace(progress=kill_once)
+        rows = engine.ClusterRows(client, package, parts=12)
+        split = bake(scene, settings, kill_once, split=rows)
         victim.wait(timeout=30)
         assert killed and victim.returncode == -signal.SIGKILL
-        _same_table(table, p.table)
-        # The dead worker's rows are traced again by the other one for the gather, to the same bits.
-        radiance = np.random.default_rng(3).uniform(0.0, 5.0, (p.layout.size, 3)).astype(np.float32)
-        world = np.full(3, 0.25)
-        assert np.array_equal(work.gather(radiance, world), gather(p.gather_geometry(), GatherSource(radiance, world)))
+        _same_images(split, whole)
+        assert len(set(rows.placement.values())) == 1  # the survivor traced the dead worker's rows again
     finally:
         client.close()

@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import astuple
 
 import numpy as np
 import pytest
@@ -444,8 +445,9 @@ def test_compiled_close_entries_and_exposed_shares_are_bitwise_numpy_s_for_any_t
                             settings=SimpleNamespace(threads=threads))
         for target, by_sample in reaches:
             theirs = contacts._close_entries_numpy(p, target, by_sample)
-            assert len(theirs[0]) > 1000
-            for a, b in zip(contacts.close_entries(p, target, by_sample), theirs):
+            assert len(theirs.sample) > 1000
+            ours = contacts.close_entries(p, target, by_sample)
+            for a, b in zip(astuple(ours), astuple(theirs)):
                 assert a.dtype == b.dtype
                 np.testing.assert_array_equal(a, b)
         for slots in (1, 7, 16, 97, 200):
