@@ -135,6 +135,48 @@ def _bake_setting_options(sub) -> None:
     sub.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _cluster_options(sub) -> None:
+    """Where the bake's table is traced and read, by ranges of sample rows (docs/scaleout.md)."""
+    group = sub.add_argument_group("on a Dask cluster (the images are the same bits as in one process)")
+    group.add_argument("--workers", type=int, metavar="N",
+                       help="start a local cluster of N worker processes (all cores without the GIL)")
+    group.add_argument("--scheduler", metavar="ADDRESS",
+                       help="join the Dask scheduler at tcp://HOST:PORT (this machine only) or tls://HOST:PORT")
+    group.add_argument("--parts", type=int, metavar="P", help="row ranges to split the samples into "
+                       "(default: 2 per worker)")
+    group.add_argument("--tls-ca-file", metavar="CA.pem", help="TLS: the certificate authority of the cluster")
+    group.add_argument("--tls-cert", metavar="CERT.pem", help="TLS: this client's certificate")
+    group.add_argument("--tls-key", metavar="KEY.pem", help="TLS: this client's private key")
+    group.add_argument("--insecure", action="store_true",
+                       help="allow a plain tcp:// scheduler on another machine (anyone who reaches it can run "
+                            "code on its workers)")
+
+
+def _cluster(args):
+    """The command's core.distributed.engine.ClusterOptions, or None for a bake in this process."""
+    tls_files = (args.tls_ca_file, args.tls_cert, args.tls_key)
+    if args.workers is None and args.scheduler is None:
+        used = [name for name, value in (("--parts", args.parts), ("--tls-ca-file", args.tls_ca_file),
+                                         ("--tls-cert", args.tls_cert), ("--tls-key", args.tls_key),
+                                         ("--insecure", args.insecure or None)) if value is not None]
+        if used:
+            raise BakeRefused(f"{', '.join(used)}: only with --workers or --scheduler")
+        return None
+    from ..core.distributed.engine import ClusterOptions, TLSFiles
+
+    tls = None
+    if any(tls_files):
+        if not all(tls_files):
+            raise BakeRefused("TLS needs all of --tls-ca-file, --tls-cert and --tls-key")
+        missing = [path for path in tls_files if not os.path.isfile(path)]
+        if missing:
+            raise BakeRefused(f"TLS: no such file: {', '.join(missing)}")
+        tls = TLSFiles(*(os.path.abspath(path) for path in tls_files))
+    options = ClusterOptions(args.workers, args.scheduler, tls, args.insecure, args.parts)
+    options.validate()
+    return options
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="visibake", description="Bake lighting from precomputed visibility (VisiBake).")
@@ -163,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help="latitude of the sun sweep in degrees (default 45)")
         sub.add_argument("--day", type=int, default=172, help="day of the year of the sun sweep (default 172, June 21)")
         sub.add_argument("--sun", metavar="NAME", help="the sun lamp the sweep moves (default: the scene's first sun)")
+    for sub in (bake, demo):
+        _cluster_options(sub)
     for sub in (bake, relight, demo):
         sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
         sub.add_argument("--objects", metavar="A,B",
@@ -723,6 +767,7 @@ def run(args) -> int:
     if args.command == "demo" and out_dir is None:
         out_dir = os.path.abspath("visibake_demo")
     _check_destinations(args, out_dir)
+    cluster = _cluster(args) if args.command in ("bake", "demo") else None
     _load_input(args)
     scene = bpy.context.scene
     props = scene.visibake
@@ -739,7 +784,7 @@ def run(args) -> int:
     try:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
                                relight_only=args.command == "relight", setups=setups, device_name=args.device,
-                               threads=args.threads)
+                               threads=args.threads, cluster=cluster)
     finally:
         progress.close()
     written, made_folders = [], []

@@ -13,7 +13,13 @@ in one process never needs them.
 from __future__ import annotations
 
 import ipaddress
+import os
+import shutil
 import socket
+import subprocess
+import sys
+import tempfile
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from urllib.parse import urlsplit
@@ -73,28 +79,140 @@ def check_scheduler_address(address: str, tls: TLSFiles | None = None, insecure:
     return address
 
 
+@dataclass(frozen=True)
+class ClusterOptions:
+    """Where a split bake runs: a new local cluster of ``workers`` processes, or the existing
+    scheduler at ``scheduler`` (with ``tls`` certificates, or ``insecure``); ``parts`` row
+    ranges (None: two per worker, so that a slow or lost worker's share is small)."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    tls: TLSFiles | None = None
+    insecure: bool = False
+    parts: int | None = None
+
+    def validate(self) -> None:
+        """ClusterRefused for a combination that cannot run."""
+        if (self.workers is None) == (self.scheduler is None):
+            raise ClusterRefused("give either --workers N (a local cluster) or --scheduler ADDRESS, not both")
+        if self.workers is not None and self.workers < 1:
+            raise ClusterRefused(f"--workers {self.workers}: give at least 1 worker process")
+        if self.parts is not None and self.parts < 1:
+            raise ClusterRefused(f"--parts {self.parts}: give at least 1 row range")
+        if self.scheduler is not None:
+            check_scheduler_address(self.scheduler, self.tls, self.insecure)
+
+    def describe(self) -> dict:
+        """What the report says of the cluster."""
+        return {"workers": self.workers, "scheduler": self.scheduler, "tls": self.tls is not None,
+                "insecure": self.insecure}
+
+
+def visibake_package() -> tuple[str, str]:
+    """(the dotted package VisiBake's core is imported under here, without ``.core``; its
+    folder): what a worker must import the tasks under (core/distributed/worker_preload.py)."""
+    core = __name__.rsplit(".distributed.engine", 1)[0]
+    package = core.rsplit(".", 1)[0] if "." in core else ""
+    folder = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return package, folder
+
+
+def worker_environment() -> dict:
+    """The environment of a worker process started here: this interpreter's module path (its
+    numpy, embree and kernels), and VisiBake's package for the preload."""
+    package, folder = visibake_package()
+    paths = [folder] + [p for p in sys.path if p and os.path.isdir(p)]
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(dict.fromkeys(paths)), VISIBAKE_PACKAGE=package,
+                VISIBAKE_PACKAGE_DIR=folder, DASK_DISTRIBUTED__WORKER__DAEMON="False")
+
+
+PRELOAD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_preload.py")
+# How long a local cluster may take to start (a worker imports numpy, embree and the kernels).
+START_SECONDS = 120
+
+
+class LocalProcesses:
+    """A ``dask scheduler`` and ``workers`` ``dask worker`` processes on 127.0.0.1, started
+    with this interpreter and stopped by :meth:`close`: what ``--workers N`` runs on. Plain
+    processes (not multiprocessing), so that they start the same from Blender as from Python."""
+
+    def __init__(self, workers: int, threads: int):
+        self.folder = tempfile.mkdtemp(prefix="visibake-cluster-")
+        self.scheduler_file = os.path.join(self.folder, "scheduler.json")
+        environment = worker_environment()
+        quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": environment}
+        self.processes = [subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--no-dashboard", "--scheduler-file", self.scheduler_file, "--preload", PRELOAD], **quiet)]
+        deadline = time.monotonic() + START_SECONDS
+        while not os.path.exists(self.scheduler_file):
+            if time.monotonic() > deadline or self.processes[0].poll() is not None:
+                self.close()
+                raise RuntimeError("the local Dask scheduler did not start")
+            time.sleep(0.1)
+        for number in range(workers):
+            self.processes.append(subprocess.Popen(
+                [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", self.scheduler_file,
+                 "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name", f"visibake-{number}",
+                 "--preload", PRELOAD, "--local-directory", os.path.join(self.folder, f"worker-{number}")],
+                **quiet))
+
+    def close(self) -> None:
+        for process in self.processes:
+            if process.poll() is None:
+                process.terminate()
+        for process in self.processes:
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
 @contextmanager
 def cluster_client(scheduler: str | None = None, workers: int | None = None, tls: TLSFiles | None = None,
-                   insecure: bool = False):
+                   insecure: bool = False, threads: int = 0):
     """A dask.distributed Client, closed on leaving: of the scheduler at ``scheduler``, or of
-    a new local cluster of ``workers`` processes on loopback (closed with it)."""
-    from distributed import Client, LocalCluster
-    from distributed.security import Security
+    a new local cluster of ``workers`` processes on loopback (closed with it; ``threads``:
+    the cores it may use, 0: all)."""
+    ClusterOptions(workers, scheduler, tls, insecure).validate()
+    try:
+        from distributed import Client
+        from distributed.security import Security
+    except ImportError as error:
+        raise ClusterRefused(f"the Dask engine is not installed here ({error}): install dask and distributed "
+                             "to bake on a cluster") from None
 
     if scheduler:
-        check_scheduler_address(scheduler, tls, insecure)
         security = None
         if tls is not None:
             security = Security(tls_ca_file=tls.ca_file, tls_client_cert=tls.certificate, tls_client_key=tls.key,
                                 require_encryption=True)
-        with Client(scheduler, security=security) as client:
+        with Client(scheduler, security=security, timeout=START_SECONDS) as client:
             yield client
         return
-    if not workers or workers < 1:
-        raise ClusterRefused(f"--workers {workers}: give at least 1 worker process")
-    with LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
-        yield client
+    processes = LocalProcesses(int(workers), threads)
+    try:
+        with Client(scheduler_file=processes.scheduler_file, timeout=START_SECONDS) as client:
+            client.wait_for_workers(int(workers), timeout=START_SECONDS)
+            yield client
+    finally:
+        processes.close()
+
+
+@contextmanager
+def cluster_rows(options: ClusterOptions, package: bytes, threads: int = 0):
+    """A :class:`ClusterRows` executor of the packaged bake on the cluster ``options`` names,
+    closed (with a local cluster) on leaving. threads : the cores this machine's workers share
+    (0: all): each local worker's tasks use its share; a remote worker's use all of its machine."""
+    options.validate()
+    cores = threads or os.cpu_count() or 1
+    with cluster_client(options.scheduler, options.workers, options.tls, options.insecure, cores) as client:
+        count = len(client.scheduler_info()["workers"])
+        if count < 1:
+            raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")
+        share = max(1, cores // count) if options.workers else 0
+        yield ClusterRows(client, package, options.parts or 2 * count, share)
 
 
 class ClusterRows:
@@ -112,6 +230,7 @@ class ClusterRows:
     worker processes on one machine, its share)
     """
 
+    name = "dask"
     # Arrays larger than this go to the workers once (scattered), not inside every task.
     SCATTER_BYTES = 1 << 16
     local_bytes = 0  # the driver holds none of the table
@@ -128,7 +247,19 @@ class ClusterRows:
         """Trace every range of the package's bake on the workers (``prepared`` is the driver's
         preparation of the same scene, without its table)."""
         self.ranges = row_ranges(len(prepared.position), self.parts)
-        stats = self.run("table_stats", [()] * len(self.ranges), (), progress)
+        try:
+            stats = self.run("table_stats", [()] * len(self.ranges), (), progress)
+        except (ImportError, RuntimeError) as error:
+            # A task's function is unpickled by the scheduler and by the worker: both must import
+            # VisiBake's core under this process's module name.
+            if not isinstance(error, ImportError) and "deserialization" not in str(error):
+                raise
+            package, folder = visibake_package()
+            raise ClusterRefused(
+                f"the cluster cannot import VisiBake ({str(error).splitlines()[0]}): start its scheduler and each "
+                f"worker with `--preload {PRELOAD}` (workers also with --nthreads 1) and, in their environment, "
+                f"VISIBAKE_PACKAGE={package} VISIBAKE_PACKAGE_DIR={folder} (a copy of this VisiBake on that "
+                "machine) and this Python's packages") from None
         differing = {s["samples"] for s in stats} - {len(prepared.position)}
         if differing:
             raise RuntimeError(f"the workers prepared {sorted(differing)} samples where this bake has "

@@ -75,6 +75,7 @@ import hashlib
 import json
 import math
 import os
+import tempfile
 import zipfile
 from dataclasses import dataclass, fields
 from datetime import datetime, timezone
@@ -180,6 +181,15 @@ def write_package(path: str | os.PathLike, scene: Scene, settings: BakeSettings,
         text = json.dumps(manifest, indent=1, ensure_ascii=True, allow_nan=False)
         archive.writestr(_entry_info(MANIFEST_NAME, zipfile.ZIP_DEFLATED), text.encode("ascii"))
     return manifest["checksum"]
+
+
+def package_bytes(scene: Scene, settings: BakeSettings, extra: dict | None = None) -> bytes:
+    """The package :func:`write_package` writes, as bytes (what a cluster's workers are sent)."""
+    with tempfile.TemporaryDirectory(prefix="visibake-package-") as folder:
+        path = os.path.join(folder, "bake.vbpkg")
+        write_package(path, scene, settings, extra)
+        with open(path, "rb") as stream:
+            return stream.read()
 
 
 class _Encoder:

@@ -54,6 +54,11 @@ class SplitTable:
         """The bytes this process holds of the table (all of it in process, none on a cluster)."""
         return self.executor.local_bytes
 
+    def describe(self) -> dict:
+        """What the bake report says of the split (Report.split)."""
+        return {"ranges": len(self.ranges), "executor": self.executor.name,
+                "table_bytes_held_by_ranges": int(self.remote_bytes)}
+
     def buried(self) -> np.ndarray:
         """(K,) bool, VisibilityTable.buried's rule on the joined per-sample counts."""
         return 2 * self.backface_per_sample > self.traced_per_sample
@@ -122,6 +127,8 @@ class InProcessRows:
 
     parts : the number of row ranges; threads : each task's worker threads (0: all cores)
     """
+
+    name = "in process"
 
     def __init__(self, parts: int, threads: int = 0):
         self.parts = int(parts)

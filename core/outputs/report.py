@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import kernels
+from ..distributed.split import SplitTable
 from ..transport.contract import Shadowing
 from ..visibility.cache import CacheStatus
 from .diagnostics import check_vertex_objects
@@ -215,6 +216,9 @@ class Report:
     passes: list[PassReport] = field(default_factory=list)
     # How the CPU lookups ran (core.kernels.KernelStatus.as_dict); empty in reports from before.
     kernels: dict = field(default_factory=dict)
+    # A table held by sample rows (core.distributed.split.SplitTable.describe, plus the job's
+    # cluster: workers, scheduler); None for a bake in one process, and left out of the JSON.
+    split: dict | None = None
     # Set by the Blender job (operators.adapter.job); None until then, and left out of the JSON.
     total_seconds: float | None = None
     peak_memory_bytes: int | None = None
@@ -253,7 +257,7 @@ class Report:
             **_without_none({
                 "total_seconds": self.total_seconds, "peak_memory_bytes": self.peak_memory_bytes,
                 "files": self.files, "blender_version": self.blender_version, "lights": self.lights,
-                "relight_only": self.relight_only,
+                "relight_only": self.relight_only, "split": self.split,
                 "device": self.device.to_dict() if self.device is not None else None,
                 "setups": [s.to_dict() for s in self.setups] if self.setups is not None else None,
                 "refined": [r.to_dict() for r in self.refined] if self.refined is not None else None,
@@ -342,6 +346,7 @@ def lighting_report(p: "Prepared", plan: dict, parts: dict, times: dict, passes:
         warnings=warnings,
         passes=[PassReport.from_dict(entry) for entry in passes],
         kernels=kernels.status().as_dict(),
+        split=table.describe() if isinstance(table, SplitTable) else None,
     )
     if table is not None and table.backface_hits:
         buried = table.buried()

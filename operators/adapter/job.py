@@ -24,6 +24,7 @@ from ...core.outputs import names
 from ...core.outputs.destinations import FOLDER, check_destinations, destination_problem
 from ...core.outputs.report import DeviceReport, RefinedReport, Report, SetupReport
 from ...core.pipeline.budget import peak_memory_bytes
+from ...core.pipeline.prepare import prepare
 from ...core.pipeline.relight import BakeResult, relight_many
 from ...core.pipeline.resident import prepare_or_reuse
 from ...core.sampling import layout as layout_policy
@@ -222,7 +223,7 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
              progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
              refine: bool | None = None, threads: int | None = None, keep_preparation: bool = False,
-             view_densities: dict | None = None) -> JobResult:
+             view_densities: dict | None = None, cluster=None) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -245,9 +246,11 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         (core.pipeline.resident); the panel's buttons do, a command (one bake a process) does not
     view_densities : {object name: texels per unit of surface} that the cameras which will see
         the bake need (core.lightfield.coverage): they lower those objects' atlas sizes
+    cluster : core.distributed.engine.ClusterOptions, or None: trace and read the table by
+        ranges of sample rows on a Dask cluster (the images are the same bits; no cache)
     """
     return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
-                   threads, keep_preparation, view_densities).run()
+                   threads, keep_preparation, view_densities, cluster).run()
 
 
 class BakeJob:
@@ -263,12 +266,13 @@ class BakeJob:
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
                  setups=None, device_name=None, refine=None, threads=None, keep_preparation=False,
-                 view_densities=None):
+                 view_densities=None, cluster=None):
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine, self.threads = device_name, refine, threads
         self.keep_preparation = keep_preparation
         self.view_densities = view_densities
+        self.cluster = cluster
         self.extracted = None
         self.results = None
 
@@ -316,7 +320,13 @@ class BakeJob:
         self.settings = settings = self.resolved.bake
         if setups is None:
             writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
-        self.chosen_device = device.choose(context, self.resolved.device)
+        if self.cluster is not None:
+            if self.relight_only or setups is not None:
+                raise BakeRefused("--workers and --scheduler bake one lighting without the cache: not with "
+                                  "relight, --setups or --sun-sweep")
+            self.cluster.validate()
+        # A table held by sample rows is read where it is kept, by the CPU kernels.
+        self.chosen_device = device.choose(context, "cpu" if self.cluster is not None else self.resolved.device)
         self.started = time.perf_counter()
         self.shadow_rays_per_sample = sum(shadow_rays_per_sample(extract.read_light(lamp), settings)
                                           for lamp in extract.scene_lights(context.scene))
@@ -387,9 +397,19 @@ class BakeJob:
         return work
 
     def compute(self) -> None:
-        """The visibility table and the transport (no bpy: any thread)."""
-        self.compute_visibility()
-        self.compute_lighting()
+        """The visibility table and the transport (no bpy: any thread); on a cluster, both
+        while its workers hold the table's rows."""
+        if self.cluster is None:
+            self.compute_visibility()
+            self.compute_lighting()
+            return
+        from ...core.distributed.engine import cluster_rows
+        from ...core.distributed.package import package_bytes
+
+        package = package_bytes(self.extracted.scene, self.settings)
+        with cluster_rows(self.cluster, package, self.settings.threads) as rows:
+            self.prepared = prepare(self.extracted.scene, self.settings, self.progress, split=rows)
+            self.compute_lighting()
 
     def compute_visibility(self) -> None:
         """The visibility table, traced or from the cache (no bpy: any thread)."""
@@ -495,6 +515,8 @@ class BakeJob:
         report.lights = [light.name for light in lightings[-1][1]]
         report.relight_only = self.relight_only
         report.device = DeviceReport.from_dict(self.chosen_device.report)
+        if self.cluster is not None:
+            report.split = {**(report.split or {}), "cluster": self.cluster.describe()}
         if setups is not None:
             # The last setup's times are the whole bake's, as in the report itself.
             report.setups = [SetupReport(name=name, lights=[light.name for light in lights],
