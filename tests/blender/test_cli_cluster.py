@@ -1,0 +1,77 @@
+"""``visibake bake --workers N``: the installed extension's bake on a local Dask cluster (plain
+``dask scheduler`` and ``dask worker`` processes that import the extension's core without
+Blender), equal bit for bit to the same bake in one process; and the cluster options' refusals."""
+import json
+
+import bpy
+
+import numpy as np
+import pytest
+
+from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun
+
+pytest.importorskip("distributed", reason="the Dask engine (requirements.txt) is not installed")
+
+
+@pytest.fixture
+def room_blend(clean_scene, tmp_path):
+    """A ground, a block on it and a lamp: contacts, a bounce, an atlas made by the bake."""
+    black_world()
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    mesh_object("Block", cube(0.5), material("Grey", (0.5, 0.5, 0.5)), location=(0, 0, 0.5), uv_map=None)
+    sun(3.0, tilt_degrees=20.0)
+    point(200.0, (0.6, -0.4, 1.5))
+    path = tmp_path / "room.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    return path
+
+
+def _channels(path):
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as exr:
+        return {name: np.array(channel.pixels) for name, channel in exr.channels().items()}
+
+
+def test_a_bake_on_two_local_workers_equals_the_one_process_bake(visibake, room_blend, tmp_path):
+    common = ["bake", str(room_blend), "--resolution", "32", "--directions", "48", "--bounces", "2",
+              "--passes", "lighting,indirect,ao", "--no-progress", "--no-cache"]
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "one"), "--report", str(tmp_path / "one.json")]) == 0
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "two"), "--report", str(tmp_path / "two.json"),
+                                       "--workers", "2", "--parts", "3"]) == 0
+    for name in ("Ground", "Block"):
+        for pass_name in ("lighting", "indirect", "ao"):
+            ours, theirs = _channels(tmp_path / "two" / name / f"{pass_name}.exr"), _channels(
+                tmp_path / "one" / name / f"{pass_name}.exr")
+            assert ours.keys() == theirs.keys()
+            for channel in ours:
+                assert np.array_equal(ours[channel], theirs[channel]), (name, pass_name, channel)
+            assert np.any(ours["RGBA"][..., :3] > 0)
+    report = json.loads((tmp_path / "two.json").read_text())
+    assert report["split"]["ranges"] == 3 and report["split"]["executor"] == "dask"
+    assert report["split"]["cluster"]["workers"] == 2
+    assert report["split"]["table_bytes_held_by_ranges"] > 0
+    assert report["table_bytes"] == 0  # this process held none of the table
+    assert report["device"]["used"] == "cpu"
+    assert "split" not in json.loads((tmp_path / "one.json").read_text())
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--workers", "0"], "at least 1 worker"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"], "not both"),
+    (["--scheduler", "tcp://10.20.30.40:8786"], "--insecure"),
+    (["--scheduler", "tls://10.20.30.40:8786"], "needs the certificates"),
+    (["--scheduler", "tls://10.20.30.40:8786", "--tls-cert", "c.pem"], "all of --tls-ca-file"),
+    (["--insecure"], "only with --workers or --scheduler"),
+    (["--workers", "2", "--parts", "0"], "at least 1 row range"),
+    (["--workers", "2", "--sun-sweep", "6:18:3"], "not with relight, --setups or --sun-sweep"),
+])
+def test_cluster_options_that_cannot_run_exit_2_before_any_work(visibake, room_blend, tmp_path, capfd, extra,
+                                                              message):
+    out = tmp_path / "out"
+    status = visibake.cli.main(["bake", str(room_blend), "--resolution", "16", "--directions", "16",
+                                "--no-progress", "--out", str(out)] + extra)
+    assert status == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert err and message in err[-1]
+    assert not out.exists() or not any(out.rglob("*.exr"))
