@@ -142,8 +142,8 @@ def _cluster_options(sub) -> None:
                        help="start a local cluster of N worker processes (all cores without the GIL)")
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="join the Dask scheduler at tcp://HOST:PORT (this machine only) or tls://HOST:PORT")
-    group.add_argument("--parts", type=int, metavar="P", help="row ranges to split the samples into "
-                       "(default: 2 per worker)")
+    group.add_argument("--parts", type=int, metavar="P", help="parts to split the work into: ranges of texels "
+                       "for a bake, of light directions for brdf (default: 2 per worker)")
     group.add_argument("--tls-ca-file", metavar="CA.pem", help="TLS: the certificate authority of the cluster")
     group.add_argument("--tls-cert", metavar="CERT.pem", help="TLS: this client's certificate")
     group.add_argument("--tls-key", metavar="KEY.pem", help="TLS: this client's private key")
@@ -258,6 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
                            "face (default: each material's own)")
     _setting_option(brdf, "--seed", SETTINGS["seed"])
     _setting_option(brdf, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    _cluster_options(brdf)
     brdf.add_argument("--material", metavar="NAME",
                       help="also make a Principled BSDF material NAME fitted to the BRDF (keep it with --save)")
     brdf.add_argument("--save", metavar="OUT.blend", help="save the scene (with the fitted material) as OUT.blend")
@@ -627,9 +628,10 @@ def run_brdf(args) -> int:
     if output_format in ("table", "bsdf") and not args.out.lower().endswith(".npz"):
         raise BakeRefused(f"--out {args.out!r}: a tabulated BSDF ends in .npz")
     _check_destinations(args, None)
+    cluster = _cluster(args)
     tile, settings = _tile_and_settings(args)
     report = _run_appearance(args, lambda progress: tile_io.run_brdf(
-        tile, args.out, output_format, args.lights, args.views, settings, args.overwrite, progress))
+        tile, args.out, output_format, args.lights, args.views, settings, args.overwrite, progress, cluster))
     fit = report.get("principled_fit")
     if fit is not None:
         print(f"visibake: Principled BSDF fit ({fit['model']}): base colour "

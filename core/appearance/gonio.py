@@ -40,6 +40,7 @@ import numpy as np
 
 from .. import kernels
 from ..errors import AppearanceRefused
+from ..transport.contract import direction_chunks
 from ..visibility.directions import direction_set
 from ..visibility.rays import offset_ray_origins
 from .periodic import ESCAPED_DOWN, ESCAPED_UP, HIT, PeriodicScene
@@ -361,17 +362,41 @@ class _LitBatch:
     incoming: np.ndarray | None
 
 
-def _light_batches(tile: Tile, prepared: _Prepared, lights: np.ndarray, settings: GonioSettings, module, times: dict):
-    """Yield a _LitBatch per batch of light directions: direct light, then the bounces."""
+def light_batch(tile: Tile, samples: int, directions: int) -> int:
+    """The lights simulated together: all a batch's lights share each bounce's table walk, and
+    a glossy batch holds (samples, directions, lights) radiances in memory."""
+    if not tile.glossy:
+        return DIFFUSE_BATCH
+    return max(1, min(DIFFUSE_BATCH, GLOSSY_BATCH_BYTES // max(1, samples * directions * 3 * 4 * 2)))
+
+
+def part_lights(light_count: int, batch: int, part: tuple[int, int] | None) -> range:
+    """The lights of part ``part`` = (index, count) of a run split into ``count`` parts: whole
+    batches (so each is simulated as in the whole run, to the same bits), contiguous."""
+    if part is None:
+        return range(light_count)
+    index, count = part
+    chunks = direction_chunks(-(-light_count // batch), count)
+    if index >= len(chunks):  # more parts than batches: this one has none
+        return range(light_count, light_count)
+    batches = chunks[index]
+    return range(min(batches.start * batch, light_count), min(batches.stop * batch, light_count))
+
+
+def _light_batches(tile: Tile, prepared: _Prepared, lights: np.ndarray, settings: GonioSettings, module, times: dict,
+                   only: range | None = None):
+    """Yield a _LitBatch per batch of light directions: direct light, then the bounces (only
+    the batches starting in ``only``, if given)."""
     import time
     samples, tables, directions = prepared.samples, prepared.tables, prepared.directions
     glossy = tile.glossy
     n = len(directions)
     count = len(samples)
-    batch = (max(1, min(DIFFUSE_BATCH, GLOSSY_BATCH_BYTES // max(1, count * n * 3 * 4 * 2))) if glossy
-             else DIFFUSE_BATCH)
+    batch = light_batch(tile, count, n)
     threads = settings.threads
     for first in range(0, len(lights), batch):
+        if only is not None and first not in only:
+            continue
         chunk = lights[first:first + batch]
         b = len(chunk)
         mark = time.perf_counter()
@@ -453,7 +478,8 @@ def _start(settings: GonioSettings | None, lights, views, sphere: bool = True):
 
 
 def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = None,
-                  progress: Callable[[str, float], None] | None = None) -> BRDFSamples:
+                  progress: Callable[[str, float], None] | None = None, part: tuple[int, int] | None = None
+                  ) -> BRDFSamples:
     """The tile's BRDF at every (light, view) pair (see the module's docstring).
 
     lights, views : (L, 3), (V, 3) directions (normalised here), z up, anywhere on the sphere
@@ -461,6 +487,9 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
         underside, a view below it sees the underside and what the tile lets through (its
         BSDF's transmission; with the light above, sampled with sphere_directions).
     ``progress(stage, fraction)`` is called between steps and may raise core.errors.Cancelled.
+    part : (index, count), or None: only part ``index`` of the run split in ``count`` parts by
+        light batches (:func:`part_lights`); its samples hold those lights alone, and
+        :func:`join_brdf_parts` joins the parts into the whole run's samples, bit for bit.
     """
     import time
     settings, module, lights, views = _start(settings, lights, views)
@@ -480,9 +509,11 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
         warnings.append(f"up to {100 * seen.back_share.max():.1f}% of a view sees the backs of faces, which are "
                         "black here: check that the tile's normals point outwards")
     values = np.zeros((len(lights), len(views), 3))
-    through = np.array([transparency(prepared.scene, light, settings.view_rays) for light in lights])
+    mine = part_lights(len(lights), light_batch(tile, len(samples), len(prepared.directions)), part)
+    through = np.zeros(len(lights))
+    through[mine] = [transparency(prepared.scene, light, settings.view_rays) for light in lights[mine]]
     times: dict = {"gather_views_s": 0.0}
-    for lit in _light_batches(tile, prepared, lights, settings, module, times):
+    for lit in _light_batches(tile, prepared, lights, settings, module, times, mine):
         mark = time.perf_counter()
         b = len(lit.lights)
         if lit.incoming is None:
@@ -495,7 +526,7 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
                 towards = _outgoing_towards(tile, prepared, lit, view, rows, module, settings.threads)
                 values[lit.first:lit.first + b, index] += np.einsum("r,rbc->bc", seen.weights[index, rows], towards)
         times["gather_views_s"] += time.perf_counter() - mark
-        report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b) / len(lights)))
+        report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b - mine.start) / max(len(mine), 1)))
 
     # The macro surface receives |cos theta_l| from a sun of unit irradiance on either side.
     cosine = np.abs(lights[:, 2])
@@ -507,7 +538,22 @@ def simulate_brdf(tile: Tile, lights, views, settings: GonioSettings | None = No
     stats.update({key: round(value, 3) for key, value in times.items()})
     stats["total_s"] = round(time.perf_counter() - started, 3)
     stats["glossy"] = tile.glossy
+    if part is not None:
+        stats["part"] = [int(part[0]), int(part[1])]
+        return BRDFSamples(lights[mine], views, values[mine], through[mine], stats, warnings)
     return BRDFSamples(lights, views, values, through, stats, warnings)
+
+
+def join_brdf_parts(parts: list[BRDFSamples]) -> BRDFSamples:
+    """The samples of a run from its parts (:func:`simulate_brdf` with ``part``), in part order:
+    bit for bit the whole run's. The stats are the first part's (the others' add theirs under
+    ``parts``), the warnings each said once."""
+    first = parts[0]
+    stats = dict(first.stats, parts=[dict(p.stats) for p in parts])
+    warnings = list(dict.fromkeys(w for p in parts for w in p.warnings))
+    return BRDFSamples(np.concatenate([p.light for p in parts]), first.view,
+                       np.concatenate([p.values for p in parts]), np.concatenate([p.transparency for p in parts]),
+                       stats, warnings)
 
 
 def pixel_rays(scene: PeriodicScene, samples: TileSamples, view: np.ndarray, width: int, height: int,

@@ -27,6 +27,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from ..errors import BakeRefused
+from .part_tasks import run_part
 from .rows import row_ranges, run_task
 from .split import SplitTable
 
@@ -120,10 +121,14 @@ def visibake_package() -> tuple[str, str]:
 def worker_environment() -> dict:
     """The environment of a worker process started here: this interpreter's module path (its
     numpy, embree and kernels), and VisiBake's package for the preload."""
+    from .. import kernels
+
     package, folder = visibake_package()
     paths = [folder] + [p for p in sys.path if p and os.path.isdir(p)]
+    # The kernels compiled here serve the workers too (same sources, same import name).
     return dict(os.environ, PYTHONPATH=os.pathsep.join(dict.fromkeys(paths)), VISIBAKE_PACKAGE=package,
-                VISIBAKE_PACKAGE_DIR=folder, DASK_DISTRIBUTED__WORKER__DAEMON="False")
+                VISIBAKE_PACKAGE_DIR=folder, NUMBA_CACHE_DIR=kernels.cache_root(),
+                DASK_DISTRIBUTED__WORKER__DAEMON="False")
 
 
 PRELOAD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_preload.py")
@@ -247,19 +252,7 @@ class ClusterRows:
         """Trace every range of the package's bake on the workers (``prepared`` is the driver's
         preparation of the same scene, without its table)."""
         self.ranges = row_ranges(len(prepared.position), self.parts)
-        try:
-            stats = self.run("table_stats", [()] * len(self.ranges), (), progress)
-        except (ImportError, RuntimeError) as error:
-            # A task's function is unpickled by the scheduler and by the worker: both must import
-            # VisiBake's core under this process's module name.
-            if not isinstance(error, ImportError) and "deserialization" not in str(error):
-                raise
-            package, folder = visibake_package()
-            raise ClusterRefused(
-                f"the cluster cannot import VisiBake ({str(error).splitlines()[0]}): start its scheduler and each "
-                f"worker with `--preload {PRELOAD}` (workers also with --nthreads 1) and, in their environment, "
-                f"VISIBAKE_PACKAGE={package} VISIBAKE_PACKAGE_DIR={folder} (a copy of this VisiBake on that "
-                "machine) and this Python's packages") from None
+        stats = self.run("table_stats", [()] * len(self.ranges), (), progress)
         differing = {s["samples"] for s in stats} - {len(prepared.position)}
         if differing:
             raise RuntimeError(f"the workers prepared {sorted(differing)} samples where this bake has "
@@ -270,8 +263,6 @@ class ClusterRows:
         """``core.distributed.row_tasks.<task>(prepared, kept rows, *per_range[i], *shared,
         threads)`` for each range i on the worker holding it where it is still alive; results
         in row order. progress : callable(fraction) after each finished range, or None."""
-        from distributed import as_completed
-
         shared = tuple(self.client.scatter(value, broadcast=True)
                        if isinstance(value, np.ndarray) and value.nbytes > self.SCATTER_BYTES else value
                        for value in shared)
@@ -281,14 +272,53 @@ class ClusterRows:
             where = {"workers": [self.placement[r]], "allow_other_workers": True} if r in self.placement else {}
             futures.append(self.client.submit(run_task, self.package, r.start, r.stop, task, *own, *shared,
                                               pure=False, retries=TASK_RETRIES, threads=self.threads, **where))
-        done = 0
-        for _ in as_completed(futures):
-            done += 1
-            if progress is not None:
-                progress(done / len(futures))
-        results = self.client.gather(futures)
+        results = gathered(self.client, futures, progress)
         holders = self.client.who_has(futures)
         for r, future in zip(self.ranges, futures):
             if holders.get(future.key):
                 self.placement[r] = holders[future.key][0]
         return results
+
+
+def run_parts(client, task: str, arguments: list[tuple], progress=None) -> list:
+    """``core.distributed.part_tasks.<task>(*arguments[i])`` for every part i on the cluster,
+    retried where a worker dies; results in part order. progress : callable(fraction) after
+    each finished part, or None."""
+    futures = [client.submit(run_part, task, *own, pure=False, retries=TASK_RETRIES) for own in arguments]
+    return gathered(client, futures, progress)
+
+
+def gathered(client, futures: list, progress=None) -> list:
+    """The futures' results in their order, ``progress(fraction)`` after each finished one;
+    ClusterRefused, saying how to start it, where the cluster cannot import VisiBake."""
+    from distributed import as_completed
+
+    try:
+        for done, _ in enumerate(as_completed(futures), 1):
+            if progress is not None:
+                progress(done / len(futures))
+        return client.gather(futures)
+    except (ImportError, RuntimeError) as error:
+        # A task's function is unpickled by the scheduler and by the worker: both must import
+        # VisiBake's core under this process's module name.
+        if not isinstance(error, ImportError) and "deserialization" not in str(error):
+            raise
+        package, folder = visibake_package()
+        raise ClusterRefused(
+            f"the cluster cannot import VisiBake ({str(error).splitlines()[0]}): start its scheduler and each "
+            f"worker with `--preload {PRELOAD}` (workers also with --nthreads 1) and, in their environment, "
+            f"VISIBAKE_PACKAGE={package} VISIBAKE_PACKAGE_DIR={folder} (a copy of this VisiBake on that "
+            "machine) and this Python's packages") from None
+
+
+@contextmanager
+def cluster_parts(options: ClusterOptions, threads: int = 0):
+    """(client, parts, each part's threads) of the cluster ``options`` names, closed (with a
+    local cluster) on leaving: ``parts`` is options.parts, else two per worker."""
+    options.validate()
+    cores = threads or os.cpu_count() or 1
+    with cluster_client(options.scheduler, options.workers, options.tls, options.insecure, cores) as client:
+        count = len(client.scheduler_info()["workers"])
+        if count < 1:
+            raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")
+        yield client, options.parts or 2 * count, max(1, cores // count) if options.workers else 0

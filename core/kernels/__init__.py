@@ -34,6 +34,7 @@ KERNEL_OPTIONS = {"parallel": True, "cache": True, "nogil": True, "error_model":
 
 _lock = threading.RLock()
 _cache_dir: str | None = None
+_root: str | None = None  # the cache root the kernels were loaded with (cache_root)
 _status: KernelStatus | None = None
 _module = None
 _volume_module = None
@@ -92,6 +93,14 @@ def configure(cache_dir: str | None) -> None:
             _cache_dir = cache_dir
 
 
+def cache_root() -> str:
+    """The folder whose subfolders (one per import name) hold the compiled kernels: the one
+    chosen at the first load (which then points NUMBA_CACHE_DIR at its subfolder), else the
+    one a load would choose. Processes started from this one (a cluster's workers) take it as
+    their NUMBA_CACHE_DIR, to find the kernels compiled here."""
+    return _root or _cache_dir or os.environ.get("NUMBA_CACHE_DIR") or default_cache_dir()
+
+
 def _load() -> KernelStatus:
     global _module
     wanted = os.environ.get(ENVIRONMENT_SWITCH, "numba").strip().lower() or "numba"
@@ -103,9 +112,10 @@ def _load() -> KernelStatus:
     # under another name fails to load (ModuleNotFoundError) instead of compiling again: the
     # same sources imported as `visibake.core` (tools/visibake.py) and as `core` (tests,
     # benchmarks) keep their kernels apart, one folder per name.
+    global _root
     package = __name__.rpartition(".")[0] or "core"
-    cache_dir = os.path.join(_cache_dir or os.environ.get("NUMBA_CACHE_DIR") or default_cache_dir(),
-                             re.sub(r"[^A-Za-z0-9._-]+", "_", package))
+    _root = cache_root()
+    cache_dir = os.path.join(_root, re.sub(r"[^A-Za-z0-9._-]+", "_", package))
     started = time.perf_counter()
     try:
         os.makedirs(cache_dir, exist_ok=True)

@@ -246,10 +246,13 @@ class BRDFJob(_TileJob):
 
     def __init__(self, tile, out_path: str, output_format: str, lights: int, views: int,
                  settings: gonio.GonioSettings, overwrite: bool = False, progress=None, make_folder: bool = False,
-                 fit_material: bool = True):
+                 fit_material: bool = True, cluster=None):
         """make_folder: create the output's folder when it is missing (the panel's default
         folder beside the .blend); it goes again if the run fails. fit_material: fit Blender's
-        Principled BSDF to the samples (core.appearance.fit), for the report and make_material."""
+        Principled BSDF to the samples (core.appearance.fit), for the report and make_material.
+        cluster: core.distributed.engine.ClusterOptions, or None: simulate the light batches
+        in parts on a Dask cluster (the samples are the same bits)."""
+        self.cluster = cluster
         self.make_folder = make_folder
         self.fit_material = fit_material
         self.tile_source = tile
@@ -292,9 +295,29 @@ class BRDFJob(_TileJob):
             return merl.merl_direction_sets(self.lights, self.views, seed=self.settings.seed)
         return gonio.hemisphere_directions(self.lights), gonio.hemisphere_directions(self.views)
 
+    def simulate(self, light_set: np.ndarray, view_set: np.ndarray) -> gonio.BRDFSamples:
+        """The samples, in this process or in parts on the cluster."""
+        if self.cluster is None:
+            return gonio.simulate_brdf(self.tile, light_set, view_set, self.settings, self.progress)
+        from dataclasses import replace
+
+        from ...core.distributed.engine import cluster_parts, run_parts
+        from ...core.version import visibake_version
+
+        if self.progress is not None:
+            self.progress("starting the cluster", 0.0)
+        with cluster_parts(self.cluster, self.settings.threads) as (client, parts, threads):
+            settings = replace(self.settings, threads=threads)
+            arguments = [(visibake_version(), self.tile, light_set, view_set, settings, index, parts)
+                         for index in range(parts)]
+            report = None if self.progress is None else (lambda fraction: self.progress("lights", fraction))
+            result = gonio.join_brdf_parts(run_parts(client, "brdf_part", arguments, report))
+        self.outcome.report["split"] = {"parts": parts, "cluster": self.cluster.describe()}
+        return result
+
     def compute(self) -> None:
         light_set, view_set = self.direction_sets()
-        self.result = gonio.simulate_brdf(self.tile, light_set, view_set, self.settings, self.progress)
+        self.result = self.simulate(light_set, view_set)
         if self.progress is not None:
             self.progress("writing", 0.0)
         result = self.result
@@ -383,9 +406,10 @@ class BRDFJob(_TileJob):
 
 
 def run_brdf(tile: Tile, out_path: str, output_format: str, lights: int, views: int, settings: gonio.GonioSettings,
-             overwrite: bool = False, progress=None) -> dict:
+             overwrite: bool = False, progress=None, cluster=None) -> dict:
     """:class:`BRDFJob` at once (the command line); returns its report."""
-    return BRDFJob(tile, out_path, output_format, lights, views, settings, overwrite, progress).run().report
+    return BRDFJob(tile, out_path, output_format, lights, views, settings, overwrite, progress,
+                   cluster=cluster).run().report
 
 
 class BTFJob(_TileJob):

@@ -75,3 +75,22 @@ def test_cluster_options_that_cannot_run_exit_2_before_any_work(visibake, room_b
     err = capfd.readouterr().err.strip().splitlines()
     assert err and message in err[-1]
     assert not out.exists() or not any(out.rglob("*.exr"))
+
+
+def test_a_brdf_run_on_two_local_workers_equals_the_one_process_run(visibake, tmp_path):
+    from test_brdf_command import groove_scene
+
+    blend = groove_scene(tmp_path / "groove.blend")
+    common = ["brdf", str(blend), "--tile", "Groove", "--format", "table", "--lights", "70", "--views", "5",
+              "--directions", "32", "--resolution", "8", "--view-rays", "32", "--no-progress"]
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "one.npz")]) == 0
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "two.npz"), "--workers", "2",
+                                       "--report", str(tmp_path / "two.json")]) == 0
+    with np.load(tmp_path / "one.npz") as one, np.load(tmp_path / "two.npz") as two:
+        assert sorted(one.files) == sorted(two.files)
+        for name in one.files:
+            assert np.array_equal(one[name], two[name]), name
+        assert np.any(two["values"] > 0)
+    report = json.loads((tmp_path / "two.json").read_text())
+    assert report["split"] == {"parts": 4, "cluster": {"workers": 2, "scheduler": None, "tls": False,
+                                                       "insecure": False}}

@@ -167,3 +167,36 @@ def test_a_worker_killed_mid_run_changes_nothing(cluster, tmp_path):
         assert len(set(rows.placement.values())) == 1  # the survivor traced the dead worker's rows again
     finally:
         client.close()
+
+
+def test_a_brdf_run_in_parts_on_two_workers_survives_a_killed_worker(cluster):
+    from benchmarks import brdf_tiles
+    from core.appearance import gonio
+    from core.appearance.tile import Tile
+    from core.distributed.package import PackageRefused
+    from core.version import visibake_version
+
+    tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=0.7)
+    lights, views = gonio.sphere_directions(200), gonio.hemisphere_directions(8)
+    settings = gonio.GonioSettings(directions=64, bounces=2, resolution=16, view_rays=64, seed=1)
+    whole = gonio.simulate_brdf(tile, lights, views, settings)
+    client = cluster.client(2)
+    try:
+        victim, killed = cluster.workers[0], []
+
+        def kill_once(fraction):
+            if not killed:
+                victim.send_signal(signal.SIGKILL)
+                killed.append(fraction)
+
+        arguments = [(visibake_version(), tile, lights, views, settings, index, 4) for index in range(4)]
+        joined = gonio.join_brdf_parts(engine.run_parts(client, "brdf_part", arguments, kill_once))
+        victim.wait(timeout=30)
+        assert killed and victim.returncode == -signal.SIGKILL
+        for name in ("light", "values", "transparency"):
+            assert np.array_equal(getattr(joined, name), getattr(whole, name)), name
+        # A driver of another VisiBake version is refused by the worker, with both versions named.
+        with pytest.raises(PackageRefused, match="this worker runs VisiBake .*, the driver 0.0.0-other"):
+            engine.run_parts(client, "brdf_part", [("0.0.0-other", tile, lights[:2], views, settings, 0, 1)])
+    finally:
+        client.close()

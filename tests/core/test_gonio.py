@@ -307,3 +307,42 @@ class TestBTF:
                            small_settings())
         assert np.allclose(images[0][:, :4], 1.0, rtol=1e-4)
         assert np.all(images[0][:, 4:] == 0)
+
+
+class TestParts:
+    """A run split by light batches (scale-out, issue 20): the parts joined are the whole run, bit for bit."""
+
+    @staticmethod
+    def _same(joined, whole):
+        for name in ("light", "view", "values", "transparency"):
+            ours, theirs = getattr(joined, name), getattr(whole, name)
+            assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), name
+
+    def test_lambert_parts_join_to_the_whole_run(self):
+        tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=0.7)
+        lights, views = gonio.sphere_directions(150), gonio.hemisphere_directions(6)
+        whole = gonio.simulate_brdf(tile, lights, views, small_settings())
+        assert whole.stats["samples"] > 0 and np.all(whole.values[lights[:, 2] > 0.1] > 0)
+        for count in (1, 2, 3, 5):  # 150 lights are 3 batches: 5 parts leave two empty
+            parts = [gonio.simulate_brdf(tile, lights, views, small_settings(threads=1 + index % 2),
+                                         part=(index, count)) for index in range(count)]
+            assert sum(len(p.light) for p in parts) == len(lights)
+            self._same(gonio.join_brdf_parts(parts), whole)
+
+    def test_glossy_parts_of_several_batches_join_to_the_whole_run(self, monkeypatch):
+        tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=0.7, specular=0.3, roughness=0.4)
+        lights, views = gonio.hemisphere_directions(9), gonio.hemisphere_directions(4)
+        samples = len(tile_samples(tile, 16))
+        # Two lights a batch: five batches.
+        monkeypatch.setattr(gonio, "GLOSSY_BATCH_BYTES", 2 * samples * 64 * 3 * 4 * 2)
+        assert gonio.light_batch(tile, samples, 64) == 2
+        whole = gonio.simulate_brdf(tile, lights, views, small_settings())
+        parts = [gonio.simulate_brdf(tile, lights, views, small_settings(), part=(index, 3)) for index in range(3)]
+        assert [len(p.light) for p in parts] == [4, 2, 3]  # batches 2 + 1 + 2, the last holding one light
+        self._same(gonio.join_brdf_parts(parts), whole)
+
+    def test_part_lights_are_whole_contiguous_batches(self):
+        for lights, batch, count in ((150, 64, 2), (10, 3, 4), (5, 64, 3), (64, 64, 1)):
+            ranges = [gonio.part_lights(lights, batch, (index, count)) for index in range(count)]
+            assert [i for r in ranges for i in r] == list(range(lights))
+            assert all(r.start % batch == 0 for r in ranges if len(r))

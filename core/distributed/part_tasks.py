@@ -1,0 +1,31 @@
+"""Runs split into independent parts (BRDF samples by light batches), as a cluster's worker
+runs one part: each returns its share, and the driver joins the shares in part order.
+
+A task is named by its function's name here; its first argument is the driver's VisiBake
+version, and a worker of another version refuses the task (as a scene package of another
+version is refused: their results could differ).
+"""
+from __future__ import annotations
+
+from ..version import visibake_version
+from .package import PackageRefused
+
+
+def check_version(expected: str) -> None:
+    """PackageRefused unless this process runs VisiBake ``expected``."""
+    if expected != visibake_version():
+        raise PackageRefused(f"this worker runs VisiBake {visibake_version()}, the driver {expected}: start the "
+                             "workers with the driver's VisiBake")
+
+
+def brdf_part(version: str, tile, lights, views, settings, index: int, count: int):
+    """Part ``index`` of ``count`` of core.appearance.gonio.simulate_brdf (its BRDFSamples)."""
+    from ..appearance.gonio import simulate_brdf
+
+    check_version(version)
+    return simulate_brdf(tile, lights, views, settings, part=(index, count))
+
+
+def run_part(task: str, *arguments):
+    """The part task named ``task`` (a function of this module) on ``arguments``."""
+    return globals()[task](*arguments)
