@@ -1,24 +1,26 @@
-"""Scale-out (issue 20), first measurements: the demo's table traced and gathered by sample
-rows on 1, 2 and 4 local Dask worker processes, against the same work in this process.
+"""Scale-out (issue 20): the demo baked whole on 1, 2 and 4 local Dask worker processes
+(the table traced and read by sample rows where each range is kept), against the same bake
+in this process; and a BRDF run in parts.
 
     export NUMBA_CACHE_DIR=/tmp/numba-cache
-    .venv/bin/python benchmarks/scaleout.py [--workers 1,2,4] [--bounces 2]
+    .venv/bin/python benchmarks/scaleout.py [--workers 1,2,4] [--brdf-lights 256]
 
 The built-in demo room at VisiBake's default settings (128 directions, 256^2 atlases,
-interleaved rotations, footprints) is extracted in bpy and written as a scene package
-(core/distributed/package.py). Then, without Blender:
+interleaved rotations, footprints, 2 bounces) is extracted in bpy and written as a scene
+package (core/distributed/package.py). Then, without Blender, with the kernels loaded first:
 
-- in this process: prepare the samples, trace the table (``trace_table``), gather twice
-  from made-up radiance (a bounce's worth each);
-- per worker count W: a LocalCluster of W processes (1 Dask thread each, and cores / W
-  threads for embree and the kernels, so the machine is never oversubscribed), ``RowWork``
-  with 2 W row ranges: trace (prepares the samples on every worker, sends the package), then
-  the same two gathers. Every table and gather is checked bit for bit against this process's.
+- in this process: ``bake(scene, settings)``, and the same with the table held by 2 row
+  ranges in this process (``InProcessRows``: the split's own overhead, no cluster);
+- per worker count W: a local cluster of W ``dask worker`` processes (1 Dask thread each,
+  and cores / W threads for embree and the kernels, so the machine is never
+  oversubscribed), and ``bake(..., split=ClusterRows(client, package, 2 W))``. Every image is
+  checked bit for bit against the one-process bake's;
+- a V-groove BRDF (Lambert, 64 directions, 3 bounces, L lights x 32 views) whole and in
+  2 W parts on the same clusters, checked bit for bit.
 
-Reported: seconds of each stage, the speed-up against this process, each worker's peak
-resident memory (``ru_maxrss``) and this process's, the bytes a bounce moves (the atlas out
-to every worker, the rows' irradiance back) against its compute. Writes
-benchmarks/results/scaleout.json.
+Reported: seconds (cluster start apart), the speed-up against this process, each worker's
+peak resident memory (``ru_maxrss``) and this process's, and the bytes a bounce moves (the
+atlas out to every worker, the rows' irradiance back). Writes benchmarks/results/scaleout.json.
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ import resource
 import sys
 import tempfile
 import time
+from dataclasses import replace
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
@@ -65,7 +68,7 @@ def peak_rss_mib() -> float:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--workers", default="1,2,4")
-    parser.add_argument("--bounces", type=int, default=2)
+    parser.add_argument("--brdf-lights", type=int, default=256)
     args = parser.parse_args(argv)
     from benchmarks.run import write_results
 
@@ -75,75 +78,89 @@ def main(argv=None) -> int:
     package = open(path, "rb").read()
 
     # The repository's own core, as the workers import it (not the extension's copy).
+    from benchmarks import brdf_tiles
+    from core import kernels
+    from core.appearance import gonio
+    from core.appearance.tile import Tile
     from core.distributed import engine
     from core.distributed.package import read_package
-    from core.pipeline.prepare import prepare
-    from core.transport.contract import GatherSource
-    from core.transport.gather import gather
-    from core.visibility.table import trace_table
+    from core.distributed.split import InProcessRows
+    from core.pipeline.relight import bake
+    from core.version import visibake_version
 
     cores = os.cpu_count() or 1
+    kernels.status()
     read = read_package(path)
-    started = time.perf_counter()
-    p = prepare(read.scene, read.settings, table_needed=False)
-    prepare_s = time.perf_counter() - started
-    started = time.perf_counter()
-    p.table = trace_table(p.ray_scene, p.trace_request())
-    trace_s = time.perf_counter() - started
-    rng = np.random.default_rng(1)
-    sources = [GatherSource(rng.uniform(0.0, 4.0, (p.layout.size, 3)).astype(np.float32),
-                            rng.uniform(0.0, 1.0, (len(p.directions), 3))) for _ in range(args.bounces)]
-    expected, gather_s = [], []
-    geometry = p.gather_geometry()
-    for source in sources:
+    scene, bake_settings = read.scene, read.settings
+
+    def images(result):
+        return [image for o in result.objects for _, image in sorted(o.images.items())]
+
+    def timed_bake(split=None):
         started = time.perf_counter()
-        expected.append(gather(geometry, source))
-        gather_s.append(time.perf_counter() - started)
-    samples = len(p.position)
-    atlas_bytes = sources[0].radiance.nbytes
-    back_bytes = samples * 3 * 8
-    in_process = {"prepare_s": round(prepare_s, 2), "trace_s": round(trace_s, 2),
-                  "gather_s": [round(t, 3) for t in gather_s], "table_bytes": int(p.table.nbytes),
+        result = bake(scene, bake_settings, split=split)
+        return result, time.perf_counter() - started
+
+    whole, whole_s = timed_bake()
+    reference = images(whole)
+    stages = {k: round(v, 2) for k, v in whole.report["stage_seconds"].items()}
+    in_rows, in_rows_s = timed_bake(InProcessRows(2))
+    same_in_rows = all(np.array_equal(a, b) for a, b in zip(images(in_rows), reference))
+    samples = sum(o["texels"] for o in whole.report["objects"])
+    table_bytes = whole.report["table_bytes"]
+    # The radiance atlas a bounce sends every worker: each object's texels, 3 float32 channels.
+    atlas_bytes = sum(int(np.prod(o["resolution"])) for o in whole.report["objects"]) * 3 * 4
+    in_process = {"bake_s": round(whole_s, 2), "stage_seconds": stages, "split_in_process_s": round(in_rows_s, 2),
+                  "split_in_process_bit_identical": bool(same_in_rows), "table_bytes": int(table_bytes),
                   "peak_rss_mib": round(peak_rss_mib(), 1)}
-    print(f"{samples} samples, {len(p.directions)} directions, table {p.table.nbytes / 2**20:.0f} MiB; in process: "
-          f"prepare {prepare_s:.1f} s, trace {trace_s:.1f} s, gathers {', '.join(f'{t:.2f}' for t in gather_s)} s",
-          flush=True)
+    print(f"{samples} samples, {bake_settings.directions} directions, table {table_bytes / 2**20:.0f} MiB; in "
+          f"process: bake {whole_s:.1f} s ({stages}); by 2 row ranges in process {in_rows_s:.1f} s "
+          f"(bit-identical: {same_in_rows})", flush=True)
+
+    tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=0.7)
+    lights, views = gonio.hemisphere_directions(args.brdf_lights), gonio.hemisphere_directions(32)
+    brdf_settings = gonio.GonioSettings(directions=64, bounces=3, resolution=32, view_rays=64, seed=1)
+    started = time.perf_counter()
+    brdf_whole = gonio.simulate_brdf(tile, lights, views, brdf_settings)
+    brdf_s = time.perf_counter() - started
+    print(f"BRDF {args.brdf_lights} x 32 in process: {brdf_s:.1f} s", flush=True)
 
     runs = []
     for count in (int(w) for w in args.workers.split(",")):
         threads = max(1, cores // count)
         started = time.perf_counter()
-        with engine.cluster_client(workers=count) as client:
-            client.wait_for_workers(count)
+        with engine.cluster_client(workers=count, threads=cores) as client:
             startup_s = time.perf_counter() - started
-            work = engine.RowWork(client, package, samples, parts=2 * count, threads=threads)
-            started = time.perf_counter()
-            table = work.trace()
-            work_trace_s = time.perf_counter() - started
-            same = all(np.array_equal(getattr(table, name), getattr(p.table, name))
-                       for name in ("hit_object", "hit_uv_code", "hit_distance_code"))
-            del table
-            times = []
-            for source, reference in zip(sources, expected):
-                started = time.perf_counter()
-                result = work.gather(source.radiance, source.world)
-                times.append(time.perf_counter() - started)
-                same = same and np.array_equal(result, reference)
+            rows = engine.ClusterRows(client, package, parts=2 * count, threads=threads)
+            split, split_s = timed_bake(rows)
+            same = all(np.array_equal(a, b) for a, b in zip(images(split), reference))
             peaks = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+            parts_settings = replace(brdf_settings, threads=threads)
+            arguments = [(visibake_version(), tile, lights, views, parts_settings, index, 2 * count)
+                         for index in range(2 * count)]
+            started = time.perf_counter()
+            joined = gonio.join_brdf_parts(engine.run_parts(client, "brdf_part", arguments))
+            brdf_split_s = time.perf_counter() - started
+            brdf_same = bool(np.array_equal(joined.values, brdf_whole.values))
         run = {"workers": count, "threads_per_worker": threads, "parts": 2 * count, "startup_s": round(startup_s, 2),
-               "trace_s": round(work_trace_s, 2), "gather_s": [round(t, 3) for t in times],
-               "trace_speedup": round(trace_s / work_trace_s, 2),
-               "gather_speedup": round(gather_s[-1] / times[-1], 2),
-               "worker_peak_rss_mib": sorted(round(v, 1) for v in peaks.values()), "bit_identical": bool(same)}
+               "bake_s": round(split_s, 2),
+               "stage_seconds": {k: round(v, 2) for k, v in split.report["stage_seconds"].items()},
+               "speedup": round(whole_s / split_s, 2), "bit_identical": bool(same),
+               "table_bytes_on_workers": split.report["split"]["table_bytes_held_by_ranges"],
+               "worker_peak_rss_mib": sorted(round(v, 1) for v in peaks.values()),
+               "brdf_s": round(brdf_split_s, 2), "brdf_speedup": round(brdf_s / brdf_split_s, 2),
+               "brdf_bit_identical": brdf_same}
         runs.append(run)
-        print(f"W = {count}: start {startup_s:.1f} s, trace (with preparing and sending the package) "
-              f"{work_trace_s:.1f} s, gathers {', '.join(f'{t:.2f}' for t in times)} s; worker peaks "
-              f"{run['worker_peak_rss_mib']} MiB; bit-identical: {same}", flush=True)
+        print(f"W = {count}: start {startup_s:.1f} s, bake {split_s:.1f} s ({run['stage_seconds']}), speed-up "
+              f"{run['speedup']}x, bit-identical: {same}; worker peaks {run['worker_peak_rss_mib']} MiB; BRDF "
+              f"{brdf_split_s:.1f} s ({run['brdf_speedup']}x), bit-identical: {brdf_same}", flush=True)
     write_results(os.path.join(ROOT, "benchmarks", "results", "scaleout.json"),
                   {"settings": settings, "samples": samples, "package_bytes": len(package),
-                   "bytes_per_bounce": {"atlas_out_per_worker": atlas_bytes, "irradiance_back_total": back_bytes},
-                   "in_process": in_process, "clusters": runs, "cores": cores,
-                   "load_average_end": os.getloadavg()[0]})
+                   "bytes_per_bounce": {"atlas_out_per_worker": atlas_bytes, "irradiance_back_total": samples * 24},
+                   "in_process": in_process, "brdf": {"lights": args.brdf_lights, "views": 32, "whole_s":
+                                                      round(brdf_s, 2)},
+                   "clusters": runs, "cores": cores, "load_average_end": os.getloadavg()[0],
+                   "peak_rss_mib_end": round(peak_rss_mib(), 1)})
     os.remove(path)
     os.rmdir(folder)
     return 0
