@@ -165,6 +165,26 @@ def write_package(path: str | os.PathLike, scene: Scene, settings: BakeSettings,
         raise TypeError(f"scene: expected a core.scene.Scene, got {type(scene).__qualname__}")
     if type(settings) is not BakeSettings:
         raise TypeError(f"settings: expected a core.settings.BakeSettings, got {type(settings).__qualname__}")
+    return _write(path, scene, settings, extra)
+
+
+def write_values(path: str | os.PathLike, values: dict) -> str:
+    """Write ``values`` (a dict of what a package holds) as a package with no scene and no
+    settings (both null): what a render farm's steps exchange (core.distributed.farm), with
+    the same checks and checksum as a scene package. Returns its checksum."""
+    return _write(path, None, None, values)
+
+
+def read_values(path: str | os.PathLike) -> dict:
+    """The values :func:`write_values` wrote, checked as a package is; PackageRefused where the
+    file is not one (a scene package included)."""
+    where, _, scene, settings, extra = _read(path)
+    if scene is not None or settings is not None or type(extra) is not dict:
+        raise PackageRefused(f"{where} is not a VisiBake values file (it holds a scene or no values)")
+    return extra
+
+
+def _write(path, scene, settings, extra) -> str:
     if extra is not None and type(extra) is not dict:
         raise TypeError(f"extra: expected a dict or None, got {type(extra).__qualname__}")
     # The whole tree is encoded before the file is opened: a value that cannot be written is
@@ -286,6 +306,19 @@ def read_package(path: str | os.PathLike) -> Package:
     Raises :class:`PackageRefused` with the reason where it is not a package this VisiBake
     can bake.
     """
+    where, manifest, scene, settings, extra = _read(path)
+    for name, value, expected in (("scene", scene, Scene), ("settings", settings, BakeSettings)):
+        if type(value) is not expected:
+            raise PackageRefused(f"{where}: its {name} is a {type(value).__name__}, not a {expected.__name__}")
+    if extra is not None and type(extra) is not dict:
+        raise PackageRefused(f"{where}: its extra is a {type(extra).__name__}, not a dict")
+    return Package(scene=scene, settings=settings, extra=extra, checksum=manifest["checksum"],
+                   visibake_version=manifest["visibake_version"], format_version=manifest["format_version"],
+                   created=manifest["created"])
+
+
+def _read(path) -> tuple:
+    """(where, manifest, scene, settings, extra) of the package at ``path``, checked whole."""
     where = os.fspath(path)
     try:
         archive = zipfile.ZipFile(where)
@@ -301,14 +334,7 @@ def read_package(path: str | os.PathLike) -> Package:
         scene = decoder.decode(tree["scene"], "scene")
         settings = decoder.decode(tree["settings"], "settings")
         extra = decoder.decode(tree["extra"], "extra")
-    for name, value, expected in (("scene", scene, Scene), ("settings", settings, BakeSettings)):
-        if type(value) is not expected:
-            raise PackageRefused(f"{where}: its {name} is a {type(value).__name__}, not a {expected.__name__}")
-    if extra is not None and type(extra) is not dict:
-        raise PackageRefused(f"{where}: its extra is a {type(extra).__name__}, not a dict")
-    return Package(scene=scene, settings=settings, extra=extra, checksum=manifest["checksum"],
-                   visibake_version=manifest["visibake_version"], format_version=manifest["format_version"],
-                   created=manifest["created"])
+    return where, manifest, scene, settings, extra
 
 
 def _refuse_constant(token: str):

@@ -16,6 +16,7 @@ from ..transport.contacts import table_close_entries
 from ..transport.contract import GatherGeometry, GatherSource
 from ..transport.gather import ambient_occlusion as _ambient_occlusion
 from ..transport.gather import gather
+from ..visibility.directions import ShadowRegions
 from ..visibility.shadows import shadow_fractions as _shadow_fractions
 
 
@@ -66,9 +67,11 @@ def close_entries(p, kept, sample_reach, target_reach, threads: int = 0) -> tupl
     return sample + kept.start, direction, obj, uv, floor
 
 
-def shadow_fractions(p, kept, light_distance, regions, threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(lit, traced) (k, M) uint16 core.visibility.shadows.shadow_fractions of the rows;
-    light_distance : (k,) the rows' distances to a local lamp, or None (a distant one)."""
+def shadow_fractions(p, kept, light_distance, region_count: int, threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(lit, traced) (k, M) uint16 core.visibility.shadows.shadow_fractions of the rows over
+    ``region_count`` regions of the table's directions (as core.transport.contract.Shadowing
+    makes them); light_distance : (k,) the rows' distances to a local lamp, or None (a distant one)."""
+    regions = ShadowRegions(kept.table.directions, region_count)
     group = None if p.group is None else p.group[kept.start:kept.stop]
     fractions = _shadow_fractions(kept.table, regions, light_distance, p.rotations, group)
     return fractions.lit, fractions.traced

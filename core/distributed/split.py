@@ -110,7 +110,7 @@ class SplitTable:
         """core.visibility.shadows.ShadowFractions over every range, joined."""
         from ..visibility.shadows import ShadowFractions
 
-        parts = self.executor.run("shadow_fractions", self._per_range(light_distance), (regions,))
+        parts = self.executor.run("shadow_fractions", self._per_range(light_distance), (int(regions.count),))
         return ShadowFractions(regions, np.concatenate([lit for lit, _ in parts]),
                                np.concatenate([traced for _, traced in parts]))
 
