@@ -207,7 +207,23 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_argument("--sun", metavar="NAME", help="the sun lamp the sweep moves (default: the scene's first sun)")
     for sub in (bake, demo):
         _cluster_options(sub)
-    for sub in (bake, relight, demo):
+    # A bake on a render farm (Flamenco: flamenco/visibake-bake.js), as steps exchanging files.
+    step = commands.add_parser("farm-step", help="one step of a bake on a render farm: bakes as far as the job "
+                               "folder's parts allow, then asks for the next parts (or writes the results)")
+    step.add_argument("input", help="the .blend to bake")
+    step.add_argument("--job", metavar="DIR", required=True, help="the job's folder on the farm's shared storage "
+                      "(one folder per job)")
+    step.add_argument("--parts", type=int, default=4, metavar="P",
+                      help="ranges of texels, one part task each per step (default 4)")
+    part = commands.add_parser("farm-part", help="one part of a farm bake's step: a range of texels")
+    part.add_argument("input", nargs="?", help="the .blend the farm passes (not read: the job folder holds the scene)")
+    part.add_argument("--job", metavar="DIR", required=True, help="the job's folder")
+    part.add_argument("--part", type=int, required=True, metavar="I", help="the range to run (0 to P - 1)")
+    _setting_option(part, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: all cores")
+    check = commands.add_parser("farm-check", help="exit 2 unless the farm bake in the job folder finished")
+    check.add_argument("input", nargs="?", help="the .blend the farm passes (not read)")
+    check.add_argument("--job", metavar="DIR", required=True, help="the job's folder")
+    for sub in (bake, relight, demo, step):
         sub.add_argument("--out", metavar="DIR", help="write DIR/<object>/<pass>.exr")
         sub.add_argument("--objects", metavar="A,B",
                          help="comma-separated objects to bake (default: all visible meshes)")
@@ -750,7 +766,36 @@ def run_lightfield(args) -> int:
     return EXIT_OK
 
 
+def run_farm_part(args) -> int:
+    """``farm-part``: answer one range of the job folder's pending step (core.distributed.farm)."""
+    from ..core.distributed import farm
+
+    if not os.path.isdir(args.job):
+        raise BakeRefused(f"--job {args.job!r}: no such folder (the step before this part makes it)")
+    if args.part < 0:
+        raise BakeRefused(f"--part {args.part}: parts are numbered from 0")
+    done = farm.run_part(args.job, args.part, args.threads or 0)
+    print(f"visibake: farm part: {done}", flush=True)
+    return EXIT_OK
+
+
+def run_farm_check(args) -> int:
+    """``farm-check``: the last task of a farm job; the job fails unless the bake finished."""
+    from ..core.distributed import farm
+
+    state = farm.read_pending(args.job)
+    if not state.get("done"):
+        raise BakeRefused(f"the bake in {args.job} did not finish within the job's steps (it waits for the parts "
+                          f"of call {state.get('call')}): submit it again with more Steps")
+    print(f"visibake: farm bake in {args.job} finished", flush=True)
+    return EXIT_OK
+
+
 def run(args) -> int:
+    if args.command == "farm-part":
+        return run_farm_part(args)
+    if args.command == "farm-check":
+        return run_farm_check(args)
     if args.command == "lightfield":
         return run_lightfield(args)
     if args.command == "brdf":
@@ -770,6 +815,16 @@ def run(args) -> int:
         out_dir = os.path.abspath("visibake_demo")
     _check_destinations(args, out_dir)
     cluster = _cluster(args) if args.command in ("bake", "demo") else None
+    if args.command == "farm-step":
+        from ..core.distributed import farm
+
+        cluster = farm.FarmOptions(os.path.abspath(args.job), args.parts)
+        cluster.validate()
+        if not (args.out or args.save):
+            raise BakeRefused("farm-step: give --out DIR or --save OUT.blend, or the last step's results are lost")
+        if farm.read_pending(cluster.folder).get("done"):
+            print(f"visibake: farm step: the bake in {cluster.folder} is finished; nothing to do", flush=True)
+            return EXIT_OK
     _load_input(args)
     scene = bpy.context.scene
     props = scene.visibake
@@ -787,6 +842,14 @@ def run(args) -> int:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
                                relight_only=args.command == "relight", setups=setups, device_name=args.device,
                                threads=args.threads, cluster=cluster)
+    except Exception as error:
+        from ..core.distributed.farm import PartsPending
+
+        if not isinstance(error, PartsPending):
+            raise
+        # Not a failure: this step went as far as the parts allow, and the scene is as it was.
+        print(f"visibake: farm step: waiting for the parts of call {error.call} ({error.folder})", flush=True)
+        return EXIT_OK
     finally:
         progress.close()
     written, made_folders = [], []
@@ -802,6 +865,10 @@ def run(args) -> int:
             raise BakeRefused(f"could not write {error.filename or 'the results'}: {error.strerror or error}; "
                               "nothing was kept") from error
         raise
+    if args.command == "farm-step":
+        from ..core.distributed.farm import mark_done
+
+        mark_done(cluster.folder)
     print(format_summary(outcome.report), flush=True)
     return EXIT_OK
 

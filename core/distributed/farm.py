@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from dataclasses import dataclass
 
 from ..errors import BakeRefused
 from ..outputs.atomic import atomic_file
@@ -41,6 +42,24 @@ PACKAGE_NAME = "package.vbpkg"
 PENDING_NAME = "pending.json"
 TABLE_FIELDS = ("directions", "hit_object", "hit_uv_code", "hit_distance_code", "vertex_cells", "rays_cast",
                 "rays_below_horizon", "backface_hits", "backface_per_sample", "traced_per_sample")
+
+
+@dataclass(frozen=True)
+class FarmOptions:
+    """A bake run as farm steps: the job folder on shared storage and the row ranges (one part
+    task per range per step)."""
+
+    folder: str
+    parts: int
+
+    def validate(self) -> None:
+        if self.parts < 1:
+            raise BakeRefused(f"--parts {self.parts}: give at least 1 part")
+        if not self.folder:
+            raise BakeRefused("--job: give the job's folder on the farm's shared storage")
+
+    def describe(self) -> dict:
+        return {"farm": os.path.abspath(self.folder), "parts": self.parts}
 
 
 class PartsPending(Exception):

@@ -322,7 +322,7 @@ class BakeJob:
             writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
         if self.cluster is not None:
             if self.relight_only or setups is not None:
-                raise BakeRefused("--workers and --scheduler bake one lighting without the cache: not with "
+                raise BakeRefused("a bake on a cluster or a farm bakes one lighting without the cache: not with "
                                   "relight, --setups or --sun-sweep")
             self.cluster.validate()
         # A table held by sample rows is read where it is kept, by the CPU kernels.
@@ -404,8 +404,16 @@ class BakeJob:
             self.compute_lighting()
             return
         from ...core.distributed.engine import cluster_rows
+        from ...core.distributed.farm import FarmOptions, FarmRows, write_job_package
         from ...core.distributed.package import package_bytes
 
+        if isinstance(self.cluster, FarmOptions):
+            # One step of a farm job: stops (core.distributed.farm.PartsPending) where parts must run first.
+            write_job_package(self.cluster.folder, self.extracted.scene, self.settings)
+            self.prepared = prepare(self.extracted.scene, self.settings, self.progress,
+                                    split=FarmRows(self.cluster.folder, self.cluster.parts))
+            self.compute_lighting()
+            return
         package = package_bytes(self.extracted.scene, self.settings)
         with cluster_rows(self.cluster, package, self.settings.threads) as rows:
             self.prepared = prepare(self.extracted.scene, self.settings, self.progress, split=rows)

@@ -94,3 +94,44 @@ def test_a_brdf_run_on_two_local_workers_equals_the_one_process_run(visibake, tm
     report = json.loads((tmp_path / "two.json").read_text())
     assert report["split"] == {"parts": 4, "cluster": {"workers": 2, "scheduler": None, "tls": False,
                                                        "insecure": False}}
+
+
+def test_the_flamenco_job_run_task_by_task_equals_the_one_process_bake(visibake, room_blend, tmp_path, capfd):
+    """The task list the job type compiles (tests/flamenco_support.py), run in its order here
+    as a farm's workers would run it (each task's command, minus Blender's own arguments)."""
+    pytest.importorskip("dukpy", reason="dukpy (requirements.txt) compiles the job type")
+    from flamenco_support import compile_job
+
+    options = "--resolution 32 --directions 48 --bounces 2 --passes lighting,indirect,ao --no-progress --no-cache"
+    compiled = compile_job({"blendfile": str(room_blend), "job_folder": str(tmp_path / "job"),
+                            "output_folder": str(tmp_path / "farm"), "parts": 2, "steps": 12, "bake_args": options})
+    said = []
+    for task in compiled["tasks"]:
+        arguments = task["commands"][0]["parameters"]["args"]
+        assert arguments[:2] == ["-c", "visibake"]
+        assert visibake.cli.main(arguments[2:]) == 0, task["name"]
+        said.append(capfd.readouterr().out)
+    assert visibake.cli.main(["bake", str(room_blend), "--out", str(tmp_path / "one")] + options.split()) == 0
+    for name in ("Ground", "Block"):
+        for pass_name in ("lighting", "indirect", "ao"):
+            ours = _channels(tmp_path / "farm" / name / f"{pass_name}.exr")
+            theirs = _channels(tmp_path / "one" / name / f"{pass_name}.exr")
+            for channel in ours:
+                assert np.array_equal(ours[channel], theirs[channel]), (name, pass_name, channel)
+    # The steps after the one that finished, and their parts, had nothing to do.
+    finished = next(i for i, text in enumerate(said) if "files: " in text)
+    assert all("nothing to do" in text for text in said[finished + 1:-1])
+    assert "finished" in said[-1]
+
+
+def test_a_farm_job_with_too_few_steps_fails_its_check(visibake, room_blend, tmp_path, capfd):
+    pytest.importorskip("dukpy", reason="dukpy (requirements.txt) compiles the job type")
+    from flamenco_support import compile_job
+
+    compiled = compile_job({"blendfile": str(room_blend), "job_folder": str(tmp_path / "job"),
+                            "output_folder": str(tmp_path / "farm"), "parts": 2, "steps": 2,
+                            "bake_args": "--resolution 16 --directions 16 --no-progress"})
+    statuses = [visibake.cli.main(task["commands"][0]["parameters"]["args"][2:]) for task in compiled["tasks"]]
+    assert statuses[:-1] == [0] * (len(statuses) - 1) and statuses[-1] == 2
+    assert "did not finish within the job's steps" in capfd.readouterr().err
+    assert not (tmp_path / "farm").exists()  # no half of a bake was written
