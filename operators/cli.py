@@ -143,7 +143,7 @@ def _cluster_options(sub) -> None:
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="join the Dask scheduler at tcp://HOST:PORT (this machine only) or tls://HOST:PORT")
     group.add_argument("--parts", type=int, metavar="P", help="parts to split the work into: ranges of texels "
-                       "for a bake, of light directions for brdf (default: 2 per worker)")
+                       "for a bake, of light directions for brdf and btf (default: 2 per worker)")
     group.add_argument("--tls-ca-file", metavar="CA.pem", help="TLS: the certificate authority of the cluster")
     group.add_argument("--tls-cert", metavar="CERT.pem", help="TLS: this client's certificate")
     group.add_argument("--tls-key", metavar="KEY.pem", help="TLS: this client's private key")
@@ -298,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     btf.add_argument("--phong", metavar="KS,EXP", help="the paper's Lambert plus Phong micro-BRDF on every face")
     _setting_option(btf, "--seed", SETTINGS["seed"])
     _setting_option(btf, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    _cluster_options(btf)
     btf.add_argument("--overwrite", action="store_true",
                      help="write into DIR even if it holds files VisiBake did not write (they are not deleted)")
     btf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
@@ -671,9 +672,11 @@ def run_btf(args) -> int:
 
     if not 1 <= args.rays_per_pixel <= 256:
         raise BakeRefused(f"--rays-per-pixel {args.rays_per_pixel}: use 1 to 256")
+    cluster = _cluster(args)
     tile, settings = _tile_and_settings(args)
     report = _run_appearance(args, lambda progress: tile_io.run_btf(
-        tile, args.out, args.format, args.image_size, settings, args.rays_per_pixel, args.overwrite, progress))
+        tile, args.out, args.format, args.image_size, settings, args.rays_per_pixel, args.overwrite, progress,
+        cluster))
     print(f"visibake: BTF of {args.tile!r}: {report['images']} images of {args.image_size}x{args.image_size} -> "
           f"{report['output']!r} in {report['seconds']:.1f} s", flush=True)
     return EXIT_OK

@@ -345,67 +345,29 @@ def _write_json_atomically(path: str, content: dict) -> None:
         handle.write("\n")
 
 
-class BTFWriter:
-    """Writes one BTF image per (light, view) pair into a folder, in the UTIA layout.
-
-    Parameters
-    ----------
-    folder : the BTF's folder (created if missing)
-    image_format : ``"exr"`` (32-bit float linear RGB) or ``"png"`` (8-bit sRGB, clipped to [0, 1])
-    width, height : the images' size in pixels
-    period : (2,) the tile's period in scene units along x and y (what one image spans)
-    light_angles, view_angles : ``(thetas_deg (L,), phis_deg (L,))`` whole degrees, in the
-        order images are indexed; default :func:`ubo_directions` for both
-    light_shift_deg : see :func:`light_for` (0: light equal to view is lit as named)
-    overwrite : also write over files a previous VisiBake manifest does not list
-    settings : JSON-serialisable dict of the simulation's settings, kept in the manifest
-
-    Refuses (:class:`core.errors.OutputRefused`, a ValueError) a folder that holds files no
-    previous VisiBake manifest lists (unless ``overwrite``), a path that would resolve outside
-    the folder, and non-finite pixels. A manifest listing every file the run will write is
-    written at once, so an interrupted run's files stay VisiBake's; :meth:`finish` completes it
-    and removes the files of an earlier run that this one did not write again.
+class BTFImages:
+    """Writes BTF images into a folder by their UTIA names, and nothing else (no manifest, no
+    claim on the folder): what a part of a BTF run split across workers writes into the folder
+    a :class:`BTFWriter` claimed (core.distributed.part_tasks.btf_part). Parameters as BTFWriter's.
     """
 
-    def __init__(self, folder: str, image_format: str, width: int, height: int, period, light_angles=None,
-                 view_angles=None, light_shift_deg: float = 0.0, overwrite: bool = False, settings: dict | None = None):
+    def __init__(self, folder: str, image_format: str, width: int, height: int, light_angles=None,
+                 view_angles=None):
         if image_format not in IMAGE_FORMATS:
             raise ValueError(f"image format must be one of {IMAGE_FORMATS}, got {image_format!r}")
         if int(width) != width or int(height) != height or width < 1 or height < 1:
             raise ValueError(f"image size must be positive whole pixels, got {width} x {height}")
-        period = np.asarray(period, np.float64)
-        if period.shape != (2,) or not np.all(np.isfinite(period)) or np.any(period <= 0):
-            raise ValueError(f"period must be two positive finite lengths, got {period.tolist()}")
-        light_for(0, 0, 0, 0, light_shift_deg)  # checks the shift's range
         self.folder = os.path.abspath(folder)
         self.image_format = image_format
         self.width, self.height = int(width), int(height)
-        self.period = period
         self.light_thetas, self.light_phis = _angles(light_angles, "light")
         self.view_thetas, self.view_phis = _angles(view_angles, "view")
-        self.light_shift_deg = float(light_shift_deg)
-        self.settings = dict(settings or {})
-        json.dumps(self.settings)  # refuses what the manifest could not hold, before anything is written
         self._written: set[str] = set()
 
-        if os.path.lexists(self.folder) and not os.path.isdir(self.folder):
-            raise OutputRefused(f"BTF folder {self.folder} is a file, not a folder; nothing was written")
-        self._made_folder = not os.path.isdir(self.folder)
-        os.makedirs(self.folder, exist_ok=True)
-        previous = _previous_manifest(self.folder)
-        self._had_manifest = previous is not None
-        self._previous_files = set(previous["files"]) if previous else set()
-        # The manifest's temporary name too: a run stopped while replacing the manifest leaves it.
-        owned = self._previous_files | ({MANIFEST, MANIFEST + ".tmp"} if previous else set())
-        foreign = [f for f in _files_under(self.folder) if f not in owned]
-        if foreign and not overwrite:
-            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
-            raise OutputRefused(f"BTF folder {self.folder} holds files VisiBake did not write ({shown}); "
-                                "choose an empty folder or allow overwriting; nothing was written")
-        if os.path.lexists(os.path.join(self.folder, MANIFEST)) and not os.path.isfile(
-                os.path.join(self.folder, MANIFEST)):
-            raise OutputRefused(f"{os.path.join(self.folder, MANIFEST)} is not a file; nothing was written")
-        self._write_manifest(complete=False)
+    @property
+    def written(self) -> list[str]:
+        """The relative paths written so far, sorted."""
+        return sorted(self._written)
 
     @property
     def planned(self) -> list[str]:
@@ -416,15 +378,6 @@ class BTFWriter:
         """The relative path of image (light_index, view_index)."""
         return image_name(self.light_thetas[light_index], self.light_phis[light_index],
                           self.view_thetas[view_index], self.view_phis[view_index], self.image_format)
-
-    def light_direction(self, light_index: int, view_index: int) -> np.ndarray:
-        """(3,) float64: the direction the simulation lights image (light_index, view_index) from."""
-        return light_for(self.light_thetas[light_index], self.light_phis[light_index],
-                         self.view_thetas[view_index], self.view_phis[view_index], self.light_shift_deg)
-
-    def view_direction(self, view_index: int) -> np.ndarray:
-        """(3,) float64: the direction image column ``view_index`` is seen from."""
-        return unit_vector(self.view_thetas[view_index], self.view_phis[view_index])[0]
 
     def write(self, light_index: int, view_index: int, image: np.ndarray) -> str:
         """Write image (light_index, view_index); returns its path.
@@ -451,6 +404,78 @@ class BTFWriter:
             write_png(path, image)
         self._written.add(relative)
         return path
+
+
+class BTFWriter(BTFImages):
+    """Writes one BTF image per (light, view) pair into a folder, in the UTIA layout.
+
+    Parameters
+    ----------
+    folder : the BTF's folder (created if missing)
+    image_format : ``"exr"`` (32-bit float linear RGB) or ``"png"`` (8-bit sRGB, clipped to [0, 1])
+    width, height : the images' size in pixels
+    period : (2,) the tile's period in scene units along x and y (what one image spans)
+    light_angles, view_angles : ``(thetas_deg (L,), phis_deg (L,))`` whole degrees, in the
+        order images are indexed; default :func:`ubo_directions` for both
+    light_shift_deg : see :func:`light_for` (0: light equal to view is lit as named)
+    overwrite : also write over files a previous VisiBake manifest does not list
+    settings : JSON-serialisable dict of the simulation's settings, kept in the manifest
+
+    Refuses (:class:`core.errors.OutputRefused`, a ValueError) a folder that holds files no
+    previous VisiBake manifest lists (unless ``overwrite``), a path that would resolve outside
+    the folder, and non-finite pixels. A manifest listing every file the run will write is
+    written at once, so an interrupted run's files stay VisiBake's; :meth:`finish` completes it
+    and removes the files of an earlier run that this one did not write again.
+    """
+
+    def __init__(self, folder: str, image_format: str, width: int, height: int, period, light_angles=None,
+                 view_angles=None, light_shift_deg: float = 0.0, overwrite: bool = False, settings: dict | None = None):
+        super().__init__(folder, image_format, width, height, light_angles, view_angles)
+        period = np.asarray(period, np.float64)
+        if period.shape != (2,) or not np.all(np.isfinite(period)) or np.any(period <= 0):
+            raise ValueError(f"period must be two positive finite lengths, got {period.tolist()}")
+        light_for(0, 0, 0, 0, light_shift_deg)  # checks the shift's range
+        self.period = period
+        self.light_shift_deg = float(light_shift_deg)
+        self.settings = dict(settings or {})
+        json.dumps(self.settings)  # refuses what the manifest could not hold, before anything is written
+
+        if os.path.lexists(self.folder) and not os.path.isdir(self.folder):
+            raise OutputRefused(f"BTF folder {self.folder} is a file, not a folder; nothing was written")
+        self._made_folder = not os.path.isdir(self.folder)
+        os.makedirs(self.folder, exist_ok=True)
+        previous = _previous_manifest(self.folder)
+        self._had_manifest = previous is not None
+        self._previous_files = set(previous["files"]) if previous else set()
+        # The manifest's temporary name too: a run stopped while replacing the manifest leaves it.
+        owned = self._previous_files | ({MANIFEST, MANIFEST + ".tmp"} if previous else set())
+        foreign = [f for f in _files_under(self.folder) if f not in owned]
+        if foreign and not overwrite:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            raise OutputRefused(f"BTF folder {self.folder} holds files VisiBake did not write ({shown}); "
+                                "choose an empty folder or allow overwriting; nothing was written")
+        if os.path.lexists(os.path.join(self.folder, MANIFEST)) and not os.path.isfile(
+                os.path.join(self.folder, MANIFEST)):
+            raise OutputRefused(f"{os.path.join(self.folder, MANIFEST)} is not a file; nothing was written")
+        self._write_manifest(complete=False)
+
+    def adopt(self, relative_paths) -> None:
+        """Count images written into the folder by parts of this run (:class:`BTFImages` on
+        workers) as written by this writer: their names must be planned ones."""
+        planned = set(self.planned)
+        for relative in relative_paths:
+            if relative not in planned:
+                raise ValueError(f"BTF image {relative!r} is not one of this run's")
+            self._written.add(relative)
+
+    def light_direction(self, light_index: int, view_index: int) -> np.ndarray:
+        """(3,) float64: the direction the simulation lights image (light_index, view_index) from."""
+        return light_for(self.light_thetas[light_index], self.light_phis[light_index],
+                         self.view_thetas[view_index], self.view_phis[view_index], self.light_shift_deg)
+
+    def view_direction(self, view_index: int) -> np.ndarray:
+        """(3,) float64: the direction image column ``view_index`` is seen from."""
+        return unit_vector(self.view_thetas[view_index], self.view_phis[view_index])[0]
 
     def finish(self) -> str:
         """Complete the manifest once every image is written; returns its path.

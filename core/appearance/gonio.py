@@ -585,7 +585,8 @@ def pixel_rays(scene: PeriodicScene, samples: TileSamples, view: np.ndarray, wid
 
 
 def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, settings: GonioSettings | None = None,
-                 per_pixel: int = 4, progress: Callable[[str, float], None] | None = None) -> dict:
+                 per_pixel: int = 4, progress: Callable[[str, float], None] | None = None,
+                 part: tuple[int, int] | None = None) -> dict:
     """The tile's BTF: an image per (light, view) pair, rectified to the tile's texture space.
 
     A pixel's value is pi L / E: the radiance it sends towards the view under a sun of
@@ -595,6 +596,9 @@ def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, 
     lights (L, 3), views (V, 3): as simulate_brdf; image_size (width, height);
     ``write(light_index, view_index, image (height, width, 3) float32, row 0 at the origin's Y)``
     is called once per pair. Returns the stats.
+    part : (index, count), or None: only the pairs of part ``index`` of the run split in
+        ``count`` parts by light batches (:func:`part_lights`), each image the same bits as
+        in the whole run.
     """
     import time
     settings, module, lights, views = _start(settings, lights, views, sphere=False)
@@ -616,7 +620,8 @@ def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, 
     stats["views_s"] = round(time.perf_counter() - mark, 3)
     times: dict = {"images_s": 0.0, "write_s": 0.0}
     pixels = width * height
-    for lit in _light_batches(tile, prepared, lights, settings, module, times):
+    mine = part_lights(len(lights), light_batch(tile, len(prepared.samples), len(prepared.directions)), part)
+    for lit in _light_batches(tile, prepared, lights, settings, module, times, mine):
         b = len(lit.lights)
         for index, view in enumerate(views):
             mark = time.perf_counter()
@@ -635,8 +640,10 @@ def simulate_btf(tile: Tile, lights, views, image_size: tuple[int, int], write, 
                     raise RuntimeError("the BTF simulation produced non-finite values (a bug)")
                 write(lit.first + k, index, image)
             times["write_s"] += time.perf_counter() - mark
-        report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b) / len(lights)))
+        report("lights", 0.25 + 0.75 * min(1.0, (lit.first + b - mine.start) / max(len(mine), 1)))
     stats.update({key: round(value, 3) for key, value in times.items()})
     stats["total_s"] = round(time.perf_counter() - started, 3)
-    stats["images"] = len(lights) * len(views)
+    stats["images"] = len(mine) * len(views)
+    if part is not None:
+        stats["part"] = [int(part[0]), int(part[1])]
     return stats

@@ -26,6 +26,21 @@ def brdf_part(version: str, tile, lights, views, settings, index: int, count: in
     return simulate_brdf(tile, lights, views, settings, part=(index, count))
 
 
+def btf_part(version: str, tile, lights, views, image_size, settings, per_pixel: int, folder: str,
+             image_format: str, index: int, count: int) -> dict:
+    """Part ``index`` of ``count`` of core.appearance.gonio.simulate_btf, its images written by
+    their UTIA names into ``folder`` (the run's, which its core.appearance.btf.BTFWriter
+    claimed on the driver: shared storage where the workers are other machines). Returns
+    {"stats": the part's stats, "written": the relative paths it wrote}."""
+    from ..appearance.btf import BTFImages
+    from ..appearance.gonio import simulate_btf
+
+    check_version(version)
+    images = BTFImages(folder, image_format, image_size[0], image_size[1])
+    stats = simulate_btf(tile, lights, views, image_size, images.write, settings, per_pixel, part=(index, count))
+    return {"stats": stats, "written": images.written}
+
+
 def run_part(task: str, *arguments):
     """The part task named ``task`` (a function of this module) on ``arguments``."""
     return globals()[task](*arguments)

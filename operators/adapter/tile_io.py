@@ -421,7 +421,10 @@ class BTFJob(_TileJob):
     """
 
     def __init__(self, tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,
-                 per_pixel: int = 4, overwrite: bool = False, progress=None):
+                 per_pixel: int = 4, overwrite: bool = False, progress=None, cluster=None):
+        """cluster: core.distributed.engine.ClusterOptions, or None: simulate the light batches
+        in parts on a Dask cluster, each writing its images into the folder (the same bits)."""
+        self.cluster = cluster
         self.tile_source = tile
         self.out_dir = os.path.abspath(out_dir)
         self.image_format, self.image_size, self.per_pixel = image_format, int(image_size), int(per_pixel)
@@ -461,8 +464,29 @@ class BTFJob(_TileJob):
 
         thetas, phis = btf.ubo_directions()
         directions = btf.unit_vector(thetas, phis)
-        self.stats = gonio.simulate_btf(self.tile, directions, directions, (self.image_size, self.image_size),
-                                        self.writer.write, self.settings, self.per_pixel, self.progress)
+        size = (self.image_size, self.image_size)
+        if self.cluster is None:
+            self.stats = gonio.simulate_btf(self.tile, directions, directions, size, self.writer.write, self.settings,
+                                            self.per_pixel, self.progress)
+            return
+        from dataclasses import replace
+
+        from ...core.distributed.engine import cluster_parts, run_parts
+        from ...core.version import visibake_version
+
+        if self.progress is not None:
+            self.progress("starting the cluster", 0.0)
+        with cluster_parts(self.cluster, self.settings.threads) as (client, parts, threads):
+            settings = replace(self.settings, threads=threads)
+            arguments = [(visibake_version(), self.tile, directions, directions, size, settings, self.per_pixel,
+                          self.writer.folder, self.image_format, index, parts) for index in range(parts)]
+            report = None if self.progress is None else (lambda fraction: self.progress("lights", fraction))
+            done = run_parts(client, "btf_part", arguments, report)
+        for part in done:
+            self.writer.adopt(part["written"])
+        self.stats = dict(done[0]["stats"], images=sum(part["stats"]["images"] for part in done),
+                          parts=[part["stats"] for part in done])
+        self.split = {"parts": parts, "cluster": self.cluster.describe()}
 
     def finish(self) -> BRDFOutcome:
         manifest = self.writer.finish()
@@ -471,13 +495,15 @@ class BTFJob(_TileJob):
             "command": "btf", "output": self.out_dir, "manifest": manifest, "format": self.image_format,
             "images": stats["images"], "image_size": self.image_size, "settings": self.written_settings,
             "samples": stats.get("samples"), "stats": stats, "warnings": list(self.tile.warnings),
-            "seconds": round(time.perf_counter() - self.started, 3)})
+            "seconds": round(time.perf_counter() - self.started, 3),
+            **({"split": self.split} if getattr(self, "split", None) else {})})
 
 
 def run_btf(tile: Tile, out_dir: str, image_format: str, image_size: int, settings: gonio.GonioSettings,
-            per_pixel: int = 4, overwrite: bool = False, progress=None) -> dict:
+            per_pixel: int = 4, overwrite: bool = False, progress=None, cluster=None) -> dict:
     """:class:`BTFJob` at once (the command line); returns its report (a JSON-able dict)."""
-    return BTFJob(tile, out_dir, image_format, image_size, settings, per_pixel, overwrite, progress).run().report
+    return BTFJob(tile, out_dir, image_format, image_size, settings, per_pixel, overwrite, progress,
+                  cluster).run().report
 
 
 # Marks a material VisiBake made from a fit (so that a later fit may replace it, never a user's).

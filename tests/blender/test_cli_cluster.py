@@ -135,3 +135,25 @@ def test_a_farm_job_with_too_few_steps_fails_its_check(visibake, room_blend, tmp
     assert statuses[:-1] == [0] * (len(statuses) - 1) and statuses[-1] == 2
     assert "did not finish within the job's steps" in capfd.readouterr().err
     assert not (tmp_path / "farm").exists()  # no half of a bake was written
+
+
+def test_a_btf_on_two_local_workers_writes_the_one_process_images(visibake, tmp_path):
+    from test_brdf_command import groove_scene
+
+    blend = groove_scene(tmp_path / "groove.blend")
+    common = ["btf", str(blend), "--tile", "Groove", "--format", "exr", "--image-size", "8", "--rays-per-pixel", "1",
+              "--directions", "16", "--resolution", "4", "--bounces", "1", "--no-progress"]
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "one")]) == 0
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "two"), "--workers", "2", "--parts", "3",
+                                       "--report", str(tmp_path / "two.json")]) == 0
+    ones = sorted(p.relative_to(tmp_path / "one").as_posix() for p in (tmp_path / "one").rglob("*.exr"))
+    twos = sorted(p.relative_to(tmp_path / "two").as_posix() for p in (tmp_path / "two").rglob("*.exr"))
+    assert ones == twos and len(ones) == 81 * 81
+    for relative in ones[::97] + [ones[-1]]:
+        ours, theirs = _channels(tmp_path / "two" / relative), _channels(tmp_path / "one" / relative)
+        for channel in ours:
+            assert np.array_equal(ours[channel], theirs[channel]), (relative, channel)
+    manifest = json.loads((tmp_path / "two" / "btf.json").read_text())
+    assert manifest["complete"] and len(manifest["files"]) == 81 * 81
+    report = json.loads((tmp_path / "two.json").read_text())
+    assert report["split"]["parts"] == 3 and report["images"] == 81 * 81

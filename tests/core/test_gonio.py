@@ -346,3 +346,23 @@ class TestParts:
             ranges = [gonio.part_lights(lights, batch, (index, count)) for index in range(count)]
             assert [i for r in ranges for i in r] == list(range(lights))
             assert all(r.start % batch == 0 for r in ranges if len(r))
+
+
+def test_btf_parts_write_the_whole_run_s_images(monkeypatch):
+    """A BTF split by light batches: every pair's image written once, the same bits as the whole run's."""
+    tile = Tile.of(*brdf_tiles.v_groove_tile(0.5), albedo=0.7, specular=0.2, roughness=0.3)
+    lights, views = gonio.hemisphere_directions(5), gonio.hemisphere_directions(3)
+    samples = len(tile_samples(tile, 16))
+    monkeypatch.setattr(gonio, "GLOSSY_BATCH_BYTES", 2 * samples * 64 * 3 * 4 * 2)  # two lights a batch
+
+    def recorder(into):
+        return lambda light, view, image: into.setdefault((light, view), image.copy())
+
+    whole, parts = {}, {}
+    gonio.simulate_btf(tile, lights, views, (8, 6), recorder(whole), small_settings())
+    stats = [gonio.simulate_btf(tile, lights, views, (8, 6), recorder(parts), small_settings(), part=(index, 2))
+             for index in range(2)]
+    assert [s["images"] for s in stats] == [12, 3] and len(whole) == 15  # batches (2 + 2) + 1 lights, 3 views
+    assert parts.keys() == whole.keys()
+    for pair, image in whole.items():
+        assert np.array_equal(parts[pair], image), pair
