@@ -143,7 +143,8 @@ def _cluster_options(sub) -> None:
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="join the Dask scheduler at tcp://HOST:PORT (this machine only) or tls://HOST:PORT")
     group.add_argument("--parts", type=int, metavar="P", help="parts to split the work into: ranges of texels "
-                       "for a bake, of light directions for brdf and btf (default: 2 per worker)")
+                       "for a bake, of light directions for brdf and btf, of views for lightfield (default: 2 per "
+                       "worker)")
     group.add_argument("--tls-ca-file", metavar="CA.pem", help="TLS: the certificate authority of the cluster")
     group.add_argument("--tls-cert", metavar="CERT.pem", help="TLS: this client's certificate")
     group.add_argument("--tls-key", metavar="KEY.pem", help="TLS: this client's private key")
@@ -332,6 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     lightfield.add_argument("--save", metavar="OUT.blend", help="save the scene (with what --bake-first baked)")
     lightfield.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     _bake_setting_options(lightfield)
+    _cluster_options(lightfield)
     for sub in (bake, relight):
         sub.add_argument("--preview-nodes", action="store_true",
                          help="wire the results into the objects' materials for preview (see preview; use with --save)")
@@ -718,6 +720,7 @@ def run_lightfield(args) -> int:
     output_format = args.format or props.lightfield_format
     if args.resolution_from_views and not args.bake_first:
         raise BakeRefused("--resolution-from-views sizes the bake: it needs --bake-first")
+    cluster = _cluster(args)
     progress = _Progress(not args.no_progress)
     extra: dict = {}
     try:
@@ -733,7 +736,7 @@ def run_lightfield(args) -> int:
             densities = (lightfield_io.view_densities(seen, camera, views, (columns, rows), clip, sizing)
                          if args.resolution_from_views else None)
             baked = job.run_bake(bpy.context, seen, None, False, progress, device_name=args.device,
-                                 threads=args.threads, view_densities=densities)
+                                 threads=args.threads, view_densities=densities, cluster=cluster)
             extra["bake"] = {"objects": [o.name for o in seen], "skipped_unseen": [o.name for o in unseen],
                              "seconds": baked.report.get("total_seconds"),
                              "warnings": sizing + baked.report.get("warnings", []),
@@ -743,7 +746,7 @@ def run_lightfield(args) -> int:
         outcome = lightfield_io.LightFieldJob(
             scene, args.camera, args.out, (columns, rows), values["lightfield_baseline_mm"][0],
             values["lightfield_focus_m"][0], (width, height), output_format, args.device or "auto", args.overwrite,
-            progress, extra, values["lightfield_supersampling"][0]).run()
+            progress, extra, values["lightfield_supersampling"][0], cluster).run()
     finally:
         progress.close()
     report = outcome.report

@@ -41,6 +41,23 @@ def btf_part(version: str, tile, lights, views, image_size, settings, per_pixel:
     return {"stats": stats, "written": images.written}
 
 
+def lightfield_part(version: str, drawn, size, supersampling: int, filter_width: float, views: list, clip,
+                    threads: int = 0) -> list:
+    """Views of a light field ray cast on the CPU (core.lightfield.raycast.RaycastRenderer):
+    views : [(index, view_matrix (4, 4), projection_matrix (4, 4), want_depth)]; returns
+    [(index, radiance (height, width, 3) float32, depth or None)], each the same bits as the
+    same view rendered in one process."""
+    from ..lightfield.raycast import RaycastRenderer
+
+    check_version(version)
+    rendered = []
+    with RaycastRenderer(drawn, size[0], size[1], supersampling, filter_width, threads) as renderer:
+        for index, view_matrix, projection_matrix, want_depth in views:
+            radiance, depth = renderer.render(view_matrix, projection_matrix, *clip, want_depth=want_depth)
+            rendered.append((index, radiance, depth))
+    return rendered
+
+
 def run_part(task: str, *arguments):
     """The part task named ``task`` (a function of this module) on ``arguments``."""
     return globals()[task](*arguments)

@@ -325,7 +325,11 @@ class LightFieldJob(SteppedJob):
     def __init__(self, scene, camera_name: str | None, out_dir: str, grid: tuple[int, int], baseline_mm: float,
                  focus_m: float, image_size: tuple[int, int], output_format: str = "hci", device: str = "auto",
                  overwrite: bool = False, progress=None, extra_report: dict | None = None,
-                 supersampling: int = SUPERSAMPLING):
+                 supersampling: int = SUPERSAMPLING, cluster=None):
+        """cluster: core.distributed.engine.ClusterOptions, or None: the views are ray cast on
+        the CPU in parts on a Dask cluster (the same bits as the CPU device here)."""
+        self.cluster = cluster
+        self.rendered: dict = {}
         self.scene = scene
         self.camera_name = camera_name
         self.out_dir = os.path.abspath(out_dir)
@@ -348,6 +352,7 @@ class LightFieldJob(SteppedJob):
     def modal_steps(self) -> list:
         """(name, step, on a worker thread) for ModalBake: the views a row at a time."""
         return ([("read", self.read, False)]
+                + ([("views on the cluster", self.render_on_cluster, False)] if self.cluster is not None else [])
                 + [(f"views, row {row + 1}", lambda row=row: self.render_row(row), False) for row in range(self.rows)]
                 + [("finish", self.finish, False)])
 
@@ -380,7 +385,12 @@ class LightFieldJob(SteppedJob):
         seen, unseen = objects_in_views(extract.scene_meshes(self.scene), self.views, *self.clip)
         drawn, self.counts = draw_scene(self.scene, seen, self.warnings)
         self.counts["unseen"] = [obj.name for obj in unseen]
-        self.renderer, self.renderer_name = self._renderer(drawn)
+        if self.cluster is not None:
+            if self.device == "gpu":
+                raise LightFieldRefused("--device gpu: views on a cluster are ray cast on the workers' CPUs")
+            self.drawn, self.renderer_name = drawn, "cpu (embree), on a cluster"
+        else:
+            self.renderer, self.renderer_name = self._renderer(drawn)
         self.display = _DisplayImages(self.scene, self.width, self.height)
 
     def _claim_folder(self) -> None:
@@ -435,13 +445,35 @@ class LightFieldJob(SteppedJob):
 
         return RaycastRenderer(drawn, self.width, self.height, self.supersampling, FILTER_WIDTH), "cpu (embree)"
 
+    def render_on_cluster(self) -> None:
+        """Every view, ray cast in parts of contiguous views on the cluster (kept for render_row)."""
+        from ...core.distributed.engine import cluster_parts, run_parts
+        from ...core.transport.contract import direction_chunks
+        from ...core.version import visibake_version
+
+        mark = time.perf_counter()
+        self._say("starting the cluster", 0.0)
+        centre = self.grid.centre_index
+        specs = [(view.index, view.view_matrix, view.projection_matrix, view.index == centre) for view in self.views]
+        with cluster_parts(self.cluster) as (client, parts, threads):
+            chunks = direction_chunks(len(specs), parts)
+            arguments = [(visibake_version(), self.drawn, (self.width, self.height), self.supersampling, FILTER_WIDTH,
+                          specs[chunk.start:chunk.stop], self.clip, threads) for chunk in chunks]
+            done = run_parts(client, "lightfield_part", arguments, lambda fraction: self._say("views", fraction))
+        self.rendered = {index: (radiance, depth) for part in done for index, radiance, depth in part}
+        self.report["split"] = {"parts": len(chunks), "cluster": self.cluster.describe()}
+        self.times["render_s"] += time.perf_counter() - mark
+
     def render_row(self, row: int) -> None:
         """Render and write the views of one row (the centre view with its depth)."""
         centre = self.grid.centre_index
         for view in self.views[row * self.columns:(row + 1) * self.columns]:
             mark = time.perf_counter()
-            radiance, depth = self.renderer.render(view.view_matrix, view.projection_matrix, *self.clip,
-                                                   want_depth=view.index == centre)
+            if self.cluster is not None:
+                radiance, depth = self.rendered.pop(view.index)
+            else:
+                radiance, depth = self.renderer.render(view.view_matrix, view.projection_matrix, *self.clip,
+                                                       want_depth=view.index == centre)
             self.times["render_s"] += time.perf_counter() - mark
             if not np.all(np.isfinite(radiance)):
                 raise RuntimeError(f"view {view.index} has non-finite pixels (a bug)")

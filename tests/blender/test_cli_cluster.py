@@ -157,3 +157,25 @@ def test_a_btf_on_two_local_workers_writes_the_one_process_images(visibake, tmp_
     assert manifest["complete"] and len(manifest["files"]) == 81 * 81
     report = json.loads((tmp_path / "two.json").read_text())
     assert report["split"]["parts"] == 3 and report["images"] == 81 * 81
+
+
+def test_a_light_field_baked_and_rendered_on_two_workers_equals_the_cpu_one(visibake, tmp_path):
+    from test_lightfield_command import FAST_BAKE, grid_options, plane_scene
+
+    blend = plane_scene(tmp_path / "scene.blend")
+    common = ["lightfield", str(blend), "--bake-first", "--device", "cpu"] + grid_options() + FAST_BAKE
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "one")]) == 0
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "two"), "--workers", "2", "--parts", "4",
+                                       "--report", str(tmp_path / "two.json")]) == 0
+    files = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert files == sorted(p.name for p in (tmp_path / "two").iterdir())
+    views = [name for name in files if name.endswith(".exr")]
+    assert len(views) == 9
+    for name in views:
+        ours, theirs = _channels(tmp_path / "two" / name), _channels(tmp_path / "one" / name)
+        for channel in ours:
+            assert np.array_equal(ours[channel], theirs[channel]), (name, channel)
+    for name in ("gt_depth_lowres.pfm", "gt_disp_lowres.pfm"):
+        assert (tmp_path / "two" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()
+    report = json.loads((tmp_path / "two.json").read_text())
+    assert report["split"]["parts"] == 4 and report["renderer"] == "cpu (embree), on a cluster"
