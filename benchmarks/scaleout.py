@@ -129,7 +129,7 @@ def main(argv=None) -> int:
     for count in (int(w) for w in args.workers.split(",")):
         threads = max(1, cores // count)
         started = time.perf_counter()
-        with engine.cluster_client(workers=count, threads=cores) as client:
+        with engine.cluster_client(workers=count) as client:
             startup_s = time.perf_counter() - started
             rows = engine.ClusterRows(client, package, parts=2 * count, threads=threads)
             split, split_s = timed_bake(rows)

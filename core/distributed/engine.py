@@ -141,26 +141,41 @@ class LocalProcesses:
     with this interpreter and stopped by :meth:`close`: what ``--workers N`` runs on. Plain
     processes (not multiprocessing), so that they start the same from Blender as from Python."""
 
-    def __init__(self, workers: int, threads: int):
+    def __init__(self, workers: int):
         self.folder = tempfile.mkdtemp(prefix="visibake-cluster-")
         self.scheduler_file = os.path.join(self.folder, "scheduler.json")
-        environment = worker_environment()
-        quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": environment}
-        self.processes = [subprocess.Popen(
-            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
-             "--no-dashboard", "--scheduler-file", self.scheduler_file, "--preload", PRELOAD], **quiet)]
+        self.environment = worker_environment()
+        self.processes: list = []
+        self.logs: list = []
+        self._start("scheduler", ["distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+                                  "--no-dashboard", "--scheduler-file", self.scheduler_file, "--preload", PRELOAD])
         deadline = time.monotonic() + START_SECONDS
         while not os.path.exists(self.scheduler_file):
             if time.monotonic() > deadline or self.processes[0].poll() is not None:
+                said = self.log_tail()
                 self.close()
-                raise RuntimeError("the local Dask scheduler did not start")
+                raise RuntimeError(f"the local Dask scheduler did not start:\n{said}")
             time.sleep(0.1)
         for number in range(workers):
-            self.processes.append(subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file", self.scheduler_file,
-                 "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name", f"visibake-{number}",
-                 "--preload", PRELOAD, "--local-directory", os.path.join(self.folder, f"worker-{number}")],
-                **quiet))
+            self._start(f"worker-{number}", ["distributed.cli.dask_worker", "--scheduler-file", self.scheduler_file,
+                                             "--nworkers", "1", "--nthreads", "1", "--no-dashboard", "--name",
+                                             f"visibake-{number}", "--preload", PRELOAD, "--local-directory",
+                                             os.path.join(self.folder, f"worker-{number}")])
+
+    def _start(self, name: str, arguments: list[str]) -> None:
+        log = open(os.path.join(self.folder, f"{name}.log"), "wb")  # noqa: SIM115 (closed in close())
+        self.logs.append(log)
+        self.processes.append(subprocess.Popen([sys.executable, "-m", *arguments], stdout=log,
+                                               stderr=subprocess.STDOUT, env=self.environment))
+
+    def log_tail(self, lines: int = 20) -> str:
+        """The last lines each process wrote (what to show when the cluster fails to start)."""
+        said = []
+        for log in self.logs:
+            log.flush()
+            with open(log.name, encoding="utf-8", errors="replace") as stream:
+                said += [f"{os.path.basename(log.name)}: {line.rstrip()}" for line in stream.readlines()[-lines:]]
+        return "\n".join(said)
 
     def close(self) -> None:
         for process in self.processes:
@@ -171,15 +186,16 @@ class LocalProcesses:
                 process.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 process.kill()
+        for log in self.logs:
+            log.close()
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
 @contextmanager
 def cluster_client(scheduler: str | None = None, workers: int | None = None, tls: TLSFiles | None = None,
-                   insecure: bool = False, threads: int = 0):
+                   insecure: bool = False):
     """A dask.distributed Client, closed on leaving: of the scheduler at ``scheduler``, or of
-    a new local cluster of ``workers`` processes on loopback (closed with it; ``threads``:
-    the cores it may use, 0: all)."""
+    a new local cluster of ``workers`` processes on loopback (closed with it)."""
     ClusterOptions(workers, scheduler, tls, insecure).validate()
     try:
         from distributed import Client
@@ -196,10 +212,13 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, tls
         with Client(scheduler, security=security, timeout=START_SECONDS) as client:
             yield client
         return
-    processes = LocalProcesses(int(workers), threads)
+    processes = LocalProcesses(int(workers))
     try:
         with Client(scheduler_file=processes.scheduler_file, timeout=START_SECONDS) as client:
-            client.wait_for_workers(int(workers), timeout=START_SECONDS)
+            try:
+                client.wait_for_workers(int(workers), timeout=START_SECONDS)
+            except TimeoutError:
+                raise RuntimeError(f"the local Dask workers did not start:\n{processes.log_tail()}") from None
             yield client
     finally:
         processes.close()
@@ -210,14 +229,8 @@ def cluster_rows(options: ClusterOptions, package: bytes, threads: int = 0):
     """A :class:`ClusterRows` executor of the packaged bake on the cluster ``options`` names,
     closed (with a local cluster) on leaving. threads : the cores this machine's workers share
     (0: all): each local worker's tasks use its share; a remote worker's use all of its machine."""
-    options.validate()
-    cores = threads or os.cpu_count() or 1
-    with cluster_client(options.scheduler, options.workers, options.tls, options.insecure, cores) as client:
-        count = len(client.scheduler_info()["workers"])
-        if count < 1:
-            raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")
-        share = max(1, cores // count) if options.workers else 0
-        yield ClusterRows(client, package, options.parts or 2 * count, share)
+    with cluster_parts(options, threads) as (client, parts, share):
+        yield ClusterRows(client, package, parts, share)
 
 
 class ClusterRows:
@@ -317,7 +330,7 @@ def cluster_parts(options: ClusterOptions, threads: int = 0):
     local cluster) on leaving: ``parts`` is options.parts, else two per worker."""
     options.validate()
     cores = threads or os.cpu_count() or 1
-    with cluster_client(options.scheduler, options.workers, options.tls, options.insecure, cores) as client:
+    with cluster_client(options.scheduler, options.workers, options.tls, options.insecure) as client:
         count = len(client.scheduler_info()["workers"])
         if count < 1:
             raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")

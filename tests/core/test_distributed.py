@@ -200,3 +200,20 @@ def test_a_brdf_run_in_parts_on_two_workers_survives_a_killed_worker(cluster):
             engine.run_parts(client, "brdf_part", [("0.0.0-other", tile, lights[:2], views, settings, 0, 1)])
     finally:
         client.close()
+
+
+def test_a_local_cluster_starts_on_loopback_and_leaves_no_process_behind():
+    import psutil
+
+    from core.distributed.package import PackageRefused
+
+    before = {child.pid for child in psutil.Process().children(recursive=True)}
+    with engine.cluster_client(workers=2) as client:
+        addresses = list(client.scheduler_info()["workers"])
+        assert len(addresses) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in addresses)
+        started = {child.pid for child in psutil.Process().children(recursive=True)} - before
+        assert len(started) >= 3  # the scheduler and two workers
+        # The workers import VisiBake's core through the preload, and refuse another version's tasks.
+        with pytest.raises(PackageRefused, match="the driver other"):
+            engine.run_parts(client, "brdf_part", [("other", None, None, None, None, 0, 1)])
+    assert not [pid for pid in started if psutil.pid_exists(pid) and psutil.Process(pid).status() != "zombie"]
