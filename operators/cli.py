@@ -143,8 +143,8 @@ def _cluster_options(sub) -> None:
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="join the Dask scheduler at tcp://HOST:PORT (this machine only) or tls://HOST:PORT")
     group.add_argument("--parts", type=int, metavar="P", help="parts to split the work into: ranges of texels "
-                       "for a bake, of light directions for brdf and btf, of views for lightfield (default: 2 per "
-                       "worker)")
+                       "for a bake, of voxels for volume, of light directions for brdf and btf, of views for "
+                       "lightfield (default: 2 per worker)")
     group.add_argument("--tls-ca-file", metavar="CA.pem", help="TLS: the certificate authority of the cluster")
     group.add_argument("--tls-cert", metavar="CERT.pem", help="TLS: this client's certificate")
     group.add_argument("--tls-key", metavar="KEY.pem", help="TLS: this client's private key")
@@ -247,6 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     volume.add_argument("--save", metavar="OUT.blend", help="save the scene with its baked Volume objects")
     volume.add_argument("--report", metavar="REPORT.json", help="write the bake report as JSON")
     _setting_option(volume, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
+    _cluster_options(volume)
     _setting_option(volume, "--cache-dir", SETTINGS["cache_dir"], "DIR")
     volume.add_argument("--no-cache", action="store_true", help="neither read nor write the cached scattering tables")
     _setting_option(volume, "--device", PREFERENCE_SETTINGS["device"],
@@ -530,6 +531,7 @@ def run_volume(args) -> int:
 
     out_dir = os.path.abspath(args.out)
     _check_destinations(args, out_dir)
+    cluster = _cluster(args)
     _load_input(args)
     scene = bpy.context.scene
     if args.cache_dir is not None:
@@ -559,7 +561,7 @@ def run_volume(args) -> int:
         outcome = volume_job.VolumeJob(scene, volumes, out_dir, values["volume_resolution"],
                                        values["volume_directions"], values["volume_bounces"], values["volume_points"],
                                        scene.visibake.seed if args.seed is None else args.seed, threads,
-                                       progress, device_name=args.device).run()
+                                       progress, device_name=args.device, cluster=cluster).run()
     finally:
         progress.close()
     made_folders: list = []

@@ -235,7 +235,9 @@ def cluster_rows(options: ClusterOptions, package: bytes, threads: int = 0):
 
 class ClusterRows:
     """Row ranges of one packaged bake kept on a cluster's workers: the executor of a split
-    table (core.distributed.split.SplitTable) whose tasks run where each range's table is.
+    table (core.distributed.split.SplitTable) whose tasks run where each range's table is;
+    also of a medium's tables by ranges of voxels (core.distributed.volume_rows, with its
+    ``function`` and state).
 
     Each range is traced by one worker, which keeps its table; every later task of the range
     goes back to that worker while it lives. Results come back in row order and are joined,
@@ -243,9 +245,11 @@ class ClusterRows:
     after a worker died (its ranges are traced again elsewhere, to the same bits).
 
     client : a dask.distributed Client; package : the package file's bytes (sent to every
-    worker once); parts : row ranges (at least the worker count, so that every worker has
-    rows); threads : each task's worker threads (0: all the cores of its machine; with several
-    worker processes on one machine, its share)
+    worker once), or the state ``function`` takes; parts : row ranges (at least the worker
+    count, so that every worker has rows); threads : each task's worker threads (0: all the
+    cores of its machine; with several worker processes on one machine, its share);
+    function : ``function(state, start, stop, task, *arguments, threads)`` runs a task on a
+    worker (core.distributed.rows.run_task for a bake)
     """
 
     name = "dask"
@@ -253,10 +257,11 @@ class ClusterRows:
     SCATTER_BYTES = 1 << 16
     local_bytes = 0  # the driver holds none of the table
 
-    def __init__(self, client, package: bytes, parts: int, threads: int = 0):
+    def __init__(self, client, package, parts: int, threads: int = 0, function=run_task):
         self.client = client
         self.parts = int(parts)
         self.threads = int(threads)
+        self.function = function
         self.ranges: list[range] = []
         self.package = client.scatter(package, broadcast=True)
         self.placement: dict[range, str] = {}  # the worker that traced each range (and keeps its table)
@@ -283,7 +288,7 @@ class ClusterRows:
         for r, own in zip(self.ranges, per_range):
             # A range goes back to the worker keeping its table; if that one died, anywhere.
             where = {"workers": [self.placement[r]], "allow_other_workers": True} if r in self.placement else {}
-            futures.append(self.client.submit(run_task, self.package, r.start, r.stop, task, *own, *shared,
+            futures.append(self.client.submit(self.function, self.package, r.start, r.stop, task, *own, *shared,
                                               pure=False, retries=TASK_RETRIES, threads=self.threads, **where))
         results = gathered(self.client, futures, progress)
         holders = self.client.who_has(futures)

@@ -222,7 +222,7 @@ def _hash_unit(a, b, c):
 
 @nb.njit(**KERNEL_OPTIONS)
 def scatter_table(density, active, directions, world_per_index, extinction, step, points, seed, code_scale,
-                  block, blocked, first_direction, distance_codes, escape_codes):
+                  block, blocked, first_direction, first_voxel, distance_codes, escape_codes):
     """For every direction and active voxel, march the ray through the medium and store where
     it scatters (section 6.2 of the paper): ``points`` quantiles (j + u) / points of the
     free-flight distribution within the grid, u a hashed uniform per voxel, direction and
@@ -243,6 +243,8 @@ def scatter_table(density, active, directions, world_per_index, extinction, step
         or (0, 0) when no mesh is near; the ray's free flight ends there
     first_direction : int64 the index of ``directions[0]`` in the whole set (the points'
         hash uses it, so that a table built in chunks of directions is the same table)
+    first_voxel : int64 the index of ``active[0]`` among the medium's active voxels (likewise,
+        for a table built by ranges of voxels)
     Outputs distance_codes (N, V, M) uint16 (index-space distance times code_scale) and
     escape_codes (N, V) uint16 (escaping fraction times 65535).
     """
@@ -304,7 +306,7 @@ def scatter_table(density, active, directions, world_per_index, extinction, step
             k = 0
             for j in range(points):
                 if seed >= 0:
-                    u = _hash_unit(v + np.int64(seed) * 1000003, np.int64(d) + first_direction, j)
+                    u = _hash_unit(v + first_voxel + np.int64(seed) * 1000003, np.int64(d) + first_direction, j)
                 else:
                     u = 0.5
                 target = -np.log(1.0 - (j + u) / points * scattered)
@@ -506,7 +508,7 @@ def warm_up() -> None:
     escape = np.zeros((1, 1), np.uint16)
     for blocked in (np.zeros((0, 0), np.float32), np.full((1, 1), np.inf, np.float32)):
         scatter_table(density, active, directions, np.ones(1), 1.0, 1.0, 1, np.int64(-1), 1.0, BLOCK, blocked,
-                      np.int64(0), codes, escape)
+                      np.int64(0), np.int64(0), codes, escape)
     march_transmittance(density, np.zeros((1, 3)), directions, np.full(1, np.inf), np.ones(1), 1.0, 0.5,
                         np.zeros(1))
     gather_volume(np.zeros((4, 4, 4, 3), np.float32), active, directions, codes, escape, 1.0, BLOCK,

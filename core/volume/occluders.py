@@ -105,7 +105,7 @@ class Occluders:
 
 
 def reflected_light(medium: Medium, tables, occluders: Occluders | None, lights: list, area_light_samples: int = 4,
-                    threads: int = 0) -> np.ndarray:
+                    threads: int = 0, first_voxel: int = 0) -> np.ndarray:
     """In-scattered radiance from the meshes that the table rays end at.
 
     Each such ray brings its escaping fraction (the medium's transmittance up to the mesh)
@@ -114,9 +114,15 @@ def reflected_light(medium: Medium, tables, occluders: Occluders | None, lights:
     each lamp point shadowed by the meshes and by the medium (a march from the hit point to
     it). Both sides of a face reflect (a thin plane lights the volume from either side).
 
-    tables : core.volume.tables.ScatteringTables built with these occluders
+    tables : core.volume.tables.ScatteringTables built with these occluders (of the active
+        voxels from ``first_voxel`` on: each hit point's lamp sampler is seeded by its voxel's
+        index among all of them, so that ranges give the whole tables' light bit for bit)
     Returns (V, 3) float64 W/(m^2 sr), zero where no ray meets a mesh.
     """
+    from ..distributed.volume_rows import SplitVolumeTables
+
+    if isinstance(tables, SplitVolumeTables):
+        return tables.reflected_light(lights, area_light_samples)
     result = np.zeros((len(tables.voxels), 3))
     if occluders is None or occluders.scattered is None or tables.sees_world is None or not len(tables.voxels):
         return result
@@ -150,7 +156,7 @@ def reflected_light(medium: Medium, tables, occluders: Occluders | None, lights:
         lit = np.flatnonzero(albedo.max(axis=1) > 0.0)
         if len(lit):
             irradiance = _irradiance(module, medium, density, inverse, occluders, lights, points[lit],
-                                     normals[lit], area_light_samples, threads)
+                                     normals[lit], area_light_samples, threads, ended[lit] + first_voxel)
             sent[lit] += albedo[lit] / np.pi * irradiance
         escape = tables.escape_codes[d, ended].astype(np.float64) * (1.0 / CODE_MAX)
         result[ended] += escape[:, None] * sent
@@ -159,15 +165,15 @@ def reflected_light(medium: Medium, tables, occluders: Occluders | None, lights:
 
 def _irradiance(module, medium: Medium, density: np.ndarray, inverse: np.ndarray, occluders: Occluders,
                 lights: list, points: np.ndarray, normals: np.ndarray, area_light_samples: int,
-                threads: int) -> np.ndarray:
+                threads: int, ids: np.ndarray) -> np.ndarray:
     """(K, 3) float64 irradiance of ``lights`` at world ``points`` (K, 3) with unit ``normals``,
-    shadowed by the meshes and by the medium."""
+    shadowed by the meshes and by the medium; ids (K,) int64 seed each point's lamp sampler."""
     from ..lights.lamps import light_contributions
 
     total = np.zeros((len(points), 3))
     origins = occluders.shadows.ray_origins(points, normals) if occluders.shadows is not None else points
     start = medium.to_index(points)
-    ids = np.arange(len(points), dtype=np.int64)
+    ids = np.asarray(ids, np.int64)
     for light in lights:
         for contribution in light_contributions(light, points, normals, area_light_samples, ids):
             if not contribution.irradiance.any():

@@ -107,7 +107,7 @@ MESH_RAYS_PER_CHUNK = 1 << 23
 
 def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: float = STEP,
                  jitter_seed: int | None = 0, threads: int = 0, occluders=None,
-                 progress=None) -> ScatteringTables:
+                 progress=None, voxel_range: range | None = None) -> ScatteringTables:
     """March every active voxel's ray along every direction (core.kernels.volume_kernels.scatter_table).
 
     directions : (N, 3) float64 unit world directions; points : M >= 1; step : index units
@@ -117,11 +117,17 @@ def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: 
         meshes first, and ends at the first one it meets
     progress : called with the fraction done between chunks of directions (may raise
         core.errors.Cancelled)
+    voxel_range : only these of the medium's active voxels (C order), or None for all: the
+        tables of ranges, joined, are the whole tables bit for bit (core.distributed.volume_rows)
     """
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     if points < 1 or not 0 < step <= 2:
         raise ValueError(f"points must be >= 1 and step in (0, 2], got {points}, {step}")
     voxels = medium.active()
+    first_voxel = 0
+    if voxel_range is not None:
+        voxels = voxels[voxel_range.start:voxel_range.stop]
+        first_voxel = voxel_range.start
     size = table_bytes(len(voxels), len(directions), points, occluders is not None)
     if size > MAX_TABLE_BYTES:
         raise VolumeRefused(
@@ -154,7 +160,8 @@ def build_tables(medium: Medium, directions: np.ndarray, points: int = 2, step: 
                 blocked = (blocked / world_per_index[part, None]).astype(np.float32)
             kernels.run(module.scatter_table, threads, density, voxels, index_directions[part],
                         world_per_index[part], float(medium.extinction), float(step), int(points), np.int64(seed),
-                        code_scale, module.BLOCK, blocked, np.int64(first), distance_codes[part], escape_codes[part])
+                        code_scale, module.BLOCK, blocked, np.int64(first), np.int64(first_voxel), distance_codes[part],
+                        escape_codes[part])
             if progress is not None:
                 progress(part.stop / len(directions))
     return ScatteringTables(directions, index_directions, world_per_index, voxels, distance_codes, escape_codes,

@@ -103,9 +103,18 @@ def gather(medium: Medium, tables: ScatteringTables, sent: np.ndarray, threads: 
         bounce; emission over extinction for emission)
     Returns (V, 3) float64.
     """
+    from ..distributed.volume_rows import SplitVolumeTables
+
+    if isinstance(tables, SplitVolumeTables):
+        return tables.gather(dilated_source(medium, tables.voxels, sent))
+    return gather_source(tables, dilated_source(medium, tables.voxels, sent), threads)
+
+
+def gather_source(tables: ScatteringTables, source: np.ndarray, threads: int = 0) -> np.ndarray:
+    """:func:`gather` from the dilated ``source`` grid (X, Y, Z, 3) float32 padded; (V, 3) float64."""
     module = require_kernels()
     result = np.zeros((len(tables.voxels), 3))
-    kernels.run(module.gather_volume, threads, dilated_source(medium, tables.voxels, sent), tables.voxels,
+    kernels.run(module.gather_volume, threads, source, tables.voxels,
                 tables.index_directions, tables.distance_codes, tables.escape_codes, tables.distance_per_code,
                 module.BLOCK, result)
     return result
@@ -158,8 +167,7 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
                                  sweep_pass=sweep_pass)
         report(f"direct light: {light.name}")
     if world is not None and has_light(world):
-        radiance = world_radiance(world, tables.directions)
-        direct += (radiance.astype(np.float32).T @ tables.world_escape()).T.astype(np.float64) / len(tables.directions)
+        direct += world_light(tables, world_radiance(world, tables.directions))
     report("world light")
     from_meshes = None
     if reflecting:
@@ -180,6 +188,17 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
         means.append(previous.mean(axis=0) if len(previous) else np.zeros(3))
         report(f"bounce {bounce + 1}")
     return VolumeLight(_to_grid(medium, voxels, direct), _to_grid(medium, voxels, indirect), means, warnings)
+
+
+def world_light(tables, radiance: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 the world's radiance (N, 3) arriving at each table voxel through the
+    fraction of each ray that leaves unscattered and meets no mesh (per range where the
+    tables are held by ranges of voxels)."""
+    from ..distributed.volume_rows import SplitVolumeTables
+
+    if isinstance(tables, SplitVolumeTables):
+        return tables.world_light(radiance)
+    return (radiance.astype(np.float32).T @ tables.world_escape()).T.astype(np.float64) / len(tables.directions)
 
 
 def _to_grid(medium: Medium, voxels: np.ndarray, values: np.ndarray) -> np.ndarray:

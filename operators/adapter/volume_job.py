@@ -117,10 +117,14 @@ class VolumeJob(SteppedJob):
 
     def __init__(self, scene, objects: list, out_dir: str, resolution: int = 64, directions: int = 64,
                  bounces: int = 1, points: int = 2, seed: int = 0, threads: int = 0,
-                 progress: Callable[[str, float], None] | None = None, device_name: str | None = None):
+                 progress: Callable[[str, float], None] | None = None, device_name: str | None = None,
+                 cluster=None):
         """device_name : 'auto', 'gpu' or 'cpu' for the lamps' slice sweeps (the GPU twin,
         gpu_shaders.volume_sweep); None: the preference. The tables and the bounces run on the
-        CPU kernels."""
+        CPU kernels. cluster : core.distributed.engine.ClusterOptions, or None: each medium's
+        tables are built and read by ranges of voxels on a Dask cluster (the same grids, bit
+        for bit; not cached)."""
+        self.cluster = cluster
         self.scene, self.objects, self.out_dir = scene, list(objects), out_dir
         self.device_name = device_name
         self.sweep_pass = None
@@ -198,6 +202,26 @@ class VolumeJob(SteppedJob):
 
     def compute(self) -> None:
         """Any thread (no bpy): the tables and the light of each volume."""
+        if self.cluster is None:
+            self._compute(None)
+            return
+        from ...core.distributed.engine import cluster_parts
+
+        self.progress("starting the cluster", 0.0)
+        with cluster_parts(self.cluster, self.threads) as cluster:
+            self._compute(cluster)
+        self.report["split"] = {"parts": cluster[1], "cluster": self.cluster.describe()}
+
+    def _tables_on(self, cluster, volume, directions):
+        """A medium's tables by ranges of voxels on ``cluster`` (client, parts, threads)."""
+        from ...core.distributed.engine import ClusterRows
+        from ...core.distributed.volume_rows import VolumeSetup, split_tables, volume_task
+
+        client, parts, threads = cluster
+        setup = VolumeSetup.of(volume.medium, directions, self.points, volume_tables.STEP, self.seed, self.meshes)
+        return split_tables(ClusterRows(client, setup, parts, threads, function=volume_task), setup)
+
+    def _compute(self, cluster) -> None:
         directions = direction_set(int(self.directions), rotate=True, seed=self.seed)
         for number, volume in enumerate(self.volumes):
             def share(stage, fraction, number=number, name=volume.obj.name):
@@ -211,9 +235,12 @@ class VolumeJob(SteppedJob):
                     threads=self.threads, occluders=self.occluders,
                     progress=lambda fraction: share("scattering tables", 0.5 * fraction))
 
-            table, volume.entry["tables"] = volume_cache.cached_tables(
-                self.cache, volume.obj.name, volume.medium, directions, self.points, volume_tables.STEP, self.seed,
-                self.meshes, build, self.warnings)
+            if cluster is not None:
+                table, volume.entry["tables"] = self._tables_on(cluster, volume, directions), "built on the cluster"
+            else:
+                table, volume.entry["tables"] = volume_cache.cached_tables(
+                    self.cache, volume.obj.name, volume.medium, directions, self.points, volume_tables.STEP,
+                    self.seed, self.meshes, build, self.warnings)
             volume.entry["seconds"]["tables"] = round(time.perf_counter() - started, 3)
             volume.entry["table_mib"] = round(table.nbytes / 2 ** 20, 2)
             started = time.perf_counter()

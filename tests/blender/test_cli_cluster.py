@@ -1,6 +1,7 @@
 """``visibake bake --workers N``: the installed extension's bake on a local Dask cluster (plain
 ``dask scheduler`` and ``dask worker`` processes that import the extension's core without
 Blender), equal bit for bit to the same bake in one process; and the cluster options' refusals."""
+import importlib
 import json
 
 import bpy
@@ -8,6 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
+from blender_support import extension_module_name
 from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun
 
 pytest.importorskip("distributed", reason="the Dask engine (requirements.txt) is not installed")
@@ -179,3 +181,34 @@ def test_a_light_field_baked_and_rendered_on_two_workers_equals_the_cpu_one(visi
         assert (tmp_path / "two" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()
     report = json.loads((tmp_path / "two.json").read_text())
     assert report["split"]["parts"] == 4 and report["renderer"] == "cpu (embree), on a cluster"
+
+
+def test_a_volume_on_two_local_workers_writes_the_one_process_grids(visibake, tmp_path):
+    from test_volume_bake import read_grid, volume_scene, write_vdb
+
+    compat = importlib.import_module(extension_module_name() + ".operators.adapter.compat")
+    try:
+        openvdb = compat.openvdb()
+    except compat.FeatureMissing as missing:
+        pytest.skip(f"volumes need Blender's openvdb module: {missing}")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    black_world()
+    sun(3.0)
+    point(300.0, (0.5, 0.0, 2.5))
+    write_vdb(openvdb, tmp_path / "cloud.vdb")
+    volume_scene(tmp_path / "cloud.vdb")
+    blend = tmp_path / "cloud.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    common = ["volume", str(blend), "--resolution", "16", "--directions", "16", "--bounces", "2", "--no-progress",
+              "--no-cache"]
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "one")]) == 0
+    assert visibake.cli.main(common + ["--out", str(tmp_path / "two"), "--workers", "2", "--parts", "3",
+                                       "--report", str(tmp_path / "two.json")]) == 0
+    report = json.loads((tmp_path / "two.json").read_text())
+    assert report["split"]["parts"] == 3 and report["volumes"][0]["tables"] == "built on the cluster"
+    shape = tuple(report["volumes"][0]["grid"]) + (3,)
+    for name in ("direct", "indirect", "scattered"):
+        ours = read_grid(openvdb, tmp_path / "two" / "Cloud" / f"{name}.vdb", name, shape)
+        theirs = read_grid(openvdb, tmp_path / "one" / "Cloud" / f"{name}.vdb", name, shape)
+        assert np.array_equal(ours, theirs), name
+        assert ours.max() > 0
