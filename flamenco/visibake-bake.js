@@ -22,7 +22,7 @@ var JOB_TYPE = {
         {key: "blendfile", type: "string", required: true, visible: "web",
          description: "The .blend to bake, on the shared storage"},
         {key: "job_folder", type: "string", subtype: "dir_path", required: true,
-         eval: "str(Path(jobs_dir) / 'visibake' / jobname)",
+         eval: "str(Path(abspath('//visibake_jobs'), jobname))",
          description: "Where the steps exchange files (one folder per job, on the shared storage)"},
         {key: "output_folder", type: "string", subtype: "dir_path", required: true,
          eval: "str(Path(abspath(bpy.context.scene.visibake.output_dir or '//visibake')))",
