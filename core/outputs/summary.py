@@ -77,6 +77,12 @@ def summary_lines(report: Report | dict) -> list[str]:
     lines.append("  " + _rays_phrase(report.rays))
     if report.device is not None:
         lines.append("  " + _device_phrase(report.device))
+    if report.split is not None and "ranges" in report.split:
+        cluster = report.split.get("cluster") or {}
+        where = (f"{cluster['workers']} local workers" if cluster.get("workers") else cluster.get("scheduler")
+                 or cluster.get("farm") or report.split["executor"])
+        lines.append(f"  split: the table in {report.split['ranges']} ranges of texels on {where}, "
+                     f"{report.split['table_bytes_held_by_ranges'] / 2**20:.0f} MiB held there")
     if report.kernels:
         lines.append("  " + _kernels_phrase(report.kernels))
     for entry in report.passes:

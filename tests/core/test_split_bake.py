@@ -113,3 +113,17 @@ def test_a_split_table_is_not_read_by_another_device():
     p = prepare(scene, BakeSettings(directions=16, bounces=1), split=InProcessRows(2))
     with pytest.raises(BakeRefused, match="bake on the CPU device"):
         relight(p, scene.lights, scene.world, backend=OtherDevice())
+
+
+def test_the_summary_says_where_the_table_was_held():
+    from core.outputs.report import Report
+    from core.outputs.summary import summary_lines
+
+    scene = _interior()
+    result = bake(scene, BakeSettings(directions=16, bounces=1), split=InProcessRows(3))
+    report = Report.from_dict(result.report)
+    assert report.split == {"ranges": 3, "executor": "in process",
+                            "table_bytes_held_by_ranges": result.report["split"]["table_bytes_held_by_ranges"]}
+    report.split["cluster"] = {"workers": 2, "scheduler": None}
+    lines = summary_lines(report)
+    assert any(line.startswith("  split: the table in 3 ranges of texels on 2 local workers") for line in lines)
