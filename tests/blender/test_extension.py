@@ -46,18 +46,21 @@ def test_manifest_wheels_match_pins_one_per_platform():
     pins = dict(
         re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (REPO_ROOT / "requirements-wheels.txt").read_text(), re.M)
     )
-    pins = {name.lower(): version for name, version in pins.items()}
+    def normal(name):  # PEP 503: a wheel's file name writes lazy-importer as lazy_importer
+        return re.sub(r"[-_.]+", "-", name).lower()
+
+    pins = {normal(name): version for name, version in pins.items()}
     platform_tag = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "macosx"}
     found = set()
     for wheel in _wheel_names(load_manifest()):
         dist, version, *_ = wheel.split("-")
-        assert pins.get(dist.lower()) == version, f"{wheel} does not match requirements-wheels.txt"
-        if wheel.endswith("-py3-none-any.whl"):
-            # A pure-Python wheel serves every platform.
-            found.update((dist.lower(), p) for p in platform_tag)
+        assert pins.get(normal(dist)) == version, f"{wheel} does not match requirements-wheels.txt"
+        if wheel.endswith("-none-any.whl"):
+            # A pure-Python wheel (py3 or py2.py3) serves every platform.
+            found.update((normal(dist), p) for p in platform_tag)
             continue
         (platform,) = [p for p, tag in platform_tag.items() if tag in wheel]
-        found.add((dist.lower(), platform))
+        found.add((normal(dist), platform))
     assert found == {(d, p) for d in pins for p in platform_tag}
 
 
