@@ -1,6 +1,7 @@
-"""A visibility table held by ranges of sample rows (docs/scaleout.md), and the executors
-that hold them: in this process (the reference), or on a cluster's workers
-(core.distributed.engine.ClusterRows).
+"""A visibility table held by ranges of sample rows (docs/scaleout.md), and the executor that
+holds them in this process (the reference); the others hold them on a cluster's workers
+(core.distributed.engine.ClusterRows) or answer through a farm's job folder
+(core.distributed.farm.FarmRows).
 
 The driver of a split bake prepares the scene as one process would, except that its
 ``Prepared.table`` is a :class:`SplitTable`: every pass that reads the table (the gathers,
@@ -28,8 +29,8 @@ class SplitTable:
     counters and vertex_cells; every pass over the entries is a method that runs a task
     per range (``executor.run``) and joins the rows.
 
-    executor : an executor holding the ranges (:class:`InProcessRows`, or
-        core.distributed.engine.ClusterRows); stats : each range's
+    executor : an executor holding the ranges (:class:`InProcessRows`,
+        core.distributed.engine.ClusterRows or core.distributed.farm.FarmRows); stats : each range's
         core.distributed.row_tasks.table_stats, in row order
     """
 
