@@ -211,9 +211,11 @@ def test_a_local_cluster_starts_on_loopback_and_leaves_no_process_behind():
     with engine.cluster_client(workers=2) as client:
         addresses = list(client.scheduler_info()["workers"])
         assert len(addresses) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in addresses)
-        started = {child.pid for child in psutil.Process().children(recursive=True)} - before
-        assert len(started) >= 3  # the scheduler and two workers
+        started = [child for child in psutil.Process().children(recursive=True) if child.pid not in before]
+        assert len(started) >= 3  # the scheduler and two workers (and what their nannies started)
         # The workers import VisiBake's core through the preload, and refuse another version's tasks.
         with pytest.raises(PackageRefused, match="the driver other"):
             engine.run_parts(client, "brdf_part", [("other", None, None, None, None, 0, 1)])
-    assert not [pid for pid in started if psutil.pid_exists(pid) and psutil.Process(pid).status() != "zombie"]
+    # The scheduler and the nannies were waited for; what a nanny started ends with it, soon after.
+    _, alive = psutil.wait_procs(started, timeout=30)
+    assert not [p for p in alive if p.status() != psutil.STATUS_ZOMBIE]
