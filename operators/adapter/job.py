@@ -246,8 +246,9 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
         (core.pipeline.resident); the panel's buttons do, a command (one bake a process) does not
     view_densities : {object name: texels per unit of surface} that the cameras which will see
         the bake need (core.lightfield.coverage): they lower those objects' atlas sizes
-    cluster : core.distributed.engine.ClusterOptions, or None: trace and read the table by
-        ranges of sample rows on a Dask cluster (the images are the same bits; no cache)
+    cluster : core.distributed.engine.ClusterOptions (a Dask cluster) or
+        core.distributed.farm.FarmOptions (one step of a farm job), or None: trace and read the
+        table by ranges of sample rows there (the images are the same bits; no cache)
     """
     return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
                    threads, keep_preparation, view_densities, cluster).run()
@@ -324,6 +325,9 @@ class BakeJob:
             if self.relight_only or setups is not None:
                 raise BakeRefused("a bake on a cluster or a farm bakes one lighting without the cache: not with "
                                   "relight, --setups or --sun-sweep")
+            if self.device_name == "gpu":
+                raise BakeRefused("--device gpu: a bake on a cluster or a farm reads its table where the table is "
+                                  "kept, with the CPU kernels; use --device cpu or auto")
             self.cluster.validate()
         # A table held by sample rows is read where it is kept, by the CPU kernels.
         self.chosen_device = device.choose(context, "cpu" if self.cluster is not None else self.resolved.device)

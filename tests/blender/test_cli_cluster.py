@@ -67,6 +67,7 @@ def test_a_bake_on_two_local_workers_equals_the_one_process_bake(visibake, room_
     (["--insecure"], "only with --workers or --scheduler"),
     (["--workers", "2", "--parts", "0"], "at least 1 row range"),
     (["--workers", "2", "--sun-sweep", "6:18:3"], "not with relight, --setups or --sun-sweep"),
+    (["--workers", "2", "--device", "gpu"], "with the CPU kernels"),
 ])
 def test_cluster_options_that_cannot_run_exit_2_before_any_work(visibake, room_blend, tmp_path, capfd, extra,
                                                               message):
