@@ -340,3 +340,20 @@ def cluster_parts(options: ClusterOptions, threads: int = 0):
         if count < 1:
             raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")
         yield client, options.parts or 2 * count, max(1, cores // count) if options.workers else 0
+
+
+def run_in_parts(options: ClusterOptions, task: str, make_arguments, threads: int = 0, progress=None,
+                 stage: str = "parts") -> tuple[list, int]:
+    """``core.distributed.part_tasks.<task>`` on the cluster ``options`` names, closed on
+    leaving: the parts are ``make_arguments(parts, threads)`` (a list of argument tuples, from
+    the cluster's part count and each part's threads; this VisiBake's version is put first).
+    progress : callable(stage, fraction) or None. Returns (the results in part order, the
+    number of parts)."""
+    from ..version import visibake_version
+
+    if progress is not None:
+        progress("starting the cluster", 0.0)
+    with cluster_parts(options, threads) as (client, parts, share):
+        arguments = [(visibake_version(), *own) for own in make_arguments(parts, share)]
+        report = None if progress is None else (lambda fraction: progress(stage, fraction))
+        return run_parts(client, task, arguments, report), len(arguments)

@@ -447,21 +447,21 @@ class LightFieldJob(SteppedJob):
 
     def render_on_cluster(self) -> None:
         """Every view, ray cast in parts of contiguous views on the cluster (kept for render_row)."""
-        from ...core.distributed.engine import cluster_parts, run_parts
+        from ...core.distributed.engine import run_in_parts
         from ...core.transport.contract import direction_chunks
-        from ...core.version import visibake_version
 
         mark = time.perf_counter()
-        self._say("starting the cluster", 0.0)
         centre = self.grid.centre_index
         specs = [(view.index, view.view_matrix, view.projection_matrix, view.index == centre) for view in self.views]
-        with cluster_parts(self.cluster) as (client, parts, threads):
+
+        def parts_of(parts, threads):
             chunks = direction_chunks(len(specs), parts)
-            arguments = [(visibake_version(), self.drawn, (self.width, self.height), self.supersampling, FILTER_WIDTH,
-                          specs[chunk.start:chunk.stop], self.clip, threads) for chunk in chunks]
-            done = run_parts(client, "lightfield_part", arguments, lambda fraction: self._say("views", fraction))
+            return [(self.drawn, (self.width, self.height), self.supersampling, FILTER_WIDTH,
+                     specs[chunk.start:chunk.stop], self.clip, threads) for chunk in chunks]
+
+        done, parts = run_in_parts(self.cluster, "lightfield_part", parts_of, progress=self._say, stage="views")
         self.rendered = {index: (radiance, depth) for part in done for index, radiance, depth in part}
-        self.report["split"] = {"parts": len(chunks), "cluster": self.cluster.describe()}
+        self.report["split"] = {"parts": parts, "cluster": self.cluster.describe()}
         self.times["render_s"] += time.perf_counter() - mark
 
     def render_row(self, row: int) -> None:

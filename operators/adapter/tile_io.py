@@ -301,19 +301,15 @@ class BRDFJob(_TileJob):
             return gonio.simulate_brdf(self.tile, light_set, view_set, self.settings, self.progress)
         from dataclasses import replace
 
-        from ...core.distributed.engine import cluster_parts, run_parts
-        from ...core.version import visibake_version
+        from ...core.distributed.engine import run_in_parts
 
-        if self.progress is not None:
-            self.progress("starting the cluster", 0.0)
-        with cluster_parts(self.cluster, self.settings.threads) as (client, parts, threads):
+        def parts_of(parts, threads):
             settings = replace(self.settings, threads=threads)
-            arguments = [(visibake_version(), self.tile, light_set, view_set, settings, index, parts)
-                         for index in range(parts)]
-            report = None if self.progress is None else (lambda fraction: self.progress("lights", fraction))
-            result = gonio.join_brdf_parts(run_parts(client, "brdf_part", arguments, report))
+            return [(self.tile, light_set, view_set, settings, index, parts) for index in range(parts)]
+
+        done, parts = run_in_parts(self.cluster, "brdf_part", parts_of, self.settings.threads, self.progress, "lights")
         self.outcome.report["split"] = {"parts": parts, "cluster": self.cluster.describe()}
-        return result
+        return gonio.join_brdf_parts(done)
 
     def compute(self) -> None:
         light_set, view_set = self.direction_sets()
@@ -471,17 +467,14 @@ class BTFJob(_TileJob):
             return
         from dataclasses import replace
 
-        from ...core.distributed.engine import cluster_parts, run_parts
-        from ...core.version import visibake_version
+        from ...core.distributed.engine import run_in_parts
 
-        if self.progress is not None:
-            self.progress("starting the cluster", 0.0)
-        with cluster_parts(self.cluster, self.settings.threads) as (client, parts, threads):
+        def parts_of(parts, threads):
             settings = replace(self.settings, threads=threads)
-            arguments = [(visibake_version(), self.tile, directions, directions, size, settings, self.per_pixel,
-                          self.writer.folder, self.image_format, index, parts) for index in range(parts)]
-            report = None if self.progress is None else (lambda fraction: self.progress("lights", fraction))
-            done = run_parts(client, "btf_part", arguments, report)
+            return [(self.tile, directions, directions, size, settings, self.per_pixel, self.writer.folder,
+                     self.image_format, index, parts) for index in range(parts)]
+
+        done, parts = run_in_parts(self.cluster, "btf_part", parts_of, self.settings.threads, self.progress, "lights")
         for part in done:
             self.writer.adopt(part["written"])
         self.stats = dict(done[0]["stats"], images=sum(part["stats"]["images"] for part in done),
