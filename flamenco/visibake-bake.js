@@ -30,8 +30,8 @@ var JOB_TYPE = {
         {key: "parts", type: "int32", default: 4, propargs: {min: 1, max: 256},
          description: "Ranges of texels: one task per range in every step"},
         {key: "steps", type: "int32", default: 16, propargs: {min: 2, max: 200},
-         eval: "bpy.context.scene.visibake.bounces + bpy.context.scene.visibake.interleave ** 2 + 9",
-         description: "Steps planned; the bake asks for about bounces + rotations + 9 (unused ones do nothing)"},
+         eval: "bpy.context.scene.visibake.bounces + bpy.context.scene.visibake.interleave ** 2 + 9 + sum(o.type == 'LIGHT' for o in bpy.context.scene.objects)",
+         description: "Steps planned; the bake asks for about bounces + rotations + lamps + 9 (unused ones do nothing)"},
         {key: "bake_args", type: "string", default: "",
          description: "More options of visibake bake, e.g. --directions 256 --bounces 3"}
     ]

@@ -118,6 +118,13 @@ def visibake_package() -> tuple[str, str]:
     return package, folder
 
 
+# The nanny's default MALLOC_TRIM_THRESHOLD_ (Dask's "trim memory") turns off glibc's
+# adaptive mmap threshold, so every large numpy temporary is mapped and unmapped afresh:
+# building and tracing a range ran 1.5-2.5x slower with it (docs/benchmarks.md, "Scale-out,
+# part 3"). The nanny leaves a variable unset when its value is None.
+NANNY_ENVIRONMENT = '{"MALLOC_TRIM_THRESHOLD_": None}'
+
+
 def worker_environment() -> dict:
     """The environment of a worker process started here: this interpreter's module path (its
     numpy, embree and kernels), and VisiBake's package for the preload."""
@@ -128,7 +135,9 @@ def worker_environment() -> dict:
     # The kernels compiled here serve the workers too (same sources, same import name).
     return dict(os.environ, PYTHONPATH=os.pathsep.join(dict.fromkeys(paths)), VISIBAKE_PACKAGE=package,
                 VISIBAKE_PACKAGE_DIR=folder, NUMBA_CACHE_DIR=kernels.cache_root(),
-                DASK_DISTRIBUTED__WORKER__DAEMON="False")
+                DASK_DISTRIBUTED__WORKER__DAEMON="False",
+                DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON=NANNY_ENVIRONMENT)
+
 
 
 PRELOAD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_preload.py")
@@ -285,9 +294,13 @@ class ClusterRows:
                        if isinstance(value, np.ndarray) and value.nbytes > self.SCATTER_BYTES else value
                        for value in shared)
         futures = []
-        for r, own in zip(self.ranges, per_range):
+        # A range not placed yet is dealt to the workers in turn: left to itself, the scheduler
+        # gave three of four ranges to one of two idle workers (docs/benchmarks.md, "Scale-out, part 3").
+        workers = sorted(self.client.scheduler_info()["workers"])
+        for number, (r, own) in enumerate(zip(self.ranges, per_range)):
             # A range goes back to the worker keeping its table; if that one died, anywhere.
-            where = {"workers": [self.placement[r]], "allow_other_workers": True} if r in self.placement else {}
+            chosen = self.placement.get(r) or workers[number % len(workers)]
+            where = {"workers": [chosen], "allow_other_workers": True}
             futures.append(self.client.submit(self.function, self.package, r.start, r.stop, task, *own, *shared,
                                               pure=False, retries=TASK_RETRIES, threads=self.threads, **where))
         results = gathered(self.client, futures, progress)

@@ -143,8 +143,9 @@ class FarmRows:
 
 def _save_rows(path: str, checksum: str, kept: KeptRows) -> None:
     table = {name: getattr(kept.table, name) for name in TABLE_FIELDS}
-    write_values(path, {"package": checksum, "start": kept.start, "stop": kept.stop, "table": table,
-                        "scale": kept.scale})
+    write_values(path, {"package": checksum, "start": kept.start, "stop": kept.stop, "samples": kept.samples,
+                        "table": table, "scale": kept.scale, "frame_normal": kept.frame_normal,
+                        "group": kept.group})
 
 
 def _load_rows(path: str, checksum: str, start: int, stop: int) -> KeptRows | None:
@@ -153,7 +154,8 @@ def _load_rows(path: str, checksum: str, start: int, stop: int) -> KeptRows | No
     values = read_values(path)
     if values["package"] != checksum or (values["start"], values["stop"]) != (start, stop):
         return None  # another bake's rows: traced again
-    return KeptRows(start, stop, VisibilityTable(**values["table"]), values["scale"])
+    return KeptRows(start, stop, values["samples"], VisibilityTable(**values["table"]), values["scale"],
+                    values["frame_normal"], values["group"])
 
 
 def run_part(folder: str, index: int, threads: int = 0) -> str:
@@ -162,7 +164,7 @@ def run_part(folder: str, index: int, threads: int = 0) -> str:
     was done, in words; nothing when the bake is done, the range does not exist (fewer
     samples than parts) or its result is already there (a task run again)."""
     from . import row_tasks
-    from .rows import prepared_from_package
+    from .rows import packaged_bake
 
     folder = os.path.abspath(folder)
     state = read_pending(folder)
@@ -179,14 +181,14 @@ def run_part(folder: str, index: int, threads: int = 0) -> str:
         return f"call {call}: part {index} has no rows (the bake has {len(asked['ranges'])} ranges)"
     start, stop = asked["ranges"][index]
     package_path = os.path.join(folder, PACKAGE_NAME)
-    checksum, p = prepared_from_package(package_path, threads)
+    checksum, bake = packaged_bake(package_path, threads)
     rows_path = os.path.join(folder, "rows", f"part-{index:04d}.vbv")
     kept = _load_rows(rows_path, checksum, start, stop)
     if kept is None:
-        kept = keep_rows(p, start, stop, threads)
+        kept = keep_rows(bake.rows(start, stop), threads)
         os.makedirs(os.path.dirname(rows_path), exist_ok=True)
         _save_rows(rows_path, checksum, kept)
-    result = getattr(row_tasks, asked["task"])(p, kept, *asked["per_range"][index], *asked["shared"],
+    result = getattr(row_tasks, asked["task"])(bake, kept, *asked["per_range"][index], *asked["shared"],
                                                threads=threads)
     write_values(result_path, {"result": result})
     return f"call {call} ({asked['task']}), part {index}: rows {start} to {stop} answered"
@@ -211,10 +213,8 @@ def write_job_package(folder: str, scene, settings) -> None:
 
 def estimated_steps(settings, lights: int, world_rotations: int) -> int:
     """About how many driver steps a bake takes (one per executor call, plus the last): the
-    trace, the normalisation and exposed shares, near and short hits, the emitted gather (one
-    per interleaved rotation under a world image), one per bounce, AO and one per lamp's shadow
-    fractions; two spare. A job type with fewer steps fails its last task, saying so."""
-    steps = 1 + 2 + 2 + max(world_rotations, 1) + settings.bounces + 1
-    if settings.shadows == "fractions":
-        steps += lights
+    trace, the normalisation and exposed shares, near and short hits, one per lamp's direct
+    light, the emitted gather (one per interleaved rotation under a world image), one per
+    bounce and AO; two spare. A job type with fewer steps fails its last task, saying so."""
+    steps = 1 + 2 + 2 + lights + max(world_rotations, 1) + settings.bounces + 1
     return steps + 2 + 1

@@ -2,18 +2,21 @@
 (core.distributed.split): the same functions one process runs on the whole table, given
 the rows' table and returning the rows' results.
 
-Each task is ``task(prepared, kept, *arguments, threads=...)``: ``prepared`` is the bake's
-core.pipeline.prepare.Prepared (the driver's own in process; on a worker, its preparation
-of the same package, bit for bit the same), ``kept`` the range's
-core.distributed.rows.KeptRows. Executors name tasks by their function's name.
+Each task is ``task(bake, kept, *arguments, threads=...)``: ``bake`` is the bake's
+core.pipeline.prepare.Prepared in process, or a worker's core.distributed.rows.PackagedBake
+of the same package (of either, a task reads the same bits: settings, meshes, ray scene,
+directions, rotations, layout, and the rows' samples by ``sample_rows``),
+``kept`` the range's core.distributed.rows.KeptRows. Executors name tasks by their function's name.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ..pipeline.prepare import shadowing_of
 from ..transport.contacts import exposed_share as _exposed_share
 from ..transport.contacts import table_close_entries
 from ..transport.contract import GatherGeometry, GatherSource
+from ..transport.direct import lamp_irradiance
 from ..transport.gather import ambient_occlusion as _ambient_occlusion
 from ..transport.gather import gather
 from ..visibility.directions import ShadowRegions
@@ -25,7 +28,7 @@ def table_stats(p, kept, threads: int = 0) -> dict:
     directions (N, 3) float64, vertex_cells, per-sample counts (k,) int32, ray counters and
     bytes, and the bake's sample count (the driver checks the worker prepared the same bake)."""
     table = kept.table
-    return {"samples": len(p.position), "start": kept.start, "stop": kept.stop, "directions": table.directions,
+    return {"samples": kept.samples, "start": kept.start, "stop": kept.stop, "directions": table.directions,
             "vertex_cells": table.vertex_cells, "traced_per_sample": table.traced_per_sample,
             "backface_per_sample": table.backface_per_sample, "rays_cast": table.rays_cast,
             "rays_below_horizon": table.rays_below_horizon, "backface_hits": table.backface_hits,
@@ -41,7 +44,7 @@ def gather_rows(p, kept, exclude, samples, radiance, world, threads: int = 0) ->
     """(k, C) float64 the rows' gather (core.transport.gather.gather) of ``radiance`` (size, C)
     float32 and ``world`` (N, C) or (C,); exclude : (k, O) bool rows or None; samples : the
     rows' own indices (into the range) to gather, or None for all."""
-    geometry = GatherGeometry(kept.table, p.frame_normal[kept.start:kept.stop], kept.scale, p.layout, threads)
+    geometry = GatherGeometry(kept.table, kept.frame_normal, kept.scale, p.layout, threads)
     return gather(geometry, GatherSource(radiance, world, exclude), None, samples)
 
 
@@ -57,7 +60,7 @@ def exposed_share(p, kept, slots: int, threads: int = 0) -> np.ndarray:
 
 def ambient_occlusion(p, kept, threads: int = 0) -> np.ndarray:
     """(k,) float64 core.transport.gather.ambient_occlusion of the rows."""
-    return _ambient_occlusion(kept.table, p.frame_normal[kept.start:kept.stop], kept.scale, threads)
+    return _ambient_occlusion(kept.table, kept.frame_normal, kept.scale, threads)
 
 
 def close_entries(p, kept, sample_reach, target_reach, threads: int = 0) -> tuple[np.ndarray, ...]:
@@ -72,6 +75,12 @@ def shadow_fractions(p, kept, light_distance, region_count: int, threads: int = 
     ``region_count`` regions of the table's directions (as core.transport.contract.Shadowing
     makes them); light_distance : (k,) the rows' distances to a local lamp, or None (a distant one)."""
     regions = ShadowRegions(kept.table.directions, region_count)
-    group = None if p.group is None else p.group[kept.start:kept.stop]
-    fractions = _shadow_fractions(kept.table, regions, light_distance, p.rotations, group)
+    fractions = _shadow_fractions(kept.table, regions, light_distance, p.rotations, kept.group)
     return fractions.lit, fractions.traced
+
+
+def direct_light(p, kept, lights, threads: int = 0) -> tuple[np.ndarray, int]:
+    """((k, 3) float64 irradiance, shadow rays traced) of ``lights`` (core.scene.Light) at the
+    rows: core.transport.direct.lamp_irradiance of the rows' samples (their ids in the bake
+    seed the sampler), shadow fractions looked up in the rows' own table."""
+    return lamp_irradiance(p.sample_rows(kept.start, kept.stop), shadowing_of(p, kept.table, kept.group), lights)

@@ -2,14 +2,17 @@
 sample rows, so that every sample's sums run in the same order as in one process).
 
 A worker is given a scene package (core.distributed.package) and a row range [start, stop)
-of the bake's samples (every object's samples concatenated, in object order). It prepares
-the samples as the one-process bake does (deterministic: every worker builds the same ones),
-then traces only its rows' table (:func:`keep_rows`).
+of the bake's samples (every object's samples concatenated, in object order). It reads the
+package once (:class:`PackagedBake`: the meshes, the ray scene, the atlas layout and where
+each object's samples start, counted by the raster alone), builds the samples of the objects
+the range covers only, as the one-process bake builds them (deterministic: the same bits),
+and traces the range's table (:func:`keep_rows`). A worker's memory is then its rows' table
+and samples, not the whole scene's samples.
 
-What a worker prepared, and the tables (and gather normalisations) of the rows it traced, are
-kept in its process, keyed by the package's checksum, so the next task of the same bake (a
-bounce's gather of the same rows) neither prepares nor traces again (:func:`run_task` runs
-any task of core.distributed.row_tasks on them).
+What a worker read, and the samples, tables (and gather normalisations) of the rows it
+traced, are kept in its process, keyed by the package's checksum, so the next task of the
+same bake (a lamp's direct light, a bounce's gather of the same rows) neither reads, builds
+nor traces again (:func:`run_task` runs any task of core.distributed.row_tasks on them).
 """
 from __future__ import annotations
 
@@ -18,42 +21,236 @@ import json
 import os
 import tempfile
 import zipfile
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..pipeline.prepare import Prepared, prepare
-from ..transport.contract import direction_chunks
-from ..transport.gather import gather_normalisation
-from ..visibility.table import VisibilityTable, trace_table
+from ..pipeline.prepare import (
+    Prepared,
+    dense_footprint_of,
+    direction_rotations,
+    footprint_box,
+    footprint_points,
+    meshes_with_faces,
+    rotation_group,
+    table_request,
+    trace_frame,
+)
+from ..sampling.samples import ObjectSamples, build_samples, build_vertex_samples, texel_summary
+from ..settings import BakeSettings
+from ..transport.contract import SampleSet, direction_chunks
+from ..transport.gather import AtlasLayout, gather_normalisation
+from ..visibility.directions import direction_set
+from ..visibility.rays import RayScene
+from ..visibility.table import TraceRequest, VisibilityTable, frame_vectors, trace_table
 from .package import MANIFEST_NAME, read_package
 
-# checksum -> Prepared (no table): one entry per bake this worker process takes part in.
-_prepared: dict[str, Prepared] = {}
+# checksum -> PackagedBake: one entry per bake this worker process takes part in.
+_bakes: dict[str, PackagedBake] = {}
 # (checksum, start, stop) -> those rows' table and gather normalisation, made by this worker process.
 _rows: dict[tuple[str, int, int], KeptRows] = {}
-# The most bakes a worker keeps prepared at once; the oldest is forgotten first, with its rows.
+# The most bakes a worker keeps at once; the oldest is forgotten first, with its rows.
 KEPT_PREPARATIONS = 2
 
 
 @dataclass(frozen=True)
+class RowsPreparation:
+    """A bake narrowed to sample rows [start, stop): what tracing and reading them needs.
+
+    samples : the bake's sample count K (every object's, concatenated)
+    request : the rows' TraceRequest (k = stop - start samples)
+    frame_normal : (k, 3) float64 the rows' shading normals in their frames of the direction set
+    group : (k,) int64 the rows' interleaved rotations, or None (one set)
+    """
+
+    samples: int
+    start: int
+    stop: int
+    ray_scene: RayScene
+    request: TraceRequest
+    frame_normal: np.ndarray
+    group: np.ndarray | None
+
+
+def rows_of(p: Prepared, start: int, stop: int) -> RowsPreparation:
+    """Rows [start, stop) of a whole preparation (views, no copies): the in-process executor's."""
+    if not 0 <= start <= stop <= len(p.position):
+        raise ValueError(f"rows [{start}, {stop}) outside the bake's {len(p.position)} samples")
+    return RowsPreparation(len(p.position), start, stop, p.ray_scene, p.trace_request().rows(start, stop),
+                           p.frame_normal[start:stop], None if p.group is None else p.group[start:stop])
+
+
+@dataclass
+class PackagedBake:
+    """What a worker keeps of a packaged bake between its tasks: everything but most samples.
+
+    The row tasks (core.distributed.row_tasks) read it as they read a whole
+    core.pipeline.prepare.Prepared in process: its settings, meshes, ray_scene, directions,
+    rotations and layout, and :meth:`sample_rows`.
+
+    meshes : the meshes with faces, in object order (as core.pipeline.prepare.prepare keeps them)
+    sample_offset : (objects + 1,) int64 where each object's samples start among all K
+    vertex_samples : object index -> its VertexSamples (built up front: the layout needs them)
+    rotations : (G, 3, 3) float64 interleaved rotations of the direction set, or None
+    footprint_normals, terminator : whether the whole bake's samples have footprint normals and
+        terminator lifts (some object has a smooth face): the rows then have them too, as
+        core.pipeline.prepare.concatenated_footprint and concatenated_terminator give them
+    """
+
+    settings: BakeSettings
+    meshes: list
+    sample_offset: np.ndarray
+    vertex_samples: dict
+    layout: AtlasLayout
+    directions: np.ndarray
+    rotations: np.ndarray | None
+    ray_scene: RayScene
+    footprint_normals: bool
+    terminator: bool
+    # (start, stop) -> those rows' (SampleSet, (k,) int64 rotations or None), built on their first task
+    _sample_sets: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def read(cls, scene, settings: BakeSettings) -> PackagedBake:
+        """The bake of ``scene`` (core.scene.Scene) at ``settings``; reads each atlas object
+        with one raster of its UV map, without evaluating its samples."""
+        meshes = meshes_with_faces(scene.meshes)
+        centre, _ = trace_frame(meshes)
+        vertex = {index: build_vertex_samples(mesh, centre) for index, mesh in enumerate(meshes)
+                  if mesh.mode == "vertex"}
+        summaries = [(len(vertex[index]), None) if index in vertex else texel_summary(mesh, settings.threads)
+                     for index, mesh in enumerate(meshes)]
+        sizes = [(vertex[index].width, vertex[index].height) if index in vertex else tuple(mesh.resolution)
+                 for index, mesh in enumerate(meshes)]
+        layout = AtlasLayout.from_sizes(sizes, [vertex[index].corner_sample if index in vertex else None
+                                                for index in range(len(meshes))],
+                                        settings.vertex_lookup == "nearest")
+        footprint_normals = terminator = False
+        for index, mesh in enumerate(meshes):
+            if index in vertex:
+                footprint_normals |= vertex[index].footprint_normals is not None
+                terminator |= vertex[index].terminator is not None
+            else:  # as build_samples makes them, on smooth faces
+                footprint_normals |= settings.footprint_samples > 1 and summaries[index][1]
+                terminator |= mesh.terminator_offset > 0 and summaries[index][1]
+        return cls(settings, meshes, np.concatenate([[0], np.cumsum([c for c, _ in summaries])]).astype(np.int64),
+                   vertex, layout, direction_set(settings.directions, settings.rotate, settings.seed),
+                   direction_rotations(settings.interleave, settings.seed),
+                   RayScene([(m.positions, m.triangles) for m in meshes], settings.threads, centre),
+                   bool(footprint_normals), bool(terminator))
+
+    @property
+    def samples(self) -> int:
+        return int(self.sample_offset[-1])
+
+    def object_samples(self, index: int) -> ObjectSamples:
+        """Object ``index``'s samples, as core.pipeline.prepare.prepare builds them."""
+        if index in self.vertex_samples:
+            return self.vertex_samples[index]
+        built = build_samples(self.meshes[index], self.settings.footprint_samples, self.settings.threads)
+        expected = int(self.sample_offset[index + 1] - self.sample_offset[index])
+        if len(built) != expected:
+            raise RuntimeError(f"object {self.meshes[index].name!r} made {len(built)} samples where its raster "
+                               f"counted {expected}")
+        return built
+
+    def _pieces(self, start: int, stop: int) -> list[tuple[int, ObjectSamples, slice]]:
+        """(object index, its samples, the rows' slice of them) of each object rows [start, stop) cover."""
+        if not 0 <= start <= stop <= self.samples:
+            raise ValueError(f"rows [{start}, {stop}) outside the bake's {self.samples} samples")
+        pieces = []
+        for index in range(len(self.meshes)):
+            first, last = int(self.sample_offset[index]), int(self.sample_offset[index + 1])
+            if max(start, first) < min(stop, last):
+                pieces.append((index, self.object_samples(index),
+                               slice(max(start, first) - first, min(stop, last) - first)))
+        return pieces
+
+    def sample_rows(self, start: int, stop: int) -> SampleSet:
+        """Samples [start, stop) of the bake, built from the objects they cover and kept for the
+        range's later tasks (its trace, the lamps' direct light): bitwise the rows of the whole
+        preparation's SampleSet (core.pipeline.prepare.Prepared.sample_rows), ids and dense
+        footprints included. The covered objects' own footprints are not kept (the joined
+        arrays hold the rows'), nor are the samples of the objects the rows do not cover."""
+        if (start, stop) in self._sample_sets:
+            return self._sample_sets[start, stop][0]
+        pieces = self._pieces(start, stop)
+        position = _joined(pieces, lambda i, s: s.position, (3,), np.float64)
+        normal = _joined(pieces, lambda i, s: s.normal, (3,), np.float64)
+        geometric = _joined(pieces, lambda i, s: s.geometric_normal, (3,), np.float64)
+        owner = _joined(pieces, lambda i, s: np.full(len(s), i, np.int64), (), np.int64)
+        count = self.settings.footprint_samples
+        points = corners = point_normals = None
+        if count > 1:
+            points = _joined(pieces, lambda i, s: footprint_points(s, count), (count, 3), np.float32)
+            corners = _joined(pieces, lambda i, s: footprint_box(s), (4, 3), np.float32)
+            if self.footprint_normals:
+                point_normals = _joined(pieces, lambda i, s: s.footprint_normals if s.footprint_normals is not None
+                                        else np.broadcast_to(np.asarray(s.normal, np.float32)[:, None, :],
+                                                             (len(s), count, 3)), (count, 3), np.float32)
+        lifts = cutoffs = None
+        if self.terminator:
+            lifts = _joined(pieces, lambda i, s: s.terminator if s.terminator is not None else np.zeros((len(s), 3)),
+                            (3,), np.float64)
+            cutoffs = _joined(pieces, lambda i, s: np.full(len(s), self.meshes[i].terminator_offset), (), np.float64)
+        group = None
+        if self.rotations is not None:
+            group = _joined(pieces, lambda i, s: rotation_group(s, self.settings.interleave), (), np.int64)
+        # What a dense footprint reads of each covered object; its footprint arrays are in the joined ones.
+        covered = {index: replace(s, footprint=None, footprint_corners=None, footprint_normals=None, terminator=None,
+                                  albedo=None, emission=None) for index, s, _ in pieces}
+
+        def dense(rows, count):
+            return dense_footprint_of(self.meshes, covered.__getitem__, self.sample_offset,
+                                      lambda chosen: normal[np.asarray(chosen) - start], rows, count,
+                                      self.settings.threads)
+
+        built = SampleSet(position, normal, geometric, self.ray_scene.ray_origins(position, geometric), owner,
+                          points, corners, lifts, cutoffs, footprint_normals=point_normals,
+                          dense_footprint=None if points is None else dense, ids=np.arange(start, stop, dtype=np.int64))
+        self._sample_sets[start, stop] = (built, group)
+        return built
+
+    def rows(self, start: int, stop: int) -> RowsPreparation:
+        """Rows [start, stop) of the bake, to trace: their samples are built once, by
+        :meth:`sample_rows`, and kept for the lamps' direct light."""
+        samples = self.sample_rows(start, stop)
+        group = self._sample_sets[start, stop][1]
+        request = table_request(self.meshes, self.settings, self.directions, samples.position, samples.geometric,
+                                None if samples.footprint is None else (samples.footprint,), self.rotations, group)
+        return RowsPreparation(self.samples, start, stop, self.ray_scene, request,
+                               frame_vectors(samples.normal, self.rotations, group), group)
+
+
+def _joined(pieces, values, shape: tuple, dtype) -> np.ndarray:
+    """``values(object index, samples)`` of each piece (see PackagedBake._pieces), cut to its
+    rows and joined; (0, *shape) ``dtype`` without pieces."""
+    if not pieces:
+        return np.zeros((0, *shape), dtype)
+    return np.concatenate([np.asarray(values(index, samples))[cut] for index, samples, cut in pieces])
+
+
+@dataclass(frozen=True)
 class KeptRows:
-    """What is kept of a range of rows [start, stop): table (VisibilityTable over N directions
-    and the rows) and scale ((rows,) float64 gather normalisation, which every bounce's gather
-    reuses)."""
+    """What is kept of a range of rows [start, stop) of a bake of ``samples`` samples: table
+    (VisibilityTable over N directions and the rows), scale ((k,) float64 gather normalisation,
+    which every bounce's gather reuses), frame_normal ((k, 3) float64) and group ((k,) int64 or
+    None), as in :class:`RowsPreparation`."""
 
     start: int
     stop: int
+    samples: int
     table: VisibilityTable
     scale: np.ndarray
+    frame_normal: np.ndarray
+    group: np.ndarray | None
 
 
-def keep_rows(p: Prepared, start: int, stop: int, threads: int = 0) -> KeptRows:
-    """Trace rows [start, stop) of preparation ``p`` (made without its table) and normalise them."""
-    if not 0 <= start <= stop <= len(p.position):
-        raise ValueError(f"rows [{start}, {stop}) outside the bake's {len(p.position)} samples")
-    table = trace_table(p.ray_scene, p.trace_request().rows(start, stop))
-    return KeptRows(start, stop, table, gather_normalisation(table, p.frame_normal[start:stop], threads))
+def keep_rows(rows: RowsPreparation, threads: int = 0) -> KeptRows:
+    """Trace ``rows``' table and normalise it."""
+    table = trace_table(rows.ray_scene, rows.request)
+    return KeptRows(rows.start, rows.stop, rows.samples, table,
+                    gather_normalisation(table, rows.frame_normal, threads), rows.frame_normal, rows.group)
 
 
 def row_ranges(samples: int, parts: int) -> list[range]:
@@ -72,9 +269,9 @@ def _claimed_checksum(package: str | bytes) -> str | None:
         return None
 
 
-def prepared_from_package(package: str | bytes, threads: int = 0) -> tuple[str, Prepared]:
-    """(checksum, the package's preparation without its table), read, verified and prepared
-    once per worker process; a later task of the same package reads only its manifest.
+def packaged_bake(package: str | bytes, threads: int = 0) -> tuple[str, PackagedBake]:
+    """(checksum, the package's :class:`PackagedBake`), read and verified once per worker
+    process; a later task of the same package reads only its manifest.
 
     package : the package's path on this machine, or its bytes (a worker on another machine
         need not share the driver's disk)
@@ -82,8 +279,8 @@ def prepared_from_package(package: str | bytes, threads: int = 0) -> tuple[str, 
         to the machine that wrote it and may exceed this one's cores
     """
     claimed = _claimed_checksum(package)
-    if claimed in _prepared:
-        return claimed, _prepared[claimed]
+    if claimed in _bakes:
+        return claimed, _bakes[claimed]
     if isinstance(package, bytes):
         handle, path = tempfile.mkstemp(suffix=".vbpkg")
         try:
@@ -94,32 +291,32 @@ def prepared_from_package(package: str | bytes, threads: int = 0) -> tuple[str, 
             os.remove(path)
     else:
         read = read_package(package)
-    kept = _prepared.get(read.checksum)
+    kept = _bakes.get(read.checksum)
     if kept is None:
-        kept = prepare(read.scene, replace(read.settings, threads=threads), table_needed=False)
-        while len(_prepared) >= KEPT_PREPARATIONS:
-            forgotten = next(iter(_prepared))
-            _prepared.pop(forgotten)
+        kept = PackagedBake.read(read.scene, replace(read.settings, threads=threads))
+        while len(_bakes) >= KEPT_PREPARATIONS:
+            forgotten = next(iter(_bakes))
+            _bakes.pop(forgotten)
             for key in [key for key in _rows if key[0] == forgotten]:
                 _rows.pop(key)
-        _prepared[read.checksum] = kept
+        _bakes[read.checksum] = kept
     return read.checksum, kept
 
 
-def _kept_rows(package: str | bytes, start: int, stop: int, threads: int) -> tuple[Prepared, KeptRows]:
-    """The preparation and rows [start, stop)'s table and normalisation, made here once and
+def _kept_rows(package: str | bytes, start: int, stop: int, threads: int) -> tuple[PackagedBake, KeptRows]:
+    """The packaged bake and rows [start, stop)'s table and normalisation, made here once and
     kept: a retried or moved task makes them again, to the same bits."""
-    checksum, p = prepared_from_package(package, threads)
+    checksum, bake = packaged_bake(package, threads)
     key = (checksum, start, stop)
     if key not in _rows:
-        _rows[key] = keep_rows(p, start, stop, threads)
-    return p, _rows[key]
+        _rows[key] = keep_rows(bake.rows(start, stop), threads)
+    return bake, _rows[key]
 
 
 def run_task(package: str | bytes, start: int, stop: int, task: str, *arguments, threads: int = 0):
     """``core.distributed.row_tasks.<task>`` on rows [start, stop) of a packaged bake, in this
-    (worker) process: the rows are prepared and traced on the first task, then kept."""
+    (worker) process: the rows are built and traced on the first task, then kept."""
     from . import row_tasks
 
-    p, kept = _kept_rows(package, start, stop, threads)
-    return getattr(row_tasks, task)(p, kept, *arguments, threads=threads)
+    bake, kept = _kept_rows(package, start, stop, threads)
+    return getattr(row_tasks, task)(bake, kept, *arguments, threads=threads)

@@ -115,6 +115,13 @@ class SplitTable:
         return ShadowFractions(regions, np.concatenate([lit for lit, _ in parts]),
                                np.concatenate([traced for _, traced in parts]))
 
+    def lamp_irradiance(self, lights, progress=None) -> tuple[np.ndarray, int]:
+        """((K, 3) float64, shadow rays) core.transport.direct.lamp_irradiance of ``lights`` at
+        every sample, by the ranges where they are kept, joined (the split bake's direct light:
+        its shadow fractions come from each range's own table)."""
+        parts = self.executor.run("direct_light", [()] * len(self.ranges), (list(lights),), progress)
+        return np.concatenate([irradiance for irradiance, _ in parts]), sum(int(rays) for _, rays in parts)
+
     def whole(self) -> VisibilityTable:
         """The whole table, joined here (for checks and small bakes: a split bake never needs it)."""
         from ..visibility.table import concatenate_columns
@@ -145,13 +152,13 @@ class InProcessRows:
     def start(self, prepared, progress=None) -> SplitTable:
         """Trace every range of ``prepared`` (core.pipeline.prepare.Prepared, without a table)."""
         from . import row_tasks
-        from .rows import keep_rows, row_ranges
+        from .rows import keep_rows, row_ranges, rows_of
 
         self.prepared = prepared
         self.ranges = row_ranges(len(prepared.position), self.parts)
         self.kept = []
         for number, r in enumerate(self.ranges):
-            self.kept.append(keep_rows(prepared, r.start, r.stop, self.threads))
+            self.kept.append(keep_rows(rows_of(prepared, r.start, r.stop), self.threads))
             if progress is not None:
                 progress((number + 1) / len(self.ranges))
         return SplitTable(self, [row_tasks.table_stats(prepared, kept, self.threads) for kept in self.kept])

@@ -109,25 +109,9 @@ class Prepared:
 
     def dense_footprint(self, rows: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray | None]:
         """``count`` footprint points (r, count, 3) float32 of samples ``rows`` (r,), and their
-        normals (r, count, 3) float32 or None (core.sampling.samples.dense_footprint); vertex
-        samples stand for their position (zero offsets)."""
-        rows = np.asarray(rows, np.int64)
-        offsets = np.zeros((len(rows), count, 3), np.float32)
-        normals = None
-        owner = np.searchsorted(self.sample_offset, rows, side="right") - 1
-        for index in np.unique(owner):
-            mesh, samples = self.meshes[index], self.object_samples[index]
-            chosen = np.nonzero(owner == index)[0]
-            if mesh.mode == "vertex" or getattr(samples, "footprint", None) is None:
-                continue
-            local = rows[chosen] - self.sample_offset[index]
-            offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count, self.settings.threads)
-            if point_normals is not None:
-                if normals is None:
-                    normals = np.broadcast_to(self.normal[rows].astype(np.float32)[:, None, :],
-                                              offsets.shape).copy()
-                normals[chosen] = point_normals
-        return offsets, normals
+        normals (r, count, 3) float32 or None (:func:`dense_footprint_of`)."""
+        return dense_footprint_of(self.meshes, self.object_samples.__getitem__, self.sample_offset,
+                                  lambda chosen: self.normal[chosen], rows, count, self.settings.threads)
 
     def lookup_atlas(self, values: np.ndarray, dilate) -> np.ndarray:
         """Per-sample reflected light (K, C) as the atlas rays look it up in: each texel's
@@ -172,12 +156,12 @@ class Prepared:
         """How direct light is shadowed, as the settings say; one object per preparation, so
         the distant lights' shadow fractions are computed once for every relight."""
         if self._shadowing is None:
-            s = self.settings
-            self._shadowing = Shadowing(s.shadows, self.ray_scene, s.area_light_samples, self.table,
-                                        self.directions, s.shadow_regions, tuple(m.name for m in self.meshes),
-                                        np.array([m.casts_shadow for m in self.meshes], bool), s.seed,
-                                        s.footprint_samples, self.rotations, self.group)
+            self._shadowing = shadowing_of(self, self.table, self.group)
         return self._shadowing
+
+    def sample_rows(self, start: int, stop: int) -> SampleSet:
+        """Samples [start, stop) (SampleSet.rows of :meth:`sample_set`: views, the bake's ids)."""
+        return self.sample_set().rows(start, stop)
 
     def trace_request(self) -> TraceRequest:
         """The request this preparation's table is traced from (all samples; TraceRequest.rows
@@ -306,12 +290,9 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         stages.start("kernels")
         kernels.status()
     stages.start("samples")
-    meshes = []
-    for mesh in scene.meshes:
-        if len(mesh.triangles) == 0:
-            warnings.append(f"object {mesh.name!r} has no faces and was skipped")
-            continue
-        meshes.append(mesh)
+    meshes = meshes_with_faces(scene.meshes)
+    warnings += [f"object {mesh.name!r} has no faces and was skipped" for mesh in scene.meshes
+                 if len(mesh.triangles) == 0]
     if not any(m.output for m in meshes):
         raise BakeRefused("there is no mesh with faces to bake; select meshes that have faces")
     if settings.shadows == "fractions":
@@ -411,10 +392,8 @@ def concatenated_footprint(object_samples, count: int, normals: np.ndarray) -> t
     if count <= 1:
         return None
     offsets = np.cumsum([0] + [len(s) for s in object_samples])
-    points = np.concatenate([s.footprint if s.footprint is not None else np.zeros((len(s), count, 3), np.float32)
-                             for s in object_samples])
-    corners = np.concatenate([s.footprint_corners if s.footprint_corners is not None
-                              else np.zeros((len(s), 4, 3), np.float32) for s in object_samples])
+    points = np.concatenate([footprint_points(s, count) for s in object_samples])
+    corners = np.concatenate([footprint_box(s) for s in object_samples])
     point_normals = None
     if any(s.footprint_normals is not None for s in object_samples):
         point_normals = np.broadcast_to(np.asarray(normals, np.float32)[:, None, :], points.shape).copy()
@@ -432,6 +411,76 @@ def concatenated_footprint(object_samples, count: int, normals: np.ndarray) -> t
     return points, corners, point_normals
 
 
+def shadowing_of(bake, table, group: np.ndarray | None) -> Shadowing:
+    """The Shadowing of a bake (a Prepared, or a worker's core.distributed.rows.PackagedBake:
+    its settings, meshes, ray_scene, directions and rotations) over ``table`` (its whole table,
+    or a range of rows' with those rows' ``group`` (k,) int64 rotations, or None)."""
+    s = bake.settings
+    return Shadowing(s.shadows, bake.ray_scene, s.area_light_samples, table, bake.directions, s.shadow_regions,
+                     tuple(m.name for m in bake.meshes), np.array([m.casts_shadow for m in bake.meshes], bool),
+                     s.seed, s.footprint_samples, bake.rotations, group)
+
+
+def dense_footprint_of(meshes, object_samples, sample_offset: np.ndarray, normal_of, rows: np.ndarray, count: int,
+                       threads: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``count`` footprint points (r, count, 3) float32 of the bake's samples ``rows`` (r,) int64,
+    and their normals (r, count, 3) float32 or None (core.sampling.samples.dense_footprint);
+    vertex samples stand for their position (zero offsets).
+
+    object_samples : callable(object index) -> its ObjectSamples; sample_offset : (objects + 1,)
+    where each object's samples start; normal_of : callable(rows) -> their (r, 3) shading normals.
+    """
+    rows = np.asarray(rows, np.int64)
+    offsets = np.zeros((len(rows), count, 3), np.float32)
+    normals = None
+    owner = np.searchsorted(sample_offset, rows, side="right") - 1
+    for index in np.unique(owner):
+        mesh, samples = meshes[index], object_samples(index)
+        chosen = np.nonzero(owner == index)[0]
+        if mesh.mode == "vertex":  # its samples stand for their position
+            continue
+        local = rows[chosen] - sample_offset[index]
+        offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count, threads)
+        if point_normals is not None:
+            if normals is None:
+                normals = np.broadcast_to(normal_of(rows).astype(np.float32)[:, None, :], offsets.shape).copy()
+            normals[chosen] = point_normals
+    return offsets, normals
+
+
+def meshes_with_faces(meshes: list) -> list:
+    """The meshes a bake samples and traces, in order: those with faces."""
+    return [mesh for mesh in meshes if len(mesh.triangles)]
+
+
+def direction_rotations(tile: int, seed: int) -> np.ndarray | None:
+    """The interleaved rotations (tile², 3, 3) float64 of the direction set, or None for one set."""
+    return None if tile <= 1 else interleaved_rotations(tile * tile, seed)
+
+
+def footprint_points(samples: ObjectSamples, count: int) -> np.ndarray:
+    """(k, count, 3) float32 one object's footprint offsets; zeros where its samples stand
+    for a point (vertex samples)."""
+    if samples.footprint is not None:
+        return samples.footprint
+    return np.zeros((len(samples), count, 3), np.float32)
+
+
+def footprint_box(samples: ObjectSamples) -> np.ndarray:
+    """(k, 4, 3) float32 one object's footprint box corners; zeros where it has none."""
+    if samples.footprint_corners is not None:
+        return samples.footprint_corners
+    return np.zeros((len(samples), 4, 3), np.float32)
+
+
+def rotation_group(samples: ObjectSamples, tile: int) -> np.ndarray:
+    """(k,) int64 the interleaved rotation of each of one object's samples (:func:`interleaving`)."""
+    if isinstance(samples, VertexSamples):
+        return np.zeros(len(samples), np.int64)
+    x, y = samples.pixel % samples.width, samples.pixel // samples.width
+    return (x % tile + tile * (y % tile)).astype(np.int64)
+
+
 def interleaving(object_samples, tile: int, seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The interleaved rotations (G, 3, 3) of the direction set and each sample's (K,) int64, or
     (None, None) for one set. A texel at (x, y) of an atlas takes rotation
@@ -439,14 +488,7 @@ def interleaving(object_samples, tile: int, seed: int) -> tuple[np.ndarray | Non
     samples, which no filter averages, keep the set itself (rotation 0)."""
     if tile <= 1:
         return None, None
-    groups = []
-    for samples in object_samples:
-        if isinstance(samples, VertexSamples):
-            groups.append(np.zeros(len(samples), np.int64))
-        else:
-            x, y = samples.pixel % samples.width, samples.pixel // samples.width
-            groups.append((x % tile + tile * (y % tile)).astype(np.int64))
-    return interleaved_rotations(tile * tile, seed), np.concatenate(groups)
+    return direction_rotations(tile, seed), np.concatenate([rotation_group(s, tile) for s in object_samples])
 
 
 def concatenated_terminator(meshes, object_samples) -> tuple[np.ndarray, np.ndarray] | None:

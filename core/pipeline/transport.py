@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from ..distributed.split import SplitTable
 from ..lights.emitters import emitter_irradiance, find_emitters, sampled_directly
 from ..lights.lamps import lamp_scale, lamp_shape_key, unit_lamp
 from ..transport.contacts import contact_correction
@@ -220,7 +221,11 @@ def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, ligh
         unit = p.light_memo.get(key)
         if unit is None:
             part = None if report is None else (lambda f, n=number: report((n + f) / len(lights)))
-            irradiance, traced = backend.lamp_irradiance(samples, p.shadowing(), [unit_lamp(light)], part)
+            if where == "samples" and isinstance(p.table, SplitTable):
+                # A table held by row ranges: the samples' direct light runs where they are.
+                irradiance, traced = p.table.lamp_irradiance([unit_lamp(light)], part)
+            else:
+                irradiance, traced = backend.lamp_irradiance(samples, p.shadowing(), [unit_lamp(light)], part)
             unit = np.ascontiguousarray(irradiance[:, 0], dtype=np.float64)
             rays += traced
             p.light_memo.put(key, unit)

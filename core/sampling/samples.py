@@ -77,16 +77,15 @@ def _on_smooth_faces(mesh: Mesh, triangle: np.ndarray, geometric: np.ndarray) ->
     return cosines.min(axis=1) < 1.0 - tol.FLAT_NORMAL_SLACK
 
 
-def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> ObjectSamples:
-    """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel, with
-    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples).
-    ``threads``: the compiled kernels' thread count (0: all cores); the samples do not depend on it."""
+def _texel_raster(mesh: Mesh, threads: int):
+    """The raster of ``mesh``'s bake UV map that :func:`build_samples` evaluates: the UVs it
+    rasterised (T, 3, 2) float64 (zero for triangles that hold no texel), the face normals
+    (T, 3) float64 (zero likewise) and core.sampling.raster.rasterize's result."""
     width, height = mesh.resolution
-    corner_uv = mesh.uv_maps[mesh.bake_uv_map]
     # Only triangles with UV area can hold texels (an occluder whose UVs are all one point,
     # extract's past-the-budget instances, holds none). The normals are the mesh's kept ones,
     # which the table's hit geometry needs for every triangle anyway.
-    uv = np.asarray(corner_uv, np.float64)
+    uv = np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64)
     uv_area = (uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1]) \
         - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0])
     with_area = np.flatnonzero(uv_area != 0)  # NaN counts: the raster skips it
@@ -95,7 +94,24 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> O
     normals[with_area], valid[with_area] = all_normals[with_area], all_valid[with_area]
     # Degenerate or non-finite triangles get no samples: they have no normal to shade with.
     raster_uv = np.where(valid[:, None, None], uv, 0.0)
-    raster = rasterize(raster_uv, width, height, threads)
+    return raster_uv, normals, rasterize(raster_uv, width, height, threads)
+
+
+def texel_summary(mesh: Mesh, threads: int = 0) -> tuple[int, bool]:
+    """(how many samples :func:`build_samples` makes of ``mesh``, whether any lies on a smooth
+    face), found by the raster alone: a worker that bakes a range of samples reads the objects
+    outside it this way (whether the bake's samples have footprint normals and terminator
+    lifts depends on every object)."""
+    _, normals, raster = _texel_raster(mesh, threads)
+    return len(raster.triangle), bool(np.any(_on_smooth_faces(mesh, raster.triangle, normals[raster.triangle])))
+
+
+def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> ObjectSamples:
+    """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel, with
+    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples).
+    ``threads``: the compiled kernels' thread count (0: all cores); the samples do not depend on it."""
+    width, height = mesh.resolution
+    raster_uv, normals, raster = _texel_raster(mesh, threads)
     tri = raster.triangle
     bary = np.clip(raster.barycentric.astype(np.float64), tol.SAMPLE_BARYCENTRIC_INSET, None)
     bary /= bary.sum(axis=1, keepdims=True)

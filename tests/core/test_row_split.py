@@ -194,3 +194,93 @@ def test_sample_ids_none_gives_the_light_of_explicit_indices_0_to_k(direct_scene
                                  [LIGHTS["area lamp"]])
     alone, _ = lamp_irradiance(sparse, p.shadowing(), [LIGHTS["area lamp"]])
     assert not np.array_equal(shifted, alone)
+
+
+@pytest.mark.parametrize("interleave, footprint", [(3, 4), (1, 1)])
+def test_a_worker_builds_only_its_rows_objects_and_gets_the_whole_preparation_s_rows_bitwise(
+        monkeypatch, interleave, footprint):
+    """core.distributed.rows.PackagedBake: rows [start, stop) built from the objects they
+    cover (counted by the raster alone) equal those rows of the whole preparation, across
+    object boundaries, inside one object, empty, and with a vertex-mode object."""
+    from core.distributed import rows as rows_module
+    from core.sampling import samples as samples_module
+
+    scene = _scene()
+    settings = BakeSettings(directions=24, bounces=1, interleave=interleave, footprint_samples=footprint, threads=1)
+    whole = prepare(scene, settings, table_needed=False)
+    bake = rows_module.PackagedBake.read(scene, settings)
+    np.testing.assert_array_equal(bake.sample_offset, whole.sample_offset)
+    for name in ("widths", "heights", "offsets"):
+        np.testing.assert_array_equal(getattr(bake.layout, name), getattr(whole.layout, name))
+    np.testing.assert_array_equal(bake.layout.corner_flat, whole.layout.corner_flat)
+    built = []
+    real_build = samples_module.build_samples
+    monkeypatch.setattr(rows_module, "build_samples", lambda mesh, *a: built.append(mesh.name) or real_build(mesh, *a))
+    ground_end, blocker_end = int(whole.sample_offset[1]), int(whole.sample_offset[2])
+    for start, stop, objects in [(0, ground_end + 3, ["Ground", "Blocker"]), (5, 9, ["Ground"]),
+                                 (ground_end + 1, len(whole.position), ["Blocker"]), (7, 7, []),
+                                 (blocker_end, len(whole.position), [])]:
+        built.clear()
+        ours, theirs = bake.rows(start, stop), rows_module.rows_of(whole, start, stop)
+        assert built == objects  # the vertex-mode card was built once, up front
+        assert (ours.samples, ours.start, ours.stop) == (theirs.samples, start, stop)
+        for name in ("positions", "geometric_normals", "footprint", "group", "directions", "rotations"):
+            a, b = getattr(ours.request, name), getattr(theirs.request, name)
+            assert (a is None) == (b is None), name
+            if a is not None:
+                assert a.dtype == b.dtype and np.array_equal(a, b), (name, start, stop)
+        for name in ("frame_normal", "group"):
+            a, b = getattr(ours, name), getattr(theirs, name)
+            assert (a is None) == (b is None) and (a is None or np.array_equal(a, b)), name
+        _assert_same_table(trace_table(ours.ray_scene, ours.request), trace_table(theirs.ray_scene, theirs.request))
+    with pytest.raises(ValueError, match="outside"):
+        bake.rows(0, len(whole.position) + 1)
+
+
+def _smooth_scene(lights=()):
+    """_scene's objects and a smooth-shaded atlas bump (footprint normals, terminator lifts)."""
+    scene = _scene(lights)
+    bump = grid_mesh("Bump", size=0.8, segments=4, z=0.15, mode="atlas", resolution=12)
+    tilt = bump.positions[bump.triangles][..., :2] * 0.6  # corner normals lean away from the middle
+    normals = np.concatenate([tilt, np.ones(tilt.shape[:2] + (1,))], axis=2)
+    bump.corner_normals = (normals / np.linalg.norm(normals, axis=2, keepdims=True)).astype(np.float32)
+    bump.positions = bump.positions + np.array([-0.3, -0.3, 0.0])
+    scene.meshes.insert(1, bump)
+    return scene
+
+
+@pytest.mark.parametrize("shadows", ["exact", "fractions"])
+def test_a_worker_s_sample_rows_and_their_direct_light_are_the_whole_preparation_s_bitwise(shadows):
+    """PackagedBake.sample_rows (what row_tasks.direct_light lights) equals those rows of the
+    whole SampleSet, dense footprints included, and the lamps' light of each range, with the
+    range's own table for shadow fractions, equals those rows of the whole bake's light."""
+    from core.distributed import row_tasks
+    from core.distributed import rows as rows_module
+    from core.transport.direct import lamp_irradiance
+
+    lights = [Light("Lamp", "POINT", np.ones(3), 40.0, position=np.array([0.2, 0.1, 1.0]), radius=0.2),
+              Light("Sun", "SUN", np.ones(3), 2.0, direction=np.array([0.4, 0.1, -1.0]) / np.sqrt(1.17))]
+    scene = _smooth_scene(lights)
+    settings = BakeSettings(directions=32, bounces=1, interleave=2, footprint_samples=4, threads=1, shadows=shadows)
+    whole = prepare(scene, settings, table_needed=True)
+    assert whole.terminator is not None and whole.footprint[2] is not None  # the bump is smooth
+    bake = rows_module.PackagedBake.read(scene, settings)
+    expected, expected_rays = lamp_irradiance(whole.sample_set(), whole.shadowing(), lights)
+    total_rays = 0
+    for r in rows_module.row_ranges(len(whole.position), 3):
+        ours, theirs = bake.sample_rows(r.start, r.stop), whole.sample_rows(r.start, r.stop)
+        assert bake.sample_rows(r.start, r.stop) is ours  # kept for the next task
+        for name in ("position", "normal", "geometric", "origins", "owner", "footprint", "footprint_corners",
+                     "terminator", "terminator_cutoff", "footprint_normals", "ids"):
+            a, b = getattr(ours, name), getattr(theirs, name)
+            assert (a is None) == (b is None), name
+            if a is not None:
+                assert a.dtype == b.dtype and np.array_equal(a, b), (name, r)
+        picked = np.arange(r.start, r.stop, 3, dtype=np.int64)
+        for a, b in zip(ours.dense_footprint(picked, 9), theirs.dense_footprint(picked, 9)):
+            assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+        kept = rows_module.keep_rows(bake.rows(r.start, r.stop))
+        irradiance, rays = row_tasks.direct_light(bake, kept, lights)
+        assert irradiance.dtype == expected.dtype and np.array_equal(irradiance, expected[r.start:r.stop]), r
+        total_rays += rays
+    assert total_rays == expected_rays
