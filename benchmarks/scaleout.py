@@ -18,7 +18,8 @@ package (core/distributed/package.py). Then, without Blender, with the kernels l
 - a V-groove BRDF (Lambert, 64 directions, 3 bounces, L lights x 32 views) whole and in
   2 W parts on the same clusters, checked bit for bit.
 
-Reported: seconds (cluster start apart), the speed-up against this process, each worker's
+Reported: seconds (cluster start apart), the speed-up against this process, how much of a
+cluster bake this process spent on its own (waiting on no range: the serial share), each worker's
 peak resident memory (``ru_maxrss``) and this process's, and the bytes a bounce moves (the
 atlas out to every worker, the rows' irradiance back). Writes benchmarks/results/scaleout.json.
 """
@@ -59,6 +60,23 @@ def write_demo_package(path: str) -> dict:
     module("core.distributed.package").write_package(path, scene, settings)
     return {"directions": settings.directions, "resolution": props.resolution, "interleave": settings.interleave,
             "footprint_samples": settings.footprint_samples}
+
+
+def _time_calls(rows) -> list:
+    """Wrap ``rows.run`` (every call the bake makes on its ranges) to add its seconds to the
+    returned one-element list."""
+    spent = [0.0]
+    run = rows.run
+
+    def timed(*arguments, **options):
+        started = time.perf_counter()
+        try:
+            return run(*arguments, **options)
+        finally:
+            spent[0] += time.perf_counter() - started
+
+    rows.run = timed
+    return spent
 
 
 def peak_rss_mib() -> float:
@@ -132,6 +150,7 @@ def main(argv=None) -> int:
         with engine.cluster_client(workers=count) as client:
             startup_s = time.perf_counter() - started
             rows = engine.ClusterRows(client, package, parts=2 * count, threads=threads)
+            waited = _time_calls(rows)
             split, split_s = timed_bake(rows)
             same = all(np.array_equal(a, b) for a, b in zip(images(split), reference))
             peaks = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
@@ -146,12 +165,15 @@ def main(argv=None) -> int:
                "bake_s": round(split_s, 2),
                "stage_seconds": {k: round(v, 2) for k, v in split.report["stage_seconds"].items()},
                "speedup": round(whole_s / split_s, 2), "bit_identical": bool(same),
+               # What this process did itself while no range task ran: the bake's serial share.
+               "driver_only_s": round(split_s - waited[0], 2), "waiting_on_ranges_s": round(waited[0], 2),
                "table_bytes_on_workers": split.report["split"]["table_bytes_held_by_ranges"],
                "worker_peak_rss_mib": sorted(round(v, 1) for v in peaks.values()),
                "brdf_s": round(brdf_split_s, 2), "brdf_speedup": round(brdf_s / brdf_split_s, 2),
                "brdf_bit_identical": brdf_same}
         runs.append(run)
-        print(f"W = {count}: start {startup_s:.1f} s, bake {split_s:.1f} s ({run['stage_seconds']}), speed-up "
+        print(f"W = {count}: start {startup_s:.1f} s, bake {split_s:.1f} s ({run['stage_seconds']}; this process "
+              f"alone {run['driver_only_s']} s, waiting on ranges {run['waiting_on_ranges_s']} s), speed-up "
               f"{run['speedup']}x, bit-identical: {same}; worker peaks {run['worker_peak_rss_mib']} MiB; BRDF "
               f"{brdf_split_s:.1f} s ({run['brdf_speedup']}x), bit-identical: {brdf_same}", flush=True)
     write_results(os.path.join(ROOT, "benchmarks", "results", "scaleout.json"),
