@@ -175,7 +175,7 @@ demo: venv build
 # BENCH_PROFILE=appearance: tile BRDFs against Cycles, and their speed (benchmarks/brdf_vs_cycles.py -> docs/appearance/).
 # BENCH_PROFILE=lightfield: light fields of the baked demo, their speed and views against Cycles
 #   (benchmarks/lightfield_vs_cycles.py -> docs/lightfield/).
-# BENCH_PROFILE=scaleout: the demo's table traced and gathered by rows on 1, 2 and 4 local Dask
+# BENCH_PROFILE=scaleout: the demo baked by rows (traced, lit and gathered) on 1, 2 and 4 local Dask
 #   workers against one process (benchmarks/scaleout.py; the workers import the checkout's core).
 BENCH_PROFILE ?= quick
 bench: venv

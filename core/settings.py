@@ -271,6 +271,11 @@ PREFERENCE_SETTINGS = _table(
     Setting("gpu_memory_mib", int, 1024, "GPU Memory (MiB)", minimum=64, soft_max=16384,
             help="GPU memory the transport passes may use; the table is streamed in batches of directions "
                  "that fit"),
+    Setting("cluster_workers", int, 0, "Cluster Workers", minimum=0, maximum=256, soft_max=64,
+            help="Bake on this many local worker processes (a Dask cluster on this machine, started and "
+                 "stopped with each Bake): the same images, with the visibility table traced, lit and read by "
+                 "ranges of texels on the workers, for machines with many cores. Such a bake runs on the CPU, "
+                 "without the cache or a later Relight; 0: bake in Blender's own process"),
 )
 
 

@@ -55,7 +55,8 @@ class _BakeOperator:
         props = context.scene.visibake
         return job.BakeJob(context, job.output_objects(context, props),
                            bpy.path.abspath(props.output_dir) or None, False, progress,
-                           relight_only=self.relight_only, keep_preparation=True)
+                           relight_only=self.relight_only, keep_preparation=True,
+                           cluster=None if self.relight_only else job.preferred_cluster(context))
 
     def _finished(self, context, outcome) -> set:
         context.scene["visibake_last_report"] = summary(outcome.report)

@@ -77,6 +77,7 @@ PREFERENCE_OPTIONS = {
     # Kept between bakes of one session; a command is one bake, so there is nothing to keep.
     "resident_memory_mib": None,
     "default_preset": "--preset",  # the command takes a preset per run
+    "cluster_workers": "--workers",  # the same: a command says its cluster per run
 }
 
 

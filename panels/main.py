@@ -52,6 +52,7 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         prefs = device.preferences()
         if prefs is not None:
             column.prop(prefs, "device", text="Device (Preference)")
+            column.prop(prefs, "cluster_workers", text="Cluster Workers (Preference)")
         column.prop(props, "output_dir")
         column.prop(props, "light_groups")
         column.prop(props, "use_cache")

@@ -18,6 +18,7 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
     cache_limit_mib: setting_property(PREFERENCE_SETTINGS["cache_limit_mib"])
     default_preset: setting_property(PREFERENCE_SETTINGS["default_preset"])
     threads: setting_property(PREFERENCE_SETTINGS["threads"])
+    cluster_workers: setting_property(PREFERENCE_SETTINGS["cluster_workers"])
 
     def draw(self, context):
         layout = self.layout
@@ -29,6 +30,7 @@ class VisiBakePreferences(bpy.types.AddonPreferences):
         layout.prop(self, "cache_limit_mib")
         layout.prop(self, "default_preset")
         layout.prop(self, "threads")
+        layout.prop(self, "cluster_workers")
 
 
 classes = (VisiBakePreferences,)

@@ -139,7 +139,6 @@ def worker_environment() -> dict:
                 DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON=NANNY_ENVIRONMENT)
 
 
-
 PRELOAD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_preload.py")
 # How long a local cluster may take to start (a worker imports numpy, embree and the kernels).
 START_SECONDS = 120
@@ -296,11 +295,11 @@ class ClusterRows:
         futures = []
         # A range not placed yet is dealt to the workers in turn: left to itself, the scheduler
         # gave three of four ranges to one of two idle workers (docs/benchmarks.md, "Scale-out, part 3").
-        workers = sorted(self.client.scheduler_info()["workers"])
+        workers = sorted(self.client.scheduler_info(n_workers=-1)["workers"])
         for number, (r, own) in enumerate(zip(self.ranges, per_range)):
             # A range goes back to the worker keeping its table; if that one died, anywhere.
-            chosen = self.placement.get(r) or workers[number % len(workers)]
-            where = {"workers": [chosen], "allow_other_workers": True}
+            chosen = self.placement.get(r) or (workers[number % len(workers)] if workers else None)
+            where = {"workers": [chosen], "allow_other_workers": True} if chosen else {}
             futures.append(self.client.submit(self.function, self.package, r.start, r.stop, task, *own, *shared,
                                               pure=False, retries=TASK_RETRIES, threads=self.threads, **where))
         results = gathered(self.client, futures, progress)
@@ -349,7 +348,7 @@ def cluster_parts(options: ClusterOptions, threads: int = 0):
     options.validate()
     cores = threads or os.cpu_count() or 1
     with cluster_client(options.scheduler, options.workers, options.tls, options.insecure) as client:
-        count = len(client.scheduler_info()["workers"])
+        count = len(client.scheduler_info(n_workers=-1)["workers"])
         if count < 1:
             raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")
         yield client, options.parts or 2 * count, max(1, cores // count) if options.workers else 0

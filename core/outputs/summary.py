@@ -24,6 +24,9 @@ def _verb(report: Report) -> str:
 
 
 def _visibility_phrase(report: Report) -> str:
+    if report.cache_state == "unused" and report.rays.visibility_cast:
+        # Traced and not cached: a table held by row ranges (the cache's state says why).
+        return f"{report.rays.visibility_cast} visibility rays"
     return {"hit": "visibility from the cache", "updated": "visibility updated for changed objects",
             "unused": "no visibility needed"}.get(report.cache_state, f"{report.rays.visibility_cast} visibility rays")
 

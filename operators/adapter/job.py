@@ -170,6 +170,18 @@ def visibility_cache(scene) -> VisibilityCache | None:
     return VisibilityCache(cache_folder(scene), cache_label(scene), limit_bytes=cache_limit_bytes())
 
 
+def preferred_cluster(context):
+    """The local cluster the preference Cluster Workers asks the panel's Bake for
+    (core.distributed.engine.ClusterOptions), or None: bake in this process."""
+    prefs = device.preferences(context)
+    workers = int(getattr(prefs, "cluster_workers", 0) or 0)
+    if workers <= 0:
+        return None
+    from ...core.distributed.engine import ClusterOptions
+
+    return ClusterOptions(workers=workers)
+
+
 def output_objects(context, props) -> list[bpy.types.Object]:
     """The objects a bake writes results for: selected meshes, or all with ``bake_all``,
     except those whose role is Occlude Only."""

@@ -36,11 +36,16 @@ class ModalBake:
 
     @staticmethod
     def _bake_steps(bake_job) -> list:
+        if bake_job.cluster is not None:
+            # The cluster holds the table's rows from the trace to the last gather: one step (CPU only).
+            compute = [("visibility and lighting", bake_job.compute, True)]
+        else:
+            compute = [("visibility", bake_job.compute_visibility, True),
+                       ("lighting", bake_job.compute_lighting, None)]  # None: a worker unless the GPU needs main
         return [("plan", bake_job.plan, False),
                 ("unwrap", lambda: bake_job.unwrap(in_child=True), True),
                 ("extract", bake_job.extract, False),
-                ("visibility", bake_job.compute_visibility, True),
-                ("lighting", bake_job.compute_lighting, None),  # None: a worker unless the GPU needs main
+                *compute,
                 ("finish", bake_job.finish, False)]
 
     def tick(self) -> bool:

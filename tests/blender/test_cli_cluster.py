@@ -213,3 +213,139 @@ def test_a_volume_on_two_local_workers_writes_the_one_process_grids(visibake, tm
         theirs = read_grid(openvdb, tmp_path / "one" / "Cloud" / f"{name}.vdb", name, shape)
         assert np.array_equal(ours, theirs), name
         assert ours.max() > 0
+
+
+def _panel_scene():
+    """A ground, a block made an atlas by the bake, and a lamp, baked as the panel's Bake does."""
+    from bpy_scenes import select_only
+
+    black_world()
+    ground = mesh_object("Ground", grid(1.0, segments=4), material("White", (0.8, 0.8, 0.8)))
+    block = mesh_object("Block", cube(0.4), material("Grey", (0.5, 0.5, 0.5)), location=(0, 0, 0.4), uv_map=None)
+    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    props = bpy.context.scene.visibake
+    props.directions, props.bounces, props.resolution, props.use_cache = 48, 2, 32, False
+    select_only([ground, block])
+    return ground, block
+
+
+def _baked_pixels(visibake, objects):
+    name = visibake.operators.adapter.writeback.image_name
+    return {o.name: np.array(bpy.data.images[name(o.name, "lighting")].pixels[:]) for o in objects}
+
+
+def _remove_baked_images():
+    for name in [n for n in bpy.data.images.keys() if n.startswith("VB_")]:
+        bpy.data.images.remove(bpy.data.images[name])
+
+
+def _modal_bake(visibake, objects, cluster=None):
+    """A ModalBake of ``objects`` as the panel runs it (without the resident preparation, whose
+    transport is summed per lamp: the same light to float rounding, not bitwise)."""
+    progress = visibake.core.pipeline.progress.Progress()
+    bake_job = visibake.operators.adapter.job.BakeJob(bpy.context, list(objects), progress=progress, cluster=cluster)
+    return visibake.operators.adapter.modal.ModalBake(bake_job, progress), progress
+
+
+def _tick(modal, deadline, on_tick=None):
+    import time
+
+    while not modal.tick():
+        assert time.perf_counter() < deadline, "the bake never ended"
+        if on_tick is not None:
+            on_tick()
+        time.sleep(0.05)
+
+
+def test_the_panel_s_bake_with_cluster_workers_equals_the_bake_in_blender_s_process(visibake, clean_scene):
+    import time
+
+    objects = _panel_scene()
+    modal, _ = _modal_bake(visibake, objects)
+    _tick(modal, time.perf_counter() + 300)
+    assert modal.error is None, modal.error
+    alone = _baked_pixels(visibake, objects)
+    prefs = visibake.operators.adapter.device.preferences()
+    assert prefs.cluster_workers == 0  # off unless asked for
+    prefs.cluster_workers = 2
+    try:
+        assert bpy.ops.visibake.bake() == {"FINISHED"}
+    finally:
+        prefs.cluster_workers = 0
+    report = json.loads(bpy.context.scene["visibake_report"])
+    assert report["split"]["cluster"]["workers"] == 2 and report["split"]["ranges"] == 4
+    rays = report["rays"]["visibility_cast"]
+    assert rays > 0 and f"{rays} visibility rays" in bpy.context.scene["visibake_last_report"]
+    on_workers = _baked_pixels(visibake, objects)
+    for name, pixels in alone.items():
+        assert np.array_equal(on_workers[name], pixels), name
+    # Without the preference, the panel's bake keeps its preparation for relights, summing
+    # the transport per lamp: the same light to float rounding.
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    assert "split" not in json.loads(bpy.context.scene["visibake_report"]) or \
+        json.loads(bpy.context.scene["visibake_report"])["split"] is None
+    for name, pixels in _baked_pixels(visibake, objects).items():
+        np.testing.assert_allclose(pixels, alone[name], rtol=1e-6, atol=1e-7)
+
+
+def test_a_modal_bake_on_local_workers_ticks_to_the_same_images_and_a_cancel_stops_its_processes(
+        visibake, clean_scene):
+    import time
+
+    import psutil
+
+    objects = _panel_scene()
+    deadline = time.perf_counter() + 600
+    modal, _ = _modal_bake(visibake, objects)
+    _tick(modal, deadline)
+    alone = _baked_pixels(visibake, objects)
+    _remove_baked_images()
+    engine = importlib.import_module(f"{extension_module_name()}.core.distributed.engine")
+
+    modal, _ = _modal_bake(visibake, objects, engine.ClusterOptions(workers=2))
+    assert [name for name, _, _ in modal.steps] == ["plan", "unwrap", "extract", "visibility and lighting", "finish"]
+    _tick(modal, deadline)
+    assert modal.error is None, modal.error
+    for name, pixels in _baked_pixels(visibake, objects).items():
+        assert np.array_equal(pixels, alone[name]), name
+    _remove_baked_images()
+
+    before = {child.pid for child in psutil.Process().children(recursive=True)}
+
+    def started_since():
+        return [child for child in psutil.Process().children(recursive=True) if child.pid not in before]
+
+    def cluster_processes(children):
+        found = []
+        for child in children:
+            try:
+                if "distributed.cli" in " ".join(child.cmdline()):
+                    found.append(child)
+            except psutil.Error:
+                pass
+        return found
+
+    uv_names = list(objects[1].data.uv_layers.keys())
+    atlas = np.zeros(2 * len(objects[1].data.loops), np.float32)
+    objects[1].data.uv_layers["VisiBake"].data.foreach_get("uv", atlas)
+    modal, progress = _modal_bake(visibake, objects, engine.ClusterOptions(workers=2))
+    started = []
+
+    def cancel_once_the_cluster_runs():
+        if modal.steps[modal.next_step - 1][0] == "visibility and lighting" and not started:
+            children = started_since()
+            if len(cluster_processes(children)) >= 3:  # its scheduler and two workers
+                started.extend(children)
+                progress.cancel()
+
+    _tick(modal, deadline, cancel_once_the_cluster_runs)
+    assert isinstance(modal.error, visibake.core.errors.Cancelled), modal.error
+    assert started, "the cluster never started"
+    _, alive = psutil.wait_procs(started, timeout=60)
+    assert not [p for p in alive if p.status() != psutil.STATUS_ZOMBIE]
+    assert not [n for n in bpy.data.images.keys() if n.startswith("VB_")]  # nothing written
+    # The block's bake atlas, made by the first bake, is as that bake left it.
+    assert list(objects[1].data.uv_layers.keys()) == uv_names
+    atlas_after = np.zeros(2 * len(objects[1].data.loops), np.float32)
+    objects[1].data.uv_layers["VisiBake"].data.foreach_get("uv", atlas_after)
+    assert np.array_equal(atlas_after, atlas)

@@ -122,7 +122,7 @@ def test_the_main_panel_draws_every_setting_the_buttons_and_the_cache(visibake, 
                      if name == "prop" and options["owner"] == "VisiBakeObjectSettings"}
     device = [options["property"] for name, options in drawn
               if name == "prop" and options["owner"] == "VisiBakePreferences"]
-    assert device == ["device"]  # a preference, shown where the bake is set up
+    assert device == ["device", "cluster_workers"]  # preferences, shown where the bake is set up
     assert active_object == {"role", "resolution", "mode", "texel_density"}  # and the active object's own
     assert {"visibake.bake", "visibake.relight", "visibake.preview_add", "visibake.preview_remove",
             "visibake.clear_cache"} <= set(_operators(drawn))
