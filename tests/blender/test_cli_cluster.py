@@ -216,17 +216,14 @@ def test_a_volume_on_two_local_workers_writes_the_one_process_grids(visibake, tm
 
 
 def _panel_scene():
-    """A ground, a block made an atlas by the bake, and a lamp, baked as the panel's Bake does."""
-    from bpy_scenes import select_only
+    """The panel tests' ground, block (made an atlas by the bake) and lamp, at 48 directions,
+    2 bounces and no cache. Returns (ground, block)."""
+    from bpy_scenes import ground_block_lamp
 
-    black_world()
-    ground = mesh_object("Ground", grid(1.0, segments=4), material("White", (0.8, 0.8, 0.8)))
-    block = mesh_object("Block", cube(0.4), material("Grey", (0.5, 0.5, 0.5)), location=(0, 0, 0.4), uv_map=None)
-    point(80.0, (0.5, 0.3, 1.2), name="Lamp")
+    objects = ground_block_lamp()
     props = bpy.context.scene.visibake
-    props.directions, props.bounces, props.resolution, props.use_cache = 48, 2, 32, False
-    select_only([ground, block])
-    return ground, block
+    props.directions, props.bounces, props.use_cache = 48, 2, False
+    return objects
 
 
 def _baked_pixels(visibake, objects):
