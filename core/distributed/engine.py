@@ -120,7 +120,7 @@ def visibake_package() -> tuple[str, str]:
 
 # The nanny's default MALLOC_TRIM_THRESHOLD_ (Dask's "trim memory") turns off glibc's
 # adaptive mmap threshold, so every large numpy temporary is mapped and unmapped afresh:
-# building and tracing a range ran 1.5-2.5x slower with it (docs/benchmarks.md, "Scale-out,
+# building and tracing a range ran 1.3-2.5x slower with it (docs/benchmarks.md, "Scale-out,
 # part 3"). The nanny leaves a variable unset when its value is None.
 NANNY_ENVIRONMENT = '{"MALLOC_TRIM_THRESHOLD_": None}'
 

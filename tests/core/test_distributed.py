@@ -216,7 +216,7 @@ def test_a_local_cluster_starts_on_loopback_and_leaves_no_process_behind():
         # The workers import VisiBake's core through the preload, and refuse another version's tasks.
         with pytest.raises(PackageRefused, match="the driver other"):
             engine.run_parts(client, "brdf_part", [("other", None, None, None, None, 0, 1)])
-        # Nor do they run with the nanny's malloc trimming, which slowed a range's work 1.5-2.5x.
+        # Nor do they run with the nanny's malloc trimming, which slowed a range's work 1.3-2.5x.
         environments = client.run(lambda: dict(os.environ))
         assert len(environments) == 2
         assert not [e for e in environments.values() if "MALLOC_TRIM_THRESHOLD_" in e]
