@@ -30,13 +30,16 @@ from ..pipeline.prepare import (
     dense_footprint_of,
     direction_rotations,
     footprint_box,
+    footprint_point_normals,
     footprint_points,
     meshes_with_faces,
     rotation_group,
     table_request,
+    terminator_cutoffs,
+    terminator_lifts,
     trace_frame,
 )
-from ..sampling.samples import ObjectSamples, build_samples, build_vertex_samples, texel_summary
+from ..sampling.samples import ObjectSamples, TexelSummary, build_samples, build_vertex_samples, texel_summary
 from ..settings import BakeSettings
 from ..transport.contract import SampleSet, direction_chunks
 from ..transport.gather import AtlasLayout, gather_normalisation
@@ -50,7 +53,7 @@ _bakes: dict[str, PackagedBake] = {}
 # (checksum, start, stop) -> those rows' table and gather normalisation, made by this worker process.
 _rows: dict[tuple[str, int, int], KeptRows] = {}
 # The most bakes a worker keeps at once; the oldest is forgotten first, with its rows.
-KEPT_PREPARATIONS = 2
+KEPT_BAKES = 2
 
 
 @dataclass(frozen=True)
@@ -93,8 +96,9 @@ class PackagedBake:
     vertex_samples : object index -> its VertexSamples (built up front: the layout needs them)
     rotations : (G, 3, 3) float64 interleaved rotations of the direction set, or None
     footprint_normals, terminator : whether the whole bake's samples have footprint normals and
-        terminator lifts (some object has a smooth face): the rows then have them too, as
-        core.pipeline.prepare.concatenated_footprint and concatenated_terminator give them
+        terminator lifts (some object has them: core.sampling.samples.TexelSummary): the rows
+        then have them too, as core.pipeline.prepare.concatenated_footprint and
+        concatenated_terminator give them
     """
 
     settings: BakeSettings
@@ -118,26 +122,24 @@ class PackagedBake:
         centre, _ = trace_frame(meshes)
         vertex = {index: build_vertex_samples(mesh, centre) for index, mesh in enumerate(meshes)
                   if mesh.mode == "vertex"}
-        summaries = [(len(vertex[index]), None) if index in vertex else texel_summary(mesh, settings.threads)
-                     for index, mesh in enumerate(meshes)]
+        summaries = []
+        for index, mesh in enumerate(meshes):
+            if index in vertex:
+                built = vertex[index]
+                summaries.append(TexelSummary(len(built), built.footprint_normals is not None,
+                                              built.terminator is not None))
+            else:
+                summaries.append(texel_summary(mesh, settings.footprint_samples, settings.threads))
         sizes = [(vertex[index].width, vertex[index].height) if index in vertex else tuple(mesh.resolution)
                  for index, mesh in enumerate(meshes)]
         layout = AtlasLayout.from_sizes(sizes, [vertex[index].corner_sample if index in vertex else None
                                                 for index in range(len(meshes))],
                                         settings.vertex_lookup == "nearest")
-        footprint_normals = terminator = False
-        for index, mesh in enumerate(meshes):
-            if index in vertex:
-                footprint_normals |= vertex[index].footprint_normals is not None
-                terminator |= vertex[index].terminator is not None
-            else:  # as build_samples makes them, on smooth faces
-                footprint_normals |= settings.footprint_samples > 1 and summaries[index][1]
-                terminator |= mesh.terminator_offset > 0 and summaries[index][1]
-        return cls(settings, meshes, np.concatenate([[0], np.cumsum([c for c, _ in summaries])]).astype(np.int64),
+        return cls(settings, meshes, np.concatenate([[0], np.cumsum([s.count for s in summaries])]).astype(np.int64),
                    vertex, layout, direction_set(settings.directions, settings.rotate, settings.seed),
                    direction_rotations(settings.interleave, settings.seed),
                    RayScene([(m.positions, m.triangles) for m in meshes], settings.threads, centre),
-                   bool(footprint_normals), bool(terminator))
+                   any(s.footprint_normals for s in summaries), any(s.terminator for s in summaries))
 
     @property
     def samples(self) -> int:
@@ -172,8 +174,12 @@ class PackagedBake:
         preparation's SampleSet (core.pipeline.prepare.Prepared.sample_rows), ids and dense
         footprints included. The covered objects' own footprints are not kept (the joined
         arrays hold the rows'), nor are the samples of the objects the rows do not cover."""
+        return self._built(start, stop)[0]
+
+    def _built(self, start: int, stop: int) -> tuple[SampleSet, np.ndarray | None]:
+        """(:meth:`sample_rows`, the rows' (k,) int64 rotations or None), built once per range."""
         if (start, stop) in self._sample_sets:
-            return self._sample_sets[start, stop][0]
+            return self._sample_sets[start, stop]
         pieces = self._pieces(start, stop)
         position = _joined(pieces, lambda i, s: s.position, (3,), np.float64)
         normal = _joined(pieces, lambda i, s: s.normal, (3,), np.float64)
@@ -185,14 +191,12 @@ class PackagedBake:
             points = _joined(pieces, lambda i, s: footprint_points(s, count), (count, 3), np.float32)
             corners = _joined(pieces, lambda i, s: footprint_box(s), (4, 3), np.float32)
             if self.footprint_normals:
-                point_normals = _joined(pieces, lambda i, s: s.footprint_normals if s.footprint_normals is not None
-                                        else np.broadcast_to(np.asarray(s.normal, np.float32)[:, None, :],
-                                                             (len(s), count, 3)), (count, 3), np.float32)
+                point_normals = _joined(pieces, lambda i, s: footprint_point_normals(s, count), (count, 3),
+                                        np.float32)
         lifts = cutoffs = None
         if self.terminator:
-            lifts = _joined(pieces, lambda i, s: s.terminator if s.terminator is not None else np.zeros((len(s), 3)),
-                            (3,), np.float64)
-            cutoffs = _joined(pieces, lambda i, s: np.full(len(s), self.meshes[i].terminator_offset), (), np.float64)
+            lifts = _joined(pieces, lambda i, s: terminator_lifts(s), (3,), np.float64)
+            cutoffs = _joined(pieces, lambda i, s: terminator_cutoffs(self.meshes[i], s), (), np.float64)
         group = None
         if self.rotations is not None:
             group = _joined(pieces, lambda i, s: rotation_group(s, self.settings.interleave), (), np.int64)
@@ -209,13 +213,12 @@ class PackagedBake:
                           points, corners, lifts, cutoffs, footprint_normals=point_normals,
                           dense_footprint=None if points is None else dense, ids=np.arange(start, stop, dtype=np.int64))
         self._sample_sets[start, stop] = (built, group)
-        return built
+        return built, group
 
     def rows(self, start: int, stop: int) -> RowsPreparation:
         """Rows [start, stop) of the bake, to trace: their samples are built once, by
         :meth:`sample_rows`, and kept for the lamps' direct light."""
-        samples = self.sample_rows(start, stop)
-        group = self._sample_sets[start, stop][1]
+        samples, group = self._built(start, stop)
         request = table_request(self.meshes, self.settings, self.directions, samples.position, samples.geometric,
                                 None if samples.footprint is None else (samples.footprint,), self.rotations, group)
         return RowsPreparation(self.samples, start, stop, self.ray_scene, request,
@@ -294,7 +297,7 @@ def packaged_bake(package: str | bytes, threads: int = 0) -> tuple[str, Packaged
     kept = _bakes.get(read.checksum)
     if kept is None:
         kept = PackagedBake.read(read.scene, replace(read.settings, threads=threads))
-        while len(_bakes) >= KEPT_PREPARATIONS:
+        while len(_bakes) >= KEPT_BAKES:
             forgotten = next(iter(_bakes))
             _bakes.pop(forgotten)
             for key in [key for key in _rows if key[0] == forgotten]:

@@ -326,7 +326,7 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     geometric = np.concatenate([s.geometric_normal for s in object_samples])
     normal = np.concatenate([s.normal for s in object_samples])
     emission = np.concatenate([s.emission for s in object_samples]).astype(np.float64)
-    footprint = concatenated_footprint(object_samples, settings.footprint_samples, normal)
+    footprint = concatenated_footprint(object_samples, settings.footprint_samples)
     terminator = concatenated_terminator(meshes, object_samples)
     rotations, group = interleaving(object_samples, settings.interleave, settings.seed)
     directions = direction_set(settings.directions, settings.rotate, settings.seed)
@@ -381,11 +381,12 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     return prepared
 
 
-def concatenated_footprint(object_samples, count: int, normals: np.ndarray) -> tuple | None:
+def concatenated_footprint(object_samples, count: int) -> tuple | None:
     """Every sample's footprint points (K, count, 3) and box corners (K, 4, 3) float32
     offsets, objects concatenated (zero for samples that stand for a point, such as vertex
     samples), and the points' shading normals (K, count, 3) float32 (each sample's own
-    ``normals`` (K, 3) on flat faces), None where no face is smooth; or None when ``count`` is 1.
+    normal on flat faces: :func:`footprint_point_normals`), None where no face is smooth; or
+    None when ``count`` is 1.
 
     Each object's own arrays become views into these, so the footprints are in memory once,
     not twice (at the Production preset each copy is about 0.7 GB)."""
@@ -396,10 +397,7 @@ def concatenated_footprint(object_samples, count: int, normals: np.ndarray) -> t
     corners = np.concatenate([footprint_box(s) for s in object_samples])
     point_normals = None
     if any(s.footprint_normals is not None for s in object_samples):
-        point_normals = np.broadcast_to(np.asarray(normals, np.float32)[:, None, :], points.shape).copy()
-        for s, start in zip(object_samples, offsets):
-            if s.footprint_normals is not None:
-                point_normals[start:start + len(s)] = s.footprint_normals
+        point_normals = np.concatenate([footprint_point_normals(s, count) for s in object_samples])
     for s, start in zip(object_samples, offsets):
         rows = slice(start, start + len(s))
         if s.footprint is not None:
@@ -473,6 +471,14 @@ def footprint_box(samples: ObjectSamples) -> np.ndarray:
     return np.zeros((len(samples), 4, 3), np.float32)
 
 
+def footprint_point_normals(samples: ObjectSamples, count: int) -> np.ndarray:
+    """(k, count, 3) float32 the shading normal at one object's footprint points: its own where
+    it has them, else each sample's normal at every point."""
+    if samples.footprint_normals is not None:
+        return samples.footprint_normals
+    return np.broadcast_to(np.asarray(samples.normal, np.float32)[:, None, :], (len(samples), count, 3))
+
+
 def rotation_group(samples: ObjectSamples, tile: int) -> np.ndarray:
     """(k,) int64 the interleaved rotation of each of one object's samples (:func:`interleaving`)."""
     if isinstance(samples, VertexSamples):
@@ -496,10 +502,19 @@ def concatenated_terminator(meshes, object_samples) -> tuple[np.ndarray, np.ndar
     (core.sampling.terminator), objects concatenated; None when no sample has a lift."""
     if all(s.terminator is None for s in object_samples):
         return None
-    lifts = np.concatenate([s.terminator if s.terminator is not None else np.zeros((len(s), 3))
-                            for s in object_samples])
-    cutoffs = np.concatenate([np.full(len(s), m.terminator_offset) for m, s in zip(meshes, object_samples)])
+    lifts = np.concatenate([terminator_lifts(s) for s in object_samples])
+    cutoffs = np.concatenate([terminator_cutoffs(m, s) for m, s in zip(meshes, object_samples)])
     return lifts, cutoffs
+
+
+def terminator_lifts(samples: ObjectSamples) -> np.ndarray:
+    """(k, 3) float64 one object's shadow-ray lifts; zeros where it has none."""
+    return samples.terminator if samples.terminator is not None else np.zeros((len(samples), 3))
+
+
+def terminator_cutoffs(mesh, samples: ObjectSamples) -> np.ndarray:
+    """(k,) float64 one object's terminator cutoff, per sample."""
+    return np.full(len(samples), mesh.terminator_offset)
 
 
 # Float32 resolves about 1 part in 1.7e7; ray origins step a few hundred ULPs off the

@@ -97,13 +97,32 @@ def _texel_raster(mesh: Mesh, threads: int):
     return raster_uv, normals, rasterize(raster_uv, width, height, threads)
 
 
-def texel_summary(mesh: Mesh, threads: int = 0) -> tuple[int, bool]:
-    """(how many samples :func:`build_samples` makes of ``mesh``, whether any lies on a smooth
-    face), found by the raster alone: a worker that bakes a range of samples reads the objects
-    outside it this way (whether the bake's samples have footprint normals and terminator
-    lifts depends on every object)."""
+@dataclass(frozen=True)
+class TexelSummary:
+    """What :func:`build_samples` would make of a mesh, found by the raster alone: how many
+    samples, and whether they get footprint normals and terminator lifts (some sample lies on
+    a smooth face). A worker that bakes a range of samples reads the objects outside it this
+    way: whether the bake's samples have those arrays depends on every object."""
+
+    count: int
+    footprint_normals: bool
+    terminator: bool
+
+
+def texel_summary(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> TexelSummary:
+    """:class:`TexelSummary` of ``build_samples(mesh, footprint_samples, threads)``."""
     _, normals, raster = _texel_raster(mesh, threads)
-    return len(raster.triangle), bool(np.any(_on_smooth_faces(mesh, raster.triangle, normals[raster.triangle])))
+    smooth = bool(np.any(_on_smooth_faces(mesh, raster.triangle, normals[raster.triangle])))
+    return TexelSummary(len(raster.triangle), _has_footprint_normals(footprint_samples, smooth),
+                        _has_terminator(mesh, smooth))
+
+
+def _has_footprint_normals(footprint_samples: int, smooth: bool) -> bool:
+    return footprint_samples > 1 and smooth
+
+
+def _has_terminator(mesh: Mesh, smooth: bool) -> bool:
+    return mesh.terminator_offset > 0 and smooth
 
 
 def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> ObjectSamples:
@@ -160,10 +179,10 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> O
                                       footprint_samples, threads)
         box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint,
                                         threads)
-        if np.any(smooth):
+        if _has_footprint_normals(footprint_samples, bool(np.any(smooth))):
             point_normals = footprint_normals(footprint, position, tri, corners, mesh.corner_normals, shading, smooth)
     terminator = None
-    if mesh.terminator_offset > 0 and np.any(smooth):
+    if _has_terminator(mesh, bool(np.any(smooth))):
         terminator = np.zeros((len(tri), 3))
         terminator[smooth] = smooth_surface_offsets(mesh.positions, mesh.triangles, mesh.corner_normals,
                                                     geometric[smooth], tri[smooth], bary[smooth])
