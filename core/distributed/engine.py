@@ -232,6 +232,15 @@ def cluster_client(scheduler: str | None = None, workers: int | None = None, tls
         processes.close()
 
 
+def worker_addresses(client) -> list[str]:
+    """The addresses of the cluster's workers, sorted, asked of the scheduler now.
+
+    Not ``client.scheduler_info()["workers"]``: that returns the client's cached identity, which
+    its periodic refresh (asking for no workers) can overwrite between the fetch and the read,
+    so a cluster of two live workers read as none (CI, stop 35)."""
+    return sorted(client.nthreads())
+
+
 @contextmanager
 def cluster_rows(options: ClusterOptions, package: bytes, threads: int = 0):
     """A :class:`ClusterRows` executor of the packaged bake on the cluster ``options`` names,
@@ -295,7 +304,7 @@ class ClusterRows:
         futures = []
         # A range not placed yet is dealt to the workers in turn: left to itself, the scheduler
         # gave three of four ranges to one of two idle workers (docs/benchmarks.md, "Scale-out, part 3").
-        workers = sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+        workers = worker_addresses(self.client)
         for number, (r, own) in enumerate(zip(self.ranges, per_range)):
             # A range goes back to the worker keeping its table; if that one died, anywhere.
             chosen = self.placement.get(r) or (workers[number % len(workers)] if workers else None)
@@ -348,7 +357,7 @@ def cluster_parts(options: ClusterOptions, threads: int = 0):
     options.validate()
     cores = threads or os.cpu_count() or 1
     with cluster_client(options.scheduler, options.workers, options.tls, options.insecure) as client:
-        count = len(client.scheduler_info(n_workers=-1)["workers"])
+        count = len(worker_addresses(client))
         if count < 1:
             raise ClusterRefused(f"the scheduler at {options.scheduler} has no workers")
         yield client, options.parts or 2 * count, max(1, cores // count) if options.workers else 0
