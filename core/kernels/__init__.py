@@ -194,6 +194,9 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                        1e-4, np.zeros((1, 1, 3)), np.zeros((1, 1), bool))
     sample_module.footprint_corners(uv, centre, np.zeros(1), corners, np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32),
                                     0.25, 1e-4, np.zeros((1, 4, 3), np.float32))
+    sample_module.footprint_jitter(np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros((1, 2), np.uint32),
+                                   np.zeros((1, 1, 2)))
+    sample_module.footprint_offsets_of(np.zeros((1, 1, 3)), np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32))
     int32 = np.zeros(1, np.int32)
     image_module.bilinear_points(np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32, int32,
                                  np.zeros((1, 2), np.float32), np.zeros((1, 3)))
@@ -235,7 +238,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
                table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
-               sample_module.footprint_corners, image_module.bilinear_points, image_module.seam_product,
+               sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
+               image_module.bilinear_points, image_module.seam_product,
                image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point,
                light_module.hard_lamp_decided, raster_module.triangle_claims, raster_module.resolve_claims,
                raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,

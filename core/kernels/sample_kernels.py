@@ -1,4 +1,4 @@
-"""Compiled (numba) kernels of sample placement: the texel footprints' first draw and the
+"""Compiled (numba) kernels of sample placement: the texel footprints' jitter, first draw and offsets, and the
 texel boxes' corners (core.sampling.footprint), in parallel over samples.
 
 Imported only through :mod:`core.kernels`. The first draw computes what the numpy code
@@ -99,3 +99,72 @@ def footprint_corners(uv, centre, inverse, tri_corners, position, offsets, half,
                     best, nearest = gap, slot
             for axis in range(3):
                 result[k, corner, axis] = offsets[k, nearest, axis]
+
+
+_LOW32 = np.uint64(0xFFFFFFFF)
+
+
+@nb.njit(inline="always")
+def _hash32(x):
+    """core.lights.sampler.hash32 of one value held in a uint64 (< 2^32), kept to 32 bits."""
+    x = x ^ (x >> np.uint64(16))
+    x = (x * np.uint64(0x7FEB352D)) & _LOW32
+    x = x ^ (x >> np.uint64(15))
+    x = (x * np.uint64(0x846CA68B)) & _LOW32
+    return x ^ (x >> np.uint64(16))
+
+
+@nb.njit(inline="always")
+def _reverse32(x):
+    """The 32 bits of ``x`` (a uint64 < 2^32) in reverse order."""
+    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | ((x & np.uint64(0x55555555)) << np.uint64(1))
+    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | ((x & np.uint64(0x33333333)) << np.uint64(2))
+    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((x & np.uint64(0x0F0F0F0F)) << np.uint64(4))
+    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((x & np.uint64(0x00FF00FF)) << np.uint64(8))
+    return ((x >> np.uint64(16)) | (x << np.uint64(16))) & _LOW32
+
+
+@nb.njit(inline="always")
+def _owen_scramble(x, seed):
+    """core.lights.sampler.owen_scramble of one 32-bit fraction (uint64 < 2^32)."""
+    x = (_reverse32(x) + seed) & _LOW32
+    x = x ^ ((x * np.uint64(0x6C50B47C)) & _LOW32)
+    x = x ^ ((x * np.uint64(0xB82F1E52)) & _LOW32)
+    x = x ^ ((x * np.uint64(0xC7AFE638)) & _LOW32)
+    x = x ^ ((x * np.uint64(0x8D22F6E6)) & _LOW32)
+    return _reverse32(x)
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_jitter(pixel, triangle, sobol, jitter):
+    """Every texel's footprint points in [0, 1)^2: the Sobol points Owen-scrambled by seeds
+    hashed from the texel and its triangle, as core.sampling.footprint's numpy code computes
+    them (integer operations, so bitwise the same).
+
+    pixel : (k,) int64; triangle : (k,) int32; sobol : (P, 2) uint32 the first P Sobol points;
+    jitter : (k, P, 2) float64, out
+    """
+    step = 2.0 ** -24
+    for k in nb.prange(pixel.shape[0]):
+        texel = np.uint64(pixel[k]) & _LOW32
+        owner = np.uint64(np.uint32(triangle[k]))
+        base = _hash32(texel ^ _hash32((owner + np.uint64(0x9E3779B9)) & _LOW32))
+        seed_x = _hash32((base + np.uint64(0x85EBCA6B)) & _LOW32)
+        seed_y = _hash32((base + np.uint64(0xC2B2AE35)) & _LOW32)
+        for slot in range(sobol.shape[0]):
+            jitter[k, slot, 0] = np.float64(_owen_scramble(np.uint64(sobol[slot, 0]), seed_x) >> np.uint64(8)) * step
+            jitter[k, slot, 1] = np.float64(_owen_scramble(np.uint64(sobol[slot, 1]), seed_y) >> np.uint64(8)) * step
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_offsets_of(chosen, position, offsets):
+    """offsets = chosen - position, where a NaN slot of ``chosen`` (no draw inside the
+    triangle) takes the position itself: chosen (k, P, 3) float64; position (k, 3) float64;
+    offsets (k, P, 3) float32, out."""
+    for k in nb.prange(chosen.shape[0]):
+        for slot in range(chosen.shape[1]):
+            for axis in range(3):
+                point = chosen[k, slot, axis]
+                if point != point:
+                    point = position[k, axis]
+                offsets[k, slot, axis] = np.float32(point - position[k, axis])

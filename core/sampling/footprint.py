@@ -98,16 +98,11 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         w2 = ((pb[..., 0] - pa[..., 0]) * y - x * (pb[..., 1] - pa[..., 1])) * scale
         return np.stack([1.0 - w1 - w2, w1, w2], axis=2)
 
-    # Seeded by the texel and its triangle only: an object's points do not depend on
-    # which other objects are in the bake, so an incremental table update reproduces them.
-    base = hash32(np.asarray(pixel, np.uint64).astype(np.uint32) ^ hash32(np.asarray(triangle, np.uint32)
-                                                                        + np.uint32(0x9E3779B9)))
-    seeds = np.stack([hash32(base + np.uint32(0x85EBCA6B)), hash32(base + np.uint32(0xC2B2AE35))])
-    jitter = _scrambled_points(count, seeds)
+    module = kernels.compiled()
+    jitter = footprint_jitter(pixel, triangle, count, module, threads)
     tri_corners = np.asarray(corners, np.float64)[triangle]  # (k, 3, 3)
     # The first draw of every slot at once: most land inside at once, and only the rest
     # (border texels, triangles smaller than the box) loop over their redraws.
-    module = kernels.compiled()
     if module is not None:
         chosen = np.empty((samples, count, 3))
         inside = np.empty((samples, count), bool)
@@ -136,8 +131,34 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         chosen[rows[found], slots[found]] = np.einsum("kc,kcd->kd", weights[found], tri_corners[rows[found]])
         rows, slots, u = rows[~found], slots[~found], u[~found]
     # A slot that found no place inside takes the centre, as Cycles' sample does.
+    if module is not None:
+        offsets = np.empty((samples, count, 3), np.float32)
+        kernels.run(module.footprint_offsets_of, threads, chosen, np.ascontiguousarray(position, np.float64), offsets)
+        return offsets
     points = np.where(np.isnan(chosen), position[:, None, :], chosen)
     return (points - position[:, None, :]).astype(np.float32)
+
+
+def footprint_jitter(pixel: np.ndarray, triangle: np.ndarray, count: int, module=None, threads: int = 0
+                     ) -> np.ndarray:
+    """(k, count, 2) float64 in [0, 1): each texel's first draws in its box, the first
+    ``count`` 2D Sobol points Owen-scrambled per texel.
+
+    Seeded by the texel and its triangle only: an object's points do not depend on which
+    other objects are in the bake, so an incremental table update reproduces them.
+    pixel : (k,) int64; triangle : (k,) int32; module : the compiled kernels (bitwise the
+    numpy code's integers), or None for numpy.
+    """
+    if module is not None:
+        jitter = np.empty((len(pixel), count, 2))
+        sobol = np.array([sobol_point(index)[:2] for index in range(count)], np.uint32).reshape(count, 2)
+        kernels.run(module.footprint_jitter, threads, np.ascontiguousarray(pixel, np.int64),
+                    np.ascontiguousarray(triangle, np.int32), sobol, jitter)
+        return jitter
+    base = hash32(np.asarray(pixel, np.uint64).astype(np.uint32) ^ hash32(np.asarray(triangle, np.uint32)
+                                                                        + np.uint32(0x9E3779B9)))
+    seeds = np.stack([hash32(base + np.uint32(0x85EBCA6B)), hash32(base + np.uint32(0xC2B2AE35))])
+    return _scrambled_points(count, seeds)
 
 
 def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,

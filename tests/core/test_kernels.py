@@ -282,8 +282,12 @@ def test_compiled_footprints_are_bitwise_those_of_numpy_and_their_corners_agree(
     width = height = 64
     triangle = rng.integers(0, count, 5000).astype(np.int32)
     pixel = rng.integers(0, width * height, 5000)
+    pixel[:40] += np.int64(1) << 33  # the seeds keep a texel index's low 32 bits, both ways
     position = corners[triangle].mean(axis=1)
     arguments = (pixel, triangle, width, height, corner_uv, corners, position)
+    for points in (1, 5, 64):  # the scrambled jitter alone, at every footprint size the bakes use
+        np.testing.assert_array_equal(footprint_module.footprint_jitter(pixel, triangle, points, kernels.compiled(), 2),
+                                      footprint_module.footprint_jitter(pixel, triangle, points))
     offsets = footprint_module.footprint_offsets(*arguments, 16, threads=3)
     box = footprint_module.footprint_corners(*arguments, offsets, threads=2)
     monkeypatch.setattr(kernels, "_module", None)
