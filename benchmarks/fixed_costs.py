@@ -126,6 +126,23 @@ def main(argv=None) -> int:
     compare("filter_pairs (with its occlusion rays)", lambda: interleave._filter_pairs_numpy(p),
             lambda: interleave.filter_pairs(p))
 
+    footprint = module("core.sampling.footprint")
+    largest = max((i for i, s in enumerate(p.object_samples) if s.footprint is not None),
+                  key=lambda i: len(p.object_samples[i].position))
+    mesh, own = p.meshes[largest], p.object_samples[largest]
+    arguments = (own.pixel, own.triangle, own.width, own.height, np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64),
+                 mesh.positions[mesh.triangles].astype(np.float64), own.position, slots)
+
+    def numpy_footprints():
+        compiled = kernels._module
+        kernels._module = None
+        try:
+            return footprint.footprint_offsets(*arguments)
+        finally:
+            kernels._module = compiled
+    compare(f"footprint points of {mesh.name} ({len(own.position)} samples x {slots})", numpy_footprints,
+            lambda: footprint.footprint_offsets(*arguments))
+
     direct = module("core.transport.direct")
     lamps = module("core.lights.lamps")
     samples, shadowing = p.sample_set(), p.shadowing()

@@ -55,12 +55,15 @@ def _random_scene(seed, samples=300, count=97, channels=6, vertex=True, nearest=
     return table, normals, layout, radiance, world, exclude
 
 
-@pytest.mark.parametrize("vertex, nearest", [(False, False), (True, False), (True, True)])
-def test_compiled_gather_matches_numpy(vertex, nearest):
-    table, normals, layout, radiance, world, exclude = _random_scene(1, vertex=vertex, nearest=nearest)
+# Three channels (one light group's RGB) take the kernel's unrolled lookup; six, its general one.
+@pytest.mark.parametrize("vertex, nearest, channels", [(False, False, 6), (True, False, 6), (True, True, 6),
+                                                       (False, False, 3), (True, False, 3)])
+def test_compiled_gather_matches_numpy(vertex, nearest, channels):
+    table, normals, layout, radiance, world, exclude = _random_scene(1, vertex=vertex, nearest=nearest,
+                                                                     channels=channels)
     scale = gather_normalisation(table, normals)
     geometry = GatherGeometry(table, normals, scale, layout, threads=2)
-    for source in (GatherSource(radiance, world, exclude), GatherSource(radiance, np.zeros(6)),
+    for source in (GatherSource(radiance, world, exclude), GatherSource(radiance, np.zeros(channels)),
                    GatherSource(radiance, world[0])):
         compiled = gather(geometry, source)
         reference = gather_numpy(geometry, source)
