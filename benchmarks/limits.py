@@ -68,17 +68,31 @@ def numpy_gather_lookups_per_second(texels: int, directions: int, atlas_texels: 
 
 
 def bare_lookup_seconds(kernels, table, geometry, radiance: np.ndarray, repeats: int = 3) -> float:
-    """The gather's ceiling on this machine: the same table walk as the compiled gather
-    (same blocks, threads and table reads) with one nearest-texel read per hit entry and
-    no weights, filter or bookkeeping (core.kernels.transport_kernels.bare_lookup). Best of
-    ``repeats``; nan where the kernels cannot load.
+    """The gather's ceiling on this machine: the best of ``repeats`` runs of
+    :func:`bare_lookup_call`; nan where the kernels cannot load."""
+    call = bare_lookup_call(kernels, table, geometry, radiance)
+    if call is None:
+        return float("nan")
+    best = np.inf
+    for _ in range(repeats):
+        started = time.perf_counter()
+        call()
+        best = min(best, time.perf_counter() - started)
+    return best
+
+
+def bare_lookup_call(kernels, table, geometry, radiance: np.ndarray, threads: int = 0):
+    """A call of the same table walk as the compiled gather (same blocks, threads and table
+    reads) with one nearest-texel read per hit entry and no weights, filter or bookkeeping
+    (core.kernels.transport_kernels.bare_lookup); None where the kernels cannot load.
 
     kernels : the extension's core.kernels module
     radiance : (layout.size, C) float32, the atlas the gather reads
+    threads : 0 for the gather's own (geometry.threads)
     """
     module = kernels.compiled()
     if module is None:
-        return float("nan")
+        return None
     layout = geometry.layout
     radiance = np.ascontiguousarray(radiance, np.float32)
     samples = np.arange(len(geometry.normals), dtype=np.int64)
@@ -86,12 +100,7 @@ def bare_lookup_seconds(kernels, table, geometry, radiance: np.ndarray, repeats:
     arguments = (np.ascontiguousarray(table.hit_object, np.int16), np.ascontiguousarray(table.hit_uv_code, np.uint16),
                  samples, 0, len(table.directions), radiance, layout.widths.astype(np.int64),
                  layout.heights.astype(np.int64), layout.offsets.astype(np.int64), out)
-    best = np.inf
-    for _ in range(repeats):
-        started = time.perf_counter()
-        kernels.run(module.bare_lookup, geometry.threads, *arguments)
-        best = min(best, time.perf_counter() - started)
-    return best
+    return lambda: kernels.run(module.bare_lookup, threads or geometry.threads, *arguments)
 
 
 def reset_peak_memory() -> bool:

@@ -8,12 +8,9 @@ taken from git at ``--before`` (default aa2a82a, the last commit with it).
     .venv/bin/python benchmarks/volume_gather_ab.py [--before SHA] [--accuracy] [--repeats 7]
 """
 import argparse
-import importlib.util
 import json
 import os
-import subprocess
 import sys
-import tempfile
 import time
 
 import numpy as np
@@ -22,6 +19,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 import benchmarks.volume_accuracy as accuracy  # noqa: E402
+from benchmarks.earlier import earlier_module  # noqa: E402
 from core import kernels  # noqa: E402
 from core.scene import Light  # noqa: E402
 from core.visibility.directions import direction_set  # noqa: E402
@@ -30,18 +28,8 @@ from core.volume.medium import padded  # noqa: E402
 
 
 def earlier_kernels(sha: str):
-    """The volume kernels module as it was at ``sha`` (imported from a temporary file)."""
-    source = subprocess.run(["git", "show", f"{sha}:core/kernels/volume_kernels.py"], cwd=ROOT, check=True,
-                            capture_output=True, text=True).stdout
-    source = source.replace("from . import KERNEL_OPTIONS", "from core.kernels import KERNEL_OPTIONS")
-    folder = tempfile.mkdtemp(prefix="visibake-ab-")
-    path = os.path.join(folder, "earlier_volume_kernels.py")
-    with open(path, "w") as handle:
-        handle.write(source)
-    spec = importlib.util.spec_from_file_location("earlier_volume_kernels", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The volume kernels module as it was at ``sha``."""
+    return earlier_module(sha, "core/kernels/volume_kernels.py", "earlier_volume_kernels")
 
 
 def earlier_gather(module, medium, table, sent):

@@ -231,11 +231,32 @@ def _direction_range(count: int, directions: range | None) -> range:
 def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, progress, samples, directions: range
                      ) -> np.ndarray:
     """:func:`gather` in the compiled kernel, a slice of the directions per call."""
+    sample_count = len(geometry.normals)
+    chosen = np.arange(sample_count, dtype=np.int64) if samples is None else np.asarray(samples, np.int64)
+    arguments, atlases = gather_kernel_arguments(geometry, source, chosen)
+    out, channels = atlases[-1], atlases[-1].shape[1]
+    step = max(1, LOOKUPS_PER_CALL // max(len(chosen), 1))
+    first, stop = directions.start, directions.stop
+    for start in range(first, stop, step):
+        if len(chosen):
+            kernels.run(module.gather, geometry.threads, *arguments, start, min(stop, start + step), *atlases)
+        if progress is not None:
+            progress((min(stop, start + step) - first) / max(stop - first, 1))
+    if samples is None:
+        return out
+    full = np.zeros((sample_count, channels))
+    full[chosen] = out
+    return full
+
+
+def gather_kernel_arguments(geometry: GatherGeometry, source: GatherSource, chosen: np.ndarray
+                            ) -> tuple[tuple, tuple]:
+    """The compiled gather's arguments for samples ``chosen`` (k,) int64: those before its
+    direction range (first, stop) and those after it, the last being ``out`` (k, C) float64,
+    zeroed. ``kernels.compiled().gather(*before, first, stop, *after)`` adds those directions."""
     table, layout = geometry.table, geometry.layout
     radiance = np.ascontiguousarray(source.radiance, np.float32)
     channels = radiance.shape[1]
-    sample_count = len(geometry.normals)
-    chosen = np.arange(sample_count, dtype=np.int64) if samples is None else np.asarray(samples, np.int64)
     out = np.zeros((len(chosen), channels))
     world = np.broadcast_to(np.asarray(source.world, np.float64), (len(table.directions), channels))
     world32 = np.ascontiguousarray(world, np.float32) if np.any(world != 0) else np.zeros((0, channels), np.float32)
@@ -255,18 +276,7 @@ def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, pro
                layout.offsets.astype(np.int64), np.ascontiguousarray(is_vertex, bool),
                np.ascontiguousarray(corner_flat, np.int32), np.ascontiguousarray(corner_base, np.int64),
                bool(layout.nearest_vertex), world32, exclude, out)
-    step = max(1, LOOKUPS_PER_CALL // max(len(chosen), 1))
-    first, stop = directions.start, directions.stop
-    for start in range(first, stop, step):
-        if len(chosen):
-            kernels.run(module.gather, geometry.threads, *arguments, start, min(stop, start + step), *atlases)
-        if progress is not None:
-            progress((min(stop, start + step) - first) / max(stop - first, 1))
-    if samples is None:
-        return out
-    full = np.zeros((sample_count, channels))
-    full[chosen] = out
-    return full
+    return arguments, atlases
 
 
 def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, samples: np.ndarray | None = None,
