@@ -118,9 +118,8 @@ def main(argv=None) -> int:
             lambda: contacts.close_entries(p, reach))
     compare("exposed_share", lambda: contacts._exposed_share_numpy(p.table, slots),
             lambda: contacts.exposed_share(p.table, slots))
-    sample, direction, _ = contacts.close_entries(p, reach)
-    obj = p.table.hit_object[direction, sample].astype(np.int64)
-    uv_hits = p.table.hit_uv(direction, sample)
+    close = contacts.close_entries(p, reach)
+    obj, uv_hits = close.obj, close.uv
     compare("texel owners of the short hits", lambda: contacts._texel_owners_numpy(p, obj, uv_hits),
             lambda: contacts._texel_owners(p, obj, uv_hits))
     compare("filter_pairs (with its occlusion rays)", lambda: interleave._filter_pairs_numpy(p),
