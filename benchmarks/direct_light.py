@@ -10,7 +10,6 @@ copy this script into it if it predates it, then ``.venv/bin/python
 Writes ``benchmarks/results/direct_light.json`` with the machine, settings and date.
 """
 import argparse
-import importlib
 import os
 import sys
 import time
@@ -28,13 +27,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from benchmarks.run import write_results
-    from tools.visibake import load_extension
+    from tools.visibake import loaded_extension
 
-    extension = load_extension()
+    extension, module = loaded_extension()
     import bpy
-
-    def module(name):
-        return importlib.import_module(f"{extension.__name__}.{name}")
 
     bpy.ops.wm.read_homefile(use_empty=True)
     objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)

@@ -59,13 +59,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from benchmarks.run import write_results
-    from tools.visibake import load_extension
+    from tools.visibake import loaded_extension
 
-    extension = load_extension()
+    extension, module = loaded_extension()
     import bpy
-
-    def module(name):
-        return importlib.import_module(f"{extension.__name__}.{name}")
 
     kernels = module("core.kernels")
     status = kernels.status()

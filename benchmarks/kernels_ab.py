@@ -13,7 +13,6 @@ The demo is baked as ``visibake demo`` bakes it (128 directions); a benchmark sc
 256 directions and exact shadows, as ``make bench`` bakes its N = 256 row.
 """
 import argparse
-import importlib
 import os
 import sys
 import time
@@ -36,13 +35,10 @@ def main(argv=None) -> int:
     from benchmarks import limits, scenes
     from benchmarks.earlier import earlier_module
     from benchmarks.run import write_results
-    from tools.visibake import load_extension
+    from tools.visibake import loaded_extension
 
-    extension = load_extension()
+    extension, module = loaded_extension()
     import bpy
-
-    def module(name):
-        return importlib.import_module(f"{extension.__name__}.{name}")
 
     kernels = module("core.kernels")
     current = kernels.compiled()

@@ -42,15 +42,11 @@ import numpy as np  # noqa: E402
 
 def write_demo_package(path: str) -> dict:
     """Extract the demo scene in bpy and package it; returns its settings."""
-    import importlib
 
-    from tools.visibake import load_extension
+    from tools.visibake import loaded_extension
 
-    extension = load_extension()
+    extension, module = loaded_extension()
     import bpy
-
-    def module(name):
-        return importlib.import_module(f"{extension.__name__}.{name}")
 
     bpy.ops.wm.read_homefile(use_empty=True)
     objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)

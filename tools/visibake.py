@@ -24,6 +24,16 @@ def load_extension(root: str = ROOT):
     return module
 
 
+def loaded_extension(root: str = ROOT):
+    """(the extension, ``module``): :func:`load_extension` of ``root``, and a function that
+    imports one of its submodules by its name inside the extension (``module("core.kernels")``)."""
+    extension = load_extension(root)
+
+    def module(name: str):
+        return importlib.import_module(f"{extension.__name__}.{name}")
+    return extension, module
+
+
 def main(argv=None) -> int:
     extension = load_extension()
     return extension.cli.main(sys.argv[1:] if argv is None else argv)
