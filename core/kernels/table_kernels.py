@@ -148,8 +148,8 @@ def ray_setup(direction_index, sample_index, positions, footprint, geometric, fr
     for block in nb.prange((count + RAY_BLOCK - 1) // RAY_BLOCK):
         start = block * RAY_BLOCK
         end = min(count, start + RAY_BLOCK)
-        # Block-sized scratch instead of two (n, 3) arrays: fresh pages cost this VM about
-        # 1.6 us each, a third of the kernel's time on a trace's first chunk (docs/benchmarks.md,
+        # Block-sized scratch instead of two (n, 3) arrays, which were half the fresh memory of
+        # a trace's first chunk: fresh pages cost this VM about 1.6 us each (docs/benchmarks.md,
         # "Speed, part 6").
         offsets = np.empty((end - start, 3), np.int32)
         nearby = np.empty((end - start, 3), np.float32)

@@ -98,8 +98,8 @@ def gather(hit_object, hit_uv, vertex_cells, directions, normals, scale, samples
         size = end - start
         acc = np.empty((size, channels), np.float64)
         # The block's normals and scales, contiguous: each direction's cosines are then one
-        # vectorised pass, and the lookup loop reads no (K, 3) rows (20% of the gather's time
-        # on the demo, docs/benchmarks.md "Speed, part 6").
+        # vectorised pass, and the lookup loop reads no (K, 3) rows (with the unrolled lookup
+        # below, 10-25% of the gather's time: docs/benchmarks.md, "Speed, part 6").
         nx = np.empty(size, np.float32)
         ny = np.empty(size, np.float32)
         nz = np.empty(size, np.float32)
@@ -148,7 +148,7 @@ def gather(hit_object, hit_uv, vertex_cells, directions, normals, scale, samples
                     u = _F32(hit_uv[i, s, 0]) * _UV_STEP
                     v = _F32(hit_uv[i, s, 1]) * _UV_STEP
                     # One light group's RGB is the common case: a constant channel count
-                    # lets the compiler unroll the lookup (10% of the gather's time).
+                    # lets the compiler unroll the lookup.
                     if channels == 3:
                         _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v, 3)
                     else:
