@@ -182,7 +182,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     table_module.ray_setup(index, index, three, np.zeros((1, 0, 3), np.float32), three,
                            np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
                            np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
-                           np.zeros((1, 3), np.float32))
+                           np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
     words = np.zeros((1, 1), np.uint16)  # every per-entry array is packed as 16-bit words (core.visibility.cache)
     table_module.pack_rows(np.zeros((1, 1, 1), np.uint16), one, index, words)

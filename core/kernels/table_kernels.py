@@ -122,14 +122,9 @@ def record(hit_object, hit_uv_code, hit_distance_code, rows, cols, hit_geometry,
             hit_distance_code[row, col] = _distance_code(d, distance_splits)
 
 
-# Rays per parallel task of ray_setup: its two passes over a block run while the block is in
-# cache, and the scratch of the second pass is the block's own.
-RAY_BLOCK = 1024
-
-
 @nb.njit(**KERNEL_OPTIONS)
 def ray_setup(direction_index, sample_index, positions, footprint, geometric, frame_directions, group, centre,
-              int_scale, float_scale, origin_limit, origins, directions):
+              int_scale, float_scale, origin_limit, origins, directions, offsets, nearby):
     """The rays (direction_index[r], sample_index[r]) as embree takes them, computed as
     ``TraceRequest.ray_origins`` and ``ray_directions`` followed by ``RayScene`` moving them
     into its frame compute them (core.visibility.rays.offset_ray_origins), bitwise.
@@ -141,43 +136,35 @@ def ray_setup(direction_index, sample_index, positions, footprint, geometric, fr
         space that RayScene's queries make, where it is not zero)
     int_scale, float_scale, origin_limit : float32, core.tolerances' RAY_OFFSET_* constants
     origins : (n, 3) float32, out: in the ray scene's frame; directions : (n, 3) float32, out
+    offsets : (n, 3) int32 and nearby : (n, 3) float32, scratch
     """
     points = footprint.shape[1]
-    count = direction_index.shape[0]
+    for r in nb.prange(direction_index.shape[0]):
+        i = direction_index[r]
+        s = sample_index[r]
+        for axis in range(3):
+            x = positions[s, axis]
+            if points > 0:
+                x = x + np.float64(footprint[s, i % points, axis])
+            x = x - centre[axis]
+            p = np.float32(x)
+            n = np.float32(geometric[s, axis])
+            origins[r, axis] = p
+            offsets[r, axis] = np.int32(int_scale * n)
+            nearby[r, axis] = p + float_scale * n
+            directions[r, axis] = frame_directions[group[s], i, axis]
+    # Each element is read, then written once through one of the two views: no read follows a
+    # write through the other view (which the compiler could reorder).
     bits = origins.view(np.int32)
-    for block in nb.prange((count + RAY_BLOCK - 1) // RAY_BLOCK):
-        start = block * RAY_BLOCK
-        end = min(count, start + RAY_BLOCK)
-        # Block-sized scratch instead of two (n, 3) arrays, which were half the fresh memory of
-        # a trace's first chunk: fresh pages cost this VM about 1.6 us each (docs/benchmarks.md,
-        # "Speed, part 6").
-        offsets = np.empty((end - start, 3), np.int32)
-        nearby = np.empty((end - start, 3), np.float32)
-        for r in range(start, end):
-            i = direction_index[r]
-            s = sample_index[r]
-            for axis in range(3):
-                x = positions[s, axis]
-                if points > 0:
-                    x = x + np.float64(footprint[s, i % points, axis])
-                x = x - centre[axis]
-                p = np.float32(x)
-                n = np.float32(geometric[s, axis])
-                origins[r, axis] = p
-                offsets[r - start, axis] = np.int32(int_scale * n)
-                nearby[r - start, axis] = p + float_scale * n
-                directions[r, axis] = frame_directions[group[s], i, axis]
-        # Each element is read, then written once through one of the two views: no read follows
-        # a write through the other view (which the compiler could reorder).
-        for r in range(start, end):
-            for axis in range(3):
-                p = origins[r, axis]
-                if abs(p) < origin_limit:
-                    origins[r, axis] = nearby[r - start, axis]
-                elif p < _F32(0.0):
-                    bits[r, axis] = np.int32(bits[r, axis] - offsets[r - start, axis])
-                else:
-                    bits[r, axis] = np.int32(bits[r, axis] + offsets[r - start, axis])
+    for r in nb.prange(direction_index.shape[0]):
+        for axis in range(3):
+            p = origins[r, axis]
+            if abs(p) < origin_limit:
+                origins[r, axis] = nearby[r, axis]
+            elif p < _F32(0.0):
+                bits[r, axis] = np.int32(bits[r, axis] - offsets[r, axis])
+            else:
+                bits[r, axis] = np.int32(bits[r, axis] + offsets[r, axis])
 
 
 @nb.njit(**KERNEL_OPTIONS)

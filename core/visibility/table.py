@@ -372,7 +372,8 @@ class TraceRequest:
                     footprint, np.ascontiguousarray(self.geometric_normals, np.float64), self._frame_directions(),
                     self._frame_group(), ray_scene.centre, np.float32(tol.RAY_OFFSET_INT_SCALE),
                     np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
-                    np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions)
+                    np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions, np.empty((count, 3), np.int32),
+                    np.empty((count, 3), np.float32))
         if ray_scene.centre.any():
             # RayScene.ray_origins returns world positions, which its queries move back: the same rounding.
             origins = ((origins.astype(np.float64) + ray_scene.centre) - ray_scene.centre).astype(np.float32)
