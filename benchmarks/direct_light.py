@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     from benchmarks.run import write_results
     from tools.visibake import loaded_extension
 
-    extension, module = loaded_extension()
+    _, module = loaded_extension()
     import bpy
 
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     from benchmarks.run import write_results
     from tools.visibake import loaded_extension
 
-    extension, module = loaded_extension()
+    _, module = loaded_extension()
     import bpy
 
     kernels = module("core.kernels")

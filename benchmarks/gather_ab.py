@@ -36,7 +36,7 @@ def main(argv=None) -> int:
     from benchmarks.run import write_results
     from tools.visibake import loaded_extension
 
-    extension, module = loaded_extension()
+    _, module = loaded_extension()
     import bpy
 
     kernels = module("core.kernels")
@@ -107,7 +107,6 @@ def main(argv=None) -> int:
     write_results(args.out, {"settings": {"before": args.before, "rounds": args.rounds, "threads": args.threads},
                              "blender": bpy.app.version_string, "kernels": kernels.status().describe(), "rows": rows})
     return 0 if all(row["bitwise"] for row in rows) else 1
-
 
 
 if __name__ == "__main__":

@@ -397,8 +397,8 @@ def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather
     source = gather_source(prepared.to_atlas(prepared.albedo, cpu_backend.dilate), np.zeros(3))
     lookups = int(table.rays_cast)
     cpu_backend.gather(geometry, source)  # the kernels' first load is not a gather's cost
-    # Best of three like the bare walk it is divided by (until part 6 the gather was timed
-    # once, which on this noisy VM understated its share by up to a third).
+    # Best of three like the bare walk it is divided by: until part 6 the gather was timed
+    # once, which on this noisy VM understated its share of the walk.
     numpy_seconds = np.inf
     for _ in range(3):
         started = time.perf_counter()

@@ -45,7 +45,7 @@ def write_demo_package(path: str) -> dict:
 
     from tools.visibake import loaded_extension
 
-    extension, module = loaded_extension()
+    _, module = loaded_extension()
     import bpy
 
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -35,11 +35,16 @@ BOX_WIDTH = 0.5
 REDRAWS = 10
 
 
+def _first_sobol_points(count: int) -> np.ndarray:
+    """(count, 2) uint32: the first ``count`` points of the first two Sobol dimensions."""
+    return np.array([sobol_point(index)[:2] for index in range(count)], np.uint32).reshape(count, 2)
+
+
 def _scrambled_points(count: int, seeds: np.ndarray) -> np.ndarray:
     """(k, count, 2) float64 in [0, 1): the first ``count`` 2D Sobol points, Owen-scrambled
     per sample by ``seeds`` (2, k) uint32."""
     samples = seeds.shape[1]
-    sobol = np.array([sobol_point(index)[:2] for index in range(count)], np.uint32).reshape(count, 2)
+    sobol = _first_sobol_points(count)
     points = np.empty((samples, count, 2))
     # Every point of a block of samples in one pass of integer operations: a pass per point
     # costs ~40 numpy calls, which dominated for the few texels of a shadow edge (64 points
@@ -151,7 +156,7 @@ def footprint_jitter(pixel: np.ndarray, triangle: np.ndarray, count: int, module
     """
     if module is not None:
         jitter = np.empty((len(pixel), count, 2))
-        sobol = np.array([sobol_point(index)[:2] for index in range(count)], np.uint32).reshape(count, 2)
+        sobol = _first_sobol_points(count)
         kernels.run(module.footprint_jitter, threads, np.ascontiguousarray(pixel, np.int64),
                     np.ascontiguousarray(triangle, np.int32), sobol, jitter)
         return jitter

@@ -288,7 +288,7 @@ def test_compiled_footprints_are_bitwise_those_of_numpy_and_their_corners_agree(
     pixel[:40] += np.int64(1) << 33  # the seeds keep a texel index's low 32 bits, both ways
     position = corners[triangle].mean(axis=1)
     arguments = (pixel, triangle, width, height, corner_uv, corners, position)
-    for points in (1, 5, 64):  # the scrambled jitter alone, at every footprint size the bakes use
+    for points in (1, 5, 64):  # the scrambled jitter alone: one point, a count not a power of two, a dense footprint
         np.testing.assert_array_equal(footprint_module.footprint_jitter(pixel, triangle, points, kernels.compiled(), 2),
                                       footprint_module.footprint_jitter(pixel, triangle, points))
     offsets = footprint_module.footprint_offsets(*arguments, 16, threads=3)
