@@ -134,26 +134,29 @@ class RayScene:
         return self.intersect_local(np.ascontiguousarray(self.local(origins), np.float32),
                                     np.ascontiguousarray(directions, np.float32), distances)
 
-    def intersect_local(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None):
+    def intersect_local(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None,
+                        out: tuple | None = None):
         """:meth:`intersect` of rays whose ``origins`` (n, 3) float32 are in this scene's frame
-        already (core.visibility.table.TraceRequest.rays)."""
+        already (core.visibility.table.TraceRequest.rays). ``out``: the four result arrays
+        to write into (core.visibility.table.RayBuffers.hits), else new ones."""
         count = len(origins)
-        geometry = np.empty(count, np.int32)
-        triangle = np.empty(count, np.int32)
-        bary = np.empty((count, 2), np.float32)
-        distance = np.empty(count, np.float32)
+        if out is None:
+            out = (np.empty(count, np.int32), np.empty(count, np.int32), np.empty((count, 2), np.float32),
+                   np.empty(count, np.float32))
+        geometry, triangle, bary, distance = out
 
         def run(span):
             a, b = span
             kwargs = {}
             if distances is not None:
                 kwargs["dists"] = np.ascontiguousarray(distances[a:b], np.float32)
-            out = self._scene.run(origins[a:b], directions[a:b], output=1, **kwargs)
-            geometry[a:b] = out["geomID"]
-            triangle[a:b] = out["primID"]
-            bary[a:b, 0] = out["u"]
-            bary[a:b, 1] = out["v"]
-            distance[a:b] = np.where(out["geomID"] >= 0, out["tfar"], np.inf)
+            found = self._scene.run(origins[a:b], directions[a:b], output=1, **kwargs)
+            geometry[a:b] = found["geomID"]
+            triangle[a:b] = found["primID"]
+            bary[a:b, 0] = found["u"]
+            bary[a:b, 1] = found["v"]
+            distance[a:b] = found["tfar"]
+            np.copyto(distance[a:b], np.float32(np.inf), where=found["geomID"] < 0)
 
         self._map(run, count)
         return geometry, triangle, bary, distance

@@ -353,18 +353,22 @@ class TraceRequest:
             position = position + self.footprint[sample_index, direction_index % self.footprint.shape[1]]
         return ray_scene.ray_origins(position, self.geometric_normals[sample_index])
 
-    def rays(self, ray_scene: RayScene, direction_index: np.ndarray, sample_index: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def rays(self, ray_scene: RayScene, direction_index: np.ndarray, sample_index: np.ndarray,
+             buffers: RayBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The rays (direction_index, sample_index) (n,) each as ``ray_scene`` traces them:
         origins (n, 3) float32 in its frame (:meth:`RayScene.intersect_local`) and directions
-        (n, 3) float32; the same numbers as :meth:`ray_origins` and :meth:`ray_directions`."""
+        (n, 3) float32; the same numbers as :meth:`ray_origins` and :meth:`ray_directions`.
+        With ``buffers`` (holding at least n rays) the compiled set-up writes into them and
+        returns views of them."""
         module = kernels.compiled()
         if module is None:
             origins = self.ray_origins(ray_scene, direction_index, sample_index)
             return (np.ascontiguousarray(ray_scene.local(origins), np.float32),
                     self.ray_directions(direction_index, sample_index))
         count = len(direction_index)
-        origins, directions = np.empty((count, 3), np.float32), np.empty((count, 3), np.float32)
+        if buffers is None:
+            buffers = RayBuffers(count)
+        origins, directions = buffers.origins[:count], buffers.directions[:count]
         footprint = (np.zeros((len(self.positions), 0, 3), np.float32) if self.footprint is None
                      else np.ascontiguousarray(self.footprint, np.float32))
         kernels.run(module.ray_setup, ray_scene.threads, np.ascontiguousarray(direction_index, np.int64),
@@ -372,8 +376,8 @@ class TraceRequest:
                     footprint, np.ascontiguousarray(self.geometric_normals, np.float64), self._frame_directions(),
                     self._frame_group(), ray_scene.centre, np.float32(tol.RAY_OFFSET_INT_SCALE),
                     np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
-                    np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions, np.empty((count, 3), np.int32),
-                    np.empty((count, 3), np.float32))
+                    np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions, buffers.offsets[:count],
+                    buffers.nearby[:count])
         if ray_scene.centre.any():
             # RayScene.ray_origins returns world positions, which its queries move back: the same rounding.
             origins = ((origins.astype(np.float64) + ray_scene.centre) - ray_scene.centre).astype(np.float32)
@@ -397,6 +401,59 @@ class TraceRequest:
         if self.footprint is None or not self.footprint.size:
             return 0.0
         return float(np.sqrt(np.max(np.einsum("kpd,kpd->kp", self.footprint, self.footprint))))
+
+
+class RayBuffers:
+    """The arrays a chunk of table rays is set up, traced and recorded in, for up to
+    ``capacity`` rays: made once per trace and reused by every chunk. Made per chunk, they
+    met fresh pages every time, which on a virtual machine (about 1.6 microseconds a page)
+    cost as long as the compiled ray set-up itself (docs/benchmarks.md, speed part 7). Pages
+    are touched only as far as the largest chunk reaches.
+
+    direction_index, sample_index : (capacity,) int64; origins, directions, nearby :
+    (capacity, 3) float32; offsets : (capacity, 3) int32 (the set-up's scratch); hit_geometry,
+    triangle : (capacity,) int32; bary : (capacity, 2) float32; distance : (capacity,) float32
+    (:meth:`RayScene.intersect_local`'s results).
+    """
+
+    def __init__(self, capacity: int):
+        capacity = max(int(capacity), 1)
+        self.capacity = capacity
+        self.direction_index = np.empty(capacity, np.int64)
+        self.sample_index = np.empty(capacity, np.int64)
+        self.origins = np.empty((capacity, 3), np.float32)
+        self.directions = np.empty((capacity, 3), np.float32)
+        self.offsets = np.empty((capacity, 3), np.int32)
+        self.nearby = np.empty((capacity, 3), np.float32)
+        self.hit_geometry = np.empty(capacity, np.int32)
+        self.triangle = np.empty(capacity, np.int32)
+        self.bary = np.empty((capacity, 2), np.float32)
+        self.distance = np.empty(capacity, np.float32)
+
+    def hits(self, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The first ``count`` slots of the hit arrays, for RayScene.intersect_local's ``out``."""
+        return self.hit_geometry[:count], self.triangle[:count], self.bary[:count], self.distance[:count]
+
+
+def rays_above(above: np.ndarray, start: int, buffers: RayBuffers | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero(above)`` of ``above`` (N, k) bool (directions by samples from ``start``),
+    with ``start`` added to the samples: (n,) int64 directions and samples in row-major
+    order. Compiled, into ``buffers`` (views of them are returned) where given."""
+    module = kernels.compiled()
+    if module is None:
+        direction_index, sample_index = np.nonzero(above)
+        return direction_index, sample_index + start
+    per_row = np.count_nonzero(above, axis=1)
+    count = int(per_row.sum())
+    if buffers is None or buffers.capacity < count:
+        buffers = RayBuffers(count)
+    row_offset = np.zeros(len(per_row), np.int64)
+    np.cumsum(per_row[:-1], out=row_offset[1:])
+    direction_index, sample_index = buffers.direction_index[:count], buffers.sample_index[:count]
+    kernels.run(module.above_horizon_rays, 0, np.ascontiguousarray(above), row_offset, np.int64(start),
+                direction_index, sample_index)
+    return direction_index, sample_index
 
 
 def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -531,17 +588,19 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
     traced_per_sample = np.zeros(samples, np.int32)
+    buffers = RayBuffers(min(chunk, samples) * count)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
         # Direction-major order: consecutive rays share a direction (coherent for
         # embree) and land in one row of the table (contiguous writes).
         above = (directions @ horizon[start:stop].T) > 0.0
         traced_per_sample[start:stop] = np.count_nonzero(above, axis=0)
-        direction_index, sample_index = np.nonzero(above)
+        direction_index, sample_index = rays_above(above, start, buffers)
         if len(sample_index):
-            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
-            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(origins, ray_directions)
-            _record(arrays, geometry, ray_directions, direction_index, sample_index + start, hit_geometry, triangle,
+            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
+            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
+                origins, ray_directions, out=buffers.hits(len(sample_index)))
+            _record(arrays, geometry, ray_directions, direction_index, sample_index, hit_geometry, triangle,
                     bary, distance, threads=ray_scene.threads)
             rays_cast += len(sample_index)
         if progress is not None:
@@ -692,6 +751,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     for index in range(objects):
         a, b = int(sample_offset[index]), int(sample_offset[index + 1])
         spans.extend((index, start, min(b, start + chunk)) for start in range(a, b, chunk))
+    buffers = RayBuffers(min(chunk, samples) * count)
     for done, (index, start, stop) in enumerate(spans):
         cols = slice(start, stop)
         if is_changed[index]:
@@ -714,12 +774,13 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             probe = (code == MISS) | (hits & ~hit_changed)
             probe &= _may_hit_spheres(origins_all[cols], directions, spheres, request, cols)
             counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
-            direction_index, sample_index = np.nonzero(probe)
+            direction_index, sample_index = rays_above(probe, start, buffers)
             if len(sample_index):
                 # The changed objects' scene shares the whole scene's frame (its centre).
-                origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
-                found, triangle, bary, distance = changed_scene.intersect_local(origins, ray_directions)
-                rows, where = direction_index, sample_index + start
+                origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
+                found, triangle, bary, distance = changed_scene.intersect_local(
+                    origins, ray_directions, out=buffers.hits(len(sample_index)))
+                rows, where = direction_index, sample_index
                 new_code, old_code = encode_distance(distance), arrays["hit_distance_code"][rows, where]
                 nearer = (found >= 0) & (new_code < old_code)
                 mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
@@ -737,11 +798,12 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                             bary, distance, threads=ray_scene.threads)
                     counts.full += len(tied)
                     counts.kept -= len(tied)
-        direction_index, sample_index = np.nonzero(redo)
+        direction_index, sample_index = rays_above(redo, start, buffers)
         if len(sample_index):
-            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index + start)
-            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(origins, ray_directions)
-            _record(arrays, geometry, ray_directions, direction_index, sample_index + start, hit_geometry, triangle,
+            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
+            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
+                origins, ray_directions, out=buffers.hits(len(sample_index)))
+            _record(arrays, geometry, ray_directions, direction_index, sample_index, hit_geometry, triangle,
                     bary, distance, threads=ray_scene.threads)
             counts.full += len(sample_index)
         if progress is not None:

@@ -237,11 +237,45 @@ def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotate
         rotations=rotations, group=rng.integers(0, 2, samples) if rotated else None)
     direction_index, sample_index = np.nonzero(rng.random((count, samples)) < 0.5)
     compiled = request.rays(scene, direction_index, sample_index)
+    # Into reused buffers, larger than needed and holding an earlier chunk's numbers.
+    buffers = table_module.RayBuffers(len(direction_index) + 17)
+    for name in ("origins", "directions", "offsets", "nearby"):
+        getattr(buffers, name)[:] = 7
+    buffered = [array.copy() for array in request.rays(scene, direction_index, sample_index, buffers)]
     monkeypatch.setattr(kernels, "_module", None)
     reference = request.rays(scene, direction_index, sample_index)
-    for ours, theirs in zip(compiled, reference):
-        assert ours.dtype == theirs.dtype == np.float32
+    for ours, kept, theirs in zip(compiled, buffered, reference):
+        assert ours.dtype == kept.dtype == theirs.dtype == np.float32
         np.testing.assert_array_equal(ours, theirs)
+        np.testing.assert_array_equal(kept, theirs)
+
+
+def test_compiled_rays_above_the_horizon_are_numpy_s_nonzero(monkeypatch):
+    from core.visibility.table import RayBuffers, rays_above
+
+    rng = np.random.default_rng(5)
+    above = rng.random((37, 211)) < 0.4
+    above[3] = False  # a direction no sample sees
+    above[4] = True
+    above[:, 7] = False
+    buffers = RayBuffers(above.size)
+    buffers.direction_index[:] = -9
+    buffers.sample_index[:] = -9
+    for start in (0, 1000, 2**33):
+        rows, cols = rays_above(above, start, buffers)
+        expected_rows, expected_cols = np.nonzero(above)
+        assert rows.dtype == cols.dtype == np.int64
+        np.testing.assert_array_equal(rows, expected_rows)
+        np.testing.assert_array_equal(cols, expected_cols + start)
+    # Without buffers, or with too small ones, it makes its own.
+    rows, cols = rays_above(above, 3, RayBuffers(5))
+    np.testing.assert_array_equal(cols, np.nonzero(above)[1] + 3)
+    rows, cols = rays_above(np.zeros((4, 9), bool), 0)
+    assert len(rows) == len(cols) == 0
+    monkeypatch.setattr(kernels, "_module", None)
+    rows, cols = rays_above(above, 1000, buffers)
+    np.testing.assert_array_equal(rows, np.nonzero(above)[0])
+    np.testing.assert_array_equal(cols, np.nonzero(above)[1] + 1000)
 
 
 def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypatch):

@@ -66,6 +66,19 @@ def test_the_table_of_row_ranges_joined_equals_the_whole_table_bitwise(traced):
         _assert_same_table(concatenate_columns(parts), whole)
 
 
+def test_the_table_is_the_same_in_any_chunking_and_without_the_kernels(traced, monkeypatch):
+    # Every chunk's rays reuse one set of buffers (RayBuffers), chunk sizes vary (the last is
+    # short), and the numpy fallback makes fresh arrays: all must give the same table.
+    from core import kernels
+
+    p, request = traced
+    whole = trace_table(p.ray_scene, request)
+    for chunk_rays in (1, 48 * 5, 48 * 64 + 7, 10**9):
+        _assert_same_table(trace_table(p.ray_scene, dataclasses.replace(request, chunk_rays=chunk_rays)), whole)
+    monkeypatch.setattr(kernels, "_module", None)
+    _assert_same_table(trace_table(p.ray_scene, dataclasses.replace(request, chunk_rays=48 * 11)), whole)
+
+
 def test_a_row_request_slices_the_samples_and_shares_the_rest(traced):
     _, request = traced
     part = request.rows(10, 30)
