@@ -1,0 +1,98 @@
+"""The visibility trace alone, timed on a real bake's request, split into its parts.
+
+    .venv/bin/python benchmarks/trace_timing.py [--scene demo|sun_occluders|...] [--repeats 3]
+        [--out benchmarks/results/trace_timing.json]
+
+Prepares the scene as ``make bench`` bakes its N = 256 row (64^2, exact shadows), or the demo
+as ``visibake demo`` bakes it (128 directions), then traces its table ``--repeats`` times in the
+same process. Each trace is split into what embree does (``RayScene.intersect_local``), the
+ray set-up, the record into the table and the rest. The table's digest is printed, so that
+two checkouts can be compared: run the script in each (``git worktree add``), alternately, as
+docs/benchmarks.md's speed part 7 did; both must print the same digest.
+"""
+import argparse
+import collections
+import hashlib
+import os
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+import numpy as np  # noqa: E402
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", default="demo")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "trace_timing.json"))
+    args = parser.parse_args(argv)
+
+    from benchmarks import scenes
+    from benchmarks.run import write_results
+    from tools.visibake import loaded_extension
+
+    extension, module = loaded_extension()
+    import bpy
+
+    job, extraction = module("operators.adapter.job"), module("operators.adapter.extraction")
+    adapter_settings, prepare = module("operators.adapter.settings"), module("core.pipeline.prepare").prepare
+    table_module, rays_module = module("core.visibility.table"), module("core.visibility.rays")
+    if args.scene != "demo":
+        scenes.reset()  # before the properties are read: a reset replaces the scene
+    props = bpy.context.scene.visibake
+    props.use_cache = False
+    if args.scene == "demo":
+        objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)
+    else:
+        objects = scenes.SCENES[args.scene]("full")
+        props.passes = {"lighting"}
+        props.mode = "atlas"
+        props.resolution, props.bounces, props.directions, props.shadows = 64, 2, 256, "exact"
+    job.run_bake(bpy.context, objects)  # lays out the UV maps the table is traced on
+    scene = extraction.extract_scene(bpy.context, objects).scene
+    prepared = prepare(scene, adapter_settings.bake_settings(props), table_needed=True)
+    request, ray_scene = prepared.trace_request(), prepared.ray_scene
+
+    seconds = collections.defaultdict(float)
+
+    def timed(owner, name, label):
+        function = getattr(owner, name)
+
+        def wrapper(*arguments, **keywords):
+            started = time.perf_counter()
+            try:
+                return function(*arguments, **keywords)
+            finally:
+                seconds[label] += time.perf_counter() - started
+        setattr(owner, name, wrapper)
+
+    timed(rays_module.RayScene, "intersect_local", "embree")
+    timed(table_module.TraceRequest, "rays", "ray set-up")
+    timed(table_module, "_record", "record")
+    runs, digest = [], None
+    for _ in range(args.repeats):
+        seconds.clear()
+        started = time.perf_counter()
+        table = table_module.trace_table(ray_scene, request)
+        total = time.perf_counter() - started
+        runs.append({"seconds": round(total, 4), **{k: round(v, 4) for k, v in seconds.items()},
+                     "rest": round(total - sum(seconds.values()), 4)})
+        if digest is None:
+            hashed = hashlib.blake2b(digest_size=8)
+            for array in (table.hit_object, table.hit_uv_code, table.hit_distance_code):
+                hashed.update(np.ascontiguousarray(array).data)
+            digest = hashed.hexdigest()
+        print(f"{args.scene}: {table.rays_cast} rays in {total:.3f} s ({table.rays_cast / total / 1e6:.2f} M rays/s); "
+              + ", ".join(f"{k} {v:.3f} s" for k, v in runs[-1].items() if k != "seconds"), flush=True)
+        del table
+    print(f"table digest {digest}")
+    write_results(args.out, {"scene": args.scene, "rays": int(prepared.table.rays_cast), "digest": digest,
+                             "blender": bpy.app.version_string, "runs": runs})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
