@@ -45,26 +45,12 @@ def main(argv=None) -> int:
         print(f"compiled kernels unavailable ({kernels.status().reason}): nothing to compare", file=sys.stderr)
         return 2
     earlier = earlier_module(args.before, "core/kernels/transport_kernels.py", "earlier_transport_kernels")
-    job, gather = module("operators.adapter.job"), module("core.transport.gather")
-    extraction, adapter_settings = module("operators.adapter.extraction"), module("operators.adapter.settings")
-    prepare = module("core.pipeline.prepare").prepare
+    gather = module("core.transport.gather")
     cpu_backend = module("core.transport.cpu").CPU_BACKEND
     GatherSource = module("core.transport.contract").GatherSource
     rows = []
     for name in args.scenes:
-        scenes.reset()
-        props = bpy.context.scene.visibake
-        props.use_cache = False
-        if name == "demo":
-            objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)
-        else:
-            objects = scenes.SCENES[name]("full")
-            props.passes = {"lighting"}
-            props.mode = "atlas"
-            props.resolution, props.bounces, props.directions, props.shadows = 64, 2, 256, "exact"
-        job.run_bake(bpy.context, objects)  # lays out the UV maps the table is traced on
-        scene = extraction.extract_scene(bpy.context, objects).scene
-        prepared = prepare(scene, adapter_settings.bake_settings(props), table_needed=True)
+        prepared = scenes.prepared_bake(module, name)
         geometry = prepared.gather_geometry()
         # The scene's albedo lit uniformly: any atlas will do, a gather's cost does not depend on it.
         source = GatherSource(prepared.to_atlas(prepared.albedo, cpu_backend.dilate), np.zeros(3))

@@ -81,6 +81,28 @@ def reset() -> None:
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
+def prepared_bake(module, name: str):
+    """The preparation (core.pipeline.prepare, with its table) of ``name`` as the A/B benchmarks
+    time it: ``"demo"`` as ``visibake demo`` bakes it (128 directions), a benchmark scene as
+    ``make bench`` bakes its N = 256 row (64^2, 2 bounces, exact shadows). Empties the file
+    first. ``module`` is tools.visibake.loaded_extension's module loader."""
+    job, extraction = module("operators.adapter.job"), module("operators.adapter.extraction")
+    adapter_settings, prepare = module("operators.adapter.settings"), module("core.pipeline.prepare").prepare
+    reset()  # before the properties are read: a reset replaces the scene
+    props = bpy.context.scene.visibake
+    props.use_cache = False
+    if name == "demo":
+        objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)
+    else:
+        objects = SCENES[name]("full")
+        props.passes = {"lighting"}
+        props.mode = "atlas"
+        props.resolution, props.bounces, props.directions, props.shadows = 64, 2, 256, "exact"
+    job.run_bake(bpy.context, objects)  # lays out the UV maps the table is traced on
+    scene = extraction.extract_scene(bpy.context, objects).scene
+    return prepare(scene, adapter_settings.bake_settings(props), table_needed=True)
+
+
 # --------------------------------------------------------------------------- helpers
 
 

@@ -37,23 +37,8 @@ def main(argv=None) -> int:
     extension, module = loaded_extension()
     import bpy
 
-    job, extraction = module("operators.adapter.job"), module("operators.adapter.extraction")
-    adapter_settings, prepare = module("operators.adapter.settings"), module("core.pipeline.prepare").prepare
     table_module, rays_module = module("core.visibility.table"), module("core.visibility.rays")
-    if args.scene != "demo":
-        scenes.reset()  # before the properties are read: a reset replaces the scene
-    props = bpy.context.scene.visibake
-    props.use_cache = False
-    if args.scene == "demo":
-        objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)
-    else:
-        objects = scenes.SCENES[args.scene]("full")
-        props.passes = {"lighting"}
-        props.mode = "atlas"
-        props.resolution, props.bounces, props.directions, props.shadows = 64, 2, 256, "exact"
-    job.run_bake(bpy.context, objects)  # lays out the UV maps the table is traced on
-    scene = extraction.extract_scene(bpy.context, objects).scene
-    prepared = prepare(scene, adapter_settings.bake_settings(props), table_needed=True)
+    prepared = scenes.prepared_bake(module, args.scene)
     request, ray_scene = prepared.trace_request(), prepared.ray_scene
 
     seconds = collections.defaultdict(float)
