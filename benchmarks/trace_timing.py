@@ -1,7 +1,7 @@
 """The visibility trace alone, timed on a real bake's request, split into its parts.
 
     .venv/bin/python benchmarks/trace_timing.py [--scene demo|sun_occluders|...] [--repeats 3]
-        [--out benchmarks/results/trace_timing.json]
+        [--chunk-rays N] [--out benchmarks/results/trace_timing.json]
 
 Prepares the scene as ``make bench`` bakes its N = 256 row (64^2, exact shadows), or the demo
 as ``visibake demo`` bakes it (128 directions), then traces its table ``--repeats`` times in the
@@ -12,6 +12,7 @@ docs/benchmarks.md's speed part 7 did; both must print the same digest.
 """
 import argparse
 import collections
+import dataclasses
 import hashlib
 import os
 import sys
@@ -27,6 +28,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="demo")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--chunk-rays", type=int, default=0, help="rays per chunk (default: the bake's setting)")
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "trace_timing.json"))
     args = parser.parse_args(argv)
 
@@ -40,6 +42,8 @@ def main(argv=None) -> int:
     table_module, rays_module = module("core.visibility.table"), module("core.visibility.rays")
     prepared = scenes.prepared_bake(module, args.scene)
     request, ray_scene = prepared.trace_request(), prepared.ray_scene
+    if args.chunk_rays > 0:
+        request = dataclasses.replace(request, chunk_rays=args.chunk_rays)
 
     seconds = collections.defaultdict(float)
 
@@ -74,7 +78,8 @@ def main(argv=None) -> int:
               + ", ".join(f"{k} {v:.3f} s" for k, v in runs[-1].items() if k != "seconds"), flush=True)
         del table
     print(f"table digest {digest}")
-    write_results(args.out, {"scene": args.scene, "rays": int(prepared.table.rays_cast), "digest": digest,
+    write_results(args.out, {"scene": args.scene, "chunk_rays": request.chunk_rays,
+                             "rays": int(prepared.table.rays_cast), "digest": digest,
                              "blender": bpy.app.version_string, "runs": runs})
     return 0
 
