@@ -184,7 +184,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                            np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
                            np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
-    table_module.above_horizon_rays(one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
+    table_module.rays_where(one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
     words = np.zeros((1, 1), np.uint16)  # every per-entry array is packed as 16-bit words (core.visibility.cache)
     table_module.pack_rows(np.zeros((1, 1, 1), np.uint16), one, index, words)
     table_module.unpack_rows(words, one, index, np.zeros(1, np.uint16), np.zeros((1, 1, 1), np.uint16))
@@ -238,7 +238,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
-               table_module.above_horizon_rays,
+               table_module.rays_where,
                table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
                image_module.bilinear_points, image_module.seam_product,

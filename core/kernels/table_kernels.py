@@ -168,23 +168,23 @@ def ray_setup(direction_index, sample_index, positions, footprint, geometric, fr
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def above_horizon_rays(above, row_offset, start, direction_index, sample_index):
-    """The (direction, sample + ``start``) of every True entry of ``above``, in row-major
-    order: ``np.nonzero(above)`` with ``start`` added to the samples, written into the caller's
-    arrays instead of two new strided ones; in parallel over rows.
+def rays_where(mask, row_offset, start, direction_index, sample_index):
+    """The (direction, sample + ``start``) of every True entry of ``mask``, in row-major order:
+    ``np.nonzero(mask)`` with ``start`` added to the samples, written into the caller's arrays
+    instead of two new strided ones; in parallel over rows.
 
-    above (N, k) bool; row_offset (N,) int64, the first index of each row's rays;
-    direction_index, sample_index (n,) int64, out (n: the number of True in ``above``).
+    mask (N, k) bool; row_offset (N,) int64, the first index of each row's rays;
+    direction_index, sample_index (n,) int64, out (n: the number of True in ``mask``).
     Branch-free like :func:`pack_rows`: every entry is written to the next free slot.
     """
-    for row in nb.prange(above.shape[0]):
+    for row in nb.prange(mask.shape[0]):
         at = row_offset[row]
-        end = row_offset[row + 1] if row + 1 < above.shape[0] else direction_index.shape[0]
-        for col in range(above.shape[1]):
+        end = row_offset[row + 1] if row + 1 < mask.shape[0] else direction_index.shape[0]
+        for col in range(mask.shape[1]):
             if at < end:
                 direction_index[at] = row
                 sample_index[at] = col + start
-            at += np.int64(above[row, col])
+            at += np.int64(mask[row, col])
 
 
 @nb.njit(**KERNEL_OPTIONS)

@@ -435,23 +435,25 @@ class RayBuffers:
         return self.hit_geometry[:count], self.triangle[:count], self.bary[:count], self.distance[:count]
 
 
-def rays_above(above: np.ndarray, start: int, buffers: RayBuffers | None = None
+def rays_where(mask: np.ndarray, start: int, buffers: RayBuffers | None = None, threads: int = 0
                ) -> tuple[np.ndarray, np.ndarray]:
-    """``np.nonzero(above)`` of ``above`` (N, k) bool (directions by samples from ``start``),
-    with ``start`` added to the samples: (n,) int64 directions and samples in row-major
-    order. Compiled, into ``buffers`` (views of them are returned) where given."""
+    """The rays to trace of a chunk: ``np.nonzero(mask)`` of ``mask`` (N, k) bool (directions by
+    the samples from ``start``: those above the horizon, or an update's rays to trace again),
+    with ``start`` added to the samples. Returns (n,) int64 directions and samples in
+    row-major order; compiled on ``threads`` (0: all cores), into ``buffers`` (views of them
+    are returned) where given."""
     module = kernels.compiled()
     if module is None:
-        direction_index, sample_index = np.nonzero(above)
+        direction_index, sample_index = np.nonzero(mask)
         return direction_index, sample_index + start
-    per_row = np.count_nonzero(above, axis=1)
+    per_row = np.count_nonzero(mask, axis=1)
     count = int(per_row.sum())
     if buffers is None or buffers.capacity < count:
         buffers = RayBuffers(count)
     row_offset = np.zeros(len(per_row), np.int64)
     np.cumsum(per_row[:-1], out=row_offset[1:])
     direction_index, sample_index = buffers.direction_index[:count], buffers.sample_index[:count]
-    kernels.run(module.above_horizon_rays, 0, np.ascontiguousarray(above), row_offset, np.int64(start),
+    kernels.run(module.rays_where, threads, np.ascontiguousarray(mask), row_offset, np.int64(start),
                 direction_index, sample_index)
     return direction_index, sample_index
 
@@ -595,7 +597,7 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
         # embree) and land in one row of the table (contiguous writes).
         above = (directions @ horizon[start:stop].T) > 0.0
         traced_per_sample[start:stop] = np.count_nonzero(above, axis=0)
-        direction_index, sample_index = rays_above(above, start, buffers)
+        direction_index, sample_index = rays_where(above, start, buffers, ray_scene.threads)
         if len(sample_index):
             origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
             hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
@@ -774,7 +776,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             probe = (code == MISS) | (hits & ~hit_changed)
             probe &= _may_hit_spheres(origins_all[cols], directions, spheres, request, cols)
             counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
-            direction_index, sample_index = rays_above(probe, start, buffers)
+            direction_index, sample_index = rays_where(probe, start, buffers, ray_scene.threads)
             if len(sample_index):
                 # The changed objects' scene shares the whole scene's frame (its centre).
                 origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
@@ -798,7 +800,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                             bary, distance, threads=ray_scene.threads)
                     counts.full += len(tied)
                     counts.kept -= len(tied)
-        direction_index, sample_index = rays_above(redo, start, buffers)
+        direction_index, sample_index = rays_where(redo, start, buffers, ray_scene.threads)
         if len(sample_index):
             origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
             hit_geometry, triangle, bary, distance = ray_scene.intersect_local(

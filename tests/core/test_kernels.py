@@ -250,8 +250,8 @@ def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotate
         np.testing.assert_array_equal(kept, theirs)
 
 
-def test_compiled_rays_above_the_horizon_are_numpy_s_nonzero(monkeypatch):
-    from core.visibility.table import RayBuffers, rays_above
+def test_compiled_rays_to_trace_are_numpy_s_nonzero_for_any_thread_count(monkeypatch):
+    from core.visibility.table import RayBuffers, rays_where
 
     rng = np.random.default_rng(5)
     above = rng.random((37, 211)) < 0.4
@@ -261,19 +261,19 @@ def test_compiled_rays_above_the_horizon_are_numpy_s_nonzero(monkeypatch):
     buffers = RayBuffers(above.size)
     buffers.direction_index[:] = -9
     buffers.sample_index[:] = -9
-    for start in (0, 1000, 2**33):
-        rows, cols = rays_above(above, start, buffers)
+    for start, threads in ((0, 0), (1000, 1), (2**33, 2)):
+        rows, cols = rays_where(above, start, buffers, threads)
         expected_rows, expected_cols = np.nonzero(above)
         assert rows.dtype == cols.dtype == np.int64
         np.testing.assert_array_equal(rows, expected_rows)
         np.testing.assert_array_equal(cols, expected_cols + start)
     # Without buffers, or with too small ones, it makes its own.
-    rows, cols = rays_above(above, 3, RayBuffers(5))
+    rows, cols = rays_where(above, 3, RayBuffers(5))
     np.testing.assert_array_equal(cols, np.nonzero(above)[1] + 3)
-    rows, cols = rays_above(np.zeros((4, 9), bool), 0)
+    rows, cols = rays_where(np.zeros((4, 9), bool), 0)
     assert len(rows) == len(cols) == 0
     monkeypatch.setattr(kernels, "_module", None)
-    rows, cols = rays_above(above, 1000, buffers)
+    rows, cols = rays_where(above, 1000, buffers)
     np.testing.assert_array_equal(rows, np.nonzero(above)[0])
     np.testing.assert_array_equal(cols, np.nonzero(above)[1] + 1000)
 
