@@ -520,8 +520,11 @@ def _record_numpy(table: dict, geometry: HitGeometry, ray_directions: np.ndarray
 
 
 def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int,
-            geometry: HitGeometry) -> VisibilityTable:
-    backface_per_sample = np.count_nonzero(arrays["hit_object"] == BACKFACE, axis=0).astype(np.int32)
+            geometry: HitGeometry, backface_per_sample: np.ndarray | None = None) -> VisibilityTable:
+    """The table of the traced ``arrays``; ``backface_per_sample`` (K,) int32 where the trace
+    counted it already, else counted here."""
+    if backface_per_sample is None:
+        backface_per_sample = np.count_nonzero(arrays["hit_object"] == BACKFACE, axis=0).astype(np.int32)
     count, samples = arrays["hit_object"].shape
     return VisibilityTable(directions=directions, **arrays, vertex_cells=geometry.vertex_cells(), rays_cast=rays_cast,
                            rays_below_horizon=count * samples - int(traced_per_sample.sum()),
@@ -590,6 +593,7 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     chunk = max(1, chunk_rays // max(count, 1))
     rays_cast = 0
     traced_per_sample = np.zeros(samples, np.int32)
+    backface_per_sample = np.zeros(samples, np.int32)
     buffers = RayBuffers(min(chunk, samples) * count)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
@@ -605,9 +609,13 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
             _record(arrays, geometry, ray_directions, direction_index, sample_index, hit_geometry, triangle,
                     bary, distance, threads=ray_scene.threads)
             rays_cast += len(sample_index)
+            # Counted while the chunk's entries are still in cache: over the whole table
+            # afterwards, this was a separate pass of 0.1 s on the demo.
+            backface_per_sample[start:stop] = np.count_nonzero(arrays["hit_object"][:, start:stop] == BACKFACE,
+                                                               axis=0)
         if progress is not None:
             progress(stop / samples)
-    return _finish(directions, arrays, traced_per_sample, rays_cast, geometry)
+    return _finish(directions, arrays, traced_per_sample, rays_cast, geometry, backface_per_sample)
 
 
 def concatenate_columns(tables: list[VisibilityTable]) -> VisibilityTable:

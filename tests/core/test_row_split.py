@@ -71,8 +71,13 @@ def test_the_table_is_the_same_in_any_chunking_and_without_the_kernels(traced, m
     # short), and the numpy fallback makes fresh arrays: all must give the same table.
     from core import kernels
 
+    from core.visibility.table import BACKFACE
+
     p, request = traced
     whole = trace_table(p.ray_scene, request)
+    # Counted chunk by chunk during the trace: the count over the finished table.
+    assert whole.backface_hits > 0
+    np.testing.assert_array_equal(whole.backface_per_sample, np.count_nonzero(whole.hit_object == BACKFACE, axis=0))
     for chunk_rays in (1, 48 * 5, 48 * 64 + 7, 10**9):
         _assert_same_table(trace_table(p.ray_scene, dataclasses.replace(request, chunk_rays=chunk_rays)), whole)
     monkeypatch.setattr(kernels, "_module", None)
