@@ -70,7 +70,6 @@ def test_the_table_is_the_same_in_any_chunking_and_without_the_kernels(traced, m
     # Every chunk's rays reuse one set of buffers (RayBuffers), chunk sizes vary (the last is
     # short), and the numpy fallback makes fresh arrays: all must give the same table.
     from core import kernels
-
     from core.visibility.table import BACKFACE
 
     p, request = traced
