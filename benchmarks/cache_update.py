@@ -124,6 +124,7 @@ def main(argv=None) -> int:
         results["resident_relight_moved_lamp"] = {
             "relight_seconds": moved_seconds,
             "shadow_rays": outcome.report["rays"]["shadow_rays"],
+            "passes": passes,
             "direct_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("direct light")),
             "gather_seconds": sum(p["seconds"] for p in passes if p["pass"].startswith("gather")),
             "stage_seconds": outcome.report["stage_seconds"]}

@@ -6,9 +6,10 @@
 Prepares the scene as ``make bench`` bakes its N = 256 row (64^2, exact shadows), or the demo
 as ``visibake demo`` bakes it (128 directions), then traces its table ``--repeats`` times in the
 same process. Each trace is split into what embree does (``RayScene.intersect_local``), the
-ray set-up, the record into the table and the rest. The table's digest is printed, so that
-two checkouts can be compared: run the script in each (``git worktree add``), alternately, as
-docs/benchmarks.md's speed part 7 did; both must print the same digest.
+ray set-up, the record into the table, the finish (the table's counters) and the rest. The
+table's digest is printed, so that two checkouts can be compared: run the script in each
+(``git worktree add``), alternately, as docs/benchmarks.md's speed part 7 did; both must
+print the same digest.
 """
 import argparse
 import collections
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
     timed(rays_module.RayScene, "intersect_local", "embree")
     timed(table_module.TraceRequest, "rays", "ray set-up")
     timed(table_module, "_record", "record")
+    timed(table_module, "_finish", "finish")  # the table's counters, backfaces among them
     runs, digest = [], None
     for _ in range(args.repeats):
         seconds.clear()
