@@ -1,9 +1,11 @@
-"""The surface gather kernel before and after issue 16's part 6, on the tables of real bakes,
+"""The surface gather kernel before and after a change (issue 16's parts 6 and 8), on the tables of real bakes,
 against the bare table walk it is measured by: all three in one process, interleaved, best
 of ``--rounds`` (this VM's speed drifts within minutes, so separate runs do not compare).
 
 The earlier kernel is taken from git at ``--before`` (default c285482, the last commit with
-it). Both must give the same bits; the script exits 1 otherwise.
+part 6's earlier kernel). An earlier kernel that reads the dense (directions, samples) table
+(before part 8) is given the same table's dense arrays. Both must give the same bits; the
+script exits 1 otherwise.
 
     .venv/bin/python benchmarks/gather_ab.py [--before SHA] [--scenes demo sun_occluders ...]
         [--rounds 15] [--threads 2] [--out docs/speed/part6/gather_ab.json]
@@ -12,6 +14,7 @@ The demo is baked as ``visibake demo`` bakes it (128 directions); a benchmark sc
 256 directions and exact shadows, as ``make bench`` bakes its N = 256 row.
 """
 import argparse
+import inspect
 import os
 import sys
 import time
@@ -59,15 +62,22 @@ def main(argv=None) -> int:
         directions = len(prepared.table.directions)
         outputs = {}
 
-        def kernel_call(kernel, label):
+        earlier_before = before
+        if inspect.signature(earlier.gather.py_func).parameters.keys().__iter__().__next__() == "hit_object":
+            # Before part 8 the gather read the dense table: the same entries, every direction of every sample.
+            entries = prepared.table.entries
+            earlier_before = (entries.dense("hit_object"), entries.dense("hit_uv_code"), *before[4:])
+
+        def kernel_call(kernel, label, arguments=before):
             def call():
                 after[-1][:] = 0
-                kernels.run(kernel, geometry.threads if not args.threads else args.threads, *before, 0, directions,
-                            *after)
+                kernels.run(kernel, geometry.threads if not args.threads else args.threads, *arguments, 0,
+                            directions, *after)
                 outputs[label] = after[-1].copy()
             return call
 
-        calls = {"before": kernel_call(earlier.gather, "before"), "after": kernel_call(current.gather, "after"),
+        calls = {"before": kernel_call(earlier.gather, "before", earlier_before),
+                 "after": kernel_call(current.gather, "after"),
                  "bare walk": limits.bare_lookup_call(kernels, prepared.table, geometry, source.radiance,
                                                       args.threads)}
         best = dict.fromkeys(calls, np.inf)

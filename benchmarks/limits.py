@@ -97,8 +97,9 @@ def bare_lookup_call(kernels, table, geometry, radiance: np.ndarray, threads: in
     radiance = np.ascontiguousarray(radiance, np.float32)
     samples = np.arange(len(geometry.normals), dtype=np.int64)
     out = np.zeros((len(samples), radiance.shape[1]))
-    arguments = (np.ascontiguousarray(table.hit_object, np.int16), np.ascontiguousarray(table.hit_uv_code, np.uint16),
-                 samples, 0, len(table.directions), radiance, layout.widths.astype(np.int64),
+    entries = table.entries
+    arguments = (entries.above_words, entries.word_base, entries.hit_object, entries.hit_uv_code, samples, 0,
+                 len(table.directions), radiance, layout.widths.astype(np.int64),
                  layout.heights.astype(np.int64), layout.offsets.astype(np.int64), out)
     return lambda: kernels.run(module.bare_lookup, threads or geometry.threads, *arguments)
 

@@ -6,7 +6,8 @@
 Prepares the scene as ``make bench`` bakes its N = 256 row (64^2, exact shadows), or the demo
 as ``visibake demo`` bakes it (128 directions), then traces its table ``--repeats`` times in the
 same process. Each trace is split into what embree does (``RayScene.intersect_local``), the
-ray set-up, the record into the table, the finish (the table's counters) and the rest. The
+ray set-up, the record into the table, the finish (the table's counters) and the rest (from
+part 8 also the entry bits, "horizon bits", and each chunk's list of rays, "ray list"). The
 table's digest is printed, so that two checkouts can be compared: run the script in each
 (``git worktree add``), alternately, as docs/benchmarks.md's speed part 7 did; both must
 print the same digest.
@@ -63,6 +64,9 @@ def main(argv=None) -> int:
     timed(table_module.TraceRequest, "rays", "ray set-up")
     timed(table_module, "_record", "record")
     timed(table_module, "_finish", "finish")  # the table's counters, backfaces among them
+    if hasattr(table_module, "rays_of_entries"):  # since part 8: the entry bits first, then each chunk's rays
+        timed(table_module, "above_horizon", "horizon bits")
+        timed(table_module, "rays_of_entries", "ray list")
     runs, digest = [], None
     for _ in range(args.repeats):
         seconds.clear()

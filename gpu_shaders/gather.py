@@ -14,6 +14,7 @@ import numpy as np
 
 from ..core.errors import DeviceError
 from ..core.transport.gather import vertex_cells_of
+from ..core.visibility.table import decode_uv
 from . import runtime
 
 # Channel layers (4 channels each) one dispatch accumulates: 12 x 4 = 48 channels,
@@ -206,15 +207,18 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
         for start in range(chosen.start, chosen.stop, batch):
             stop = min(chosen.stop, start + batch)
             codes = np.full((stop - start, height * width), -2.0, np.float32)
-            codes[:, :total_samples] = table.hit_object[start:stop]
+            # The batch's rows of the table, dense: the shader reads entry (direction, sample)
+            # as a texel.
+            objects = table.entries.dense("hit_object", start, stop)
+            codes[:, :total_samples] = objects
             uvs = np.zeros((stop - start, height * width, 2), np.float32)
-            uvs[:, :total_samples] = table.hit_uv(slice(start, stop))
+            uvs[:, :total_samples] = decode_uv(table.entries.dense("hit_uv_code", start, stop))
             if has_vertex:
                 # The shader takes a vertex-mode hit's triangle and barycentrics apart.
                 triangles = np.zeros((stop - start, height * width), np.float32)
-                objects = table.hit_object[start:stop]
                 rows, columns = np.nonzero((objects >= 0) & layout.is_vertex[np.maximum(objects, 0)])
-                triangles[rows, columns], uvs[rows, columns] = table.hit_vertex(rows + start, columns)
+                triangles[rows, columns], uvs[rows, columns] = table.entry_vertex(
+                    table.entries.index(rows + start, columns))
             codes_texture, codes_data = runtime.float_texture(codes.reshape(-1, height, width, 1), True)
             uvs_texture, uvs_data = runtime.float_texture(uvs.reshape(-1, height, width, 2), True)
             if has_vertex:

@@ -33,15 +33,16 @@ from dataclasses import dataclass
 
 from ..errors import BakeRefused
 from ..outputs.atomic import atomic_file
-from ..visibility.table import VisibilityTable
+from ..visibility.table import TableEntries, VisibilityTable
 from .package import read_package, read_values, write_values
 from .rows import KeptRows, keep_rows, row_ranges
 from .split import SplitTable
 
 PACKAGE_NAME = "package.vbpkg"
 PENDING_NAME = "pending.json"
-TABLE_FIELDS = ("directions", "hit_object", "hit_uv_code", "hit_distance_code", "vertex_cells", "rays_cast",
-                "rays_below_horizon", "backface_hits", "backface_per_sample", "traced_per_sample")
+TABLE_FIELDS = ("directions", "vertex_cells", "rays_cast", "rays_below_horizon", "backface_hits",
+                "backface_per_sample", "traced_per_sample")
+ENTRY_FIELDS = ("samples", "above_words", "word_base", "hit_object", "hit_uv_code", "hit_distance_code")
 
 
 @dataclass(frozen=True)
@@ -143,6 +144,7 @@ class FarmRows:
 
 def _save_rows(path: str, checksum: str, kept: KeptRows) -> None:
     table = {name: getattr(kept.table, name) for name in TABLE_FIELDS}
+    table["entries"] = {name: getattr(kept.table.entries, name) for name in ENTRY_FIELDS}
     write_values(path, {"package": checksum, "start": kept.start, "stop": kept.stop, "samples": kept.samples,
                         "table": table, "scale": kept.scale, "frame_normal": kept.frame_normal,
                         "group": kept.group})
@@ -154,7 +156,9 @@ def _load_rows(path: str, checksum: str, start: int, stop: int) -> KeptRows | No
     values = read_values(path)
     if values["package"] != checksum or (values["start"], values["stop"]) != (start, stop):
         return None  # another bake's rows: traced again
-    return KeptRows(start, stop, values["samples"], VisibilityTable(**values["table"]), values["scale"],
+    table = dict(values["table"])
+    table["entries"] = TableEntries(**table["entries"])
+    return KeptRows(start, stop, values["samples"], VisibilityTable(**table), values["scale"],
                     values["frame_normal"], values["group"])
 
 

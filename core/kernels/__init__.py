@@ -156,8 +156,11 @@ class _Kernels:
 def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module, prep_module) -> int:
     """Compile (or read from the cache) every kernel for the one signature the callers use,
     by running each on a tiny input. Returns how many kernels had to be compiled."""
-    objects = np.zeros((1, 1), np.int16)
-    uv = np.zeros((1, 1, 2), np.uint16)
+    # One stored entry (direction 0, sample 0) of a one-sample table.
+    words = np.ones((1, 1), np.uint64)
+    base = np.zeros((1, 1), np.int64)
+    objects = np.zeros(1, np.int16)
+    uv = np.zeros((1, 2), np.uint16)
     cells = np.zeros(1, np.int64)
     directions = np.zeros((1, 3), np.float32)
     normals = np.zeros((1, 3), np.float32)
@@ -165,16 +168,17 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     samples = np.zeros(1, np.int64)
     radiance = np.zeros((4, 3), np.float32)
     sizes = np.ones(1, np.int64)
-    module.gather(objects, uv, cells, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
+    module.gather(words, base, objects, uv, cells, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
                   np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32), np.zeros(1, np.int64),
                   False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool), np.zeros((1, 3)))
-    module.cosine_sum(objects, directions, normals, one32, np.int16(-2), False, np.zeros(1))
-    module.cosine_sum(objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1), np.int16(-1),
-                      True, np.zeros(1))
-    module.bare_lookup(objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros((1, 3)))
+    module.cosine_sum(words, base, objects, directions, normals, one32, np.int16(-2), False, np.zeros(1))
+    module.cosine_sum(words, base, objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1),
+                      np.int16(-1), True, np.zeros(1))
+    module.bare_lookup(words, base, objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64),
+                       np.zeros((1, 3)))
     from ..visibility.table import DISTANCE_SPLITS
     index = np.zeros(1, np.int64)
-    table_module.record(objects, uv, np.zeros((1, 1), np.uint16), index, index, np.zeros(1, np.int32),
+    table_module.record(objects, uv, np.zeros(1, np.uint16), index, np.zeros(1, np.int32),
                         np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
                         np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32),
                         cells, np.zeros(0, bool), DISTANCE_SPLITS)
@@ -185,9 +189,9 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                            np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
     table_module.rays_where(one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-    words = np.zeros((1, 1), np.uint16)  # every per-entry array is packed as 16-bit words (core.visibility.cache)
-    table_module.pack_rows(np.zeros((1, 1, 1), np.uint16), one, index, words)
-    table_module.unpack_rows(words, one, index, np.zeros(1, np.uint16), np.zeros((1, 1, 1), np.uint16))
+    table_module.rays_of_words(words, base, 0, 1, index, np.zeros(1, np.int64), np.zeros(1, np.int64),
+                               np.zeros(1, np.int64))
+    table_module.entries_at(words, base, index, index, np.zeros(1, np.int64))
     uv = np.zeros((1, 3, 2))
     centre = np.zeros((1, 2))
     corners = np.zeros((1, 3, 3))
@@ -226,10 +230,9 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     raster_module.gather_claims(chosen, claims[1], weights, np.zeros(1, np.int64), np.zeros(1, np.int32),
                                 np.zeros((1, 3), np.float32), np.zeros(1, bool))
     from ..visibility.table import DISTANCE_VALUES
-    hits = np.zeros((1, 1), np.int16)
-    prep_module.close_entries(hits, np.zeros((1, 1), np.uint16), DISTANCE_VALUES, np.ones(1, np.float32), np.zeros(0),
-                              np.zeros(2, np.int64), np.zeros(0, np.int64), False)
-    prep_module.exposed_share(hits, 1, 0.9, np.zeros(1))
+    prep_module.close_entries(words, base, objects, np.zeros(1, np.uint16), DISTANCE_VALUES, np.ones(1, np.float32),
+                              np.zeros(0), np.zeros(2, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), False)
+    prep_module.exposed_share(words, base, objects, 1, 0.9, np.zeros(1))
     first = np.zeros(1, np.int64)
     prep_module.texel_owners(first, np.zeros((1, 2), np.float32), first + 1, first + 1, first, first,
                              np.zeros((1, 2), np.int64), np.zeros(1, np.int64))
@@ -238,8 +241,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
-               table_module.rays_where,
-               table_module.pack_rows, table_module.unpack_rows, sample_module.footprint_first_draw,
+               table_module.rays_where, table_module.rays_of_words, table_module.entries_at,
+               sample_module.footprint_first_draw,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
                image_module.bilinear_points, image_module.seam_product,
                image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point,

@@ -14,8 +14,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..visibility.table import BACKFACE, BELOW_HORIZON
+from ..visibility.table import BACKFACE
 from . import KERNEL_OPTIONS
+from .bits import trailing_zeros
 
 SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 
@@ -25,63 +26,79 @@ EXPOSED_BLOCK = 1024
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def close_entries(hit_object, hit_distance_code, distance_values, target_reach, sample_reach, offsets, sample,
-                  write):
+def close_entries(above_words, word_base, hit_object, hit_distance_code, distance_values, target_reach, sample_reach,
+                  offsets, sample, entry, write):
     """Count the hits of each direction nearer than their target's ``target_reach`` and (where
-    given) their sample's ``sample_reach``, or with ``write`` list their samples, ascending, at
-    each direction's offset; in parallel over directions.
+    given) their sample's ``sample_reach``, or with ``write`` list their samples, ascending, and
+    their entries at each direction's offset; in parallel over directions.
 
-    hit_object : (N, K) int16; hit_distance_code : (N, K) uint16; distance_values : (65536,)
-    float32 core.visibility.table.DISTANCE_VALUES; target_reach : (O,) float32; sample_reach :
-    (K,) float64, or (0,) for none (float32 reaches widen exactly, and a comparison of float32
-    distances with float32 or float64 reaches is exact in float64). offsets : (N + 1,) int64,
-    without ``write`` an output whose entry i + 1 is direction i's count (entry 0 untouched),
-    with it their running sum from 0. Output with ``write``: sample (offsets[-1],) int64.
+    above_words : (N, W) uint64, word_base : (N, W) int64, hit_object : (A,) int16,
+    hit_distance_code : (A,) uint16: the table's stored entries (core.visibility.table.
+    TableEntries); distance_values : (65536,) float32 core.visibility.table.DISTANCE_VALUES;
+    target_reach : (O,) float32; sample_reach : (K,) float64, or (0,) for none (float32 reaches
+    widen exactly, and a comparison of float32 distances with float32 or float64 reaches is exact
+    in float64). offsets : (N + 1,) int64, without ``write`` an output whose entry i + 1 is
+    direction i's count (entry 0 untouched), with it their running sum from 0. Output with
+    ``write``: sample, entry (offsets[-1],) int64.
     """
     by_sample = sample_reach.shape[0] > 0
-    for i in nb.prange(hit_object.shape[0]):
+    for i in nb.prange(above_words.shape[0]):
         if write and offsets[i + 1] == offsets[i]:
             continue
         at = offsets[i]
         count = 0
-        for k in range(hit_object.shape[1]):
-            target = hit_object[i, k]
-            if target < 0:
-                continue
-            distance = distance_values[hit_distance_code[i, k]]
-            if not distance < target_reach[target]:
-                continue
-            if by_sample and not np.float64(distance) < sample_reach[k]:
-                continue
-            if write:
-                sample[at + count] = k
-            count += 1
+        e = word_base[i, 0]
+        for w in range(above_words.shape[1]):
+            word = above_words[i, w]
+            while word != np.uint64(0):
+                k = w * 64 + np.int64(trailing_zeros(word))
+                word &= word - np.uint64(1)
+                this = e
+                e += 1
+                target = hit_object[this]
+                if target < 0:
+                    continue
+                distance = distance_values[hit_distance_code[this]]
+                if not distance < target_reach[target]:
+                    continue
+                if by_sample and not np.float64(distance) < sample_reach[k]:
+                    continue
+                if write:
+                    sample[at + count] = k
+                    entry[at + count] = this
+                count += 1
         if not write:
             offsets[i + 1] = count
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def exposed_share(hit_object, slots, buried_share, share):
+def exposed_share(above_words, word_base, hit_object, slots, buried_share, share):
     """Each sample's share of footprint points that are not buried (core.transport.contacts.
     exposed_share), in parallel over blocks of samples.
 
-    hit_object : (N, K) int16, direction i starting from footprint point i % ``slots``;
-    buried_share : float, core.transport.contacts.BURIED_POINT_SHARE (an argument, as a
-    constant imported from there would outlive a change in the cached kernel). Output share
-    (K,) float64.
+    above_words, word_base, hit_object : the table's stored entries, as in :func:`close_entries`,
+    direction i starting from footprint point i % ``slots``; buried_share : float,
+    core.transport.contacts.BURIED_POINT_SHARE (an argument, as a constant imported from there
+    would outlive a change in the cached kernel). Output share (K,) float64.
     """
-    samples = hit_object.shape[1]
+    samples = share.shape[0]
     for block in nb.prange((samples + EXPOSED_BLOCK - 1) // EXPOSED_BLOCK):
         start = block * EXPOSED_BLOCK
         stop = min(start + EXPOSED_BLOCK, samples)
         traced = np.zeros((slots, stop - start), np.int32)
         backface = np.zeros((slots, stop - start), np.int32)
-        for i in range(hit_object.shape[0]):
+        for i in range(above_words.shape[0]):
             slot = i % slots
-            for k in range(start, stop):
-                code = hit_object[i, k]
-                traced[slot, k - start] += np.int32(code != BELOW_HORIZON)
-                backface[slot, k - start] += np.int32(code == BACKFACE)
+            # EXPOSED_BLOCK is a whole number of words: the block's words are its own.
+            e = word_base[i, start >> 6]
+            for w in range(start >> 6, (stop + 63) >> 6):
+                word = above_words[i, w]
+                while word != np.uint64(0):
+                    k = w * 64 + np.int64(trailing_zeros(word))
+                    word &= word - np.uint64(1)
+                    traced[slot, k - start] += np.int32(1)
+                    backface[slot, k - start] += np.int32(hit_object[e] == BACKFACE)
+                    e += 1
         for k in range(start, stop):
             counted = 0
             buried = 0

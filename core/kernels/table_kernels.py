@@ -1,5 +1,5 @@
 """Compiled (numba) kernels of the visibility bake: the rays' set-up, writing traced rays
-into the table, and the table's stored form (only the entries above the horizon).
+into the table's stored entries (only those above the horizon), and finding them.
 
 Imported only through :mod:`core.kernels`. They compute what ``TraceRequest.ray_origins`` /
 ``ray_directions`` and :func:`core.visibility.table._record_numpy` compute, in the same float32
@@ -20,6 +20,7 @@ from ..visibility.table import (
     UV_CODE_SCALE,
 )
 from . import KERNEL_OPTIONS
+from .bits import entry_of, trailing_zeros
 
 _F32 = np.float32
 
@@ -63,14 +64,14 @@ def _vertex_code(triangle, value, cells, axis):
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def record(hit_object, hit_uv_code, hit_distance_code, rows, cols, hit_geometry, triangle, bary,
+def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, triangle, bary,
            distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_cells, where,
            distance_splits):
-    """Write rays (rows[r], cols[r]) into the table arrays: hits, backfaces and misses.
+    """Write rays into their table entries ``entry[r]``: hits, backfaces and misses.
 
-    hit_object : (N, K) int16; hit_uv_code : (N, K, 2) uint16; hit_distance_code : (N, K)
-        uint16
-    rows, cols : (n,) int64 the rays' directions and samples
+    hit_object : (A,) int16; hit_uv_code : (A, 2) uint16; hit_distance_code : (A,) uint16, the
+        table's stored entries (core.visibility.table.TableEntries)
+    entry : (n,) int64 the rays' entries
     hit_geometry, triangle : (n,) int32 (embree's geomID, -1 for a miss, and primID)
     bary : (n, 2) float32; distance : (n,) float32; ray_directions : (n, 3) float32
     triangle_offset : (O,) int64; face_normals : (T, 3) float64; corner_uv : (T, 3, 2) float32
@@ -79,18 +80,17 @@ def record(hit_object, hit_uv_code, hit_distance_code, rows, cols, hit_geometry,
     distance_splits : core.visibility.table.DISTANCE_SPLITS
     """
     has_where = where.shape[0] > 0
-    for r in nb.prange(rows.shape[0]):
-        row = rows[r]
-        col = cols[r]
+    for r in nb.prange(entry.shape[0]):
+        e = entry[r]
         geometry = hit_geometry[r]
         if has_where:
             if not where[r] or geometry < 0:
                 continue
         elif geometry < 0:
-            hit_object[row, col] = MISS
-            hit_uv_code[row, col, 0] = 0
-            hit_uv_code[row, col, 1] = 0
-            hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE
+            hit_object[e] = MISS
+            hit_uv_code[e, 0] = 0
+            hit_uv_code[e, 1] = 0
+            hit_distance_code[e] = NO_HIT_DISTANCE_CODE
             continue
         t = triangle_offset[geometry] + triangle[r]
         facing = (face_normals[t, 0] * np.float64(ray_directions[r, 0])
@@ -101,25 +101,25 @@ def record(hit_object, hit_uv_code, hit_distance_code, rows, cols, hit_geometry,
         v = bary[r, 1]
         cells = vertex_cells[geometry]
         if back:
-            hit_object[row, col] = BACKFACE
-            hit_uv_code[row, col, 0] = 0
-            hit_uv_code[row, col, 1] = 0
+            hit_object[e] = BACKFACE
+            hit_uv_code[e, 0] = 0
+            hit_uv_code[e, 1] = 0
         else:
-            hit_object[row, col] = geometry
+            hit_object[e] = geometry
             if cells > 0:
                 local = np.int64(triangle[r])
-                hit_uv_code[row, col, 0] = _vertex_code(local, u, cells, 0)
-                hit_uv_code[row, col, 1] = _vertex_code(local, v, cells, 1)
+                hit_uv_code[e, 0] = _vertex_code(local, u, cells, 0)
+                hit_uv_code[e, 1] = _vertex_code(local, v, cells, 1)
             else:
                 w = (_F32(1.0) - u) - v
                 for axis in range(2):
                     landing = (w * corner_uv[t, 0, axis] + u * corner_uv[t, 1, axis]) + v * corner_uv[t, 2, axis]
-                    hit_uv_code[row, col, axis] = _uv_code(landing)
+                    hit_uv_code[e, axis] = _uv_code(landing)
         d = np.float64(distance[r])
         if d - d != 0.0:  # inf or NaN
-            hit_distance_code[row, col] = NO_HIT_DISTANCE_CODE
+            hit_distance_code[e] = NO_HIT_DISTANCE_CODE
         else:
-            hit_distance_code[row, col] = _distance_code(d, distance_splits)
+            hit_distance_code[e] = _distance_code(d, distance_splits)
 
 
 @nb.njit(**KERNEL_OPTIONS)
@@ -188,36 +188,31 @@ def rays_where(mask, row_offset, start, direction_index, sample_index):
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def pack_rows(values, above, row_offset, packed):
-    """The entries of ``values`` where ``above``, row by row in row-major order, as
-    ``core.visibility.cache.TablePacking`` stores them; in parallel over rows.
+def rays_of_words(above_words, word_base, first_word, last_word, row_offset, direction_index, sample_index, entry):
+    """The (direction, sample, entry) of every stored entry of words [first_word, last_word) of
+    each row (core.visibility.table.rays_of_entries), row-major, each row from ``row_offset``;
+    in parallel over rows.
 
-    values (N, K, C) of any dtype; above (N, K) bool; row_offset (N,) int64, the first packed
-    index of each row; packed (A, C) of values' dtype (A: the number of True in ``above``).
-
-    Branch-free on ``above`` (a table's horizon pattern is irregular enough to defeat branch
-    prediction): every entry is copied to the next free slot, which only a stored entry takes.
+    above_words : (N, W) uint64; word_base : (N, W) int64; row_offset : (N,) int64;
+    direction_index, sample_index, entry : (n,) int64, out.
     """
-    for row in nb.prange(values.shape[0]):
+    for row in nb.prange(above_words.shape[0]):
         at = row_offset[row]
-        end = row_offset[row + 1] if row + 1 < values.shape[0] else packed.shape[0]
-        for col in range(values.shape[1]):
-            if at < end:
-                for channel in range(values.shape[2]):
-                    packed[at, channel] = values[row, col, channel]
-            at += np.int64(above[row, col])
+        e = word_base[row, first_word]
+        for w in range(first_word, last_word):
+            word = above_words[row, w]
+            while word != np.uint64(0):
+                direction_index[at] = row
+                sample_index[at] = w * 64 + np.int64(trailing_zeros(word))
+                entry[at] = e
+                at += 1
+                e += 1
+                word &= word - np.uint64(1)
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def unpack_rows(packed, above, row_offset, fill, values):
-    """:func:`pack_rows` undone: ``values`` (N, K, C) from ``packed`` (A, C) where ``above``,
-    ``fill`` (C,) elsewhere (of values' dtype); in parallel over rows, branch-free on ``above``."""
-    last = packed.shape[0] - 1
-    for row in nb.prange(values.shape[0]):
-        at = row_offset[row]
-        for col in range(values.shape[1]):
-            stored = above[row, col]
-            source = min(at, last)
-            for channel in range(values.shape[2]):
-                values[row, col, channel] = packed[source, channel] if stored and last >= 0 else fill[channel]
-            at += np.int64(stored)
+def entries_at(above_words, word_base, direction_index, sample_index, out):
+    """out[r] = the stored entry of (direction_index[r], sample_index[r]), -1 where not stored
+    (core.kernels.bits.entry_of); in parallel over r. Arrays (n,) int64."""
+    for r in nb.prange(direction_index.shape[0]):
+        out[r] = entry_of(above_words, word_base, direction_index[r], sample_index[r])

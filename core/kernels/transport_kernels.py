@@ -13,8 +13,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..visibility.table import MISS, UV_CODE_SCALE
+from ..visibility.table import BELOW_HORIZON, MISS, UV_CODE_SCALE
 from . import KERNEL_OPTIONS
+from .bits import entry_of, trailing_zeros
 
 # Samples per parallel task: the block's float64 sums stay in the L1 cache while the
 # block's slice of every direction's table row is read once, in order.
@@ -67,14 +68,56 @@ def _vertex_add(acc, j, radiance, weight, corners, u, v, nearest):
         acc[j, c] += np.float64(mixed * weight)
 
 
+@nb.njit(inline="always")
+def _add_entry(acc, j, s, e, i, cosines, sample_scale, hit_object, hit_uv, has_world, world, has_exclude, exclude,
+               any_vertex, is_vertex, vertex_cells, corner_flat, corner_base, nearest_vertex, radiance, offsets,
+               widths, heights):
+    """Add stored entry ``e`` (direction i) to the block's sample j (sample s): :func:`gather`'s body."""
+    channels = radiance.shape[1]
+    obj = hit_object[e]
+    if obj < 0 and not (obj == MISS and has_world):
+        return
+    cosine = cosines[j]
+    if cosine <= _F32(0.0):
+        return
+    weight = cosine * sample_scale[j]
+    if obj == MISS:
+        for c in range(channels):
+            acc[j, c] += np.float64(weight * world[i, c])
+        return
+    if has_exclude and exclude[s, obj]:
+        return
+    if any_vertex and is_vertex[obj]:
+        cells = vertex_cells[obj]
+        steps = 65536 // cells
+        cu = np.int64(hit_uv[e, 0])
+        cv = np.int64(hit_uv[e, 1])
+        last = _F32(steps - 1)
+        triangle = cu // steps + cells * (cv // steps)
+        corners = corner_flat[corner_base[obj] + triangle]
+        _vertex_add(acc, j, radiance, weight, corners, _F32(cu % steps) / last, _F32(cv % steps) / last,
+                    nearest_vertex)
+    else:
+        u = _F32(hit_uv[e, 0]) * _UV_STEP
+        v = _F32(hit_uv[e, 1]) * _UV_STEP
+        # One light group's RGB is the common case: a constant channel count
+        # lets the compiler unroll the lookup.
+        if channels == 3:
+            _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v, 3)
+        else:
+            _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v, channels)
+
+
 @nb.njit(**KERNEL_OPTIONS)
-def gather(hit_object, hit_uv, vertex_cells, directions, normals, scale, samples, first, stop,
-           radiance, widths, heights, offsets, is_vertex, corner_flat, corner_base, nearest_vertex,
+def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions, normals, scale, samples, first,
+           stop, radiance, widths, heights, offsets, is_vertex, corner_flat, corner_base, nearest_vertex,
            world, exclude, out):
     """out[j] += sum_{i in [first, stop)} w_i(s) L(S_i[s]) for s = samples[j].
 
-    hit_object : (N, K) int16; hit_uv : (N, K, 2) uint16 codes (of triangle and barycentrics
-        on vertex-mode objects); vertex_cells : (O,) int64 core.visibility.table.vertex_cells
+    above_words : (N, W) uint64, word_base : (N, W) int64, hit_object : (A,) int16, hit_uv :
+        (A, 2) uint16 codes (of triangle and barycentrics on vertex-mode objects): the table's
+        stored entries (core.visibility.table.TableEntries)
+    vertex_cells : (O,) int64 core.visibility.table.vertex_cells
     directions : (N, 3) float32; normals : (K, 3) float32 (the frame normals); scale : (K,) float32
     samples : (k,) int64 sample indices; first, stop : the direction range
     radiance : (size, C) float32 packed atlases; widths, heights, offsets : (O,) int64
@@ -105,62 +148,54 @@ def gather(hit_object, hit_uv, vertex_cells, directions, normals, scale, samples
         nz = np.empty(size, np.float32)
         sample_scale = np.empty(size, np.float32)
         cosines = np.empty(size, np.float32)
+        contiguous = samples[start] % 64 == 0
         for j in range(size):
             s = samples[start + j]
+            contiguous = contiguous and s == samples[start] + j
             nx[j] = normals[s, 0]
             ny[j] = normals[s, 1]
             nz[j] = normals[s, 2]
             sample_scale[j] = scale[s]
             for c in range(channels):
                 acc[j, c] = out[start + j, c]
+        first_word = samples[start] >> 6
+        words = (size + 63) // 64
         for i in range(first, stop):
             dx = directions[i, 0]
             dy = directions[i, 1]
             dz = directions[i, 2]
             for j in range(size):
                 cosines[j] = nx[j] * dx + ny[j] * dy + nz[j] * dz
-            for j in range(size):
-                s = samples[start + j]
-                obj = hit_object[i, s]
-                if obj < 0 and not (obj == MISS and has_world):
-                    continue
-                cosine = cosines[j]
-                if cosine <= _F32(0.0):
-                    continue
-                weight = cosine * sample_scale[j]
-                if obj == MISS:
-                    for c in range(channels):
-                        acc[j, c] += np.float64(weight * world[i, c])
-                    continue
-                if has_exclude and exclude[s, obj]:
-                    continue
-                if any_vertex and is_vertex[obj]:
-                    cells = vertex_cells[obj]
-                    steps = 65536 // cells
-                    cu = np.int64(hit_uv[i, s, 0])
-                    cv = np.int64(hit_uv[i, s, 1])
-                    last = _F32(steps - 1)
-                    triangle = cu // steps + cells * (cv // steps)
-                    corners = corner_flat[corner_base[obj] + triangle]
-                    _vertex_add(acc, j, radiance, weight, corners, _F32(cu % steps) / last, _F32(cv % steps) / last,
-                                nearest_vertex)
-                else:
-                    u = _F32(hit_uv[i, s, 0]) * _UV_STEP
-                    v = _F32(hit_uv[i, s, 1]) * _UV_STEP
-                    # One light group's RGB is the common case: a constant channel count
-                    # lets the compiler unroll the lookup.
-                    if channels == 3:
-                        _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v, 3)
-                    else:
-                        _bilinear_add(acc, j, radiance, weight, offsets[obj], widths[obj], heights[obj], u, v,
-                                      channels)
+            if contiguous:
+                # The block's samples are whole words of the entry bits: walk their stored
+                # entries in order, never touching an entry below a sample's horizon.
+                for w in range(words):
+                    word = above_words[i, first_word + w]
+                    if (w + 1) * 64 > size:
+                        word &= (np.uint64(1) << np.uint64(size - w * 64)) - np.uint64(1)
+                    e = word_base[i, first_word + w]
+                    while word != np.uint64(0):
+                        j = w * 64 + np.int64(trailing_zeros(word))
+                        word &= word - np.uint64(1)
+                        _add_entry(acc, j, samples[start] + j, e, i, cosines, sample_scale, hit_object, hit_uv,
+                                   has_world, world, has_exclude, exclude, any_vertex, is_vertex, vertex_cells,
+                                   corner_flat, corner_base, nearest_vertex, radiance, offsets, widths, heights)
+                        e += 1
+            else:
+                for j in range(size):
+                    s = samples[start + j]
+                    e = entry_of(above_words, word_base, i, s)
+                    if e >= 0:
+                        _add_entry(acc, j, s, e, i, cosines, sample_scale, hit_object, hit_uv, has_world, world,
+                                   has_exclude, exclude, any_vertex, is_vertex, vertex_cells, corner_flat,
+                                   corner_base, nearest_vertex, radiance, offsets, widths, heights)
         for j in range(size):
             for c in range(channels):
                 out[start + j, c] = acc[j, c]
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
+def cosine_sum(above_words, word_base, hit_object, directions, normals, scale, code, counted, out):
     """out[k] = sum_i max(0, d_i . n_k) scale[k], summed in float64, over the directions i whose
     entry is ``code`` (``counted``) or is not (not ``counted``); the cosines in the dtype of
     ``normals`` and ``directions``.
@@ -168,7 +203,8 @@ def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
     The gathers' normalisation: float32, scale 1, every entry not BELOW_HORIZON. AO: float64,
     the entries that MISS.
 
-    hit_object : (N, K) int16; directions : (N, 3) and normals : (K, 3), float32 or float64;
+    above_words, word_base, hit_object : the stored entries, as in :func:`gather` (an entry not
+    stored is BELOW_HORIZON); directions : (N, 3) and normals : (K, 3), float32 or float64;
     scale : (K,) the same dtype; code : int16; counted : bool; out : (K,) float64, overwritten
     """
     count = normals.shape[0]
@@ -180,7 +216,9 @@ def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
         for i in range(directions.shape[0]):
             for j in range(end - start):
                 s = start + j
-                if (hit_object[i, s] == code) != counted:
+                e = entry_of(above_words, word_base, i, s)
+                entry_code = hit_object[e] if e >= 0 else np.int16(BELOW_HORIZON)
+                if (entry_code == code) != counted:
                     continue
                 cosine = normals[s, 0] * directions[i, 0] + normals[s, 1] * directions[i, 1] \
                     + normals[s, 2] * directions[i, 2]
@@ -191,11 +229,14 @@ def cosine_sum(hit_object, directions, normals, scale, code, counted, out):
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def bare_lookup(hit_object, hit_uv, samples, first, stop, radiance, widths, heights, offsets, out):
+def bare_lookup(above_words, word_base, hit_object, hit_uv, samples, first, stop, radiance, widths, heights, offsets,
+                out):
     """The ceiling a gather is measured against: one nearest-texel read per hit entry, summed.
 
-    The same table walk as :func:`gather` with the arithmetic taken out: what reading the
-    table and the radiance costs on this machine. Arrays as in :func:`gather`.
+    The same table walk as :func:`gather` (the stored entries of whole words in order where
+    the block's samples allow, else each sample's entry found from its bit) with the arithmetic
+    taken out: what reading the table and the radiance costs on this machine. Arrays as in
+    :func:`gather`.
     """
     count = samples.shape[0]
     channels = radiance.shape[1]
@@ -203,19 +244,44 @@ def bare_lookup(hit_object, hit_uv, samples, first, stop, radiance, widths, heig
     for block in nb.prange(blocks):
         start = block * BLOCK
         end = min(count, start + BLOCK)
-        acc = np.zeros((end - start, channels), np.float64)
+        size = end - start
+        acc = np.zeros((size, channels), np.float64)
+        contiguous = samples[start] % 64 == 0
+        for j in range(size):
+            contiguous = contiguous and samples[start + j] == samples[start] + j
+        first_word = samples[start] >> 6
+        words = (size + 63) // 64
         for i in range(first, stop):
-            for j in range(end - start):
-                s = samples[start + j]
-                obj = hit_object[i, s]
-                if obj < 0:
-                    continue
-                width = widths[obj]
-                x = np.int64(_F32(hit_uv[i, s, 0]) * _UV_STEP * _F32(width))
-                y = np.int64(_F32(hit_uv[i, s, 1]) * _UV_STEP * _F32(heights[obj]))
-                base = offsets[obj] + y * (width + 1) + x
-                for c in range(channels):
-                    acc[j, c] += radiance[base, c]
-        for j in range(end - start):
+            if contiguous:
+                for w in range(words):
+                    word = above_words[i, first_word + w]
+                    if (w + 1) * 64 > size:
+                        word &= (np.uint64(1) << np.uint64(size - w * 64)) - np.uint64(1)
+                    e = word_base[i, first_word + w]
+                    while word != np.uint64(0):
+                        j = w * 64 + np.int64(trailing_zeros(word))
+                        word &= word - np.uint64(1)
+                        _bare_add(acc, j, e, hit_object, hit_uv, radiance, widths, heights, offsets)
+                        e += 1
+            else:
+                for j in range(size):
+                    e = entry_of(above_words, word_base, i, samples[start + j])
+                    if e >= 0:
+                        _bare_add(acc, j, e, hit_object, hit_uv, radiance, widths, heights, offsets)
+        for j in range(size):
             for c in range(channels):
                 out[start + j, c] = acc[j, c]
+
+
+@nb.njit(inline="always")
+def _bare_add(acc, j, e, hit_object, hit_uv, radiance, widths, heights, offsets):
+    """:func:`bare_lookup`'s body: one nearest-texel read of stored entry ``e`` into sample j."""
+    obj = hit_object[e]
+    if obj < 0:
+        return
+    width = widths[obj]
+    x = np.int64(_F32(hit_uv[e, 0]) * _UV_STEP * _F32(width))
+    y = np.int64(_F32(hit_uv[e, 1]) * _UV_STEP * _F32(heights[obj]))
+    base = offsets[obj] + y * (width + 1) + x
+    for c in range(radiance.shape[1]):
+        acc[j, c] += radiance[base, c]

@@ -640,7 +640,7 @@ def _cached_or_traced_table(job: TableJob):
         warnings.append(f"visibility cache {status.path}: {error}; it was rebuilt")
         fresh = trace(None)
         save(fresh)
-        return {name: getattr(fresh, name) for name in DeferredTable.LARGE}
+        return {name: getattr(fresh, name) for name in DeferredTable.LARGE}  # its entries
 
     if cache is not None:
         status.path = cache.table_path(settings)

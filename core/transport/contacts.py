@@ -61,23 +61,25 @@ def exposed_share(table, slots: int, threads: int = 0) -> np.ndarray:
     module = kernels.compiled()
     if module is None:
         return _exposed_share_numpy(table, slots)
-    share = np.empty(table.hit_object.shape[1])
-    kernels.run(module.exposed_share, threads, np.ascontiguousarray(table.hit_object, np.int16), max(int(slots), 1),
-                BURIED_POINT_SHARE, share)
+    entries = table.entries
+    share = np.empty(entries.samples)
+    kernels.run(module.exposed_share, threads, entries.above_words, entries.word_base, entries.hit_object,
+                max(int(slots), 1), BURIED_POINT_SHARE, share)
     return share
 
 
 def _exposed_share_numpy(table, slots: int) -> np.ndarray:
     """:func:`exposed_share` in numpy."""
-    samples = table.hit_object.shape[1]
+    entries = table.entries
+    samples = entries.samples
     slots = max(int(slots), 1)
     # 16-bit counts (a set has at most 65535 directions), and the shares taken a block of
     # samples at a time: this runs near the bake's memory peak, where whole (K, slots) float
     # temporaries cost a hundred megabytes at the demo's size.
     traced = np.zeros((samples, slots), np.uint16)
     backface = np.zeros((samples, slots), np.uint16)
-    for direction in range(table.hit_object.shape[0]):
-        row = table.hit_object[direction]
+    for direction in range(entries.directions):
+        row = entries.dense("hit_object", direction, direction + 1)[0]
         traced[:, direction % slots] += row != BELOW_HORIZON
         backface[:, direction % slots] += row == BACKFACE
     share = np.ones(samples)
@@ -138,7 +140,7 @@ class CloseEntries:
     sample, direction : int64; weight : float32 the gather weight, max(0, n . d_i) times the
     sample's scale; obj : int64 the object hit; uv : (m, 2) float32 the atlas coordinate it
     landed at (the table's); floor : float64 the least distance its code allows
-    (VisibilityTable.hit_distance_floor)
+    (VisibilityTable.entry_distance_floor)
     """
 
     sample: np.ndarray
@@ -159,38 +161,44 @@ def table_close_entries(table, target_reach: np.ndarray, sample_reach: np.ndarra
     module = kernels.compiled() if compiled else None
     count = len(table.directions)
     if module is None:
-        sample, direction = _table_close_entries_numpy(table, target_reach, sample_reach)
+        sample, direction, entry = _table_close_entries_numpy(table, target_reach, sample_reach)
     else:
-        arguments = [np.ascontiguousarray(table.hit_object, np.int16),
-                     np.ascontiguousarray(table.hit_distance_code, np.uint16), DISTANCE_VALUES,
-                     np.ascontiguousarray(target_reach, np.float32),
+        entries = table.entries
+        arguments = [entries.above_words, entries.word_base, entries.hit_object, entries.hit_distance_code,
+                     DISTANCE_VALUES, np.ascontiguousarray(target_reach, np.float32),
                      np.zeros(0) if sample_reach is None else np.ascontiguousarray(sample_reach, np.float64)]
         offsets = np.zeros(count + 1, np.int64)
-        kernels.run(module.close_entries, threads, *arguments, offsets, np.zeros(0, np.int64), False)
+        none = np.zeros(0, np.int64)
+        kernels.run(module.close_entries, threads, *arguments, offsets, none, none, False)
         np.cumsum(offsets, out=offsets)
         sample = np.empty(offsets[-1], np.int64)
-        kernels.run(module.close_entries, threads, *arguments, offsets, sample, True)
+        entry = np.empty(offsets[-1], np.int64)
+        kernels.run(module.close_entries, threads, *arguments, offsets, sample, entry, True)
         direction = np.repeat(np.arange(count, dtype=np.int64), np.diff(offsets))
-    return (sample, direction, table.hit_object[direction, sample].astype(np.int64), table.hit_uv(direction, sample),
-            table.hit_distance_floor(direction, sample))
+    return (sample, direction, table.entries.hit_object[entry].astype(np.int64), table.entry_uv(entry),
+            table.entry_distance_floor(entry))
 
 
 def _table_close_entries_numpy(table, target_reach: np.ndarray, sample_reach: np.ndarray | None):
-    """(sample, direction) of :func:`table_close_entries` in numpy."""
+    """(sample, direction, entry) of :func:`table_close_entries` in numpy."""
     target_reach = np.asarray(target_reach, np.float32)
-    samples, directions = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    entries = table.entries
+    samples, directions, found = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for i in range(len(table.directions)):
-        row = table.hit_object[i]
+        span = entries.row_span(i, i + 1)
+        stored = np.nonzero(entries.mask(i, i + 1)[0])[0]
+        row = entries.hit_object[span]
         hit = np.nonzero(row >= 0)[0]
         if not len(hit):
             continue
-        distance = table.hit_distance(i, hit)
+        distance = table.entry_distance(span.start + hit)
         close = distance < target_reach[row[hit]]
         if sample_reach is not None:
-            close &= distance < sample_reach[hit]
-        samples.append(hit[close].astype(np.int64))
+            close &= distance < sample_reach[stored[hit]]
+        samples.append(stored[hit[close]].astype(np.int64))
         directions.append(np.full(len(samples[-1]), i, np.int64))
-    return np.concatenate(samples), np.concatenate(directions)
+        found.append(span.start + hit[close])
+    return np.concatenate(samples), np.concatenate(directions), np.concatenate(found)
 
 
 def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None,

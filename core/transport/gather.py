@@ -156,7 +156,7 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: i
     if module is not None:
         total = np.zeros(len(normals))
         if len(normals):
-            kernels.run(module.cosine_sum, threads, _hit_objects(table), directions32, normals32,
+            kernels.run(module.cosine_sum, threads, *_stored_entries(table), directions32, normals32,
                         np.ones(len(normals32), np.float32), np.int16(BELOW_HORIZON), False, total)
     else:
         total = _open_cosine_sum_numpy(table, directions32, normals32)
@@ -167,13 +167,15 @@ def _open_cosine_sum_numpy(table, directions32: np.ndarray, normals32: np.ndarra
     total = np.zeros(len(normals32))
     for i, direction in enumerate(directions32):
         cosine = np.maximum(normals32 @ direction, np.float32(0.0)).astype(np.float64)
-        total += np.where(table.hit_object[i] != BELOW_HORIZON, cosine, 0.0)
+        total += np.where(table.entries.mask(i, i + 1)[0], cosine, 0.0)
     return total
 
 
-def _hit_objects(table) -> np.ndarray:
-    """The table's (N, K) int16 hit objects as one C-ordered block (no copy when they are)."""
-    return np.ascontiguousarray(table.hit_object, np.int16)
+def _stored_entries(table) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernels' view of the table's stored entries: above_words (N, W) uint64, word_base
+    (N, W) int64 and hit_object (A,) int16 (core.visibility.table.TableEntries)."""
+    entries = table.entries
+    return entries.above_words, entries.word_base, entries.hit_object
 
 
 def gather(geometry: GatherGeometry, source: GatherSource, progress=None, samples: np.ndarray | None = None,
@@ -268,7 +270,7 @@ def gather_kernel_arguments(geometry: GatherGeometry, source: GatherSource, chos
     else:
         cells, is_vertex = vertex_cells_of(table, layout), layout.is_vertex
         corner_flat, corner_base = layout.corner_flat, np.maximum(layout.corner_base, 0)
-    arguments = (_hit_objects(table), np.ascontiguousarray(table.hit_uv_code, np.uint16), cells,
+    arguments = (*_stored_entries(table), table.entries.hit_uv_code, cells,
                  np.ascontiguousarray(table.directions, np.float32),
                  np.ascontiguousarray(geometry.normals, np.float32), np.ascontiguousarray(geometry.scale, np.float32),
                  chosen)
@@ -308,12 +310,13 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
         for i in indices:
             weight = np.maximum(chosen_normals @ directions[i], np.float32(0.0))
             weight *= chosen_scale
-            row = table.hit_object[i][chosen]
+            dense_object = table.entries.dense("hit_object", i, i + 1)[0]
+            row = dense_object[chosen]
             hit = np.nonzero(row >= 0)[0]
             if chosen_exclude is not None and len(hit):
                 hit = hit[~chosen_exclude[hit, row[hit]]]
             if len(hit):
-                codes = table.hit_uv_code[i][chosen][hit] if samples is not None else table.hit_uv_code[i, hit]
+                codes = table.entries.dense("hit_uv_code", i, i + 1)[0][chosen][hit]
                 objects = row[hit].astype(np.int64)
                 if layout.is_vertex is None:
                     looked_up = layout.bilinear(radiance, objects, decode_uv(codes))
@@ -359,11 +362,11 @@ def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.nda
     open_weight = np.zeros(len(normals))
     if module is not None:
         if len(normals):
-            kernels.run(module.cosine_sum, threads, _hit_objects(table),
+            kernels.run(module.cosine_sum, threads, *_stored_entries(table),
                         np.ascontiguousarray(table.directions, np.float64), np.ascontiguousarray(normals, np.float64),
                         np.ascontiguousarray(scale, np.float64), np.int16(MISS), True, open_weight)
     else:
         for i, direction in enumerate(table.directions):
             weight = np.clip(normals @ direction, 0.0, None) * scale
-            open_weight += weight * (table.hit_object[i] == MISS)
+            open_weight += weight * (table.entries.dense("hit_object", i, i + 1)[0] == MISS)
     return np.clip(open_weight / np.pi, 0.0, 1.0)

@@ -214,9 +214,11 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     usable = far_weight > 1e-6 * np.pi
     radiance = np.where(usable[:, None], far / np.where(usable, far_weight, 1.0)[:, None], 0.0)
     texels, neighbours = p.filter_pairs()
-    keep = usable[texels] & usable[neighbours]
-    texels, neighbours = texels[keep], neighbours[keep]
-    total = sum_by_sample(texels, radiance, len(far), rows=neighbours)
-    count = np.bincount(texels, minlength=len(far)).astype(np.float64)
+    # Only pairs of two usable texels count. An unusable neighbour's radiance is 0 and its last
+    # column (the count) 0, so summing every pair adds exactly what the usable pairs add, and an
+    # unusable texel's count is zeroed below: no copy of the pairs (200 MB at Production settings).
+    channels = radiance.shape[1]
+    summed = sum_by_sample(texels, np.concatenate([radiance, usable[:, None]], axis=1), len(far), rows=neighbours)
+    total, count = summed[:, :channels], np.where(usable, summed[:, channels], 0.0)
     filtered = np.where(count[:, None] > 0, total / np.maximum(count, 1.0)[:, None] * far_weight[:, None], far)
     return filtered + near

@@ -16,10 +16,10 @@ Files are numpy ``.npz`` archives with a JSON header and a CRC-32 of every array
 top of the zip's own); a file that is truncated, fails its check or has another
 format version is reported and rebuilt, never trusted. Keys are BLAKE2 hashes.
 
-A table file holds only the entries above their sample's horizon (about half of them):
-a bit per entry says which are there, and the per-entry arrays list those in row-major
-order (:class:`TablePacking`). Every entry left out is BELOW_HORIZON with the codes of
-no hit, so the table reads back bitwise as it was traced.
+A table file holds the table's stored entries as memory holds them (core.visibility.table.
+TableEntries): only those above their sample's horizon (about half), a bit per entry saying
+which are there, and the per-entry arrays listing those in row-major order. It reads back
+bitwise as it was traced.
 
 The folder's total size can be capped (``VisibilityCache(limit_bytes=)``): before a table
 is written, the least recently used slots of any scene are removed until it fits, and a
@@ -40,7 +40,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import kernels
 from .. import tolerances as tol
 
 try:
@@ -49,16 +48,17 @@ except ImportError:  # Windows: an open file cannot be removed, which serves as 
     fcntl = None
 from ..scene import Mesh
 from ..settings import BakeSettings
-from .table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE
+from .table import ENTRY_ARRAYS, TableEntries, entries_nbytes
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
 # 3: one checksum per array, backface counts stored; 4: rays from texel footprints, interleaved rotations;
 # 5: a footprint point that finds no place on its triangle starts from the texel's centre;
 # 6: compact entries (16-bit atlas coordinates, 16-bit logarithmic distances);
 # 7: only the entries above the horizon, with a bit per entry saying which, and triangles only
-#    of the entries that hit a vertex-mode object (TablePacking);
-# 8: a vertex-mode hit's triangle packed with its barycentrics in hit_uv_code (vertex_cells).
-FORMAT_VERSION = 8
+#    of the entries that hit a vertex-mode object (then TablePacking);
+# 8: a vertex-mode hit's triangle packed with its barycentrics in hit_uv_code (vertex_cells);
+# 9: the entry bits as the table holds them in memory, 64-bit words per direction (TableEntries).
+FORMAT_VERSION = 9
 TABLE_FILE = "visibility.npz"
 # A volume's scattering tables (core.volume.cache), one per slot of its own.
 VOLUME_TABLE_FILE = "volume.npz"
@@ -72,127 +72,35 @@ _SMALL_TABLE_ARRAYS = ("directions", "traced_per_sample", "backface_per_sample")
 # Tables with vertex-mode objects also keep how those objects' hits are coded.
 _OPTIONAL_SMALL_ARRAYS = ("vertex_cells",)
 _LARGE_TABLE_ARRAYS = ("hit_object", "hit_uv_code", "hit_distance_code")
-# The bits of the entries above the horizon (np.packbits, row-major over (directions, samples)).
-ABOVE_HORIZON_BITS = "above_horizon_bits"
+# The bits of the entries above the horizon (TableEntries.above_words).
+ABOVE_WORDS = "above_words"
 
 
-# Each per-entry array's dtype, the shape of one entry, and the value of an entry not stored.
-_ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.uint16, (2,), 0),
-                 "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE)}
-
-
-def _stored_masks(hit_object: np.ndarray) -> dict:
-    """Which entries each per-entry array stores: (N, K) bool per name (one mask shared)."""
-    return dict.fromkeys(_ENTRY_ARRAYS, hit_object != BELOW_HORIZON)
-
-
-class TablePacking:
-    """How a table's per-entry arrays are stored, worked out once per write: which entries
-    each array keeps, the file's size, and the arrays themselves, each made only when called
-    (:meth:`packers`), so that writing a table never holds more than one of them:
-
-    - ``ABOVE_HORIZON_BITS``: (ceil(N K / 8),) uint8, a bit per entry (row-major, np.packbits),
-      set where the entry is above its sample's horizon;
-    - hit_object (A,) int16, hit_uv_code (A, 2) uint16, hit_distance_code (A,) uint16: those
-      A entries only, row-major.
-
-    ``threads``: the kernels' thread count (0: all cores).
-    """
-
-    def __init__(self, table, threads: int = 0):
-        self.table, self.threads = table, threads
-        self.masks = _stored_masks(table.hit_object)
-        self.offsets, counted = {}, {}  # the three arrays that share one mask count it once
-        for name, mask in self.masks.items():
-            if id(mask) not in counted:
-                counted[id(mask)] = _row_offsets(mask)
-            self.offsets[name] = counted[id(mask)]
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes of the stored arrays: what the file will hold, less a few kilobytes of header
-        and per-sample arrays."""
-        size = -(-self.table.hit_object.size // 8)
-        for name, (_, stored) in self.offsets.items():
-            size += stored * np.dtype(_ENTRY_ARRAYS[name][0]).itemsize * int(np.prod(_ENTRY_ARRAYS[name][1]))
-        return size
-
-    def packers(self) -> dict:
-        """name -> callable returning the stored array (see the class)."""
-        module = kernels.compiled()
-
-        def packer(name):
-            values, mask = getattr(self.table, name), self.masks[name]
-            if module is None:
-                return values[mask]
-            row_offset, stored = self.offsets[name]
-            packed = np.empty((stored, *_ENTRY_ARRAYS[name][1]), values.dtype)
-            kernels.run(module.pack_rows, self.threads, _as_uint16(values, mask.shape), mask, row_offset,
-                        _as_uint16(packed, (stored,)))
-            return packed
-
-        packers = {ABOVE_HORIZON_BITS: lambda: np.packbits(self.masks["hit_object"], axis=None)}
-        for name in self.masks:
-            packers[name] = lambda name=name: packer(name)
-        return packers
-
-
-def _as_uint16(array: np.ndarray, leading: tuple) -> np.ndarray:
-    """``array`` (leading..., ...) seen as (leading..., C) uint16 words, its bytes unchanged: the
-    packing kernels move 16-bit words, so one compiled kernel serves every per-entry dtype."""
-    array = np.ascontiguousarray(array)
-    words = array.itemsize // 2 * int(np.prod(array.shape[len(leading):], dtype=np.int64))
-    return array.view(np.uint16).reshape(*leading, words)
-
-
-def pack_entries(table, threads: int = 0) -> dict:
-    """:class:`TablePacking`'s arrays, all made at once."""
-    return {name: make() for name, make in TablePacking(table, threads).packers().items()}
-
-
-def _row_offsets(mask: np.ndarray) -> tuple[np.ndarray, int]:
-    """(N,) int64 index of each row's first stored entry, and the number stored."""
-    counts = np.count_nonzero(mask, axis=1)
-    row_offset = np.zeros(len(counts), np.int64)
-    np.cumsum(counts[:-1], out=row_offset[1:])
-    return row_offset, int(counts.sum())
+def pack_entries(table) -> dict:
+    """The arrays a table file stores of ``table``'s entries (:class:`TableEntries`, no copies):
+    ``ABOVE_WORDS`` (N, W) uint64 and the per-entry arrays (A, ...)."""
+    entries = table.entries
+    return {ABOVE_WORDS: entries.above_words, **{name: getattr(entries, name) for name in ENTRY_ARRAYS}}
 
 
 def packed_bytes(table) -> int:
-    """Bytes :func:`pack_entries` makes of ``table`` (:attr:`TablePacking.nbytes`)."""
-    return TablePacking(table).nbytes
+    """Bytes :func:`pack_entries` stores of ``table``: what the file will hold, less a few
+    kilobytes of header and per-sample arrays."""
+    return sum(array.nbytes for array in pack_entries(table).values())
 
 
-def unpack_entries(packed, shape: tuple, threads: int = 0) -> dict:
-    """The (directions, samples) per-entry arrays back from :func:`pack_entries`' form
-    (``packed``: a mapping, read one array at a time); every entry that is not stored is
-    BELOW_HORIZON with no hit's codes. Raises CorruptCache where the arrays do
-    not fit together (a checksum guards against damage, this against a file made by hand)."""
-    count = int(shape[0]) * int(shape[1])
-    bits = packed[ABOVE_HORIZON_BITS] if ABOVE_HORIZON_BITS in packed else None
-    if bits is None or bits.dtype != np.uint8 or bits.shape != (-(-count // 8),):
-        raise CorruptCache("its entry bits do not match its table's size")
-    above = np.unpackbits(bits, count=count).view(bool).reshape(shape)
-    del bits
-    module = kernels.compiled()
-    arrays = {}
-    for name, (dtype, tail, fill) in _ENTRY_ARRAYS.items():
+def unpack_entries(packed, samples: int) -> TableEntries:
+    """The :class:`TableEntries` of a table of ``samples`` samples from :func:`pack_entries`'
+    arrays (``packed``: a mapping, read one array at a time). Raises CorruptCache where the
+    arrays do not fit together (a checksum guards against damage, this against a file made by
+    hand)."""
+    for name in (ABOVE_WORDS, *ENTRY_ARRAYS):
         if name not in packed:
             raise CorruptCache(f"it has no {name}")
-        mask = above
-        row_offset, stored = _row_offsets(mask)
-        values = packed[name]
-        if values.dtype != dtype or values.shape != (stored, *tail):
-            raise CorruptCache(f"its {name} does not match its entry bits")
-        if module is None:
-            arrays[name] = np.full((*shape, *tail), fill, dtype)
-            arrays[name][mask] = values
-        else:
-            arrays[name] = np.empty((*shape, *tail), dtype)
-            kernels.run(module.unpack_rows, threads, _as_uint16(values, (stored,)), mask, row_offset,
-                        _as_uint16(np.full((1, *tail), fill, dtype), (1,))[0], _as_uint16(arrays[name], shape))
-        del values
-    return arrays
+    try:
+        return TableEntries.from_stored(packed[ABOVE_WORDS], samples, {name: packed[name] for name in ENTRY_ARRAYS})
+    except ValueError as error:
+        raise CorruptCache(str(error)) from None
 
 
 class _ArraysOnDemand(Mapping):
@@ -215,7 +123,7 @@ class _ArraysOnDemand(Mapping):
 
 def _stored_entry_arrays(meta: dict) -> tuple:
     """The names of a table file's per-entry arrays (:func:`pack_entries`)."""
-    return (ABOVE_HORIZON_BITS,) + _LARGE_TABLE_ARRAYS
+    return (ABOVE_WORDS,) + _LARGE_TABLE_ARRAYS
 
 
 def _small_arrays(meta: dict) -> tuple:
@@ -533,26 +441,28 @@ class VisibilityCache:
 
         path = self.table_path(settings)
         small = _read_arrays(path, meta, _small_arrays(meta))
-        shape = (len(small["directions"]), len(small["traced_per_sample"]))
+        samples = len(small["traced_per_sample"])
 
         def read_large():
             try:
-                return unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), shape, settings.threads)
+                return {"entries": unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), samples)}
             except CorruptCache as error:
                 if damaged is None:
                     raise
                 return damaged(error)
 
         self._touch(path)
-        return DeferredTable(small, meta["counters"], read_large)
+        stored = int(np.sum(small["traced_per_sample"], dtype=np.int64))
+        nbytes = entries_nbytes(len(small["directions"]), samples, stored)
+        return DeferredTable(small, meta["counters"], read_large, nbytes)
 
     def load_table(self, settings: BakeSettings, meta: dict) -> CachedTable:
         path = self.table_path(settings)
         arrays = _read_arrays(path, meta, _small_arrays(meta))
-        shape = (len(arrays["directions"]), len(arrays["traced_per_sample"]))
-        entries = unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), shape, settings.threads)
+        entries = unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)),
+                                 len(arrays["traced_per_sample"]))
         self._touch(path)
-        return CachedTable(arrays={**arrays, **entries}, object_names=list(meta["object_names"]),
+        return CachedTable(arrays={**arrays, "entries": entries}, object_names=list(meta["object_names"]),
                            object_keys=list(meta["object_keys"]),
                            sample_offset=np.asarray(meta["sample_offset"], np.int64), counters=meta["counters"])
 
@@ -572,10 +482,11 @@ class VisibilityCache:
         if self.read_only:
             return 0
         self._remove_abandoned(settings)
-        packing = TablePacking(table, settings.threads)
+        stored = pack_entries(table)
+        size = sum(array.nbytes for array in stored.values())
         if announce is not None:
-            announce(packing.nbytes)
-        self.make_room(settings, packing.nbytes)
+            announce(size)
+        self.make_room(settings, size)
         meta = {"kind": "table", "key": key, "object_names": list(object_names), "object_keys": list(object_keys),
                 "sample_offset": [int(x) for x in sample_offset],
                 "counters": {"rays_cast": int(table.rays_cast), "rays_below_horizon": int(table.rays_below_horizon),
@@ -584,7 +495,7 @@ class VisibilityCache:
         arrays = {name: getattr(table, name) for name in _SMALL_TABLE_ARRAYS}
         if table.vertex_cells is not None:
             arrays["vertex_cells"] = np.asarray(table.vertex_cells, np.int64)
-        arrays.update(packing.packers())
+        arrays.update(stored)
         meta["arrays"] = sorted(arrays)
         size = _write(self.table_path(settings), meta, arrays)
         self.clear_lighting(settings)  # results of the old table are of no use any more

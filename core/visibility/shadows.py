@@ -7,7 +7,7 @@ import numpy as np
 
 from .. import tolerances as tol
 from .directions import ShadowRegions
-from .table import BELOW_HORIZON, MISS, VisibilityTable
+from .table import BELOW_HORIZON, MISS, VisibilityTable, decode_distance
 
 
 @dataclass
@@ -67,7 +67,8 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
 
     if isinstance(table, SplitTable):
         return table.shadow_fractions(regions, light_distance)
-    samples = table.hit_object.shape[1]
+    entries = table.entries
+    samples = entries.samples
     lit = np.zeros((samples, regions.count), np.uint16)
     traced = np.zeros((samples, regions.count), np.uint16)
     limit = None
@@ -79,7 +80,7 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
         turned = np.einsum("gab,nb->gna", rotations, np.asarray(table.directions, np.float64))
         rotated = np.argmax(turned @ regions.centres.T, axis=2).astype(np.int32)  # (G, N)
     for i, region in enumerate(regions.nearest):
-        row = table.hit_object[i]
+        row = entries.dense("hit_object", i, i + 1)[0]
         if rotated is not None:
             region = (columns, rotated[group, i])  # one region per sample: no index repeats
         else:
@@ -88,5 +89,6 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
         if limit is None:
             lit[region] += row == MISS
         else:
-            lit[region] += (row != BELOW_HORIZON) & (table.hit_distance(i) >= limit)
+            distance = decode_distance(entries.dense("hit_distance_code", i, i + 1)[0])
+            lit[region] += (row != BELOW_HORIZON) & (distance >= limit)
     return ShadowFractions(regions=regions, lit=lit, traced=traced)

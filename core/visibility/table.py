@@ -20,9 +20,9 @@ MISS = -1
 BELOW_HORIZON = -2
 BACKFACE = -3
 
-# Table entries are stored compact, 8 bytes each (plus 4 for a vertex-mode hit's triangle):
+# Table entries are stored compact, 8 bytes each (only those above the horizon: TableEntries):
 # the object (int16), the landing point's atlas coordinate as two 16-bit fractions of the
-# atlas (1/16 texel at 4096^2; a vertex-mode hit's barycentrics the same way) and the hit
+# atlas (1/16 texel at 4096^2; a vertex-mode hit's triangle and barycentrics the same way) and the hit
 # distance as a 16-bit logarithmic code. The code spans 2^-16 to 2^16 scene units with a
 # relative step of 2^(1/2048) - 1 = 3.4e-4 at every scale, where a half float would lose
 # precision below 6e-5 units and overflow above 65504 (millimetre tiles and kilometre
@@ -129,34 +129,203 @@ def decode_distance_floor(codes: np.ndarray) -> np.ndarray:
     return _DISTANCE_FLOORS[codes]
 
 
+# The stored entries are those above their sample's horizon (about half of the table): a bit per
+# (direction, sample) says which, in 64-bit words, and the entries themselves are listed row by
+# row (direction-major, samples ascending). Entry (i, k) is found as its word's first entry plus
+# the set bits below k's bit (core.kernels.bits.entry_of), so no reader needs the dense
+# (directions, samples) arrays, whose unstored half cost 4 bytes an entry for nothing.
+WORD_BITS = 64
+# Popcounts of every byte, for the numpy side (numpy 1.26 has no bit count).
+_BYTE_BITS = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(axis=1).astype(np.uint8)
+# Each per-entry array's dtype, the shape of one entry, and what a dense view shows where no
+# entry is stored.
+ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.uint16, (2,), 0),
+                "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE)}
+
+
+def words_of(mask: np.ndarray) -> np.ndarray:
+    """(N, k) bool -> (N, ceil(k / 64)) uint64: bit b of word w is mask[:, 64 w + b]."""
+    mask = np.asarray(mask, bool)
+    width = -(-mask.shape[1] // WORD_BITS)
+    packed = np.zeros((mask.shape[0], width * 8), np.uint8)
+    packed[:, :-(-mask.shape[1] // 8)] = np.packbits(mask, axis=1, bitorder="little")
+    return packed.view("<u8").astype(np.uint64, copy=False)
+
+
+def mask_of(words: np.ndarray, samples: int) -> np.ndarray:
+    """:func:`words_of` undone: (n, W) uint64 -> (n, samples) bool."""
+    words = np.ascontiguousarray(words, "<u8")
+    return np.unpackbits(words.view(np.uint8).reshape(len(words), -1), axis=1, count=samples,
+                         bitorder="little").view(bool)
+
+
+def bit_counts(words: np.ndarray) -> np.ndarray:
+    """(..., W) uint64 -> (..., W) int64 set bits of each word."""
+    words = np.ascontiguousarray(words, "<u8")
+    return _BYTE_BITS[words.view(np.uint8)].reshape(*words.shape, 8).sum(axis=-1, dtype=np.int64)
+
+
+@dataclass
+class TableEntries:
+    """The stored entries of a visibility table: those above their sample's horizon.
+
+    samples : K, the samples of a row
+    above_words : (N, W) uint64, W = ceil(K / 64); bit b of word w is set where sample
+        64 w + b's entry of that direction is stored
+    word_base : (N, W) int64, the index of each word's first stored entry
+    hit_object : (A,) int16, hit_uv_code : (A, 2) uint16, hit_distance_code : (A,) uint16, the
+        A stored entries row by row, samples ascending (the codes of :class:`VisibilityTable`)
+    """
+
+    samples: int
+    above_words: np.ndarray
+    word_base: np.ndarray
+    hit_object: np.ndarray
+    hit_uv_code: np.ndarray
+    hit_distance_code: np.ndarray
+
+    @classmethod
+    def empty(cls, above_words: np.ndarray, samples: int) -> "TableEntries":
+        """Room for the entries ``above_words`` (N, W) uint64 marks, to be written by a trace (every
+        marked entry is written: their values start undefined)."""
+        above_words = np.ascontiguousarray(above_words, np.uint64)
+        word_base, stored = _word_base(above_words)
+        return cls(int(samples), above_words, word_base, np.empty(stored, np.int16), np.empty((stored, 2), np.uint16),
+                   np.empty(stored, np.uint16))
+
+    @classmethod
+    def from_dense(cls, hit_object: np.ndarray, hit_uv_code: np.ndarray, hit_distance_code: np.ndarray
+                   ) -> "TableEntries":
+        """The entries of dense (N, K), (N, K, 2), (N, K) arrays: those not BELOW_HORIZON."""
+        hit_object = np.asarray(hit_object, np.int16)
+        stored = hit_object != BELOW_HORIZON
+        above_words = words_of(stored)
+        word_base, _ = _word_base(above_words)
+        return cls(hit_object.shape[1], above_words, word_base, hit_object[stored],
+                   np.asarray(hit_uv_code, np.uint16)[stored], np.asarray(hit_distance_code, np.uint16)[stored])
+
+    @classmethod
+    def from_stored(cls, above_words: np.ndarray, samples: int, arrays: dict) -> "TableEntries":
+        """Entries from their stored arrays (``above_words`` and :data:`ENTRY_ARRAYS` in ``arrays``).
+        Raises ValueError where they do not fit together."""
+        above_words = np.ascontiguousarray(above_words)
+        if above_words.dtype != np.uint64 or above_words.ndim != 2 or above_words.shape[1] != -(-samples // WORD_BITS):
+            raise ValueError("its entry bits do not match its table's size")
+        if samples % WORD_BITS and np.any(above_words[:, -1] >> np.uint64(samples % WORD_BITS)):
+            raise ValueError("its entry bits mark samples the table does not have")
+        word_base, stored = _word_base(above_words)
+        for name, (dtype, tail, _) in ENTRY_ARRAYS.items():
+            values = arrays.get(name)
+            if values is None or values.dtype != dtype or values.shape != (stored, *tail):
+                raise ValueError(f"its {name} does not match its entry bits")
+        return cls(int(samples), above_words, word_base, *(arrays[name] for name in ENTRY_ARRAYS))
+
+    @property
+    def directions(self) -> int:
+        return self.above_words.shape[0]
+
+    @property
+    def stored(self) -> int:
+        return len(self.hit_object)
+
+    @property
+    def nbytes(self) -> int:
+        return (self.above_words.nbytes + self.word_base.nbytes + self.hit_object.nbytes + self.hit_uv_code.nbytes
+                + self.hit_distance_code.nbytes)
+
+    def row_span(self, first: int, last: int) -> slice:
+        """The stored entries of rows [first, last)."""
+        if not self.above_words.shape[1]:
+            return slice(0, 0)
+        start = int(self.word_base[first, 0]) if first < self.directions else self.stored
+        stop = int(self.word_base[last, 0]) if last < self.directions else self.stored
+        return slice(start, stop)
+
+    def mask(self, first: int = 0, last: int | None = None) -> np.ndarray:
+        """(rows, K) bool of rows [first, last): which entries are stored."""
+        return mask_of(self.above_words[first:last], self.samples)
+
+    def dense(self, name: str, first: int = 0, last: int | None = None) -> np.ndarray:
+        """Rows [first, last) of the per-entry array ``name`` as a dense (rows, K, ...) array, with
+        the no-entry value (:data:`ENTRY_ARRAYS`) where nothing is stored. For tests, the numpy
+        fallback and a direction batch's upload: a whole table's dense array is what this
+        layout exists to avoid."""
+        last = self.directions if last is None else min(last, self.directions)
+        dtype, tail, fill = ENTRY_ARRAYS[name]
+        mask = self.mask(first, last)
+        out = np.full((*mask.shape, *tail), fill, dtype)
+        out[mask] = getattr(self, name)[self.row_span(first, last)]
+        return out
+
+    def index(self, direction: np.ndarray, sample: np.ndarray) -> np.ndarray:
+        """(n,) int64 indices of the entries (direction, sample) (n,) each; -1 where not stored."""
+        direction = np.asarray(direction, np.int64)
+        sample = np.asarray(sample, np.int64)
+        word = self.above_words[direction, sample >> 6]
+        bit = (sample & 63).astype(np.uint64)
+        stored = ((word >> bit) & np.uint64(1)).astype(bool)
+        below = word & ((np.uint64(1) << bit) - np.uint64(1))
+        index = self.word_base[direction, sample >> 6] + bit_counts(below[:, None])[:, 0]
+        return np.where(stored, index, -1)
+
+    def per_sample(self, values: np.ndarray) -> np.ndarray:
+        """(K,) int32: for each sample, how many of its stored entries have ``values`` (A,) True;
+        a few rows at a time (a whole table's (N, K) mask would take a byte an entry)."""
+        values = np.asarray(values, bool)
+        counts = np.zeros(self.samples, np.int64)
+        rows = max(1, (1 << 22) // max(self.samples, 1))
+        for first in range(0, self.directions, rows):
+            last = min(self.directions, first + rows)
+            sample = np.nonzero(self.mask(first, last))[1]
+            counts += np.bincount(sample[values[self.row_span(first, last)]], minlength=self.samples)
+        return counts.astype(np.int32)
+
+
+def _word_base(above_words: np.ndarray) -> tuple[np.ndarray, int]:
+    """(N, W) int64 index of each word's first entry (row-major running sum), and the total."""
+    counts = bit_counts(above_words)
+    base = np.zeros(counts.size, np.int64)
+    if counts.size:
+        np.cumsum(counts.reshape(-1)[:-1], out=base[1:])
+    return base.reshape(counts.shape), int(counts.sum())
+
+
 @dataclass
 class VisibilityTable:
     """S_i[p] for all samples of all objects, one row per direction.
 
     directions : (N, 3) float64
-    hit_object : (N, K) int16, object index, or MISS / BELOW_HORIZON / BACKFACE
-    hit_uv_code : (N, K, 2) uint16, atlas coordinate of the hit (:func:`encode_uv`; 0
-        where no hit); on a vertex-mode object, embree's barycentric (u, v) in the hit
-        triangle instead
-    hit_distance_code : (N, K) uint16, distance to the hit (:func:`encode_distance`;
-        NO_HIT_DISTANCE_CODE where nothing was hit), so shadow fractions can ignore
-        occluders beyond a local light
+    entries : :class:`TableEntries`, the entries above each sample's horizon. Per entry:
+        hit_object, int16 object index, or MISS / BACKFACE (BELOW_HORIZON where none is stored);
+        hit_uv_code, 2 uint16, atlas coordinate of the hit (:func:`encode_uv`; 0 where no hit);
+        on a vertex-mode object, triangle and barycentrics (:func:`encode_vertex_hit`) instead;
+        hit_distance_code, uint16 distance to the hit (:func:`encode_distance`;
+        NO_HIT_DISTANCE_CODE where nothing was hit), so shadow fractions can ignore occluders
+        beyond a local light
     vertex_cells : (O,) int64 per object, cells per row of a vertex-mode object's triangle
-        grid (:func:`vertex_cells`; 0 for atlas objects), whose hits' ``hit_uv_code`` hold
-        triangle and barycentrics (:func:`encode_vertex_hit`); None when the scene has no
+        grid (:func:`vertex_cells`; 0 for atlas objects); None when the scene has no
         vertex-mode object
+
+    ``hit_object``, ``hit_uv_code`` and ``hit_distance_code`` are the dense (N, K), (N, K, 2),
+    (N, K) arrays made on demand (:meth:`TableEntries.dense`): for tests and small tables only.
     """
 
     directions: np.ndarray
-    hit_object: np.ndarray
-    hit_uv_code: np.ndarray
-    hit_distance_code: np.ndarray
+    entries: TableEntries
     vertex_cells: np.ndarray | None = None
     rays_cast: int = 0
     rays_below_horizon: int = 0
     backface_hits: int = 0
     backface_per_sample: np.ndarray | None = None  # (K,) int32
     traced_per_sample: np.ndarray | None = None  # (K,) int32
+
+    @classmethod
+    def from_dense(cls, directions, hit_object, hit_uv_code, hit_distance_code, vertex_cells=None,
+                   **counters) -> "VisibilityTable":
+        """A table from dense (N, K) / (N, K, 2) / (N, K) code arrays (entries BELOW_HORIZON are
+        not stored)."""
+        return cls(directions, TableEntries.from_dense(hit_object, hit_uv_code, hit_distance_code), vertex_cells,
+                   **counters)
 
     def buried(self) -> np.ndarray:
         """(K,) bool: samples most of whose rays hit the back of a face.
@@ -180,44 +349,60 @@ class VisibilityTable:
             codes[on_vertices] = encode_vertex_hit(np.asarray(hit_triangle)[on_vertices],
                                                    np.asarray(hit_uv)[on_vertices],
                                                    vertex_cells[hit_object[on_vertices]])
-        return cls(directions, hit_object, codes, encode_distance(hit_distance), vertex_cells, **counters)
+        return cls.from_dense(directions, hit_object, codes, encode_distance(hit_distance), vertex_cells, **counters)
+
+    @property
+    def samples(self) -> int:
+        return self.entries.samples
 
     @property
     def nbytes(self) -> int:
-        return self.hit_object.nbytes + self.hit_uv_code.nbytes + self.hit_distance_code.nbytes
+        return self.entries.nbytes
 
-    def hit_uv(self, *index) -> np.ndarray:
-        """The decoded atlas coordinates (float32) of the entries ``table.hit_uv_code[index]``."""
-        return decode_uv(self.hit_uv_code[index])
+    @property
+    def hit_object(self) -> np.ndarray:
+        return self.entries.dense("hit_object")
 
-    def hit_vertex(self, *index) -> tuple[np.ndarray, np.ndarray]:
-        """The triangles (n,) int64 and barycentrics (n, 2) float32 of the entries
-        ``hit_uv_code[index]``, every one of which must have hit a vertex-mode object."""
-        objects = np.asarray(self.hit_object[index], np.int64).reshape(-1)
-        return decode_vertex_hit(np.asarray(self.hit_uv_code[index]).reshape(-1, 2), self.vertex_cells[objects])
+    @property
+    def hit_uv_code(self) -> np.ndarray:
+        return self.entries.dense("hit_uv_code")
 
-    def hit_distance(self, *index) -> np.ndarray:
-        """The decoded distances (float32, inf: nothing hit) of the entries ``hit_distance_code[index]``."""
-        return decode_distance(self.hit_distance_code[index])
+    @property
+    def hit_distance_code(self) -> np.ndarray:
+        return self.entries.dense("hit_distance_code")
 
-    def hit_distance_floor(self, *index) -> np.ndarray:
-        """The least distances (float64) the entries ``hit_distance_code[index]`` allow: where a
-        point is placed on a surface from the stored distance (a code spans 3.4e-4 of it, and a
-        point beyond the surface would be shadowed by it)."""
-        return decode_distance_floor(self.hit_distance_code[index])
+    def entry_uv(self, entry: np.ndarray) -> np.ndarray:
+        """The decoded atlas coordinates (n, 2) float32 of the stored entries ``entry`` (n,)."""
+        return decode_uv(self.entries.hit_uv_code[entry])
+
+    def entry_vertex(self, entry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles (n,) int64 and barycentrics (n, 2) float32 of the stored entries
+        ``entry`` (n,), every one of which must have hit a vertex-mode object."""
+        objects = np.asarray(self.entries.hit_object[entry], np.int64).reshape(-1)
+        return decode_vertex_hit(np.asarray(self.entries.hit_uv_code[entry]).reshape(-1, 2), self.vertex_cells[objects])
+
+    def entry_distance(self, entry: np.ndarray) -> np.ndarray:
+        """The decoded distances (float32, inf: nothing hit) of the stored entries ``entry``."""
+        return decode_distance(self.entries.hit_distance_code[entry])
+
+    def entry_distance_floor(self, entry: np.ndarray) -> np.ndarray:
+        """The least distances (float64) the stored entries ``entry`` allow: where a point is
+        placed on a surface from the stored distance (a code spans 3.4e-4 of it, and a point
+        beyond the surface would be shadowed by it)."""
+        return decode_distance_floor(self.entries.hit_distance_code[entry])
 
 
 class DeferredTable:
-    """A valid cached table whose large arrays (per sample and direction) are read from
-    disk on first use, so a bake whose lighting comes from the cache never reads them.
+    """A valid cached table whose entries (per sample and direction) are read from disk on
+    first use, so a bake whose lighting comes from the cache never reads them.
 
     Has every field of :class:`VisibilityTable`; the small ones (directions, per-sample
     counts, counters) are there at once, ``buried`` and ``nbytes`` need no read.
     """
 
-    LARGE = ("hit_object", "hit_uv_code", "hit_distance_code")
+    LARGE = ("entries",)
 
-    def __init__(self, small: dict, counters: dict, read_large):
+    def __init__(self, small: dict, counters: dict, read_large, nbytes: int):
         self.directions = small["directions"]
         self.vertex_cells = small.get("vertex_cells")
         self.traced_per_sample = small["traced_per_sample"]
@@ -227,6 +412,7 @@ class DeferredTable:
         self.backface_hits = int(self.backface_per_sample.sum())
         self._read_large = read_large
         self._large = None
+        self._nbytes = int(nbytes)
         self.read_seconds = 0.0
 
     @property
@@ -248,19 +434,32 @@ class DeferredTable:
     def buried(self) -> np.ndarray:
         return 2 * self.backface_per_sample > self.traced_per_sample
 
-    hit_uv = VisibilityTable.hit_uv
-    hit_vertex = VisibilityTable.hit_vertex
-    hit_distance = VisibilityTable.hit_distance
-    hit_distance_floor = VisibilityTable.hit_distance_floor
+    @property
+    def samples(self) -> int:
+        return len(self.traced_per_sample)
+
+    hit_object = VisibilityTable.hit_object
+    hit_uv_code = VisibilityTable.hit_uv_code
+    hit_distance_code = VisibilityTable.hit_distance_code
+    entry_uv = VisibilityTable.entry_uv
+    entry_vertex = VisibilityTable.entry_vertex
+    entry_distance = VisibilityTable.entry_distance
+    entry_distance_floor = VisibilityTable.entry_distance_floor
 
     @property
     def nbytes(self) -> int:
-        return table_bytes(len(self.directions), len(self.traced_per_sample))
+        return self._nbytes
+
+
+def entries_nbytes(directions: int, samples: int, stored: int) -> int:
+    """Bytes of the :class:`TableEntries` of ``stored`` entries of a (directions, samples) table."""
+    return directions * -(-samples // WORD_BITS) * 16 + stored * (2 + 4 + 2)
 
 
 def table_bytes(directions: int, samples: int) -> int:
-    """Memory the table of ``samples`` samples needs, for refusing before allocating."""
-    return directions * samples * (2 + 4 + 2)
+    """Memory the table of ``samples`` samples can need, for refusing before allocating: every
+    entry stored (a sample's horizon keeps about half), and the bits and word offsets."""
+    return directions * samples * (2 + 4 + 2) + directions * -(-samples // WORD_BITS) * 16
 
 
 @dataclass(frozen=True)
@@ -410,7 +609,7 @@ class RayBuffers:
     cost as long as the compiled ray set-up itself (docs/benchmarks.md, speed part 7). Pages
     are touched only as far as the largest chunk reaches.
 
-    direction_index, sample_index : (capacity,) int64; origins, directions, nearby :
+    direction_index, sample_index, entry : (capacity,) int64; origins, directions, nearby :
     (capacity, 3) float32; offsets : (capacity, 3) int32 (the set-up's scratch); hit_geometry,
     triangle : (capacity,) int32; bary : (capacity, 2) float32; distance : (capacity,) float32
     (:meth:`RayScene.intersect_local`'s results).
@@ -421,6 +620,7 @@ class RayBuffers:
         self.capacity = capacity
         self.direction_index = np.empty(capacity, np.int64)
         self.sample_index = np.empty(capacity, np.int64)
+        self.entry = np.empty(capacity, np.int64)
         self.origins = np.empty((capacity, 3), np.float32)
         self.directions = np.empty((capacity, 3), np.float32)
         self.offsets = np.empty((capacity, 3), np.int32)
@@ -458,12 +658,13 @@ def rays_where(mask: np.ndarray, start: int, buffers: RayBuffers | None = None, 
     return direction_index, sample_index
 
 
-def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+def _record(entries: TableEntries, geometry: HitGeometry, ray_directions: np.ndarray, entry: np.ndarray,
             hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
             where: np.ndarray | None = None, threads: int = 0) -> None:
-    """Write traced rays into the table arrays: hits, backfaces, and (unless ``where``) misses.
+    """Write traced rays into the table's stored entries ``entry`` (n,) int64: hits, backfaces,
+    and (unless ``where``) misses.
 
-    ``ray_directions`` (n, 3) are the rays' world directions, in the order of ``rows``/``cols``.
+    ``ray_directions`` (n, 3) are the rays' world directions, in the order of ``entry``.
 
     ``hit_geometry`` holds object indices (-1: miss). With ``where`` given, only
     those rays are written (an update that keeps the old entry elsewhere). ``threads``: the
@@ -473,8 +674,8 @@ def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows
     if module is not None:
         cells = geometry.vertex_cells()
         cells = np.zeros(len(geometry.triangle_offset), np.int64) if cells is None else cells
-        kernels.run(module.record, threads, table["hit_object"], table["hit_uv_code"], table["hit_distance_code"],
-                    np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64),
+        kernels.run(module.record, threads, entries.hit_object, entries.hit_uv_code, entries.hit_distance_code,
+                    np.ascontiguousarray(entry, np.int64),
                     np.ascontiguousarray(hit_geometry, np.int32), np.ascontiguousarray(triangle, np.int32),
                     np.ascontiguousarray(bary, np.float32), np.ascontiguousarray(distance, np.float32),
                     np.ascontiguousarray(ray_directions, np.float32),
@@ -483,19 +684,19 @@ def _record(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows
                     np.ascontiguousarray(geometry.corner_uv, np.float32), cells,
                     np.zeros(0, bool) if where is None else np.ascontiguousarray(where, bool), DISTANCE_SPLITS)
         return
-    _record_numpy(table, geometry, ray_directions, rows, cols, hit_geometry, triangle, bary, distance, where)
+    _record_numpy(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance, where)
 
 
-def _record_numpy(table: dict, geometry: HitGeometry, ray_directions: np.ndarray, rows: np.ndarray,
-                  cols: np.ndarray, hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray,
-                  distance: np.ndarray, where: np.ndarray | None = None) -> None:
+def _record_numpy(entries: TableEntries, geometry: HitGeometry, ray_directions: np.ndarray, entry: np.ndarray,
+                  hit_geometry: np.ndarray, triangle: np.ndarray, bary: np.ndarray, distance: np.ndarray,
+                  where: np.ndarray | None = None) -> None:
     """:func:`_record` in numpy, where the compiled kernels cannot load."""
     if where is None:
-        missed = hit_geometry < 0
-        table["hit_object"][rows[missed], cols[missed]] = MISS
-        table["hit_uv_code"][rows[missed], cols[missed]] = 0
-        table["hit_distance_code"][rows[missed], cols[missed]] = NO_HIT_DISTANCE_CODE
-        hit = ~missed
+        missed = entry[hit_geometry < 0]
+        entries.hit_object[missed] = MISS
+        entries.hit_uv_code[missed] = 0
+        entries.hit_distance_code[missed] = NO_HIT_DISTANCE_CODE
+        hit = hit_geometry >= 0
     else:
         hit = where & (hit_geometry >= 0)
     global_triangle = geometry.triangle_offset[hit_geometry[hit]] + triangle[hit]
@@ -514,36 +715,51 @@ def _record_numpy(table: dict, geometry: HitGeometry, ray_directions: np.ndarray
         on_vertices = (hit_cells > 0) & ~back
         codes[on_vertices] = encode_vertex_hit(triangle[hit][on_vertices], bary[hit][on_vertices],
                                                hit_cells[on_vertices])
-    table["hit_object"][rows[hit], cols[hit]] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
-    table["hit_uv_code"][rows[hit], cols[hit]] = codes
-    table["hit_distance_code"][rows[hit], cols[hit]] = encode_distance(distance[hit])
+    written = entry[hit]
+    entries.hit_object[written] = np.where(back, BACKFACE, hit_geometry[hit]).astype(np.int16)
+    entries.hit_uv_code[written] = codes
+    entries.hit_distance_code[written] = encode_distance(distance[hit])
 
 
-def _finish(directions: np.ndarray, arrays: dict, traced_per_sample: np.ndarray, rays_cast: int,
+def entries_at(entries: TableEntries, direction_index: np.ndarray, sample_index: np.ndarray,
+               threads: int = 0) -> np.ndarray:
+    """(n,) int64 the stored entries of (direction_index, sample_index) (n,) each, -1 where not
+    stored; compiled where the kernels load (:meth:`TableEntries.index` otherwise)."""
+    module = kernels.compiled()
+    if module is None:
+        return entries.index(direction_index, sample_index)
+    out = np.empty(len(direction_index), np.int64)
+    kernels.run(module.entries_at, threads, entries.above_words, entries.word_base,
+                np.ascontiguousarray(direction_index, np.int64), np.ascontiguousarray(sample_index, np.int64), out)
+    return out
+
+
+def _finish(directions: np.ndarray, entries: TableEntries, traced_per_sample: np.ndarray, rays_cast: int,
             geometry: HitGeometry, backface_per_sample: np.ndarray | None = None) -> VisibilityTable:
-    """The table of the traced ``arrays``; ``backface_per_sample`` (K,) int32 where the trace
+    """The table of the traced ``entries``; ``backface_per_sample`` (K,) int32 where the trace
     counted it already, else counted here."""
     if backface_per_sample is None:
-        backface_per_sample = np.count_nonzero(arrays["hit_object"] == BACKFACE, axis=0).astype(np.int32)
-    count, samples = arrays["hit_object"].shape
-    return VisibilityTable(directions=directions, **arrays, vertex_cells=geometry.vertex_cells(), rays_cast=rays_cast,
-                           rays_below_horizon=count * samples - int(traced_per_sample.sum()),
+        backface_per_sample = entries.per_sample(entries.hit_object == BACKFACE)
+    return VisibilityTable(directions=directions, entries=entries, vertex_cells=geometry.vertex_cells(),
+                           rays_cast=rays_cast,
+                           rays_below_horizon=entries.directions * entries.samples - int(traced_per_sample.sum()),
                            backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
                            traced_per_sample=traced_per_sample)
 
 
 def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
-    """A table from its stored arrays (see core.visibility.cache)."""
-    hit_object = arrays["hit_object"]
+    """A table from its stored arrays (see core.visibility.cache): its ``entries``
+    (:class:`TableEntries`), directions, vertex_cells and the per-sample counts."""
+    traced_per_sample = arrays["traced_per_sample"]
+    entries = arrays["entries"]
     backface_per_sample = arrays.get("backface_per_sample")
     if backface_per_sample is None:
-        backface_per_sample = np.count_nonzero(hit_object == BACKFACE, axis=0).astype(np.int32)
-    return VisibilityTable(directions=arrays["directions"], hit_object=hit_object, hit_uv_code=arrays["hit_uv_code"],
-                           hit_distance_code=arrays["hit_distance_code"], vertex_cells=arrays.get("vertex_cells"),
+        backface_per_sample = entries.per_sample(entries.hit_object == BACKFACE)
+    return VisibilityTable(directions=arrays["directions"], entries=entries, vertex_cells=arrays.get("vertex_cells"),
                            rays_cast=int(counters["rays_cast"]),
                            rays_below_horizon=int(counters["rays_below_horizon"]),
                            backface_hits=int(backface_per_sample.sum()), backface_per_sample=backface_per_sample,
-                           traced_per_sample=arrays["traced_per_sample"])
+                           traced_per_sample=traced_per_sample)
 
 
 def _vertex_mask(vertex_object) -> np.ndarray | None:
@@ -552,21 +768,63 @@ def _vertex_mask(vertex_object) -> np.ndarray | None:
     return np.asarray(vertex_object, bool)
 
 
-def _empty_arrays(count: int, samples: int) -> dict:
-    return {"hit_object": np.full((count, samples), BELOW_HORIZON, np.int16),
-            "hit_uv_code": np.zeros((count, samples, 2), np.uint16),
-            "hit_distance_code": np.full((count, samples), NO_HIT_DISTANCE_CODE, np.uint16)}
+def _word_chunk(count: int, chunk_rays: int) -> int:
+    """Samples per batch of about ``chunk_rays`` entries of ``count`` directions: a whole number
+    of 64-sample words, so that each batch owns its words of the entry bits."""
+    return max(WORD_BITS, chunk_rays // max(count, 1) // WORD_BITS * WORD_BITS)
+
+
+def above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int) -> tuple[np.ndarray, np.ndarray]:
+    """Which entries lie above their sample's horizon: (N, W) uint64 entry bits (:class:`TableEntries`)
+    and (K,) int32 how many per sample, for ``directions`` (N, 3) and ``horizon`` (K, 3)
+    (TraceRequest.horizon_normals), in batches of about ``chunk_rays`` entries (the whole (N, K)
+    product would take 8 bytes an entry: gigabytes at Production settings)."""
+    samples = len(horizon)
+    words = np.zeros((len(directions), -(-samples // WORD_BITS)), np.uint64)
+    counts = np.zeros(samples, np.int32)
+    chunk = _word_chunk(len(directions), chunk_rays)
+    for start in range(0, samples, chunk):
+        stop = min(samples, start + chunk)
+        above = (directions @ horizon[start:stop].T) > 0.0
+        counts[start:stop] = np.count_nonzero(above, axis=0)
+        words[:, start // WORD_BITS:-(-stop // WORD_BITS)] = words_of(above)
+    return words, counts
 
 
 def directions_above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int) -> np.ndarray:
-    """(K,) int32: how many of ``directions`` (N, 3) are above each sample's horizon (``horizon``
-    (K, 3), TraceRequest.horizon_normals), in batches of about ``chunk_rays`` entries (the whole
-    (K, N) product would take 8 bytes an entry: gigabytes at Production settings)."""
-    counts = np.zeros(len(horizon), np.int32)
-    chunk = max(1, chunk_rays // max(len(directions), 1))
-    for start in range(0, len(horizon), chunk):
-        counts[start:start + chunk] = np.count_nonzero(directions @ horizon[start:start + chunk].T > 0.0, axis=0)
-    return counts
+    """(K,) int32: how many of ``directions`` are above each sample's horizon (:func:`above_horizon`)."""
+    return above_horizon(directions, horizon, chunk_rays)[1]
+
+
+def rays_of_entries(entries: TableEntries, first_word: int, last_word: int, buffers: RayBuffers | None = None,
+                    threads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rays of the stored entries of samples [64 first_word, 64 last_word): (n,) int64
+    directions, samples and entries, row-major (direction-major, samples ascending); compiled
+    on ``threads`` into ``buffers`` where given (views of them are returned)."""
+    above = entries.above_words
+    start = entries.word_base[:, first_word]
+    stop = (entries.word_base[:, last_word] if last_word < above.shape[1]
+            else np.append(entries.word_base[1:, 0], entries.stored))
+    per_row = stop - start
+    count = int(per_row.sum())
+    module = kernels.compiled()
+    if module is None:
+        mask = mask_of(above[:, first_word:last_word], min(entries.samples, last_word * WORD_BITS)
+                       - first_word * WORD_BITS)
+        direction_index, sample_index = np.nonzero(mask)
+        row_offset = np.zeros(len(per_row), np.int64)
+        np.cumsum(per_row[:-1], out=row_offset[1:])
+        entry = start[direction_index] + np.arange(count) - row_offset[direction_index]
+        return direction_index, sample_index + first_word * WORD_BITS, entry
+    if buffers is None or buffers.capacity < count:
+        buffers = RayBuffers(count)
+    row_offset = np.zeros(len(per_row), np.int64)
+    np.cumsum(per_row[:-1], out=row_offset[1:])
+    direction_index, sample_index = buffers.direction_index[:count], buffers.sample_index[:count]
+    entry = buffers.entry[:count]
+    kernels.run(module.rays_of_words, threads, above, entries.word_base, np.int64(first_word), np.int64(last_word),
+                row_offset, direction_index, sample_index, entry)
+    return direction_index, sample_index, entry
 
 
 def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> VisibilityTable:
@@ -583,48 +841,97 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     VisibilityTable
     """
     directions, positions = request.directions, request.positions
-    chunk_rays = request.chunk_rays
     count = len(directions)
     samples = len(positions)
     hits = request.hits
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
-    arrays = _empty_arrays(count, samples)
-    horizon = request.horizon_normals()
-    chunk = max(1, chunk_rays // max(count, 1))
+    above_words, traced_per_sample = above_horizon(directions, request.horizon_normals(), request.chunk_rays)
+    entries = TableEntries.empty(above_words, samples)
+    chunk = _word_chunk(count, request.chunk_rays)
     rays_cast = 0
-    traced_per_sample = np.zeros(samples, np.int32)
     backface_per_sample = np.zeros(samples, np.int32)
     buffers = RayBuffers(min(chunk, samples) * count)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
         # Direction-major order: consecutive rays share a direction (coherent for
-        # embree) and land in one row of the table (contiguous writes).
-        above = (directions @ horizon[start:stop].T) > 0.0
-        traced_per_sample[start:stop] = np.count_nonzero(above, axis=0)
-        direction_index, sample_index = rays_where(above, start, buffers, ray_scene.threads)
+        # embree) and land in one row of the table (consecutive entries).
+        direction_index, sample_index, entry = rays_of_entries(entries, start // WORD_BITS, -(-stop // WORD_BITS),
+                                                               buffers, ray_scene.threads)
         if len(sample_index):
             origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
             hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
                 origins, ray_directions, out=buffers.hits(len(sample_index)))
-            _record(arrays, geometry, ray_directions, direction_index, sample_index, hit_geometry, triangle,
-                    bary, distance, threads=ray_scene.threads)
+            _record(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance,
+                    threads=ray_scene.threads)
             rays_cast += len(sample_index)
             # Counted while the chunk's entries are still in cache: over the whole table
             # afterwards, this was a separate pass of 0.1 s on the demo.
-            backface_per_sample[start:stop] = np.count_nonzero(arrays["hit_object"][:, start:stop] == BACKFACE,
-                                                               axis=0)
+            back = entries.hit_object[entry] == BACKFACE
+            backface_per_sample[start:stop] = np.bincount(sample_index[back] - start, minlength=stop - start)
         if progress is not None:
             progress(stop / samples)
-    return _finish(directions, arrays, traced_per_sample, rays_cast, geometry, backface_per_sample)
+    return _finish(directions, entries, traced_per_sample, rays_cast, geometry, backface_per_sample)
+
+
+def _ranks(entries: TableEntries, sample: int) -> np.ndarray:
+    """(N,) int64: each row's index of its first stored entry at or after ``sample`` (0 <= sample <= K)."""
+    if not entries.above_words.shape[1]:
+        return np.zeros(entries.directions, np.int64)
+    if sample >= entries.samples:
+        return np.append(entries.word_base[1:, 0], entries.stored)
+    word = entries.above_words[:, sample // WORD_BITS]
+    below = word & np.uint64((1 << (sample % WORD_BITS)) - 1)
+    return entries.word_base[:, sample // WORD_BITS] + bit_counts(below[:, None])[:, 0]
+
+
+def _run_index(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The indices of the runs [starts[i], starts[i] + counts[i]) (N,) each, one after another."""
+    total = int(counts.sum())
+    ends = np.cumsum(counts)
+    return np.arange(total, dtype=np.int64) + np.repeat(starts - (ends - counts), counts)
+
+
+def copy_columns(source: TableEntries, source_start: int, target: TableEntries, target_start: int, count: int) -> None:
+    """Copy the stored entries of samples [source_start, +count) of ``source`` to samples
+    [target_start, +count) of ``target``, whose entry bits there must be the same."""
+    if count <= 0:
+        return
+    from_first, from_last = _ranks(source, source_start), _ranks(source, source_start + count)
+    to_first = _ranks(target, target_start)
+    runs = from_last - from_first
+    if not np.array_equal(_ranks(target, target_start + count) - to_first, runs):
+        raise ValueError("the columns' entry bits differ between the two tables")
+    taken, put = _run_index(from_first, runs), _run_index(to_first, runs)
+    for name in ENTRY_ARRAYS:
+        getattr(target, name)[put] = getattr(source, name)[taken]
+
+
+def column_mask(entries: TableEntries, start: int, stop: int) -> np.ndarray:
+    """(N, stop - start) bool: which entries of samples [start, stop) are stored."""
+    first_word = start // WORD_BITS
+    mask = mask_of(entries.above_words[:, first_word:-(-stop // WORD_BITS)],
+                   -(-stop // WORD_BITS) * WORD_BITS - first_word * WORD_BITS)
+    return mask[:, start - first_word * WORD_BITS:stop - first_word * WORD_BITS]
+
+
+def dense_columns(entries: TableEntries, name: str, start: int, stop: int) -> np.ndarray:
+    """Samples [start, stop) of the per-entry array ``name`` as a dense (N, stop - start, ...)
+    array (:meth:`TableEntries.dense`, by columns)."""
+    dtype, tail, fill = ENTRY_ARRAYS[name]
+    mask = column_mask(entries, start, stop)
+    out = np.full((*mask.shape, *tail), fill, dtype)
+    first, last = _ranks(entries, start), _ranks(entries, stop)
+    out[mask] = getattr(entries, name)[_run_index(first, last - first)]
+    return out
 
 
 def concatenate_columns(tables: list[VisibilityTable]) -> VisibilityTable:
     """One table from the tables of consecutive sample ranges of one request (traced from
     :meth:`TraceRequest.rows` in order): equal to the whole request's :func:`trace_table`.
 
-    The (N, k) and (N, k, 2) arrays and the (k,) int32 per-sample counts are joined along the
-    sample axis; rays_cast, rays_below_horizon and backface_hits are summed; directions (N, 3)
-    float64 and vertex_cells (O,) int64 (or None) are shared and must be equal in all.
+    The entries are joined along the sample axis, row by row, and so are the (k,) int32
+    per-sample counts; rays_cast, rays_below_horizon and backface_hits are summed; directions
+    (N, 3) float64 and vertex_cells (O,) int64 (or None) are shared and must be equal in all.
 
     Raises ValueError for no table, or tables of different directions, vertex cells or
     counts of entries per sample."""
@@ -639,24 +946,29 @@ def concatenate_columns(tables: list[VisibilityTable]) -> VisibilityTable:
                 first.vertex_cells is not None and not np.array_equal(table.vertex_cells, first.vertex_cells)):
             raise ValueError("the tables have different vertex-mode objects")
     for table in tables:
-        samples = table.hit_object.shape[1]
-        shapes = (table.hit_object.shape, table.hit_uv_code.shape, table.hit_distance_code.shape)
-        if shapes != ((len(first.directions), samples), (len(first.directions), samples, 2),
-                      (len(first.directions), samples)):
-            raise ValueError(f"a table's arrays do not have one row per direction: {shapes}")
+        if table.entries.directions != len(first.directions):
+            raise ValueError(f"a table's entries do not have one row per direction: {table.entries.directions}")
         for name in ("traced_per_sample", "backface_per_sample"):
             per_sample = getattr(table, name)
-            if per_sample is None or len(per_sample) != samples:
+            if per_sample is None or len(per_sample) != table.samples:
                 raise ValueError(f"a table's {name} is missing or not one per sample")
-
-    def joined(name: str) -> np.ndarray:
-        return np.concatenate([getattr(table, name) for table in tables], axis=1)
+    count = len(first.directions)
+    samples = sum(table.samples for table in tables)
+    words = np.zeros((count, -(-samples // WORD_BITS)), np.uint64)
+    rows = max(1, (1 << 22) // max(samples, 1))
+    for low in range(0, count, rows):
+        high = min(count, low + rows)
+        words[low:high] = words_of(np.concatenate([table.entries.mask(low, high) for table in tables], axis=1))
+    joined = TableEntries.empty(words, samples)
+    offset = 0
+    for table in tables:
+        copy_columns(table.entries, 0, joined, offset, table.samples)
+        offset += table.samples
 
     def per_sample(name: str) -> np.ndarray:
         return np.concatenate([getattr(table, name) for table in tables])
 
-    return VisibilityTable(directions=first.directions, hit_object=joined("hit_object"),
-                           hit_uv_code=joined("hit_uv_code"), hit_distance_code=joined("hit_distance_code"),
+    return VisibilityTable(directions=first.directions, entries=joined,
                            vertex_cells=first.vertex_cells, rays_cast=sum(int(t.rays_cast) for t in tables),
                            rays_below_horizon=sum(int(t.rays_below_horizon) for t in tables),
                            backface_hits=sum(int(t.backface_hits) for t in tables),
@@ -708,8 +1020,6 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                  changed_scene: RayScene, changed: list[int], request: TraceRequest, progress=None):
     """The table after some objects changed, reusing every entry that cannot have changed.
 
-    ``old``'s arrays are updated in place when the sample layout is unchanged.
-
     Unchanged objects' samples keep their positions and horizons, so an entry of theirs
     changes only if its ray used to hit a changed object (retraced against the whole
     scene), or if a changed object now lies nearer than the old hit (found by tracing
@@ -736,20 +1046,22 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     samples = len(positions)
     objects = len(sample_offset) - 1
     hits = request.hits
-    vertex_object = _vertex_mask(hits.vertex_object)
-    in_place = np.array_equal(old_offset, sample_offset)
-    if in_place:
-        # Same layout (a moved object keeps its samples): update the old arrays where they are.
-        arrays = {"hit_object": old.hit_object, "hit_uv_code": old.hit_uv_code,
-                  "hit_distance_code": old.hit_distance_code}
-    else:
-        arrays = _empty_arrays(count, samples)
-    geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, vertex_object)
+    geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
     origins_all = ray_scene.ray_origins(positions, geometric_normals)
     horizon = request.horizon_normals()
-    traced_per_sample = directions_above_horizon(directions, horizon, chunk_rays)
+    # The stored entries are those above the new horizons: a changed object's samples may store
+    # others than before, so the entries are laid out anew and the unchanged samples' copied.
+    above_words, traced_per_sample = above_horizon(directions, horizon, chunk_rays)
+    entries = TableEntries.empty(above_words, samples)
     is_changed = np.zeros(objects, bool)
     is_changed[list(changed)] = True
+    retrace = is_changed.copy()
+    for index in np.nonzero(~is_changed)[0]:
+        try:
+            copy_columns(old.entries, int(old_offset[index]), entries, int(sample_offset[index]),
+                         int(sample_offset[index + 1] - sample_offset[index]))
+        except ValueError:
+            retrace[index] = True  # its horizons moved after all: trace its samples afresh
     changed_map = np.asarray(changed, np.int32)
     # A ray starts up to the footprint's reach from its sample: widen the spheres by it.
     reach = request.footprint_reach()
@@ -762,21 +1074,13 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
         a, b = int(sample_offset[index]), int(sample_offset[index + 1])
         spans.extend((index, start, min(b, start + chunk)) for start in range(a, b, chunk))
     buffers = RayBuffers(min(chunk, samples) * count)
+    threads = ray_scene.threads
     for done, (index, start, stop) in enumerate(spans):
         cols = slice(start, stop)
-        if is_changed[index]:
-            redo = (directions @ horizon[cols].T) > 0.0
-            if in_place:
-                arrays["hit_object"][:, cols] = BELOW_HORIZON
-                arrays["hit_uv_code"][:, cols] = 0
-                arrays["hit_distance_code"][:, cols] = NO_HIT_DISTANCE_CODE
+        if retrace[index]:
+            redo = column_mask(entries, start, stop)
         else:
-            if not in_place:
-                old_start = int(old_offset[index]) + start - int(sample_offset[index])
-                old_cols = slice(old_start, old_start + stop - start)
-                for name in arrays:
-                    arrays[name][:, cols] = getattr(old, name)[:, old_cols]
-            code = arrays["hit_object"][:, cols]
+            code = dense_columns(entries, "hit_object", start, stop)
             hit_changed = np.zeros(code.shape, bool)
             hits = code >= 0
             hit_changed[hits] = is_changed[code[hits]]
@@ -784,18 +1088,18 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
             probe = (code == MISS) | (hits & ~hit_changed)
             probe &= _may_hit_spheres(origins_all[cols], directions, spheres, request, cols)
             counts.kept += int(np.count_nonzero((code == MISS) | (hits & ~hit_changed))) - int(np.count_nonzero(probe))
-            direction_index, sample_index = rays_where(probe, start, buffers, ray_scene.threads)
+            direction_index, sample_index = rays_where(probe, start, buffers, threads)
             if len(sample_index):
+                entry = entries_at(entries, direction_index, sample_index, threads)
                 # The changed objects' scene shares the whole scene's frame (its centre).
                 origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
                 found, triangle, bary, distance = changed_scene.intersect_local(
                     origins, ray_directions, out=buffers.hits(len(sample_index)))
-                rows, where = direction_index, sample_index
-                new_code, old_code = encode_distance(distance), arrays["hit_distance_code"][rows, where]
+                new_code, old_code = encode_distance(distance), entries.hit_distance_code[entry]
                 nearer = (found >= 0) & (new_code < old_code)
                 mapped = np.where(found >= 0, changed_map[np.maximum(found, 0)], -1).astype(np.int32)
-                _record(arrays, geometry, ray_directions, rows, where, mapped, triangle, bary, distance, where=nearer,
-                        threads=ray_scene.threads)
+                _record(entries, geometry, ray_directions, entry, mapped, triangle, bary, distance, where=nearer,
+                        threads=threads)
                 counts.changed_only += len(sample_index)
                 counts.kept += len(sample_index) - int(np.count_nonzero(nearer))
                 # A changed object as far as the old hit, within one distance code: which is nearer
@@ -804,19 +1108,20 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
                 if len(tied):
                     hit_geometry, triangle, bary, distance = ray_scene.intersect_local(origins[tied],
                                                                                        ray_directions[tied])
-                    _record(arrays, geometry, ray_directions[tied], rows[tied], where[tied], hit_geometry, triangle,
-                            bary, distance, threads=ray_scene.threads)
+                    _record(entries, geometry, ray_directions[tied], entry[tied], hit_geometry, triangle,
+                            bary, distance, threads=threads)
                     counts.full += len(tied)
                     counts.kept -= len(tied)
-        direction_index, sample_index = rays_where(redo, start, buffers, ray_scene.threads)
+        direction_index, sample_index = rays_where(redo, start, buffers, threads)
         if len(sample_index):
+            entry = entries_at(entries, direction_index, sample_index, threads)
             origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
             hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
                 origins, ray_directions, out=buffers.hits(len(sample_index)))
-            _record(arrays, geometry, ray_directions, direction_index, sample_index, hit_geometry, triangle,
-                    bary, distance, threads=ray_scene.threads)
+            _record(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance,
+                    threads=threads)
             counts.full += len(sample_index)
         if progress is not None:
             progress((done + 1) / len(spans))
-    table = _finish(directions, arrays, traced_per_sample, int(traced_per_sample.sum()), geometry)
+    table = _finish(directions, entries, traced_per_sample, int(traced_per_sample.sum()), geometry)
     return table, counts

@@ -11,7 +11,7 @@ from core.pipeline.prepare import prepare
 from core.scene import Light, Material, Scene
 from core.settings import BakeSettings
 from core.visibility.cache import (
-    ABOVE_HORIZON_BITS,
+    ABOVE_WORDS,
     CacheFull,
     CorruptCache,
     VisibilityCache,
@@ -65,20 +65,29 @@ def test_the_file_holds_the_entries_above_the_horizon_and_its_size_is_known_befo
     assert status.estimated_bytes == packed_bytes(table) == sum(a.nbytes for a in packed.values())
     # The file adds a header and the per-sample arrays to the estimate, a few kilobytes.
     assert 0 < status.bytes_on_disk - status.estimated_bytes < 16384
-    assert status.estimated_bytes < 0.75 * table.nbytes
+    dense_bytes = table.hit_object.size * (2 + 4 + 2)
+    assert status.estimated_bytes < 0.75 * dense_bytes
+    # Memory holds the same entries, and each word's first entry (8 bytes a word of 64 entries).
+    assert table.nbytes == status.estimated_bytes + table.entries.word_base.nbytes
 
 
 def test_entries_that_do_not_fit_their_bits_are_refused(tmp_path):
     table = prepare(_scene(), SETTINGS, table_needed=True).table
-    shape = table.hit_object.shape
+    samples = table.samples
     good = pack_entries(table)
-    np.testing.assert_array_equal(unpack_entries(dict(good), shape)["hit_object"], table.hit_object)
+    np.testing.assert_array_equal(unpack_entries(dict(good), samples).dense("hit_object"), table.hit_object)
     short = dict(good, hit_uv_code=good["hit_uv_code"][:-1])
-    bits = dict(good, **{ABOVE_HORIZON_BITS: good[ABOVE_HORIZON_BITS][:-1]})
+    bits = dict(good, **{ABOVE_WORDS: good[ABOVE_WORDS][:, :-1]})
+    # A bit past the last sample: an entry no sample owns.
+    stray = good[ABOVE_WORDS].copy()
+    stray[0, -1] |= np.uint64(1) << np.uint64(63)
+    beyond = dict(good, **{ABOVE_WORDS: stray})
     retyped = dict(good, hit_object=good["hit_object"].astype(np.int32))
-    for crafted, reason in ((short, "hit_uv_code"), (bits, "entry bits"), (retyped, "hit_object")):
+    assert samples % 64, "the scene's sample count must leave unused bits in the last word"
+    for crafted, reason in ((short, "hit_uv_code"), (bits, "entry bits"), (retyped, "hit_object"),
+                            (beyond, "samples the table does not have")):
         with pytest.raises(CorruptCache, match=reason):
-            unpack_entries(crafted, shape)
+            unpack_entries(crafted, samples)
 
 
 def _slot(folder, name: str, sizes: dict, used: float) -> str:

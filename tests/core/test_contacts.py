@@ -175,7 +175,7 @@ def test_compiled_contact_passes_are_bitwise_those_of_numpy(monkeypatch, scene):
     sample, direction = entries.sample, entries.direction
     rng = np.random.default_rng(3)
     obj = np.concatenate([p.table.hit_object[direction, sample], rng.integers(0, len(sizes), 3000), [0, 1]])
-    uv = np.concatenate([p.table.hit_uv(direction, sample), rng.random((3000, 2), np.float32),
+    uv = np.concatenate([p.table.entry_uv(p.table.entries.index(direction, sample)), rng.random((3000, 2), np.float32),
                          np.array([[0.0, 0.0], [1.0, 1.0]], np.float32)])
     owners = contacts._texel_owners(p, obj.astype(np.int64), uv)
     _bitwise((owners,), (contacts._texel_owners_numpy(p, obj.astype(np.int64), uv),))

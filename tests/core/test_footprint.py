@@ -10,7 +10,7 @@ from core.sampling.samples import build_samples
 from core.scene import Light, Scene
 from core.settings import BakeSettings
 from core.transport.direct import lamp_irradiance
-from core.visibility.table import TraceRequest, trace_table, update_table
+from core.visibility.table import TraceRequest, decode_uv, trace_table, update_table
 from core_scenes import quad_mesh
 
 
@@ -87,7 +87,7 @@ def test_the_table_starts_each_direction_from_its_footprint_point_and_updates_re
     centres = trace_table(p.ray_scene, TraceRequest(p.directions, p.position, p.geometric, _hits(p),
                                                     rotations=p.rotations, group=p.group))
     hit = fresh.hit_object >= 0
-    moved = np.abs(fresh.hit_uv() - centres.hit_uv()).max(axis=2)[hit]
+    moved = np.abs(decode_uv(fresh.hit_uv_code) - decode_uv(centres.hit_uv_code)).max(axis=2)[hit]
     assert np.count_nonzero(moved > 1e-4) > 0.5 * np.count_nonzero(hit)  # the rays did start elsewhere
     # Move the blocker: the incremental update (spheres widened by the footprint's reach)
     # gives exactly the fresh table of the moved scene.

@@ -83,6 +83,37 @@ def test_compiled_gather_of_chosen_samples_and_direction_ranges_matches_numpy():
     assert empty.shape == (300, 6) and not np.any(empty)
 
 
+def test_the_bare_walk_reads_one_texel_per_hit_entry_walking_words_or_finding_each_entry():
+    from core.visibility.table import decode_uv
+
+    table, normals, layout, radiance, *_ = _random_scene(4, samples=300)
+    entries = table.entries
+    objects, uv = entries.dense("hit_object"), decode_uv(entries.dense("hit_uv_code"))
+    widths, heights, offsets = (np.asarray(a, np.int64) for a in (layout.widths, layout.heights, layout.offsets))
+
+    def walk(samples, first, stop):
+        out = np.zeros((len(samples), radiance.shape[1]))
+        kernels.run(kernels.compiled().bare_lookup, 2, entries.above_words, entries.word_base, entries.hit_object,
+                    entries.hit_uv_code, samples, first, stop, radiance, widths, heights, offsets, out)
+        return out
+
+    def expected(samples, first, stop):
+        out = np.zeros((len(samples), radiance.shape[1]))
+        for i in range(first, stop):
+            for j, s in enumerate(samples):
+                obj = objects[i, s]
+                if obj >= 0:
+                    x = np.int64(uv[i, s, 0] * np.float32(widths[obj]))
+                    y = np.int64(uv[i, s, 1] * np.float32(heights[obj]))
+                    out[j] += radiance[offsets[obj] + y * (widths[obj] + 1) + x]
+        return out
+
+    # Every sample (whole words, the last one partial), a run not starting on a word, a scattered choice.
+    for samples in (np.arange(300), np.arange(70, 300), np.array([5, 0, 299, 17, 17, 120]), np.arange(64)):
+        samples = samples.astype(np.int64)
+        np.testing.assert_allclose(walk(samples, 3, 40), expected(samples, 3, 40), rtol=1e-6)
+
+
 def test_normalisation_and_ambient_occlusion_match_numpy(monkeypatch):
     table, normals, *_ = _random_scene(3, vertex=False)
     scale = gather_normalisation(table, normals)
@@ -190,22 +221,29 @@ def test_compiled_table_writes_are_bitwise_those_of_numpy(vertex, masked):
     distance[:len(edges)] = edges.astype(np.float32)
     directions = rng.normal(size=(n, 3)).astype(np.float32)
     where = rng.random(n) < 0.5 if masked else None
+    # An old table whose stored entries are the rays' (and a few more), partly overwritten when masked.
+    stored = np.zeros((count, samples), bool)
+    stored[rows, cols] = True
+    stored |= rng.random((count, samples)) < 0.1
+    old = np.where(stored, 1, table_module.BELOW_HORIZON).astype(np.int16)
     written = []
     for record in (table_module._record, table_module._record_numpy):
-        arrays = table_module._empty_arrays(count, samples)
-        arrays["hit_object"][:] = 1  # an old table, partly overwritten when masked
-        record(arrays, geometry, directions, rows, cols, hit_geometry, triangle, bary, distance, where)
-        written.append(arrays)
-    for name in written[0]:
-        np.testing.assert_array_equal(written[0][name], written[1][name], err_msg=name)
-    assert np.any(written[0]["hit_object"] == -3) and np.any(written[0]["hit_uv_code"] > 0)
+        entries = table_module.TableEntries.from_dense(old, np.zeros((count, samples, 2), np.uint16),
+                                                       np.zeros((count, samples), np.uint16))
+        entry = entries.index(rows, cols)
+        assert np.all(entry >= 0)
+        record(entries, geometry, directions, entry, hit_geometry, triangle, bary, distance, where)
+        written.append(entries)
+    for name in table_module.ENTRY_ARRAYS:
+        np.testing.assert_array_equal(getattr(written[0], name), getattr(written[1], name), err_msg=name)
+    assert np.any(written[0].hit_object == -3) and np.any(written[0].hit_uv_code > 0)
     if vertex:
         # The vertex-mode hits' triangles and barycentrics come back from their codes.
-        on_vertices = written[0]["hit_object"][rows, cols] == 1
+        on_vertices = written[0].hit_object[entry] == 1
         if masked:
             on_vertices &= where & (hit_geometry >= 0)
-        table = VisibilityTable(np.zeros((count, 3)), **written[0], vertex_cells=geometry.vertex_cells())
-        back, barycentric = table.hit_vertex(rows[on_vertices], cols[on_vertices])
+        table = VisibilityTable(np.zeros((count, 3)), written[0], vertex_cells=geometry.vertex_cells())
+        back, barycentric = table.entry_vertex(entry[on_vertices])
         np.testing.assert_array_equal(back, triangle[on_vertices])
         steps = 65536 // geometry.vertex_cells()[1] - 1
         assert np.max(np.abs(barycentric - bary[on_vertices])) <= 0.5 / steps + 1e-7
@@ -278,32 +316,58 @@ def test_compiled_rays_to_trace_are_numpy_s_nonzero_for_any_thread_count(monkeyp
     np.testing.assert_array_equal(cols, np.nonzero(above)[1] + 1000)
 
 
-def test_compiled_packing_of_the_stored_table_is_bitwise_that_of_numpy(monkeypatch):
-    from core.visibility import cache as cache_module
-    from core.visibility.table import BELOW_HORIZON, VisibilityTable
+@pytest.mark.parametrize("samples", [101, 128, 1])
+def test_stored_entries_are_found_alike_compiled_and_in_numpy(monkeypatch, samples):
+    from core.visibility.table import (
+        BELOW_HORIZON,
+        ENTRY_ARRAYS,
+        TableEntries,
+        entries_at,
+        mask_of,
+        rays_of_entries,
+        words_of,
+    )
 
     rng = np.random.default_rng(7)
-    shape = (37, 101)
+    shape = (37, samples)
     hit_object = rng.integers(-3, 4, shape).astype(np.int16)
     hit_object[5] = BELOW_HORIZON  # a row with nothing stored
     hit_object[:, 0] = 2  # a column with everything stored
-    table = VisibilityTable(np.zeros((shape[0], 3)), hit_object, rng.integers(0, 65536, (*shape, 2), np.uint16),
-                            rng.integers(0, 65536, shape, np.uint16))
-    below = hit_object == BELOW_HORIZON  # as every table holds them: no hit's codes
-    table.hit_uv_code[below] = 0
-    table.hit_distance_code[below] = 65535
-    compiled = cache_module.pack_entries(table, threads=3)
+    hit_uv_code = rng.integers(0, 65536, (*shape, 2), np.uint16)
+    hit_distance_code = rng.integers(0, 65536, shape, np.uint16)
+    entries = TableEntries.from_dense(hit_object, hit_uv_code, hit_distance_code)
+    stored = hit_object != BELOW_HORIZON
+    np.testing.assert_array_equal(mask_of(words_of(stored), samples), stored)
+    assert entries.stored == np.count_nonzero(stored) and entries.above_words.shape == (37, -(-samples // 64))
+    # The dense view gives back every stored entry, and no-entry values elsewhere.
+    for name, dense in (("hit_object", hit_object), ("hit_uv_code", hit_uv_code),
+                        ("hit_distance_code", hit_distance_code)):
+        fill = ENTRY_ARRAYS[name][2]
+        np.testing.assert_array_equal(entries.dense(name), np.where(stored[(...,) + (None,) * (dense.ndim - 2)],
+                                                                    dense, fill), err_msg=name)
+        np.testing.assert_array_equal(entries.dense(name, 3, 9), entries.dense(name)[3:9], err_msg=name)
+    direction, sample = np.meshgrid(np.arange(shape[0]), np.arange(samples), indexing="ij")
+    direction, sample = direction.reshape(-1), sample.reshape(-1)
+    numpy_index = entries.index(direction, sample)
+    np.testing.assert_array_equal(numpy_index, np.where(stored.reshape(-1), np.cumsum(stored.reshape(-1)) - 1, -1))
+    np.testing.assert_array_equal(entries_at(entries, direction, sample, threads=3), numpy_index)
+    words = entries.above_words.shape[1]
+    compiled = [array.copy() for array in rays_of_entries(entries, 0, words, threads=2)]
+    compiled_part = [array.copy() for array in rays_of_entries(entries, words - 1, words)]
     monkeypatch.setattr(kernels, "_module", None)
-    fallback = cache_module.pack_entries(table)
-    assert compiled.keys() == fallback.keys()
-    for name in compiled:
-        np.testing.assert_array_equal(compiled[name], fallback[name], err_msg=name)
-    unpacked_numpy = cache_module.unpack_entries(fallback, shape)
-    monkeypatch.undo()
-    unpacked = cache_module.unpack_entries(compiled, shape, threads=2)
-    for name in ("hit_object", "hit_uv_code", "hit_distance_code"):
-        np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
-        np.testing.assert_array_equal(unpacked_numpy[name], getattr(table, name), err_msg=name)
+    reference = rays_of_entries(entries, 0, words)
+    part = rays_of_entries(entries, words - 1, words)
+    np.testing.assert_array_equal(entries_at(entries, direction, sample), numpy_index)
+    expected_rows, expected_cols = np.nonzero(stored)
+    for ours, theirs, expected in zip(compiled, reference, (expected_rows, expected_cols,
+                                                             np.arange(entries.stored))):
+        np.testing.assert_array_equal(ours, expected)
+        np.testing.assert_array_equal(theirs, expected)
+    last = expected_cols >= (words - 1) * 64
+    for ours, theirs, expected in zip(compiled_part, part, (expected_rows[last], expected_cols[last],
+                                                             np.nonzero(last)[0])):
+        np.testing.assert_array_equal(ours, expected)
+        np.testing.assert_array_equal(theirs, expected)
 
 
 def test_compiled_footprints_are_bitwise_those_of_numpy_and_their_corners_agree(monkeypatch):
@@ -341,13 +405,14 @@ def test_a_table_with_nothing_above_the_horizon_packs_to_nothing_and_back():
     from core.visibility.table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE, VisibilityTable
 
     shape = (3, 9)
-    table = VisibilityTable(np.zeros((3, 3)), np.full(shape, BELOW_HORIZON, np.int16), np.zeros((*shape, 2), np.uint16),
-                            np.full(shape, NO_HIT_DISTANCE_CODE, np.uint16))
-    packed = cache_module.pack_entries(table, threads=2)
+    table = VisibilityTable.from_dense(np.zeros((3, 3)), np.full(shape, BELOW_HORIZON, np.int16),
+                                       np.zeros((*shape, 2), np.uint16),
+                                       np.full(shape, NO_HIT_DISTANCE_CODE, np.uint16))
+    packed = cache_module.pack_entries(table)
     assert len(packed["hit_object"]) == len(packed["hit_uv_code"]) == 0
-    unpacked = cache_module.unpack_entries(packed, shape, threads=2)
+    unpacked = cache_module.unpack_entries(packed, shape[1])
     for name in ("hit_object", "hit_uv_code", "hit_distance_code"):
-        np.testing.assert_array_equal(unpacked[name], getattr(table, name), err_msg=name)
+        np.testing.assert_array_equal(unpacked.dense(name), getattr(table, name), err_msg=name)
 
 
 def test_compiled_bilinear_points_are_bitwise_those_of_numpy(monkeypatch):
@@ -478,7 +543,8 @@ def test_compiled_close_entries_and_exposed_shares_are_bitwise_numpy_s_for_any_t
     rng = np.random.default_rng(13)
     # Every kind of entry, distances of every scale, and more samples than one block of exposed_share.
     table, normals, *_ = _random_scene(13, samples=1500, vertex=False)
-    table.hit_distance_code[:] = encode_distance(rng.lognormal(-2.0, 2.0, table.hit_distance_code.shape))
+    stored = table.entries.hit_distance_code
+    stored[:] = encode_distance(rng.lognormal(-2.0, 2.0, stored.shape))
     scale = gather_normalisation(table, normals)
     reaches = [(np.array([0.05, np.inf]), None), (np.array([0.3, 0.0]), rng.uniform(0, 0.5, 1500).astype(np.float32))]
     for threads in (1, 2):

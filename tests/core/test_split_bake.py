@@ -103,7 +103,10 @@ def test_the_split_table_holds_the_whole_table_s_rows():
         assert np.array_equal(getattr(joined, name), getattr(whole.table, name)), name
     assert np.array_equal(split.table.buried(), whole.table.buried())
     assert split.table.rays_cast == whole.table.rays_cast == split.visibility_rays
-    assert split.table.nbytes == whole.table.nbytes  # in process, the ranges are all here
+    # In process, the ranges are all here: the same entries, and each range's rows may end in a
+    # word of entry bits of its own (16 bytes a direction with its first entry's index).
+    extra = split.table.nbytes - whole.table.nbytes
+    assert 0 <= extra <= 16 * len(whole.table.directions) * (len(split.table.ranges) - 1)
 
 
 def test_a_split_table_is_not_read_by_another_device():

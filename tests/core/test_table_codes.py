@@ -5,6 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from core.visibility.table import (
+    BELOW_HORIZON,
     DISTANCE_CODES_PER_OCTAVE,
     MAX_VERTEX_TRIANGLES,
     NO_HIT_DISTANCE_CODE,
@@ -60,13 +61,14 @@ def test_distance_codes_keep_order_and_mark_what_was_not_hit():
 
 
 def test_an_entry_takes_eight_bytes_also_with_vertex_mode_objects():
-    assert table_bytes(10, 100) == 8 * 1000
+    # 8 bytes an entry, and 16 per direction and 64 samples: the entry bits and each word's first entry.
+    assert table_bytes(10, 100) == 8 * 1000 + 10 * 2 * 16
     d = np.eye(3)
     table = VisibilityTable.from_values(d, np.zeros((3, 100), np.int16), np.full((3, 100, 2), 0.25),
                                         np.ones((3, 100)))
     assert table.nbytes == table_bytes(3, 100)
-    np.testing.assert_allclose(table.hit_uv(1, np.arange(4)), 0.25, atol=1e-5)
-    assert np.all(table.hit_distance(2) == 1.0)
+    np.testing.assert_allclose(table.entry_uv(table.entries.index(np.ones(4, int), np.arange(4))), 0.25, atol=1e-5)
+    assert np.all(table.entry_distance(table.entries.row_span(2, 3)) == 1.0)
     # Object 1 in vertex mode, 7 triangles: its hits keep triangle and barycentrics in the same codes.
     objects = np.tile(np.array([0, 1], np.int16), (3, 50))
     triangles = np.tile(np.arange(100) % 7, (3, 1))
@@ -74,10 +76,14 @@ def test_an_entry_takes_eight_bytes_also_with_vertex_mode_objects():
                                         vertex_cells([4, 7], [False, True]))
     assert mixed.nbytes == table_bytes(3, 100)
     rows, columns = np.nonzero(objects == 1)
-    triangle, bary = mixed.hit_vertex(rows, columns)
+    triangle, bary = mixed.entry_vertex(mixed.entries.index(rows, columns))
     np.testing.assert_array_equal(triangle, triangles[rows, columns])
     np.testing.assert_allclose(bary, 0.25, atol=0.5 / (65536 // 3 - 1) + 1e-7)
-    np.testing.assert_allclose(mixed.hit_uv(0, 0), 0.25, atol=1e-5)
+    np.testing.assert_allclose(mixed.entry_uv(mixed.entries.index([0], [0])), 0.25, atol=1e-5)
+    # Half the entries below the horizon: only the other half is stored.
+    below = np.where(np.arange(100) % 2 == 0, objects, BELOW_HORIZON)
+    half = VisibilityTable.from_values(d, below, np.full((3, 100, 2), 0.25), np.ones((3, 100)))
+    assert half.nbytes == table_bytes(3, 100) - 3 * 50 * 8
 
 
 @pytest.mark.parametrize("count", [1, 2, 4, 5, 1280, 65536, 1_000_003, MAX_VERTEX_TRIANGLES])
