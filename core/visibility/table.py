@@ -155,7 +155,7 @@ def words_of(mask: np.ndarray) -> np.ndarray:
 def mask_of(words: np.ndarray, samples: int) -> np.ndarray:
     """:func:`words_of` undone: (n, W) uint64 -> (n, samples) bool."""
     words = np.ascontiguousarray(words, "<u8")
-    return np.unpackbits(words.view(np.uint8).reshape(len(words), -1), axis=1, count=samples,
+    return np.unpackbits(words.view(np.uint8).reshape(words.shape[0], words.shape[1] * 8), axis=1, count=samples,
                          bitorder="little").view(bool)
 
 

@@ -562,3 +562,27 @@ def test_compiled_close_entries_and_exposed_shares_are_bitwise_numpy_s_for_any_t
             assert share.dtype == np.float64
             np.testing.assert_array_equal(share, contacts._exposed_share_numpy(table, slots))
             assert slots == 1 or np.any((share > 0) & (share < 1))
+
+
+def test_columns_copy_run_by_run_between_tables_and_refuse_other_entry_bits():
+    from core.visibility.table import BELOW_HORIZON, TableEntries, copy_columns, dense_columns
+
+    rng = np.random.default_rng(2)
+    shape = (11, 150)
+    hit_object = np.where(rng.random(shape) < 0.6, rng.integers(-3, 5, shape), BELOW_HORIZON).astype(np.int16)
+    uv = rng.integers(0, 65536, (*shape, 2), np.uint16)
+    distance = rng.integers(0, 65536, shape, np.uint16)
+    source = TableEntries.from_dense(hit_object, uv, distance)
+    # Columns 20..90 of the source become columns 50..120 of a table with the same bits there.
+    target_object = np.where(rng.random(shape) < 0.5, 7, BELOW_HORIZON).astype(np.int16)
+    target_object[:, 50:120] = np.where(hit_object[:, 20:90] == BELOW_HORIZON, BELOW_HORIZON, 9)
+    target = TableEntries.from_dense(target_object, np.zeros((*shape, 2), np.uint16), np.zeros(shape, np.uint16))
+    copy_columns(source, 20, target, 50, 70)
+    for name, dense in (("hit_object", hit_object), ("hit_uv_code", uv), ("hit_distance_code", distance)):
+        np.testing.assert_array_equal(dense_columns(target, name, 50, 120), dense_columns(source, name, 20, 90),
+                                      err_msg=name)
+        np.testing.assert_array_equal(dense_columns(source, name, 20, 90), source.dense(name)[:, 20:90], err_msg=name)
+    # Outside the copied columns the target is untouched.
+    np.testing.assert_array_equal(target.dense("hit_object")[:, :50], target_object[:, :50])
+    with pytest.raises(ValueError, match="entry bits differ"):
+        copy_columns(source, 0, target, 0, 150)
