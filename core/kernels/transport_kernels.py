@@ -69,6 +69,28 @@ def _vertex_add(acc, j, radiance, weight, corners, u, v, nearest):
 
 
 @nb.njit(inline="always")
+def _whole_words(samples, start, size):
+    """Whether samples[start:start + size] are consecutive from a multiple of 64: the block is
+    whole words of the entry bits (its last perhaps cut short), whose stored entries can be walked."""
+    if samples[start] % 64 != 0:
+        return False
+    for j in range(size):
+        if samples[start + j] != samples[start] + j:
+            return False
+    return True
+
+
+@nb.njit(inline="always")
+def _block_word(above_words, i, first_word, w, size):
+    """Word ``w`` of a block of ``size`` samples from word ``first_word``, in direction i, without
+    the bits of samples past the block."""
+    word = above_words[i, first_word + w]
+    if (w + 1) * 64 > size:
+        word &= (np.uint64(1) << np.uint64(size - w * 64)) - np.uint64(1)
+    return word
+
+
+@nb.njit(inline="always")
 def _add_entry(acc, j, s, e, i, cosines, sample_scale, hit_object, hit_uv, has_world, world, has_exclude, exclude,
                any_vertex, is_vertex, vertex_cells, corner_flat, corner_base, nearest_vertex, radiance, offsets,
                widths, heights):
@@ -148,10 +170,9 @@ def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions,
         nz = np.empty(size, np.float32)
         sample_scale = np.empty(size, np.float32)
         cosines = np.empty(size, np.float32)
-        contiguous = samples[start] % 64 == 0
+        contiguous = _whole_words(samples, start, size)
         for j in range(size):
             s = samples[start + j]
-            contiguous = contiguous and s == samples[start] + j
             nx[j] = normals[s, 0]
             ny[j] = normals[s, 1]
             nz[j] = normals[s, 2]
@@ -170,9 +191,7 @@ def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions,
                 # The block's samples are whole words of the entry bits: walk their stored
                 # entries in order, never touching an entry below a sample's horizon.
                 for w in range(words):
-                    word = above_words[i, first_word + w]
-                    if (w + 1) * 64 > size:
-                        word &= (np.uint64(1) << np.uint64(size - w * 64)) - np.uint64(1)
+                    word = _block_word(above_words, i, first_word, w, size)
                     e = word_base[i, first_word + w]
                     while word != np.uint64(0):
                         j = w * 64 + np.int64(trailing_zeros(word))
@@ -246,17 +265,13 @@ def bare_lookup(above_words, word_base, hit_object, hit_uv, samples, first, stop
         end = min(count, start + BLOCK)
         size = end - start
         acc = np.zeros((size, channels), np.float64)
-        contiguous = samples[start] % 64 == 0
-        for j in range(size):
-            contiguous = contiguous and samples[start + j] == samples[start] + j
+        contiguous = _whole_words(samples, start, size)
         first_word = samples[start] >> 6
         words = (size + 63) // 64
         for i in range(first, stop):
             if contiguous:
                 for w in range(words):
-                    word = above_words[i, first_word + w]
-                    if (w + 1) * 64 > size:
-                        word &= (np.uint64(1) << np.uint64(size - w * 64)) - np.uint64(1)
+                    word = _block_word(above_words, i, first_word, w, size)
                     e = word_base[i, first_word + w]
                     while word != np.uint64(0):
                         j = w * 64 + np.int64(trailing_zeros(word))
