@@ -192,6 +192,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     table_module.rays_of_words(words, base, 0, 1, index, np.zeros(1, np.int64), np.zeros(1, np.int64),
                                np.zeros(1, np.int64))
     table_module.entries_at(words, base, index, index, np.zeros(1, np.int64))
+    table_module.count_per_sample(words, base, objects, np.int16(-3), np.zeros(1, np.int32))
     uv = np.zeros((1, 3, 2))
     centre = np.zeros((1, 2))
     corners = np.zeros((1, 3, 3))
@@ -242,6 +243,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
                table_module.rays_where, table_module.rays_of_words, table_module.entries_at,
+               table_module.count_per_sample,
                sample_module.footprint_first_draw,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
                image_module.bilinear_points, image_module.seam_product,

@@ -216,3 +216,30 @@ def entries_at(above_words, word_base, direction_index, sample_index, out):
     (core.kernels.bits.entry_of); in parallel over r. Arrays (n,) int64."""
     for r in nb.prange(direction_index.shape[0]):
         out[r] = entry_of(above_words, word_base, direction_index[r], sample_index[r])
+
+
+# Samples per task of count_per_sample: a whole number of 64-sample words.
+COUNT_BLOCK = 1024
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def count_per_sample(above_words, word_base, hit_object, code, counts):
+    """counts[k] = how many of sample k's stored entries are ``code`` (core.visibility.table.
+    TableEntries.per_sample); in parallel over blocks of samples, each walking its words of
+    every direction. above_words (N, W) uint64; word_base (N, W) int64; hit_object (A,) int16;
+    code int16; counts (K,) int32, out."""
+    samples = counts.shape[0]
+    for block in nb.prange((samples + COUNT_BLOCK - 1) // COUNT_BLOCK):
+        start = block * COUNT_BLOCK
+        stop = min(start + COUNT_BLOCK, samples)
+        for k in range(start, stop):
+            counts[k] = 0
+        for i in range(above_words.shape[0]):
+            e = word_base[i, start >> 6]
+            for w in range(start >> 6, (stop + 63) >> 6):
+                word = above_words[i, w]
+                while word != np.uint64(0):
+                    k = w * 64 + np.int64(trailing_zeros(word))
+                    word &= word - np.uint64(1)
+                    counts[k] += np.int32(hit_object[e] == code)
+                    e += 1

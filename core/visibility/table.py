@@ -268,17 +268,24 @@ class TableEntries:
         index = self.word_base[direction, sample >> 6] + bit_counts(below[:, None])[:, 0]
         return np.where(stored, index, -1)
 
-    def per_sample(self, values: np.ndarray) -> np.ndarray:
-        """(K,) int32: for each sample, how many of its stored entries have ``values`` (A,) True;
-        a few rows at a time (a whole table's (N, K) mask would take a byte an entry)."""
-        values = np.asarray(values, bool)
-        counts = np.zeros(self.samples, np.int64)
+    def per_sample(self, code: int) -> np.ndarray:
+        """(K,) int32: for each sample, how many of its stored entries have hit_object ``code``;
+        compiled where the kernels load, else a few rows at a time (a whole table's (N, K)
+        mask would take a byte an entry)."""
+        counts = np.zeros(self.samples, np.int32)
+        module = kernels.compiled()
+        if module is not None:
+            if self.samples:
+                kernels.run(module.count_per_sample, 0, self.above_words, self.word_base, self.hit_object,
+                            np.int16(code), counts)
+            return counts
         rows = max(1, (1 << 22) // max(self.samples, 1))
         for first in range(0, self.directions, rows):
             last = min(self.directions, first + rows)
             sample = np.nonzero(self.mask(first, last))[1]
-            counts += np.bincount(sample[values[self.row_span(first, last)]], minlength=self.samples)
-        return counts.astype(np.int32)
+            counts += np.bincount(sample[self.hit_object[self.row_span(first, last)] == code],
+                                  minlength=self.samples).astype(np.int32)
+        return counts
 
 
 def _word_base(above_words: np.ndarray) -> tuple[np.ndarray, int]:
@@ -739,7 +746,7 @@ def _finish(directions: np.ndarray, entries: TableEntries, traced_per_sample: np
     """The table of the traced ``entries``; ``backface_per_sample`` (K,) int32 where the trace
     counted it already, else counted here."""
     if backface_per_sample is None:
-        backface_per_sample = entries.per_sample(entries.hit_object == BACKFACE)
+        backface_per_sample = entries.per_sample(BACKFACE)
     return VisibilityTable(directions=directions, entries=entries, vertex_cells=geometry.vertex_cells(),
                            rays_cast=rays_cast,
                            rays_below_horizon=entries.directions * entries.samples - int(traced_per_sample.sum()),
@@ -754,7 +761,7 @@ def table_from_arrays(arrays: dict, counters: dict) -> VisibilityTable:
     entries = arrays["entries"]
     backface_per_sample = arrays.get("backface_per_sample")
     if backface_per_sample is None:
-        backface_per_sample = entries.per_sample(entries.hit_object == BACKFACE)
+        backface_per_sample = entries.per_sample(BACKFACE)
     return VisibilityTable(directions=arrays["directions"], entries=entries, vertex_cells=arrays.get("vertex_cells"),
                            rays_cast=int(counters["rays_cast"]),
                            rays_below_horizon=int(counters["rays_below_horizon"]),
@@ -901,9 +908,12 @@ def copy_columns(source: TableEntries, source_start: int, target: TableEntries, 
     runs = from_last - from_first
     if not np.array_equal(_ranks(target, target_start + count) - to_first, runs):
         raise ValueError("the columns' entry bits differ between the two tables")
-    taken, put = _run_index(from_first, runs), _run_index(to_first, runs)
-    for name in ENTRY_ARRAYS:
-        getattr(target, name)[put] = getattr(source, name)[taken]
+    # One slice per row: a run of consecutive entries in both tables.
+    for row in np.nonzero(runs)[0]:
+        taken = slice(from_first[row], from_first[row] + runs[row])
+        put = slice(to_first[row], to_first[row] + runs[row])
+        for name in ENTRY_ARRAYS:
+            getattr(target, name)[put] = getattr(source, name)[taken]
 
 
 def column_mask(entries: TableEntries, start: int, stop: int) -> np.ndarray:

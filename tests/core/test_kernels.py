@@ -351,6 +351,10 @@ def test_stored_entries_are_found_alike_compiled_and_in_numpy(monkeypatch, sampl
     numpy_index = entries.index(direction, sample)
     np.testing.assert_array_equal(numpy_index, np.where(stored.reshape(-1), np.cumsum(stored.reshape(-1)) - 1, -1))
     np.testing.assert_array_equal(entries_at(entries, direction, sample, threads=3), numpy_index)
+    # Per-sample counts of a code among the stored entries (BELOW_HORIZON is never stored).
+    for code in (2, -3, BELOW_HORIZON):
+        expected = np.count_nonzero((hit_object == code) & stored, axis=0)
+        np.testing.assert_array_equal(entries.per_sample(code), expected)
     words = entries.above_words.shape[1]
     compiled = [array.copy() for array in rays_of_entries(entries, 0, words, threads=2)]
     compiled_part = [array.copy() for array in rays_of_entries(entries, words - 1, words)]
@@ -358,6 +362,8 @@ def test_stored_entries_are_found_alike_compiled_and_in_numpy(monkeypatch, sampl
     reference = rays_of_entries(entries, 0, words)
     part = rays_of_entries(entries, words - 1, words)
     np.testing.assert_array_equal(entries_at(entries, direction, sample), numpy_index)
+    for code in (2, -3):
+        np.testing.assert_array_equal(entries.per_sample(code), np.count_nonzero(hit_object == code, axis=0))
     expected_rows, expected_cols = np.nonzero(stored)
     for ours, theirs, expected in zip(compiled, reference, (expected_rows, expected_cols,
                                                              np.arange(entries.stored))):
