@@ -1,14 +1,17 @@
-"""Where a bake's memory goes: ``python benchmarks/memory_peak.py demo --out DIR`` (any arguments of
-``tools/visibake.py``).
+"""Where a bake's memory goes: ``python benchmarks/memory_peak.py [--resident-only] demo --out DIR``
+(then any arguments of ``tools/visibake.py``).
 
 Prints the process's resident memory once bpy, the extension and the compiled kernels are
-loaded (before any scene), then runs the command under ``tracemalloc`` and prints the largest
-allocations alive at its highest traced moment, grouped by where they were made. tracemalloc
+loaded (before any scene), then runs the command under ``tracemalloc`` and prints the highest
+resident and traced memory in each stage and pass of the bake, and the largest allocations alive
+at its highest traced moment, grouped by where they were made. ``--resident-only`` leaves
+tracemalloc off (the resident figures are then a plain run's). tracemalloc
 sees numpy's arrays; its own bookkeeping makes the run slower and its peak RSS higher than a
 plain run's.
 """
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 import threading
@@ -34,18 +37,48 @@ def main(argv: list[str]) -> int:
     sys.path.insert(0, ROOT)
     from tools import visibake
 
+    resident_only = bool(argv) and argv[0] == "--resident-only"
+    if resident_only:
+        argv = argv[1:]
     extension = visibake.load_extension()
     extension.core.kernels.status()
     print(f"before any scene (bpy, the extension, the kernels): {resident_mib():.0f} MiB")
-    tracemalloc.start(6)
+    if not resident_only:
+        tracemalloc.start(6)
+    # The highest resident and traced memory of each window of the bake: a window closes when a
+    # stage starts (it was the stage before's) or a pass is recorded (it was that pass's).
+    windows = []
+    window = {"resident": 0.0}
+    progress = importlib.import_module(f"{extension.__name__}.core.pipeline.progress")
+    start_stage, record_pass = progress.Stages.start, progress.Stages.record_pass
+
+    def close(name):
+        traced = tracemalloc.get_traced_memory()[1] / 2**20 if tracemalloc.is_tracing() else 0.0
+        windows.append((name, max(window["resident"], resident_mib()), traced))
+        window["resident"] = 0.0
+        if tracemalloc.is_tracing():
+            tracemalloc.reset_peak()
+
+    def start_and_note(stages, name):
+        close(f"stage {getattr(stages, '_noted_stage', '(start)')}")
+        stages._noted_stage = name
+        return start_stage(stages, name)
+
+    def record_and_note(stages, name, *arguments):
+        close(f"  pass {name}")
+        return record_pass(stages, name, *arguments)
+
+    progress.Stages.start, progress.Stages.record_pass = start_and_note, record_and_note
     highest = {"bytes": 0, "snapshot": None}
     done = threading.Event()
 
     def watch():
         while not done.is_set():
-            current, _ = tracemalloc.get_traced_memory()
-            if current > highest["bytes"] + SNAPSHOT_STEP_BYTES:
-                highest["bytes"], highest["snapshot"] = current, tracemalloc.take_snapshot()
+            window["resident"] = max(window["resident"], resident_mib())
+            if not resident_only:
+                current, _ = tracemalloc.get_traced_memory()
+                if current > highest["bytes"] + SNAPSHOT_STEP_BYTES:
+                    highest["bytes"], highest["snapshot"] = current, tracemalloc.take_snapshot()
             time.sleep(POLL_SECONDS)
 
     watcher = threading.Thread(target=watch, daemon=True)
@@ -53,6 +86,12 @@ def main(argv: list[str]) -> int:
     status = extension.cli.main(argv)
     done.set()
     watcher.join()
+    close("the rest")
+    print("highest memory in each window of the bake (MiB, resident and traced):")
+    for name, resident, traced in windows:
+        print(f"  {resident:7.0f} {traced:7.0f}  {name}")
+    if resident_only:
+        return status
     print(f"exit status {status}; traced peak {tracemalloc.get_traced_memory()[1] / 2**20:.0f} MiB; "
           f"snapshot at {highest['bytes'] / 2**20:.0f} MiB")
     if highest["snapshot"] is not None:

@@ -193,6 +193,10 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                np.zeros(1, np.int64))
     table_module.entries_at(words, base, index, index, np.zeros(1, np.int64))
     table_module.count_per_sample(words, base, objects, np.int16(-3), np.zeros(1, np.int32))
+    for values in (objects, np.zeros(1, np.uint16), np.zeros(1, np.uint32)):  # each entry array's type
+        table_module.copy_runs(index, index, index, values, values.copy())
+    for values in (objects, np.zeros(1, np.uint16)):
+        table_module.entry_columns(words, base, values, np.int64(0), np.int64(1), np.zeros((1, 1), values.dtype))
     uv = np.zeros((1, 3, 2))
     centre = np.zeros((1, 2))
     corners = np.zeros((1, 3, 3))
@@ -203,13 +207,22 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     sample_module.footprint_jitter(np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros((1, 2), np.uint32),
                                    np.zeros((1, 1, 2)))
     sample_module.footprint_offsets_of(np.zeros((1, 1, 3)), np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32))
+    sample_module.footprint_point_normals(np.zeros((1, 1, 3), np.float32), np.zeros((1, 3)), np.zeros(1, np.int64),
+                                          np.zeros(1, np.int64), corners, np.zeros((1, 3, 3), np.float32),
+                                          np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32))
     int32 = np.zeros(1, np.int32)
     image_module.bilinear_points(np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32, int32,
                                  np.zeros((1, 2), np.float32), np.zeros((1, 3)))
     image_module.seam_product(np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0, np.zeros((1, 3)),
                               np.zeros((1, 3)))
+    image_module.seam_solve(np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0, np.ones(1),
+                            np.zeros((1, 3)), np.ones(3), 4, np.zeros((1, 3)))
     image_module.dilate_rings(np.zeros((1, 3), np.float32), np.ones(1, bool), np.zeros(0, np.int64), 1, 1, 1)
     image_module.sum_rows(np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros(0, np.int64), np.zeros((1, 3)))
+    image_module.sum_rows(int32, np.zeros((1, 3)), int32, np.zeros((1, 3)))  # the filter's int32 pairs
+    image_module.contact_sums(np.zeros((4, 3), np.float32), np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32,
+                              int32, np.zeros((1, 2), np.float32), np.zeros(1, np.float32), np.zeros((1, 3)),
+                              np.zeros(1, np.int64), np.zeros((1, 3)))
     three = np.zeros((1, 3))
     footprint = np.zeros((1, 1, 3), np.float32)
     light_module.hard_lamp_point(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
@@ -243,11 +256,13 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
                table_module.rays_where, table_module.rays_of_words, table_module.entries_at,
-               table_module.count_per_sample,
+               table_module.count_per_sample, table_module.copy_runs, table_module.entry_columns,
                sample_module.footprint_first_draw,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
-               image_module.bilinear_points, image_module.seam_product,
-               image_module.dilate_rings, image_module.sum_rows, light_module.hard_lamp_point,
+               sample_module.footprint_point_normals,
+               image_module.bilinear_points, image_module.seam_product, image_module.seam_solve,
+               image_module.dilate_rings, image_module.sum_rows, image_module.contact_sums,
+               light_module.hard_lamp_point,
                light_module.hard_lamp_decided, raster_module.triangle_claims, raster_module.resolve_claims,
                raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
                prep_module.texel_owners, prep_module.filter_candidates)

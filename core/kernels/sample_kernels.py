@@ -168,3 +168,86 @@ def footprint_offsets_of(chosen, position, offsets):
                 if point != point:
                     point = position[k, axis]
                 offsets[k, slot, axis] = np.float32(point - position[k, axis])
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_point_normals(offsets, position, rows, triangle, corners, corner_normals, normal, out):
+    """The shading normal at each footprint point of samples ``rows`` (core.sampling.footprint.
+    footprint_normals): the point's barycentric weights on its triangle (clamped at 0, summing
+    to 1) blend the corners' normals; a point whose blend is degenerate or faces away from the
+    sample's own normal takes that. The numpy code's float64 operations in its order, so the
+    normals are bitwise the same.
+
+    offsets : (k, P, 3) float32; position, normal : (k, 3) float64; rows : (r,) int64;
+    triangle : (k,) int; corners : (T, 3, 3) float64; corner_normals : (T, 3, 3) float32.
+    Output out (k, P, 3) float32, written at ``rows`` only.
+    """
+    points = offsets.shape[1]
+    for task in nb.prange(rows.shape[0]):
+        k = rows[task]
+        t = triangle[k]
+        e1 = np.empty(3)
+        e2 = np.empty(3)
+        for i in range(3):
+            e1[i] = corners[t, 1, i] - corners[t, 0, i]
+            e2[i] = corners[t, 2, i] - corners[t, 0, i]
+        d11 = 0.0
+        d12 = 0.0
+        d22 = 0.0
+        for i in range(3):
+            d11 += e1[i] * e1[i]
+            d12 += e1[i] * e2[i]
+            d22 += e2[i] * e2[i]
+        denominator = d11 * d22 - d12 * d12
+        scale = 1.0 / denominator if denominator > 0 else 0.0
+        for p in range(points):
+            d1 = 0.0
+            d2 = 0.0
+            for i in range(3):
+                d = (position[k, i] + np.float64(offsets[k, p, i])) - corners[t, 0, i]
+                d1 += d * e1[i]
+                d2 += d * e2[i]
+            w1 = (d22 * d1 - d12 * d2) * scale
+            w2 = (d11 * d2 - d12 * d1) * scale
+            w0 = 1.0 - w1 - w2
+            # np.clip(w, 0, None): NaN and -0.0 kept as they are.
+            w0 = 0.0 if w0 < 0.0 else w0
+            w1 = 0.0 if w1 < 0.0 else w1
+            w2 = 0.0 if w2 < 0.0 else w2
+            total = max(w0 + w1 + w2, 1e-30)
+            w0 /= total
+            w1 /= total
+            w2 /= total
+            n0 = 0.0
+            n1 = 0.0
+            n2 = 0.0
+            n0 += w0 * np.float64(corner_normals[t, 0, 0])
+            n0 += w1 * np.float64(corner_normals[t, 1, 0])
+            n0 += w2 * np.float64(corner_normals[t, 2, 0])
+            n1 += w0 * np.float64(corner_normals[t, 0, 1])
+            n1 += w1 * np.float64(corner_normals[t, 1, 1])
+            n1 += w2 * np.float64(corner_normals[t, 2, 1])
+            n2 += w0 * np.float64(corner_normals[t, 0, 2])
+            n2 += w1 * np.float64(corner_normals[t, 1, 2])
+            n2 += w2 * np.float64(corner_normals[t, 2, 2])
+            length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if length > 1e-12:
+                u0 = n0 / length
+                u1 = n1 / length
+                u2 = n2 / length
+            else:
+                u0 = 0.0
+                u1 = 0.0
+                u2 = 0.0
+            facing = 0.0
+            facing += u0 * normal[k, 0]
+            facing += u1 * normal[k, 1]
+            facing += u2 * normal[k, 2]
+            if length > 1e-12 and facing > 0 and denominator > 0:
+                out[k, p, 0] = np.float32(u0)
+                out[k, p, 1] = np.float32(u1)
+                out[k, p, 2] = np.float32(u2)
+            else:
+                out[k, p, 0] = np.float32(normal[k, 0])
+                out[k, p, 1] = np.float32(normal[k, 1])
+                out[k, p, 2] = np.float32(normal[k, 2])

@@ -243,3 +243,46 @@ def count_per_sample(above_words, word_base, hit_object, code, counts):
                     word &= word - np.uint64(1)
                     counts[k] += np.int32(hit_object[e] == code)
                     e += 1
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def copy_runs(from_first, to_first, runs, source, target):
+    """target[to_first[i] + j] = source[from_first[i] + j] for j < runs[i], every row i: the
+    stored entries of a range of samples copied between two tables whose entry bits there
+    agree (core.visibility.table.copy_columns); in parallel over rows. from_first, to_first,
+    runs : (N,) int64; source, target : (A,) and (B,) of one dtype."""
+    for row in nb.prange(runs.shape[0]):
+        take = from_first[row]
+        put = to_first[row]
+        for j in range(runs[row]):
+            target[put + j] = source[take + j]
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def entry_columns(above_words, word_base, values, start, stop, out):
+    """out[i, k - start] = values[entry (i, k)] for every stored entry of samples [start, stop)
+    (core.visibility.table.dense_columns); entries not stored keep what ``out`` held. In
+    parallel over rows. above_words (N, W) uint64; word_base (N, W) int64; values (A,);
+    out (N, stop - start) of values' dtype."""
+    if stop <= start:
+        return
+    first_word = start >> 6
+    for row in nb.prange(above_words.shape[0]):
+        # The stored entries before ``start`` in its word come first: skip them.
+        word = above_words[row, first_word]
+        below = word & ((np.uint64(1) << np.uint64(start & 63)) - np.uint64(1))
+        e = word_base[row, first_word]
+        while below != np.uint64(0):
+            below &= below - np.uint64(1)
+            e += 1
+        for w in range(first_word, (stop + 63) >> 6):
+            word = above_words[row, w]
+            if w == first_word:
+                word &= ~((np.uint64(1) << np.uint64(start & 63)) - np.uint64(1))
+            while word != np.uint64(0):
+                k = w * 64 + np.int64(trailing_zeros(word))
+                if k >= stop:
+                    break
+                out[row, k - start] = values[e]
+                e += 1
+                word &= word - np.uint64(1)

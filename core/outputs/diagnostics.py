@@ -42,13 +42,14 @@ def _direct_light(shadowing: Shadowing, lights, samples: SampleSet) -> np.ndarra
     return irradiance
 
 
-def check_vertex_objects(meshes, object_samples, sample_offset: np.ndarray, samples: SampleSet,
-                         shadowing: Shadowing, lights) -> dict[int, TessellationCheck]:
+def check_vertex_objects(meshes, object_samples, sample_offset: np.ndarray, position: np.ndarray,
+                         normal: np.ndarray, shadowing: Shadowing, lights) -> dict[int, TessellationCheck]:
     """Check every vertex-mode object with outputs under ``lights``.
 
     meshes : the bake's core.scene.Mesh objects; object_samples : their
     core.sampling.samples.ObjectSamples; sample_offset : (objects + 1,) int64 first
-    sample of each; samples : all samples; shadowing : exact shadows (its ray scene).
+    sample of each; position, normal : (K, 3) float64 every sample's position and shading
+    normal; shadowing : exact shadows (its ray scene).
 
     Returns object index -> TessellationCheck (no entry without lamps or such objects).
     """
@@ -70,7 +71,7 @@ def check_vertex_objects(meshes, object_samples, sample_offset: np.ndarray, samp
         rows = a + object_sample.corner_sample[used]
         own = slice(a, a + len(object_sample))
         at_vertices = _direct_light(shadowing, lights,
-                                    SampleSet.on_surface(samples.position[own], samples.normal[own])).sum(axis=1)
+                                    SampleSet.on_surface(position[own], normal[own])).sum(axis=1)
         interpolated = at_vertices[rows - a].mean(axis=1)
         larger = np.maximum(at_middle, interpolated)
         floor = tol.TESSELLATION_FLOOR * max(float(larger.max()), 1e-30)

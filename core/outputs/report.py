@@ -368,7 +368,8 @@ def report_tessellation(p: "Prepared", lights, objects: list, report: Report) ->
     """
     by_name = {o.name: o for o in objects}
     shadowing = Shadowing.exact(p.ray_scene, p.settings.area_light_samples)
-    checks = check_vertex_objects(p.meshes, p.object_samples, p.sample_offset, p.sample_set(), shadowing, lights)
+    checks = check_vertex_objects(p.meshes, p.object_samples, p.sample_offset, p.position, p.normal, shadowing,
+                                  lights)
     for index, check in checks.items():
         entry = report.objects[index]
         if entry.name in by_name:

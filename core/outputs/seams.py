@@ -229,10 +229,6 @@ def stitch(image: np.ndarray, seams: Seams) -> StitchResult:
     module = kernels.compiled()
 
     def normal_matrix(x):
-        if module is not None:
-            product = np.empty_like(x)
-            module.seam_product(seams.weight, seams.index, seams.keep, SEAM_WEIGHT, np.ascontiguousarray(x), product)
-            return product
         residual = seams.disagreement(x)  # (s, C)
         spread = seams.weight[:, :, None] * residual[:, None, :]
         back = np.stack([np.bincount(rows, spread[..., c].reshape(-1), n) for c in range(channels)], axis=1)
@@ -241,11 +237,33 @@ def stitch(image: np.ndarray, seams: Seams) -> StitchResult:
     diagonal = (seams.keep + SEAM_WEIGHT * np.bincount(rows, (seams.weight ** 2).reshape(-1), n))[:, None]
     rhs = keep * baked
     x = baked.copy()
+    limit = TOLERANCE * np.maximum(np.linalg.norm(rhs, axis=0), 1e-30)
+    if module is not None:
+        # The whole solve compiled: the numpy loop's calls cost more than its arithmetic.
+        iterations = module.seam_solve(seams.weight, seams.index, seams.keep, SEAM_WEIGHT,
+                                       np.ascontiguousarray(diagonal[:, 0]), rhs, limit, MAX_ITERATIONS, x)
+    else:
+        x, iterations = _solve_numpy(normal_matrix, diagonal, rhs, limit, x)
+    x = np.clip(np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
+    out = flat.copy()
+    out[seams.texels] = x
+    covered = seams.keep == 1.0
+    mean = float(np.abs(baked[covered]).mean()) if covered.any() else 0.0
+
+    def relative(values):
+        return float(np.sqrt(np.mean(seams.disagreement(values) ** 2)) / mean) if mean > 0 else 0.0
+
+    return StitchResult(image=out.reshape(image.shape), before=relative(baked), after=relative(x),
+                        iterations=iterations)
+
+
+def _solve_numpy(normal_matrix, diagonal: np.ndarray, rhs: np.ndarray, limit: np.ndarray, x: np.ndarray):
+    """:func:`stitch`'s conjugate gradients in numpy, from ``x`` (n, C) float64: (x, iterations).
+    normal_matrix : callable (n, C) -> (n, C); diagonal : (n, 1) its diagonal; limit : (C,)."""
     r = rhs - normal_matrix(x)
     z = r / diagonal
     d = z.copy()
     rz = (r * z).sum(0)
-    limit = TOLERANCE * np.maximum(np.linalg.norm(rhs, axis=0), 1e-30)
     iterations = 0
     while iterations < MAX_ITERATIONS and (np.linalg.norm(r, axis=0) > limit).any():
         q = normal_matrix(d)
@@ -259,14 +277,4 @@ def stitch(image: np.ndarray, seams: Seams) -> StitchResult:
         d = z + beta * d
         rz = rz_next
         iterations += 1
-    x = np.clip(np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
-    out = flat.copy()
-    out[seams.texels] = x
-    covered = seams.keep == 1.0
-    mean = float(np.abs(baked[covered]).mean()) if covered.any() else 0.0
-
-    def relative(values):
-        return float(np.sqrt(np.mean(seams.disagreement(values) ** 2)) / mean) if mean > 0 else 0.0
-
-    return StitchResult(image=out.reshape(image.shape), before=relative(baked), after=relative(x),
-                        iterations=iterations)
+    return x, iterations

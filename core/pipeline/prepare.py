@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -94,6 +94,36 @@ class Prepared:
     light_memo: LightMemo = field(default_factory=LightMemo)
     # Kept for later relights (core.pipeline.resident): its transport is split into parts they can reuse.
     resident: bool = False
+    # Relit once by its caller (a command's bake): the transport lets go of what only direct
+    # light reads as soon as the last of it is computed (drop_direct_inputs).
+    relit_once: bool = False
+    _direct_inputs_dropped: bool = False
+
+    def drop_footprints(self) -> None:
+        """Let go of every footprint (points, box corners and normals: 670 MiB at the Production
+        preset) once the samples' direct light and the short hits are found: the short hits'
+        own direct light and the gathers, whose working memory is the bake's highest, read none.
+        For a preparation relit once (:attr:`relit_once`); a later read of them is a bug and raises."""
+        self.exposed()  # the one pass after direct light that reads the footprint (its point count)
+        self.footprint = None
+        self._sample_set = None
+        for samples in self.object_samples:
+            for name in ("footprint", "footprint_corners", "footprint_normals"):
+                if getattr(samples, name, None) is not None:
+                    setattr(samples, name, None)
+        self._direct_inputs_dropped = True
+
+    def drop_direct_inputs(self) -> None:
+        """:meth:`drop_footprints`, and let go of the short hits' landing points (about 300 MiB at
+        the Production preset) once their direct light is computed too."""
+        self.drop_footprints()
+        if self._short_hits:
+            self._short_hits = replace(self._short_hits, points=None)
+
+    def _check_direct_inputs(self, what: str) -> None:
+        if self._direct_inputs_dropped:
+            raise RuntimeError(f"bug: {what} read after the preparation let go of its footprints "
+                               "(Prepared.drop_direct_inputs)")
 
     def exposed(self) -> np.ndarray:
         """(K,) float64 each sample's share of footprint points not buried inside other geometry
@@ -110,6 +140,7 @@ class Prepared:
     def dense_footprint(self, rows: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray | None]:
         """``count`` footprint points (r, count, 3) float32 of samples ``rows`` (r,), and their
         normals (r, count, 3) float32 or None (:func:`dense_footprint_of`)."""
+        self._check_direct_inputs("footprint points")
         return dense_footprint_of(self.meshes, self.object_samples.__getitem__, self.sample_offset,
                                   lambda chosen: self.normal[chosen], rows, count, self.settings.threads)
 
@@ -139,11 +170,13 @@ class Prepared:
         """The table entries whose rays land close by (core.transport.contacts), found once
         per preparation: they depend on geometry alone. None when there are none."""
         if self._short_hits is False:
+            self._check_direct_inputs("the footprints the short hits are found from")
             self._short_hits = find_short_hits(self)
         return self._short_hits
 
     def sample_set(self) -> SampleSet:
         """All samples as the transport contract's :class:`SampleSet`."""
+        self._check_direct_inputs("the sample set")
         if self._sample_set is None:
             owner = np.repeat(np.arange(len(self.meshes)), np.diff(self.sample_offset))
             points, corners, normals = self.footprint or (None, None, None)
@@ -166,6 +199,7 @@ class Prepared:
     def trace_request(self) -> TraceRequest:
         """The request this preparation's table is traced from (all samples; TraceRequest.rows
         narrows it to a range of them)."""
+        self._check_direct_inputs("the trace request")
         return table_request(self.meshes, self.settings, self.directions, self.position, self.geometric,
                              self.footprint, self.rotations, self.group)
 

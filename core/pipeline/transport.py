@@ -4,6 +4,7 @@ bounce in shared gathers, all groups side by side in one radiance atlas."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -37,12 +38,15 @@ def _direct_share(p, lamp_rays: float, emitter_rays: float) -> float:
 
 
 def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,
-                     skipped: list, dilate, share=(0.0, 1.0)) -> tuple[list[Transported], int]:
+                     skipped: list, dilate, share=(0.0, 1.0), last_direct: bool = False
+                     ) -> tuple[list[Transported], int]:
     """Direct light of every group, then all groups' gathers at once, on ``backend``.
 
     ``stages`` times the direct part as "direct" inside the running stage; ``dilate``
     is the (timed) dilation radiance atlases are made with; ``share`` is this call's
-    slice of the stage's progress bar. Returns the groups' irradiance and the gathers run.
+    slice of the stage's progress bar. ``last_direct``: no direct light of this preparation
+    follows, so what only direct light reads is let go before the gathers
+    (Prepared.drop_direct_inputs). Returns the groups' irradiance and the gathers run.
     """
     low, high = share
 
@@ -85,7 +89,9 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         irradiance, rays = lamp_light(p, backend, "samples", p.sample_set(), group.lights, reused,
                                       lambda f, i=index: report(lamp_share * (i + f) / count))
         results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
-    contacts = _contact_light(p, backend, groups, results, stages, skipped, reused)
+    contacts = _contact_light(p, backend, groups, results, stages, skipped, reused, last_direct)
+    if last_direct:
+        p.drop_direct_inputs()  # the emitters' light below reads neither footprints nor short hits
     for number, (owner, emitter, chosen) in enumerate(sampled):
         name = p.meshes[emitter.object_index].name
         key = ("emitter", emitter.object_index)
@@ -238,11 +244,13 @@ def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, ligh
 
 
 def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGroup], results: list[Transported],
-                   stages: Stages, skipped: list, reused: set):
+                   stages: Stages, skipped: list, reused: set, last_direct: bool = False):
     """The lamps' direct light where short rays land (core.transport.contacts), per group, for
     every bounce's correction: (short hits, (K, 3G) the samples' lamp light, (m, 3G) the
     hits' lamp light), or None when the bake needs none (say why in ``skipped``). The pass
-    record names the short hits; their shadow rays count with each group's."""
+    record names the short hits; their shadow rays count with each group's. ``last_direct``
+    (transport_groups): the footprints go once the short hits are found, and the short hits
+    come back without their landing points."""
     if not p.settings.sharp_contacts or p.bounces_needed() == 0 or p.table is None:
         return None
     if not any(group.lights for group in groups):
@@ -252,6 +260,8 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         return None
     started = time.perf_counter()
     short = p.short_hits()
+    if last_direct:
+        p.drop_footprints()
     if short is None:
         skipped.append("sharp contacts: no ray of the table lands within two texels of its target")
         return None
@@ -262,6 +272,8 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         result.shadow_rays += rays
     at_hits = np.concatenate(at_hits, axis=1)
     stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
+    if last_direct:
+        short = replace(short, points=None)
     return short, np.concatenate([r.direct for r in results], axis=1).copy(), at_hits
 
 
@@ -342,7 +354,8 @@ def transport_pending(p: Prepared, backend: TransportBackend, groups: list[Light
     batches = [groups[i:i + MAX_GROUPS_PER_GATHER] for i in range(0, len(groups), MAX_GROUPS_PER_GATHER)]
     for number, batch in enumerate(batches):
         batch_results, count = transport_groups(p, backend, batch, stages, skipped, dilate,
-                                                (number / len(batches), (number + 1) / len(batches)))
+                                                (number / len(batches), (number + 1) / len(batches)),
+                                                last_direct=p.relit_once and number == len(batches) - 1)
         results += batch_results
         gathers += count
     return results, gathers

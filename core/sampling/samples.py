@@ -180,7 +180,8 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> O
         box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint,
                                         threads)
         if _has_footprint_normals(footprint_samples, bool(np.any(smooth))):
-            point_normals = footprint_normals(footprint, position, tri, corners, mesh.corner_normals, shading, smooth)
+            point_normals = footprint_normals(footprint, position, tri, corners, mesh.corner_normals, shading, smooth,
+                                              threads)
     terminator = None
     if _has_terminator(mesh, bool(np.any(smooth))):
         terminator = np.zeros((len(tri), 3))
@@ -337,4 +338,4 @@ def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count:
     if not smooth.any():
         return offsets, None
     return offsets, footprint_normals(offsets, position, triangle, corners, mesh.corner_normals,
-                                      samples.normal[rows], smooth)
+                                      samples.normal[rows], smooth, threads)

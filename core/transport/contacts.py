@@ -235,6 +235,10 @@ def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray |
     return close_entries(p, target_reach, sample_reach, compiled=False)
 
 
+# Landing points :func:`find_short_hits` works out at a time.
+LANDING_CHUNK = 1 << 19
+
+
 def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None:
     """The table entries of prepared scene ``p`` (core.pipeline.prepare.Prepared) that land
     within ``max_texels`` of their target's texel size; None when there are none.
@@ -252,22 +256,35 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
     sample, direction, weight, obj, uv, floor, owner = (
         a[found] for a in (entries.sample, entries.direction, entries.weight, entries.obj, entries.uv, entries.floor,
                            owner))
-    if not len(sample):
+    del entries, found
+    count = len(sample)
+    if not count:
         return None
-    start = p.position[sample]
-    if p.footprint is not None:
-        points = p.footprint[0]
-        start = start + points[sample, direction % points.shape[1]]
-    unit = p.sample_directions(direction, sample)
-    origins = np.asarray(p.ray_scene.ray_origins(start, p.geometric[sample]), np.float64)
-    position = origins + unit * floor[:, None]
-    geometric, shading = p.geometric[owner].copy(), p.normal[owner].copy()
-    # The side the ray came from is the side that is lit (the table keeps front-face hits only).
-    facing = np.where(np.einsum("kd,kd->k", geometric, unit) > 0, -1.0, 1.0)[:, None]
-    geometric *= facing
-    shading *= facing
-    points = SampleSet(position, shading, geometric, p.ray_scene.ray_origins(position, geometric), obj)
-    return ShortHits(sample, weight, obj, uv, points)
+    position, shading, geometric = (np.empty((count, 3)) for _ in range(3))
+    origins = None
+    # Chunk by chunk, the (m, 3) temporaries stay small: at the Production preset all 3.8 M
+    # landings at once took 700 MB beyond the arrays kept, the bake's highest memory then.
+    # Every step is per landing, so the chunks give the whole pass's bits.
+    for first in range(0, count, LANDING_CHUNK):
+        rows = slice(first, min(count, first + LANDING_CHUNK))
+        chosen, way = sample[rows], direction[rows]
+        start = p.position[chosen]
+        if p.footprint is not None:
+            points = p.footprint[0]
+            start = start + points[chosen, way % points.shape[1]]
+        unit = p.sample_directions(way, chosen)
+        position[rows] = np.asarray(p.ray_scene.ray_origins(start, p.geometric[chosen]), np.float64) \
+            + unit * floor[rows, None]
+        geometric[rows], shading[rows] = p.geometric[owner[rows]], p.normal[owner[rows]]
+        # The side the ray came from is the side that is lit (the table keeps front-face hits only).
+        facing = np.where(np.einsum("kd,kd->k", geometric[rows], unit) > 0, -1.0, 1.0)[:, None]
+        geometric[rows] *= facing
+        shading[rows] *= facing
+        landed = p.ray_scene.ray_origins(position[rows], geometric[rows])
+        if origins is None:
+            origins = np.empty((count, 3), landed.dtype)
+        origins[rows] = landed
+    return ShortHits(sample, weight, obj, uv, SampleSet(position, shading, geometric, origins, obj))
 
 
 # The texels a landing point's owner is looked for in, in turn: its own, then its neighbours.
@@ -328,7 +345,17 @@ def contact_correction(short: ShortHits, layout, reflected_atlas: np.ndarray, at
 
     ``albedo_atlas`` (layout.size, 3) float32 is the packed albedo (C a multiple of 3, one
     RGB per light group). Each entry adds weight * (albedo / pi * at_hits - lookup).
+    Compiled where the kernels load (one pass, bitwise the numpy code's below).
     """
+    module = kernels.compiled()
+    if module is not None and reflected_atlas.dtype == np.float32 and albedo_atlas.dtype == np.float32:
+        total = np.zeros((samples, at_hits.shape[1]))
+        module.contact_sums(reflected_atlas, albedo_atlas, layout.widths.astype(np.int32),
+                            layout.heights.astype(np.int32), layout.offsets32,
+                            np.asarray(short.obj, np.int32), np.ascontiguousarray(short.uv, np.float32),
+                            np.asarray(short.weight, np.float32), np.ascontiguousarray(at_hits, np.float64),
+                            np.asarray(short.sample, np.int64), total)
+        return total
     looked_up = layout.bilinear(reflected_atlas, short.obj, short.uv).astype(np.float64)
     albedo = layout.bilinear(albedo_atlas, short.obj, short.uv).astype(np.float64)
     groups = at_hits.shape[1] // 3
@@ -345,8 +372,8 @@ def sum_by_sample(sample: np.ndarray, values: np.ndarray, count: int, rows: np.n
     module = kernels.compiled()
     if module is not None:
         total = np.zeros((count, values.shape[1]))
-        module.sum_rows(np.asarray(sample, np.int64), np.ascontiguousarray(values, np.float64),
-                        np.zeros(0, np.int64) if rows is None else np.asarray(rows, np.int64), total)
+        module.sum_rows(_index_array(sample), np.ascontiguousarray(values, np.float64),
+                        np.zeros(0, np.int64) if rows is None else _index_array(rows), total)
         return total
     if rows is not None:
         values = values[rows]
@@ -355,3 +382,9 @@ def sum_by_sample(sample: np.ndarray, values: np.ndarray, count: int, rows: np.n
         total[:, column] = np.bincount(sample, weights=values[:, column], minlength=count)
     return total
 
+
+def _index_array(indices) -> np.ndarray:
+    """``indices`` as the compiled sums take them: int32 or int64 as they are (the filter's
+    pairs are int32: no int64 copy of them), else as int64."""
+    indices = np.asarray(indices)
+    return indices if indices.dtype in (np.int32, np.int64) else indices.astype(np.int64)

@@ -100,7 +100,7 @@ class AtlasLayout:
         if module is not None and flat.ndim == 2 and flat.dtype == np.float32:
             result = np.empty((len(obj), flat.shape[1]))
             module.bilinear_points(flat, self.widths.astype(np.int32), self.heights.astype(np.int32),
-                                   self._offsets32, np.asarray(obj, np.int32),
+                                   self.offsets32, np.asarray(obj, np.int32),
                                    np.ascontiguousarray(uv, np.float32), result)
             return result
         width = self.widths.astype(np.float32)[obj]
@@ -112,7 +112,7 @@ class AtlasLayout:
         fx = (x - x0)[:, None]
         fy = (y - y0)[:, None]
         stride = self.widths.astype(np.int32)[obj] + 1
-        base = self._offsets32[obj] + y0 * stride + x0
+        base = self.offsets32[obj] + y0 * stride + x0
         c00 = np.take(flat, base, axis=0)
         c01 = np.take(flat, base + 1, axis=0)
         bottom = c00 + (c01 - c00) * fx
@@ -122,7 +122,8 @@ class AtlasLayout:
         return bottom + (top - bottom) * fy
 
     @property
-    def _offsets32(self) -> np.ndarray:
+    def offsets32(self) -> np.ndarray:
+        """(objects,) int32 :attr:`offsets`, as the compiled lookups take them."""
         if self.size >= 2 ** 31:
             raise ValueError("atlases beyond 2^31 texels in total are not supported")
         return self.offsets.astype(np.int32)

@@ -89,7 +89,8 @@ def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray 
 
 
 def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
-    """The (texel, neighbour) pairs the filter averages, global sample indices (n,) int64 each,
+    """The (texel, neighbour) pairs the filter averages, global sample indices (n,) int32 each
+    (int64 past 2^31 samples),
     every visible atlas texel paired with itself too: the neighbours within its tile x tile
     block that lie on the same surface (normals within SAME_SURFACE_COSINE, closer than
     SAME_SURFACE_TEXELS tiles), are not buried, and see each other (the segment between
@@ -109,6 +110,7 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     buried = p.table.buried() if p.table is not None else np.zeros(len(p.position), bool)
     geometry = (np.ascontiguousarray(p.position, np.float64), np.ascontiguousarray(p.normal, np.float64),
                 np.ascontiguousarray(p.origins, np.float64))
+    pair_dtype = _pair_dtype(p)
     texels, neighbours = [], []
     for index, samples, first, visible, owner in _atlas_texels(p, buried):
         count, width, height = len(samples), samples.width, samples.height
@@ -135,10 +137,10 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
         if len(length):
             blocked = p.ray_scene.occluded(p.origins[np.concatenate([rows[:a], rows[b:]])], direction, length)
             clear[:a], clear[b:] = ~blocked[:a], ~blocked[a:]
-        texels.append(rows[clear])
-        neighbours.append(other[clear])
+        texels.append(rows[clear].astype(pair_dtype))
+        neighbours.append(other[clear].astype(pair_dtype))
     if not texels:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.zeros(0, pair_dtype), np.zeros(0, pair_dtype)
     return np.concatenate(texels), np.concatenate(neighbours)
 
 
@@ -191,8 +193,14 @@ def _filter_pairs_numpy(p) -> tuple[np.ndarray, np.ndarray]:
                 texels.append(rows)
                 neighbours.append(other)
     if not texels:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return np.concatenate(texels), np.concatenate(neighbours)
+        return np.zeros(0, _pair_dtype(p)), np.zeros(0, _pair_dtype(p))
+    return np.concatenate(texels).astype(_pair_dtype(p)), np.concatenate(neighbours).astype(_pair_dtype(p))
+
+
+def _pair_dtype(p):
+    """The filter pairs' index type: int32 where every sample index fits (half the memory: 100 MB
+    of pairs at Production settings; the kernels read them as they are), else int64."""
+    return np.int32 if len(p.position) < 2 ** 31 else np.int64
 
 
 def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:

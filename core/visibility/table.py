@@ -898,9 +898,11 @@ def _run_index(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) + np.repeat(starts - (ends - counts), counts)
 
 
-def copy_columns(source: TableEntries, source_start: int, target: TableEntries, target_start: int, count: int) -> None:
+def copy_columns(source: TableEntries, source_start: int, target: TableEntries, target_start: int, count: int,
+                 threads: int = 0) -> None:
     """Copy the stored entries of samples [source_start, +count) of ``source`` to samples
-    [target_start, +count) of ``target``, whose entry bits there must be the same."""
+    [target_start, +count) of ``target``, whose entry bits there must be the same; compiled
+    on ``threads`` (0: all cores) where the kernels load."""
     if count <= 0:
         return
     from_first, from_last = _ranks(source, source_start), _ranks(source, source_start + count)
@@ -908,6 +910,15 @@ def copy_columns(source: TableEntries, source_start: int, target: TableEntries, 
     runs = from_last - from_first
     if not np.array_equal(_ranks(target, target_start + count) - to_first, runs):
         raise ValueError("the columns' entry bits differ between the two tables")
+    module = kernels.compiled()
+    if module is not None:
+        for name in ENTRY_ARRAYS:
+            # The uv pairs as one uint32 each: every array copied is then one value an entry.
+            to, of = getattr(target, name), getattr(source, name)
+            if to.ndim == 2:
+                to, of = to.view(np.uint32)[:, 0], of.view(np.uint32)[:, 0]
+            kernels.run(module.copy_runs, threads, from_first, to_first, runs, of, to)
+        return
     # One slice per row: a run of consecutive entries in both tables.
     for row in np.nonzero(runs)[0]:
         taken = slice(from_first[row], from_first[row] + runs[row])
@@ -924,10 +935,17 @@ def column_mask(entries: TableEntries, start: int, stop: int) -> np.ndarray:
     return mask[:, start - first_word * WORD_BITS:stop - first_word * WORD_BITS]
 
 
-def dense_columns(entries: TableEntries, name: str, start: int, stop: int) -> np.ndarray:
+def dense_columns(entries: TableEntries, name: str, start: int, stop: int, threads: int = 0) -> np.ndarray:
     """Samples [start, stop) of the per-entry array ``name`` as a dense (N, stop - start, ...)
-    array (:meth:`TableEntries.dense`, by columns)."""
+    array (:meth:`TableEntries.dense`, by columns); compiled on ``threads`` (0: all cores) for
+    one value an entry."""
     dtype, tail, fill = ENTRY_ARRAYS[name]
+    module = kernels.compiled()
+    if module is not None and not tail:
+        out = np.full((entries.directions, stop - start), fill, dtype)
+        kernels.run(module.entry_columns, threads, entries.above_words, entries.word_base, getattr(entries, name),
+                    np.int64(start), np.int64(stop), out)
+        return out
     mask = column_mask(entries, start, stop)
     out = np.full((*mask.shape, *tail), fill, dtype)
     first, last = _ranks(entries, start), _ranks(entries, stop)
@@ -1069,7 +1087,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     for index in np.nonzero(~is_changed)[0]:
         try:
             copy_columns(old.entries, int(old_offset[index]), entries, int(sample_offset[index]),
-                         int(sample_offset[index + 1] - sample_offset[index]))
+                         int(sample_offset[index + 1] - sample_offset[index]), ray_scene.threads)
         except ValueError:
             retrace[index] = True  # its horizons moved after all: trace its samples afresh
     changed_map = np.asarray(changed, np.int32)
@@ -1090,7 +1108,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
         if retrace[index]:
             redo = column_mask(entries, start, stop)
         else:
-            code = dense_columns(entries, "hit_object", start, stop)
+            code = dense_columns(entries, "hit_object", start, stop, threads)
             hit_changed = np.zeros(code.shape, bool)
             hits = code >= 0
             hit_changed[hits] = is_changed[code[hits]]

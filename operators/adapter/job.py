@@ -444,6 +444,9 @@ class BakeJob:
                                          table_needed=True if self.setups else None, cache=self.cache,
                                          require_cached_table=self.relight_only, keep_bytes=keep_bytes,
                                          reuse=self.relight_only)
+        if not self.keep_preparation and not self.prepared.resident:
+            # Nothing relights it again: its footprints go before the gathers need their memory.
+            self.prepared.relit_once = True
 
     def compute_lighting(self) -> None:
         """Direct and indirect light from the table (any thread for numpy; the main

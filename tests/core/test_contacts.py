@@ -186,3 +186,47 @@ def test_compiled_contact_passes_are_bitwise_those_of_numpy(monkeypatch, scene):
     _bitwise((short.sample, short.weight, short.obj, short.uv, short.points.position, short.points.normal),
              (reference.sample, reference.weight, reference.obj, reference.uv, reference.points.position,
               reference.points.normal))
+
+
+def test_landing_points_found_by_chunks_are_bitwise_those_found_at_once(monkeypatch):
+    """find_short_hits works the landing points out LANDING_CHUNK at a time to bound its
+    memory: every array it returns is the one-pass arrays' bits."""
+    from core.pipeline.prepare import prepare
+    from core.transport import contacts
+    p = prepare(_wall_on_floor(16), BakeSettings(directions=64, bounces=1, footprint_samples=16))
+    whole = contacts.find_short_hits(p)
+    monkeypatch.setattr(contacts, "LANDING_CHUNK", 97)  # leaves a remainder
+    chunked = contacts.find_short_hits(p)
+    assert len(whole) > 3 * 97
+    for name in ("sample", "weight", "obj", "uv"):
+        _bitwise((getattr(chunked, name),), (getattr(whole, name),))
+    for name in ("position", "normal", "geometric", "origins", "owner"):
+        _bitwise((getattr(chunked.points, name),), (getattr(whole.points, name),))
+
+
+def test_a_preparation_relit_once_lets_its_footprints_go_and_gives_the_same_light():
+    """A command's bake relights its preparation once (Prepared.relit_once): the footprints go
+    once the short hits are found, the short hits' landing points once their light is known,
+    so the gathers run without them. The light is bitwise a kept preparation's, and a later
+    read of what went is a bug that says so."""
+    from core.pipeline.prepare import prepare
+    from core.pipeline.relight import relight
+    from core.scene import World
+
+    scene = _wall_on_floor(16)
+    settings = BakeSettings(directions=64, bounces=2, footprint_samples=16)  # interleaved, 3 x 3
+    kept, once = prepare(scene, settings), prepare(scene, settings)
+    once.relit_once = True
+    expected = relight(kept, scene.lights, World())
+    result = relight(once, scene.lights, World())
+    assert kept.footprint is not None and kept.short_hits().points is not None
+    assert once.footprint is None and all(s.footprint is None for s in once.object_samples)
+    assert once.short_hits() is not None and once.short_hits().points is None
+    for ours, theirs in zip(result.objects, expected.objects):
+        for name, image in theirs.images.items():
+            assert np.any(image[..., :3] > 0)
+            np.testing.assert_array_equal(ours.images[name], image)
+    with pytest.raises(RuntimeError, match="bug: the sample set"):
+        once.sample_set()
+    with pytest.raises(RuntimeError, match="bug: the trace request"):
+        once.trace_request()

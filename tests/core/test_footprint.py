@@ -297,3 +297,37 @@ def test_samples_needing_no_shadow_ray_are_summed_in_one_pass_bitwise(monkeypatc
             looped, looped_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [lamp])
         assert np.array_equal(fused, looped), lamp.name
         assert fused_rays == looped_rays and fused.max() > 0, lamp.name
+
+
+def test_direct_light_by_chunks_of_samples_is_bitwise_the_whole_pass(monkeypatch):
+    """lamp_irradiance evaluates exact shadows DIRECT_LIGHT_CHUNK samples at a time, to bound its
+    working memory: the light, the shadow rays and what it keeps for the next relight (the
+    curved footprints) are those of one pass over every sample, for hard and soft lamps over
+    smooth footprints with penumbrae and edge texels."""
+    from core.transport import direct
+
+    ground = _plane(resolution=16, size=2.0)
+    tilted = np.array([[0.5, 0.0, 1.0], [-0.5, 0.2, 1.0], [0.0, -0.5, 1.0]])
+    ground.corner_normals[:] = (tilted / np.linalg.norm(tilted, axis=1, keepdims=True)).astype(np.float32)
+    blocker = quad_mesh("Blocker", [(-2, -2, 0.5), (0.1, -2, 0.5), (0.1, 2, 0.5), (-2, 2, 0.5)], resolution=8)
+    p = prepare(Scene([ground, blocker], []), BakeSettings(directions=8, bounces=0, footprint_samples=16,
+                                                          area_light_samples=3), table_needed=False)
+    down = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    lights = [Light("Sun", "SUN", np.ones(3), 2.0, direction=down, angle=np.radians(8.0)),
+              Light("Point", "POINT", np.array([1.0, 0.5, 0.2]), 80.0, position=np.array([0.3, 0.2, 0.9]),
+                    radius=0.2)]
+    whole_set = p.sample_set()
+    whole, whole_rays = lamp_irradiance(whole_set, p.shadowing(), lights)
+    monkeypatch.setattr(direct, "DIRECT_LIGHT_CHUNK", 37)  # chunks that split objects and leave a remainder
+    chunked_set = dataclasses.replace(whole_set, derived={})
+    chunked, chunked_rays = lamp_irradiance(chunked_set, p.shadowing(), lights)
+    assert len(whole_set) > 5 * 37 and whole.max() > 0
+    np.testing.assert_array_equal(chunked, whole)
+    assert chunked_rays == whole_rays
+    assert "curved_footprints" in whole_set.derived
+    assert set(chunked_set.derived) == set(whole_set.derived)
+    for name, value in whole_set.derived.items():
+        np.testing.assert_array_equal(chunked_set.derived[name], value)
+    # A second pass over the chunks reads back what the first kept, with the same light.
+    again, _ = lamp_irradiance(chunked_set, p.shadowing(), lights)
+    np.testing.assert_array_equal(again, whole)

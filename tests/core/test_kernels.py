@@ -406,6 +406,40 @@ def test_compiled_footprints_are_bitwise_those_of_numpy_and_their_corners_agree(
     assert close.mean() > 0.999, close.mean()
 
 
+def test_compiled_footprint_normals_are_bitwise_those_of_numpy(monkeypatch):
+    """The shading normal at every footprint point of smooth samples, on triangles of every
+    shape (slivers, degenerate ones, corner normals facing away from the sample's): the
+    compiled pass gives the numpy pass's bits, and flat samples keep their own normal."""
+    from core.sampling import footprint as footprint_module
+
+    rng = np.random.default_rng(23)
+    count, samples, points = 200, 3000, 16
+    corners = rng.normal(size=(count, 3, 3))
+    corners[::9, 2] = corners[::9, 1]  # degenerate triangles
+    corner_normals = rng.normal(size=(count, 3, 3)).astype(np.float32)
+    corner_normals /= np.linalg.norm(corner_normals, axis=2, keepdims=True)
+    triangle = rng.integers(0, count, samples)
+    weights = rng.dirichlet(np.ones(3), samples)
+    position = np.einsum("kc,kcd->kd", weights, corners[triangle])
+    # Points around the sample, some off the triangle (their weights are clamped).
+    offsets = (rng.normal(scale=0.05, size=(samples, points, 3))).astype(np.float32)
+    normal = rng.normal(size=(samples, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    smooth = rng.random(samples) < 0.8
+    arguments = (offsets, position, triangle, corners, corner_normals, normal, smooth)
+    compiled = footprint_module.footprint_normals(*arguments, threads=2)
+    monkeypatch.setattr(kernels, "_module", None)
+    expected = footprint_module.footprint_normals(*arguments)
+    np.testing.assert_array_equal(compiled, expected)
+    assert compiled.dtype == np.float32
+    flat = ~smooth
+    np.testing.assert_array_equal(compiled[flat], np.broadcast_to(normal[flat, None].astype(np.float32),
+                                                                  compiled[flat].shape))
+    # Both kinds of smooth point occur: the blended normal, and the sample's own where it faces away.
+    own = np.all(compiled[smooth] == normal[smooth, None].astype(np.float32), axis=2)
+    assert 0.05 < own.mean() < 0.95
+
+
 def test_a_table_with_nothing_above_the_horizon_packs_to_nothing_and_back():
     from core.visibility import cache as cache_module
     from core.visibility.table import BELOW_HORIZON, NO_HIT_DISTANCE_CODE, VisibilityTable
@@ -431,6 +465,24 @@ def test_compiled_bilinear_points_are_bitwise_those_of_numpy(monkeypatch):
     monkeypatch.setattr(kernels, "_module", None)
     expected = layout.bilinear(flat, obj, uv)
     assert compiled.dtype == expected.dtype == np.float64
+    np.testing.assert_array_equal(compiled, expected)
+
+
+def test_compiled_contact_correction_is_bitwise_that_of_numpy(monkeypatch):
+    from core.transport.contacts import ShortHits, contact_correction
+    rng = np.random.default_rng(17)
+    layout = AtlasLayout.from_sizes([(5, 3), (7, 9), (1, 1)])
+    hits, samples, groups = 4000, 300, 2
+    reflected = rng.uniform(0.0, 4.0, size=(layout.size, 3 * groups)).astype(np.float32)
+    albedo = rng.uniform(0.0, 0.9, size=(layout.size, 3)).astype(np.float32)
+    # Samples repeat out of order: the sums must follow the hits' order, as sum_by_sample's do.
+    short = ShortHits(rng.integers(0, samples, hits), rng.uniform(0.0, 2.0, hits).astype(np.float32),
+                      rng.integers(0, 3, hits), rng.uniform(-0.1, 1.1, (hits, 2)).astype(np.float32), None)
+    at_hits = rng.uniform(0.0, 10.0, size=(hits, 3 * groups))
+    compiled = contact_correction(short, layout, reflected, at_hits, albedo, samples)
+    monkeypatch.setattr(kernels, "_module", None)
+    expected = contact_correction(short, layout, reflected, at_hits, albedo, samples)
+    assert compiled.shape == (samples, 3 * groups) and np.any(compiled != 0)
     np.testing.assert_array_equal(compiled, expected)
 
 
@@ -570,9 +622,15 @@ def test_compiled_close_entries_and_exposed_shares_are_bitwise_numpy_s_for_any_t
             assert slots == 1 or np.any((share > 0) & (share < 1))
 
 
-def test_columns_copy_run_by_run_between_tables_and_refuse_other_entry_bits():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_columns_copy_run_by_run_between_tables_and_refuse_other_entry_bits(monkeypatch, compiled):
+    """copy_columns and dense_columns, compiled and in numpy: the copied columns read back as the
+    source's, any range of columns (within a word, across words, empty, to the end) reads as
+    the dense table's, and columns whose entry bits differ are refused."""
     from core.visibility.table import BELOW_HORIZON, TableEntries, copy_columns, dense_columns
 
+    if not compiled:
+        monkeypatch.setattr(kernels, "_module", None)
     rng = np.random.default_rng(2)
     shape = (11, 150)
     hit_object = np.where(rng.random(shape) < 0.6, rng.integers(-3, 5, shape), BELOW_HORIZON).astype(np.int16)
@@ -590,5 +648,9 @@ def test_columns_copy_run_by_run_between_tables_and_refuse_other_entry_bits():
         np.testing.assert_array_equal(dense_columns(source, name, 20, 90), source.dense(name)[:, 20:90], err_msg=name)
     # Outside the copied columns the target is untouched.
     np.testing.assert_array_equal(target.dense("hit_object")[:, :50], target_object[:, :50])
+    for start, stop in ((0, 150), (3, 9), (63, 65), (64, 128), (70, 70), (100, 150), (149, 150)):
+        for name in ("hit_object", "hit_distance_code"):
+            np.testing.assert_array_equal(dense_columns(source, name, start, stop, threads=2),
+                                          source.dense(name)[:, start:stop], err_msg=f"{name} {start}:{stop}")
     with pytest.raises(ValueError, match="entry bits differ"):
         copy_columns(source, 0, target, 0, 150)
