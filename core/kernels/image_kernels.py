@@ -20,6 +20,35 @@ SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 
 
 @nb.njit(**SERIAL_OPTIONS)
+def _bilinear_site(widths, offsets, heights, o, u, v):
+    """Where a bilinear lookup at atlas coordinate (u, v) float32 of object ``o`` reads, clamped
+    to the texel centres at the atlas border: (base, stride, fx, fy), the lower-left texel's
+    flat index, the row stride, and the blend weights (float64 of the float32 position)."""
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    width = np.float32(widths[o])
+    height = np.float32(heights[o])
+    x = min(max(u * width - half, zero), width - one)
+    y = min(max(v * height - half, zero), height - one)
+    x0 = np.int32(x)
+    y0 = np.int32(y)
+    stride = widths[o] + 1
+    return offsets[o] + y0 * stride + x0, stride, np.float64(x) - np.float64(x0), np.float64(y) - np.float64(y0)
+
+
+@nb.njit(**SERIAL_OPTIONS)
+def _blend(flat, base, stride, c, fx, fy):
+    """Channel ``c`` of the bilinear lookup at (base, stride, fx, fy) (:func:`_bilinear_site`): the
+    neighbours' differences in float32, the blend in float64, as numpy promotes them."""
+    c00 = flat[base, c]
+    bottom = np.float64(c00) + np.float64(flat[base + 1, c] - c00) * fx
+    c10 = flat[base + stride, c]
+    top = np.float64(c10) + np.float64(flat[base + stride + 1, c] - c10) * fx
+    return bottom + (top - bottom) * fy
+
+
+@nb.njit(**SERIAL_OPTIONS)
 def bilinear_points(flat, widths, heights, offsets, obj, uv, result):
     """Bilinear lookups at atlas coordinates, clamped to the texel centres at each atlas's
     border (core.transport.gather.AtlasLayout.bilinear): the texel position in float32, the
@@ -29,27 +58,10 @@ def bilinear_points(flat, widths, heights, offsets, obj, uv, result):
     offsets : (objects,) int32; obj : (n,) int32; uv : (n, 2) float32.
     Output result (n, C) float64.
     """
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
     for i in range(obj.shape[0]):
-        o = obj[i]
-        width = np.float32(widths[o])
-        height = np.float32(heights[o])
-        x = min(max(uv[i, 0] * width - half, zero), width - one)
-        y = min(max(uv[i, 1] * height - half, zero), height - one)
-        x0 = np.int32(x)
-        y0 = np.int32(y)
-        fx = np.float64(x) - np.float64(x0)
-        fy = np.float64(y) - np.float64(y0)
-        stride = widths[o] + 1
-        base = offsets[o] + y0 * stride + x0
+        base, stride, fx, fy = _bilinear_site(widths, offsets, heights, obj[i], uv[i, 0], uv[i, 1])
         for c in range(flat.shape[1]):
-            c00 = flat[base, c]
-            bottom = np.float64(c00) + np.float64(flat[base + 1, c] - c00) * fx
-            c10 = flat[base + stride, c]
-            top = np.float64(c10) + np.float64(flat[base + stride + 1, c] - c10) * fx
-            result[i, c] = bottom + (top - bottom) * fy
+            result[i, c] = _blend(flat, base, stride, c, fx, fy)
 
 
 @nb.njit(**SERIAL_OPTIONS)
@@ -64,35 +76,13 @@ def contact_sums(reflected, albedo, widths, heights, offsets, obj, uv, weight, a
     uv : (m, 2) float32; weight : (m,) float32; at_hits : (m, C) float64; sample : (m,) int64.
     Output result (count, C) float64, zeroed by the caller.
     """
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
-    channels = reflected.shape[1]
     for i in range(obj.shape[0]):
-        o = obj[i]
-        width = np.float32(widths[o])
-        height = np.float32(heights[o])
-        x = min(max(uv[i, 0] * width - half, zero), width - one)
-        y = min(max(uv[i, 1] * height - half, zero), height - one)
-        x0 = np.int32(x)
-        y0 = np.int32(y)
-        fx = np.float64(x) - np.float64(x0)
-        fy = np.float64(y) - np.float64(y0)
-        stride = widths[o] + 1
-        base = offsets[o] + y0 * stride + x0
+        base, stride, fx, fy = _bilinear_site(widths, offsets, heights, obj[i], uv[i, 0], uv[i, 1])
         w = np.float64(weight[i])
         target = sample[i]
-        for c in range(channels):
-            a = albedo[base, c % 3]
-            a_bottom = np.float64(a) + np.float64(albedo[base + 1, c % 3] - a) * fx
-            a = albedo[base + stride, c % 3]
-            a_top = np.float64(a) + np.float64(albedo[base + stride + 1, c % 3] - a) * fx
-            lit = (a_bottom + (a_top - a_bottom) * fy) / np.pi * at_hits[i, c]
-            r = reflected[base, c]
-            bottom = np.float64(r) + np.float64(reflected[base + 1, c] - r) * fx
-            r = reflected[base + stride, c]
-            top = np.float64(r) + np.float64(reflected[base + stride + 1, c] - r) * fx
-            result[target, c] += (lit - (bottom + (top - bottom) * fy)) * w
+        for c in range(reflected.shape[1]):
+            lit = _blend(albedo, base, stride, c % 3, fx, fy) / np.pi * at_hits[i, c]
+            result[target, c] += (lit - _blend(reflected, base, stride, c, fx, fy)) * w
 
 
 @nb.njit(**SERIAL_OPTIONS)

@@ -444,8 +444,9 @@ class BakeJob:
                                          table_needed=True if self.setups else None, cache=self.cache,
                                          require_cached_table=self.relight_only, keep_bytes=keep_bytes,
                                          reuse=self.relight_only)
-        if not self.keep_preparation and not self.prepared.resident:
-            # Nothing relights it again: its footprints go before the gathers need their memory.
+        if not self.prepared.resident:
+            # Not kept (a command's bake, or beyond Resident Memory): nothing relights it again,
+            # so its footprints go before the gathers need their memory.
             self.prepared.relit_once = True
 
     def compute_lighting(self) -> None:
