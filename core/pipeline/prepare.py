@@ -94,8 +94,9 @@ class Prepared:
     light_memo: LightMemo = field(default_factory=LightMemo)
     # Kept for later relights (core.pipeline.resident): its transport is split into parts they can reuse.
     resident: bool = False
-    # Relit once by its caller (a command's bake): the transport lets go of what only direct
-    # light reads as soon as the last of it is computed (drop_direct_inputs).
+    # Relit once by its caller (a bake whose preparation is not kept: operators.adapter.job):
+    # the transport lets go of what only direct light reads as soon as the last of it is
+    # computed (drop_direct_inputs).
     relit_once: bool = False
     _direct_inputs_dropped: bool = False
 
