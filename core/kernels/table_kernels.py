@@ -20,7 +20,7 @@ from ..visibility.table import (
     UV_CODE_SCALE,
 )
 from . import KERNEL_OPTIONS
-from .bits import entry_of, trailing_zeros
+from .bits import entry_of, popcount, trailing_zeros
 
 _F32 = np.float32
 
@@ -267,18 +267,14 @@ def entry_columns(above_words, word_base, values, start, stop, out):
     if stop <= start:
         return
     first_word = start >> 6
+    before_start = (np.uint64(1) << np.uint64(start & 63)) - np.uint64(1)
     for row in nb.prange(above_words.shape[0]):
         # The stored entries before ``start`` in its word come first: skip them.
-        word = above_words[row, first_word]
-        below = word & ((np.uint64(1) << np.uint64(start & 63)) - np.uint64(1))
-        e = word_base[row, first_word]
-        while below != np.uint64(0):
-            below &= below - np.uint64(1)
-            e += 1
+        e = word_base[row, first_word] + np.int64(popcount(above_words[row, first_word] & before_start))
         for w in range(first_word, (stop + 63) >> 6):
             word = above_words[row, w]
             if w == first_word:
-                word &= ~((np.uint64(1) << np.uint64(start & 63)) - np.uint64(1))
+                word &= ~before_start
             while word != np.uint64(0):
                 k = w * 64 + np.int64(trailing_zeros(word))
                 if k >= stop:

@@ -105,6 +105,8 @@ class Prepared:
         preset) once the samples' direct light and the short hits are found: the short hits'
         own direct light and the gathers, whose working memory is the bake's highest, read none.
         For a preparation relit once (:attr:`relit_once`); a later read of them is a bug and raises."""
+        if self._direct_inputs_dropped:
+            return
         self.exposed()  # the one pass after direct light that reads the footprint (its point count)
         self.footprint = None
         self._sample_set = None
