@@ -26,11 +26,19 @@ POLL_SECONDS = 0.05
 
 def resident_mib() -> float:
     """This process's resident memory now (Linux), in MiB."""
+    return resident_parts()[0]
+
+
+def resident_parts() -> tuple[float, float, float]:
+    """This process's resident memory now (Linux), in MiB: the whole, and its anonymous and
+    file-backed parts (a table held in a scratch file's mapping is the latter)."""
+    found = {}
     with open("/proc/self/status") as status:
         for line in status:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
+            name = line.split(":")[0]
+            if name in ("VmRSS", "RssAnon", "RssFile"):
+                found[name] = int(line.split()[1]) / 1024
+    return found.get("VmRSS", float("nan")), found.get("RssAnon", float("nan")), found.get("RssFile", float("nan"))
 
 
 def main(argv: list[str]) -> int:
@@ -48,14 +56,20 @@ def main(argv: list[str]) -> int:
     # The highest resident and traced memory of each window of the bake: a window closes when a
     # stage starts (it was the stage before's) or a pass is recorded (it was that pass's).
     windows = []
-    window = {"resident": 0.0}
+    window = {"resident": 0.0, "anon": 0.0, "file": 0.0}
+
+    def watch_resident():
+        resident, anon, file = resident_parts()
+        if resident > window["resident"]:
+            window.update(resident=resident, anon=anon, file=file)
     progress = importlib.import_module(f"{extension.__name__}.core.pipeline.progress")
     start_stage, record_pass = progress.Stages.start, progress.Stages.record_pass
 
     def close(name):
         traced = tracemalloc.get_traced_memory()[1] / 2**20 if tracemalloc.is_tracing() else 0.0
-        windows.append((name, max(window["resident"], resident_mib()), traced))
-        window["resident"] = 0.0
+        watch_resident()
+        windows.append((name, window["resident"], window["anon"], window["file"], traced))
+        window.update(resident=0.0, anon=0.0, file=0.0)
         if tracemalloc.is_tracing():
             tracemalloc.reset_peak()
 
@@ -74,7 +88,7 @@ def main(argv: list[str]) -> int:
 
     def watch():
         while not done.is_set():
-            window["resident"] = max(window["resident"], resident_mib())
+            watch_resident()
             if not resident_only:
                 current, _ = tracemalloc.get_traced_memory()
                 if current > highest["bytes"] + SNAPSHOT_STEP_BYTES:
@@ -87,9 +101,10 @@ def main(argv: list[str]) -> int:
     done.set()
     watcher.join()
     close("the rest")
-    print("highest memory in each window of the bake (MiB, resident and traced):")
-    for name, resident, traced in windows:
-        print(f"  {resident:7.0f} {traced:7.0f}  {name}")
+    print("highest memory in each window of the bake (MiB: resident, its anonymous and file-backed parts "
+          "then, and traced):")
+    for name, resident, anon, file, traced in windows:
+        print(f"  {resident:7.0f} {anon:7.0f} {file:7.0f} {traced:7.0f}  {name}")
     if resident_only:
         return status
     print(f"exit status {status}; traced peak {tracemalloc.get_traced_memory()[1] / 2**20:.0f} MiB; "

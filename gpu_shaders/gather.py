@@ -219,6 +219,7 @@ def _gather_channels(table, normals, scale, layout, radiance, world, progress, e
                 rows, columns = np.nonzero((objects >= 0) & layout.is_vertex[np.maximum(objects, 0)])
                 triangles[rows, columns], uvs[rows, columns] = table.entry_vertex(
                     table.entries.index(rows + start, columns))
+            table.entries.release()
             codes_texture, codes_data = runtime.float_texture(codes.reshape(-1, height, width, 1), True)
             uvs_texture, uvs_data = runtime.float_texture(uvs.reshape(-1, height, width, 2), True)
             if has_vertex:

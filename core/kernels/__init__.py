@@ -246,7 +246,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     from ..visibility.table import DISTANCE_VALUES
     prep_module.close_entries(words, base, objects, np.zeros(1, np.uint16), DISTANCE_VALUES, np.ones(1, np.float32),
                               np.zeros(0), np.zeros(2, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), False)
-    prep_module.exposed_share(words, base, objects, 1, 0.9, np.zeros(1))
+    prep_module.exposed_share(words, base, objects, 1, 0.9, 0, np.zeros(1))
     first = np.zeros(1, np.int64)
     prep_module.texel_owners(first, np.zeros((1, 2), np.float32), first + 1, first + 1, first, first,
                              np.zeros((1, 2), np.int64), np.zeros(1, np.int64))

@@ -21,7 +21,7 @@ from .bits import trailing_zeros
 SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 
 # Samples per task of exposed_share: its counts (slots x block, int32) stay in the core's cache
-# while every direction's row of the block is read.
+# while every direction's row of the block is read. A multiple of 64: the blocks' words are their own.
 EXPOSED_BLOCK = 1024
 
 
@@ -72,19 +72,20 @@ def close_entries(above_words, word_base, hit_object, hit_distance_code, distanc
 
 
 @nb.njit(**KERNEL_OPTIONS)
-def exposed_share(above_words, word_base, hit_object, slots, buried_share, share):
-    """Each sample's share of footprint points that are not buried (core.transport.contacts.
-    exposed_share), in parallel over blocks of samples.
+def exposed_share(above_words, word_base, hit_object, slots, buried_share, first, share):
+    """The share of footprint points that are not buried (core.transport.contacts.exposed_share)
+    of samples [first, first + k), in parallel over blocks of samples.
 
     above_words, word_base, hit_object : the table's stored entries, as in :func:`close_entries`,
     direction i starting from footprint point i % ``slots``; buried_share : float,
     core.transport.contacts.BURIED_POINT_SHARE (an argument, as a constant imported from there
-    would outlive a change in the cached kernel). Output share (K,) float64.
+    would outlive a change in the cached kernel); first : int, a multiple of 64. Output share
+    (k,) float64, the samples' shares.
     """
-    samples = share.shape[0]
-    for block in nb.prange((samples + EXPOSED_BLOCK - 1) // EXPOSED_BLOCK):
-        start = block * EXPOSED_BLOCK
-        stop = min(start + EXPOSED_BLOCK, samples)
+    end = first + share.shape[0]
+    for block in nb.prange((share.shape[0] + EXPOSED_BLOCK - 1) // EXPOSED_BLOCK):
+        start = first + block * EXPOSED_BLOCK
+        stop = min(start + EXPOSED_BLOCK, end)
         traced = np.zeros((slots, stop - start), np.int32)
         backface = np.zeros((slots, stop - start), np.int32)
         for i in range(above_words.shape[0]):
@@ -109,7 +110,7 @@ def exposed_share(above_words, word_base, hit_object, slots, buried_share, share
                     # As numpy: the 16-bit counts against the share times the count in float64.
                     if np.float64(backface[slot, k - start]) >= buried_share * np.float64(rays):
                         buried += 1
-            share[k] = 1.0 - buried / counted if counted > 0 else 1.0
+            share[k - first] = 1.0 - buried / counted if counted > 0 else 1.0
 
 
 @nb.njit(**SERIAL_OPTIONS)

@@ -236,8 +236,13 @@ def cosine_sum(above_words, word_base, hit_object, directions, normals, scale, c
             for j in range(end - start):
                 s = start + j
                 e = entry_of(above_words, word_base, i, s)
-                entry_code = hit_object[e] if e >= 0 else np.int16(BELOW_HORIZON)
-                if (entry_code == code) != counted:
+                # No stored entry is BELOW_HORIZON: asked for that code, the bits answer, and the
+                # entries (a table in a scratch file: pages to map) are not read.
+                if code == BELOW_HORIZON:
+                    is_code = e < 0
+                else:
+                    is_code = (hit_object[e] if e >= 0 else np.int16(BELOW_HORIZON)) == code
+                if is_code != counted:
                     continue
                 cosine = normals[s, 0] * directions[i, 0] + normals[s, 1] * directions[i, 1] \
                     + normals[s, 2] * directions[i, 2]

@@ -99,6 +99,24 @@ class Prepared:
     # computed (drop_direct_inputs).
     relit_once: bool = False
     _direct_inputs_dropped: bool = False
+    _footprint_shading_dropped: bool = False
+
+    def drop_footprint_shading(self) -> None:
+        """Let go of the footprints' box corners and point normals (370 MiB at the Production
+        preset), and of the sample set holding them, once the samples' direct light is computed:
+        the short hits are found from the footprint points alone, and their search is the
+        highest memory of a bake relit once. For a preparation relit once (:attr:`relit_once`);
+        a later read of the sample set or the dense footprints is a bug and raises."""
+        if self._footprint_shading_dropped:
+            return
+        self._sample_set = None
+        if self.footprint is not None:
+            self.footprint = (self.footprint[0], None, None)
+        for samples in self.object_samples:
+            for name in ("footprint_corners", "footprint_normals"):
+                if getattr(samples, name, None) is not None:
+                    setattr(samples, name, None)
+        self._footprint_shading_dropped = True
 
     def drop_footprints(self) -> None:
         """Let go of every footprint (points, box corners and normals: 670 MiB at the Production
@@ -108,12 +126,11 @@ class Prepared:
         if self._direct_inputs_dropped:
             return
         self.exposed()  # the one pass after direct light that reads the footprint (its point count)
+        self.drop_footprint_shading()
         self.footprint = None
-        self._sample_set = None
         for samples in self.object_samples:
-            for name in ("footprint", "footprint_corners", "footprint_normals"):
-                if getattr(samples, name, None) is not None:
-                    setattr(samples, name, None)
+            if getattr(samples, "footprint", None) is not None:
+                samples.footprint = None
         self._direct_inputs_dropped = True
 
     def drop_direct_inputs(self) -> None:
@@ -123,8 +140,10 @@ class Prepared:
         if self._short_hits:
             self._short_hits = replace(self._short_hits, points=None)
 
-    def _check_direct_inputs(self, what: str) -> None:
-        if self._direct_inputs_dropped:
+    def _check_direct_inputs(self, what: str, shading: bool = False) -> None:
+        """Raise where ``what`` is read after the preparation let it go: the footprints, or with
+        ``shading`` their corners and normals (:meth:`drop_footprint_shading`)."""
+        if self._direct_inputs_dropped or (shading and self._footprint_shading_dropped):
             raise RuntimeError(f"bug: {what} read after the preparation let go of its footprints "
                                "(Prepared.drop_direct_inputs)")
 
@@ -143,7 +162,7 @@ class Prepared:
     def dense_footprint(self, rows: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray | None]:
         """``count`` footprint points (r, count, 3) float32 of samples ``rows`` (r,), and their
         normals (r, count, 3) float32 or None (:func:`dense_footprint_of`)."""
-        self._check_direct_inputs("footprint points")
+        self._check_direct_inputs("footprint points", shading=True)
         return dense_footprint_of(self.meshes, self.object_samples.__getitem__, self.sample_offset,
                                   lambda chosen: self.normal[chosen], rows, count, self.settings.threads)
 
@@ -179,7 +198,7 @@ class Prepared:
 
     def sample_set(self) -> SampleSet:
         """All samples as the transport contract's :class:`SampleSet`."""
-        self._check_direct_inputs("the sample set")
+        self._check_direct_inputs("the sample set", shading=True)
         if self._sample_set is None:
             owner = np.repeat(np.arange(len(self.meshes)), np.diff(self.sample_offset))
             points, corners, normals = self.footprint or (None, None, None)
@@ -385,7 +404,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         skipped.append("visibility cache: the table is held by sample rows where they were traced")
     elif table_needed:
         stages.start("cache" if cache is not None else "visibility")
-        request = table_request(meshes, settings, directions, position, geometric, footprint, rotations, group)
+        request = replace(table_request(meshes, settings, directions, position, geometric, footprint, rotations,
+                                        group), scratch_folder=scratch_folder(cache))
         table, status, visibility_rays = _cached_or_traced_table(TableJob(
             meshes, object_keys, key, settings, request, sample_offset, ray_scene, cache, require_cached_table,
             stages, skipped, warnings))
@@ -603,6 +623,20 @@ def table_request(meshes, settings: BakeSettings, directions, position, geometri
                         None if footprint is None else footprint[0], rotations, group)
 
 
+def scratch_folder(cache: VisibilityCache | None) -> str | None:
+    """Where a large table is held while a bake runs (core.visibility.scratch): the cache folder,
+    which the user chose for tables, made if need be; None (in memory) where caching is off or
+    the folder cannot be written. Not the system's temporary folder: it may be a tmpfs, whose
+    pages are memory however the process hands them back, and the user did not choose it."""
+    if cache is None or cache.read_only:
+        return None
+    try:
+        os.makedirs(cache.folder, exist_ok=True)
+    except OSError:
+        return None
+    return cache.folder
+
+
 def scene_hit_geometry(meshes) -> HitGeometry:
     """Where a ray's hit on any of ``meshes`` lands in the table: bake-UV corners (zeros
     for vertex-mode objects, whose hits keep barycentrics instead), face normals and
@@ -649,7 +683,11 @@ def _cached_or_traced_table(job: TableJob):
     meta = None
 
     def trace(report):
-        return trace_table(ray_scene, job.request, report)
+        table = trace_table(ray_scene, job.request, report)
+        if table.entries.mapping_error:
+            warnings.append(f"the visibility table is held in memory: its scratch file in "
+                            f"{job.request.scratch_folder} could not be made ({table.entries.mapping_error})")
+        return table
 
     def announce(size):
         status.estimated_bytes = size

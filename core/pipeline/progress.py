@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 from ..errors import Cancelled
+from .budget import release_free_heap
 
 
 class Stages:
@@ -20,6 +21,7 @@ class Stages:
 
     def start(self, name: str) -> None:
         self.stop()
+        release_free_heap()
         self._name = name
         self._start = time.perf_counter()
         self.report(0.0)
@@ -27,6 +29,7 @@ class Stages:
     def record_pass(self, name: str, device: str, seconds: float) -> None:
         """One transport pass (a direct-light pass, a gather) for the report."""
         self.passes.append({"pass": name, "device": device, "seconds": round(seconds, 4)})
+        release_free_heap()
 
     def book(self, name: str, seconds: float) -> None:
         """Count ``seconds`` of the running stage as ``name`` (one progress bar, two timings)."""

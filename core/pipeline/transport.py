@@ -259,6 +259,8 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         skipped.append("sharp contacts: shadow fractions have no shadow to evaluate where short rays land")
         return None
     started = time.perf_counter()
+    if last_direct:
+        p.drop_footprint_shading()
     short = p.short_hits()
     if last_direct:
         p.drop_footprints()

@@ -37,7 +37,7 @@ import numpy as np
 from .. import kernels
 from ..distributed.split import SplitTable
 from ..geometry import mesh_triangle_areas
-from ..visibility.table import BACKFACE, BELOW_HORIZON, DISTANCE_VALUES
+from ..visibility.table import BACKFACE, BELOW_HORIZON, DISTANCE_VALUES, ENTRY_BYTES, RELEASE_BYTES, WORD_BITS
 from .contract import SampleSet
 
 # A hit nearer than this many of its target's texels is evaluated at its landing point.
@@ -63,8 +63,14 @@ def exposed_share(table, slots: int, threads: int = 0) -> np.ndarray:
         return _exposed_share_numpy(table, slots)
     entries = table.entries
     share = np.empty(entries.samples)
-    kernels.run(module.exposed_share, threads, entries.above_words, entries.word_base, entries.hit_object,
-                max(int(slots), 1), BURIED_POINT_SHARE, share)
+    # A range of samples at a time (whole words of the entry bits), its entries' pages handed
+    # back after it (a table in a scratch file, TableEntries.release): each range reads about
+    # RELEASE_BYTES of hit_object.
+    per_range = max(1, RELEASE_BYTES // max(2 * entries.directions * WORD_BITS, 1)) * WORD_BITS
+    for first in range(0, entries.samples, per_range):
+        kernels.run(module.exposed_share, threads, entries.above_words, entries.word_base, entries.hit_object,
+                    max(int(slots), 1), BURIED_POINT_SHARE, first, share[first:first + per_range])
+        entries.release()
     return share
 
 
@@ -164,19 +170,50 @@ def table_close_entries(table, target_reach: np.ndarray, sample_reach: np.ndarra
         sample, direction, entry = _table_close_entries_numpy(table, target_reach, sample_reach)
     else:
         entries = table.entries
-        arguments = [entries.above_words, entries.word_base, entries.hit_object, entries.hit_distance_code,
-                     DISTANCE_VALUES, np.ascontiguousarray(target_reach, np.float32),
+        arguments = [entries.hit_object, entries.hit_distance_code, DISTANCE_VALUES,
+                     np.ascontiguousarray(target_reach, np.float32),
                      np.zeros(0) if sample_reach is None else np.ascontiguousarray(sample_reach, np.float64)]
         offsets = np.zeros(count + 1, np.int64)
         none = np.zeros(0, np.int64)
-        kernels.run(module.close_entries, threads, *arguments, offsets, none, none, False)
+        # A range of directions (rows) at a time, each range's pages handed back after it (a
+        # table in a scratch file): the directions' counts and lists are each range's own.
+        rows = max(1, RELEASE_BYTES // max(4 * entries.stored // max(count, 1), 1))
+        ranges = [(first, min(count, first + rows)) for first in range(0, count, rows)]
+        for first, last in ranges:
+            kernels.run(module.close_entries, threads, entries.above_words[first:last], entries.word_base[first:last],
+                        *arguments, offsets[first:last + 1], none, none, False)
+            entries.release()
         np.cumsum(offsets, out=offsets)
         sample = np.empty(offsets[-1], np.int64)
         entry = np.empty(offsets[-1], np.int64)
-        kernels.run(module.close_entries, threads, *arguments, offsets, sample, entry, True)
+        for first, last in ranges:
+            kernels.run(module.close_entries, threads, entries.above_words[first:last], entries.word_base[first:last],
+                        *arguments, offsets[first:last + 1], sample, entry, True)
+            entries.release()
         direction = np.repeat(np.arange(count, dtype=np.int64), np.diff(offsets))
-    return (sample, direction, table.entries.hit_object[entry].astype(np.int64), table.entry_uv(entry),
-            table.entry_distance_floor(entry))
+    return (sample, direction, *_close_entry_values(table, entry))
+
+
+def _close_entry_values(table, entry: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The objects (m,) int64, atlas coordinates (m, 2) float32 and distance floors (m,) float64
+    of the stored entries ``entry`` (m,) int64, ascending: those of one span of RELEASE_BYTES of
+    the table at a time, its pages handed back after each (a table in a scratch file; a few
+    entries of every page would otherwise map the whole table)."""
+    obj = np.empty(len(entry), np.int64)
+    uv = np.empty((len(entry), 2), np.float32)
+    floor = np.empty(len(entry), np.float64)
+    span = max(1, RELEASE_BYTES // ENTRY_BYTES)
+    cuts = np.searchsorted(entry, np.arange(span, table.entries.stored + span, span))
+    start = 0
+    for stop in cuts:
+        if stop > start:
+            part = entry[start:stop]
+            obj[start:stop] = table.entries.hit_object[part]
+            uv[start:stop] = table.entry_uv(part)
+            floor[start:stop] = table.entry_distance_floor(part)
+            table.entries.release()
+        start = stop
+    return obj, uv, floor
 
 
 def _table_close_entries_numpy(table, target_reach: np.ndarray, sample_reach: np.ndarray | None):
@@ -253,10 +290,15 @@ def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None
         return None
     owner = _texel_owners(p, entries.obj, entries.uv)
     found = owner >= 0
-    sample, direction, weight, obj, uv, floor, owner = (
-        a[found] for a in (entries.sample, entries.direction, entries.weight, entries.obj, entries.uv, entries.floor,
-                           owner))
-    del entries, found
+    # One array at a time, each whole one let go once its kept part is taken: at the Production
+    # preset the search is a bake's highest memory, and both copies at once were 190 MB more.
+    kept = []
+    for name in ("sample", "direction", "weight", "obj", "uv", "floor"):
+        kept.append(getattr(entries, name)[found])
+        setattr(entries, name, None)
+    sample, direction, weight, obj, uv, floor = kept
+    owner = owner[found]
+    del entries, found, kept
     count = len(sample)
     if not count:
         return None

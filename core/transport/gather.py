@@ -243,6 +243,7 @@ def _gather_compiled(module, geometry: GatherGeometry, source: GatherSource, pro
     for start in range(first, stop, step):
         if len(chosen):
             kernels.run(module.gather, geometry.threads, *arguments, start, min(stop, start + step), *atlases)
+            geometry.table.entries.release()
         if progress is not None:
             progress((min(stop, start + step) - first) / max(stop - first, 1))
     if samples is None:
@@ -366,6 +367,7 @@ def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.nda
             kernels.run(module.cosine_sum, threads, *_stored_entries(table),
                         np.ascontiguousarray(table.directions, np.float64), np.ascontiguousarray(normals, np.float64),
                         np.ascontiguousarray(scale, np.float64), np.int16(MISS), True, open_weight)
+            table.entries.release()
     else:
         for i, direction in enumerate(table.directions):
             weight = np.clip(normals @ direction, 0.0, None) * scale

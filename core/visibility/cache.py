@@ -31,6 +31,7 @@ import hashlib
 import json
 import os
 import re
+import struct
 import tempfile
 import time
 import zipfile
@@ -48,6 +49,7 @@ except ImportError:  # Windows: an open file cannot be removed, which serves as 
     fcntl = None
 from ..scene import Mesh
 from ..settings import BakeSettings
+from .scratch import CAN_MAP_FILES, MappedFile
 from .table import ENTRY_ARRAYS, TableEntries, entries_nbytes
 
 # Bump whenever the meaning of a cached array changes (sampling, table codes, layout).
@@ -101,6 +103,75 @@ def unpack_entries(packed, samples: int) -> TableEntries:
         return TableEntries.from_stored(packed[ABOVE_WORDS], samples, {name: packed[name] for name in ENTRY_ARRAYS})
     except ValueError as error:
         raise CorruptCache(str(error)) from None
+
+
+def _member_layout(stream, archive: zipfile.ZipFile, name: str) -> tuple[int, np.dtype, tuple] | None:
+    """Where array ``name``'s bytes lie in the open table file: (offset, dtype, shape), or None
+    where they cannot be mapped in place (compressed, Fortran order, not aligned for its dtype:
+    a file written before members were aligned)."""
+    info = archive.getinfo(f"{name}.npy")
+    if info.compress_type != zipfile.ZIP_STORED:
+        return None
+    stream.seek(info.header_offset)
+    local = stream.read(30)
+    if len(local) != 30 or local[:4] != b"PK\x03\x04":
+        raise ValueError(f"the local header of {name} is damaged")
+    name_length, extra_length = struct.unpack("<HH", local[26:30])
+    start = info.header_offset + 30 + name_length + extra_length
+    stream.seek(start)
+    version = np.lib.format.read_magic(stream)
+    reader = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = reader(stream)
+    offset = stream.tell()
+    nbytes = int(dtype.itemsize * np.prod(shape, dtype=np.int64))
+    if fortran or dtype.hasobject or offset % max(dtype.alignment, 1) or offset - start + nbytes != info.file_size:
+        return None
+    return offset, dtype, tuple(shape)
+
+
+# Bytes of a mapped array checksummed between handing its pages back.
+CHECK_STEP_BYTES = 64 << 20
+
+
+def _mapped_arrays(path: str, meta: dict, names) -> tuple[dict, MappedFile] | None:
+    """The arrays ``names`` of a table file mapped in place, each checked against its digest a
+    step at a time (the pages handed back after each), and the mapping; None where the file's
+    members cannot be mapped (then they are read: :func:`_read_arrays`). Raises CorruptCache
+    where an array does not match its checksum or the file cannot be read."""
+    if not CAN_MAP_FILES:
+        return None
+    try:
+        with open(path, "rb") as stream, zipfile.ZipFile(stream) as archive:
+            layouts = {name: _member_layout(stream, archive, name) for name in names}
+        if any(layout is None for layout in layouts.values()):
+            return None
+        mapped = MappedFile(path)
+        arrays = {name: mapped.array(*layout) for name, layout in layouts.items()}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+        raise CorruptCache(f"unreadable ({type(error).__name__}: {error})") from None
+    digests = meta.get("digests") or {}
+    for name, array in arrays.items():
+        crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode())
+        data = array.reshape(-1).view(np.uint8)
+        for start in range(0, len(data), CHECK_STEP_BYTES):
+            crc = zlib.crc32(data[start:start + CHECK_STEP_BYTES], crc)
+            mapped.release()
+        if f"crc32:{crc:08x}" != digests.get(name):
+            raise CorruptCache(f"its {name} does not match its checksum")
+    return arrays, mapped
+
+
+def _read_entries(path: str, meta: dict, samples: int) -> TableEntries:
+    """A table file's :class:`TableEntries`: mapped in place where the file allows
+    (:func:`_mapped_arrays`; its pages are handed back as the passes read them, like a table
+    traced into a scratch file), else read into memory one array at a time."""
+    mapped = _mapped_arrays(path, meta, _stored_entry_arrays(meta))
+    if mapped is None:
+        return unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), samples)
+    arrays, mapping = mapped
+    entries = unpack_entries(arrays, samples)
+    entries.scratch = mapping
+    return entries
 
 
 class _ArraysOnDemand(Mapping):
@@ -249,19 +320,57 @@ def remove_abandoned_writes(folder: str, before: float) -> int:
     return removed
 
 
-def _save_npz(stream, arrays: dict, meta: dict) -> None:
+# Bytes of an array written (and checksummed) between calls to _save_npz's ``release``.
+WRITE_STEP_BYTES = 64 << 20
+
+
+# The member's data starts at a multiple of this in the file (numpy pads its own header to 64
+# bytes), so that a reader can map the arrays in place (_mapped_arrays).
+MEMBER_ALIGN = 64
+# The zip extra field that pads a member's local header (an id of our own: readers skip it).
+_PADDING_EXTRA_ID = 0x5650
+
+
+def _aligned_member(name: str, offset: int) -> zipfile.ZipInfo:
+    """A stored member ``name`` whose local header, written at ``offset`` with a zip64 extra
+    (20 bytes, ``force_zip64``), ends at a multiple of MEMBER_ALIGN: its extra field is padded."""
+    info = zipfile.ZipInfo(name, date_time=time.localtime()[:6])
+    info.compress_type = zipfile.ZIP_STORED
+    fixed = offset + 30 + len(name.encode()) + 4 + 20
+    pad = -fixed % MEMBER_ALIGN
+    info.extra = struct.pack("<HH", _PADDING_EXTRA_ID, pad) + bytes(pad)
+    return info
+
+
+def _save_npz(stream, arrays: dict, meta: dict, release=None) -> None:
     """``np.savez`` of ``arrays`` and then the header ``meta`` with every array's digest,
     the archive closed on every exit (numpy leaves its ZipFile open when interrupted, and its
     finaliser then prints 'Exception ignored in ZipFile.__del__'). An array given as a callable
     is made when its turn comes and dropped once written, so a table's large arrays are never
-    all in memory at once; the header goes last because the digests are known only then."""
+    all in memory at once; the header goes last because the digests are known only then.
+
+    Each array is checksummed and written in steps of WRITE_STEP_BYTES, ``release()`` (if
+    given) called after each: a table held in a scratch file hands back the pages read
+    (TableEntries.release), so the write never holds the whole table resident."""
     digests = {}
     with zipfile.ZipFile(stream, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
         for name, array in arrays.items():
             array = np.asanyarray(array() if callable(array) else array)
-            digests[name] = _digest(name, array)
-            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                np.lib.format.write_array(member, array, allow_pickle=False)
+            if array.dtype.hasobject:
+                raise ValueError(f"{name}: object arrays are not stored")
+            if not array.flags.c_contiguous:
+                array = np.array(array, order="C")
+            crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode())
+            with archive.open(_aligned_member(f"{name}.npy", stream.tell()), "w", force_zip64=True) as member:
+                np.lib.format.write_array_header_1_0(member, np.lib.format.header_data_from_array_1_0(array))
+                data = array.reshape(-1).view(np.uint8)
+                for start in range(0, len(data), WRITE_STEP_BYTES):
+                    step = data[start:start + WRITE_STEP_BYTES]
+                    crc = zlib.crc32(step, crc)
+                    member.write(step)
+                    if release is not None:
+                        release()
+            digests[name] = f"crc32:{crc:08x}"
             del array
         header = {**meta, "format": FORMAT_VERSION, "digests": digests}
         with archive.open("meta.npy", "w", force_zip64=True) as member:
@@ -269,16 +378,16 @@ def _save_npz(stream, arrays: dict, meta: dict) -> None:
                                       allow_pickle=False)
 
 
-def _write(path: str, meta: dict, arrays: dict) -> int:
+def _write(path: str, meta: dict, arrays: dict, release=None) -> int:
     """Write atomically (a reader never sees half a file); returns the size in bytes.
-    ``arrays``: name -> array, or a callable making it (see :func:`_save_npz`)."""
+    ``arrays``: name -> array, or a callable making it; ``release``: see :func:`_save_npz`."""
     folder = os.path.dirname(path)
     os.makedirs(folder, exist_ok=True)
     handle, temporary = tempfile.mkstemp(prefix=WRITING_PREFIX, suffix=".npz", dir=folder)
     try:
         with os.fdopen(handle, "wb") as stream:
             _lock(stream)
-            _save_npz(stream, arrays, meta)
+            _save_npz(stream, arrays, meta, release)
         os.replace(temporary, path)
     except BaseException:
         if os.path.exists(temporary):
@@ -445,7 +554,7 @@ class VisibilityCache:
 
         def read_large():
             try:
-                return {"entries": unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)), samples)}
+                return {"entries": _read_entries(path, meta, samples)}
             except CorruptCache as error:
                 if damaged is None:
                     raise
@@ -459,8 +568,7 @@ class VisibilityCache:
     def load_table(self, settings: BakeSettings, meta: dict) -> CachedTable:
         path = self.table_path(settings)
         arrays = _read_arrays(path, meta, _small_arrays(meta))
-        entries = unpack_entries(_ArraysOnDemand(path, meta, _stored_entry_arrays(meta)),
-                                 len(arrays["traced_per_sample"]))
+        entries = _read_entries(path, meta, len(arrays["traced_per_sample"]))
         self._touch(path)
         return CachedTable(arrays={**arrays, "entries": entries}, object_names=list(meta["object_names"]),
                            object_keys=list(meta["object_keys"]),
@@ -497,7 +605,7 @@ class VisibilityCache:
             arrays["vertex_cells"] = np.asarray(table.vertex_cells, np.int64)
         arrays.update(stored)
         meta["arrays"] = sorted(arrays)
-        size = _write(self.table_path(settings), meta, arrays)
+        size = _write(self.table_path(settings), meta, arrays, table.entries.release)
         self.clear_lighting(settings)  # results of the old table are of no use any more
         return size
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from .. import tolerances as tol
 from .directions import ShadowRegions
-from .table import BELOW_HORIZON, MISS, VisibilityTable, decode_distance
+from .table import BELOW_HORIZON, ENTRY_BYTES, MISS, RELEASE_BYTES, VisibilityTable, decode_distance
 
 
 @dataclass
@@ -75,6 +75,8 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
     if light_distance is not None:
         limit = (np.asarray(light_distance, np.float64) * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)
     columns = np.arange(samples)
+    # Rows read between handing the pages back (a table in a scratch file, TableEntries.release).
+    release_rows = max(1, RELEASE_BYTES // max(ENTRY_BYTES * entries.stored // max(entries.directions, 1), 1))
     rotated = None
     if rotations is not None:
         turned = np.einsum("gab,nb->gna", rotations, np.asarray(table.directions, np.float64))
@@ -91,4 +93,7 @@ def shadow_fractions(table: VisibilityTable, regions: ShadowRegions, light_dista
         else:
             distance = decode_distance(entries.dense("hit_distance_code", i, i + 1)[0])
             lit[region] += (row != BELOW_HORIZON) & (distance >= limit)
+        if (i + 1) % release_rows == 0:
+            entries.release()
+    entries.release()
     return ShadowFractions(regions=regions, lit=lit, traced=traced)

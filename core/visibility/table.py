@@ -15,6 +15,7 @@ import numpy as np
 from .. import kernels
 from .. import tolerances as tol
 from .rays import RayScene
+from .scratch import ScratchArrays, mapped_layout
 
 MISS = -1
 BELOW_HORIZON = -2
@@ -141,6 +142,10 @@ _BYTE_BITS = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(
 # entry is stored.
 ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.uint16, (2,), 0),
                 "hit_distance_code": (np.uint16, (), NO_HIT_DISTANCE_CODE)}
+ENTRY_BYTES = 8
+# A pass over a table held in a scratch file hands its pages back after about this many bytes
+# of entries (TableEntries.release): what it keeps resident, against one system call per step.
+RELEASE_BYTES = 64 << 20
 
 
 def words_of(mask: np.ndarray) -> np.ndarray:
@@ -175,6 +180,9 @@ class TableEntries:
     word_base : (N, W) int64, the index of each word's first stored entry
     hit_object : (A,) int16, hit_uv_code : (A, 2) uint16, hit_distance_code : (A,) uint16, the
         A stored entries row by row, samples ascending (the codes of :class:`VisibilityTable`)
+    scratch : the :class:`~core.visibility.scratch.ScratchArrays` holding the three per-entry
+        arrays, or None where they are in memory; a pass that has read a part of the table calls
+        :meth:`release` to hand its pages back
     """
 
     samples: int
@@ -183,15 +191,37 @@ class TableEntries:
     hit_object: np.ndarray
     hit_uv_code: np.ndarray
     hit_distance_code: np.ndarray
+    scratch: ScratchArrays | None = None
 
     @classmethod
-    def empty(cls, above_words: np.ndarray, samples: int) -> "TableEntries":
+    def empty(cls, above_words: np.ndarray, samples: int, scratch_folder: str | None = None) -> "TableEntries":
         """Room for the entries ``above_words`` (N, W) uint64 marks, to be written by a trace (every
-        marked entry is written: their values start undefined)."""
+        marked entry is written: their values start undefined). With ``scratch_folder``, a table
+        of at least MIN_MAPPED_BYTES is held in a scratch file there (core.visibility.scratch), or
+        in memory where that file cannot be made (``mapping_error`` of the result says why)."""
         above_words = np.ascontiguousarray(above_words, np.uint64)
         word_base, stored = _word_base(above_words)
-        return cls(int(samples), above_words, word_base, np.empty(stored, np.int16), np.empty((stored, 2), np.uint16),
-                   np.empty(stored, np.uint16))
+        layout = {name: (dtype, (stored, *tail)) for name, (dtype, tail, _) in ENTRY_ARRAYS.items()}
+        error = ""
+        if scratch_folder is not None and mapped_layout(layout):
+            try:
+                scratch = ScratchArrays(scratch_folder, layout)
+            except OSError as failure:
+                error = f"{type(failure).__name__}: {failure}"
+            else:
+                return cls(int(samples), above_words, word_base, **scratch.arrays, scratch=scratch)
+        entries = cls(int(samples), above_words, word_base,
+                      **{name: np.empty(shape, dtype) for name, (dtype, shape) in layout.items()})
+        entries.mapping_error = error
+        return entries
+
+    mapping_error = ""  # why a table meant for a scratch file is in memory (see empty)
+
+    def release(self) -> None:
+        """Hand back the resident pages of a table held in a scratch file (nothing otherwise):
+        called by each pass over the table once it is done with what it has read."""
+        if self.scratch is not None:
+            self.scratch.release()
 
     @classmethod
     def from_dense(cls, hit_object: np.ndarray, hit_uv_code: np.ndarray, hit_distance_code: np.ndarray
@@ -278,6 +308,7 @@ class TableEntries:
             if self.samples:
                 kernels.run(module.count_per_sample, 0, self.above_words, self.word_base, self.hit_object,
                             np.int16(code), counts)
+                self.release()
             return counts
         rows = max(1, (1 << 22) // max(self.samples, 1))
         for first in range(0, self.directions, rows):
@@ -460,13 +491,13 @@ class DeferredTable:
 
 def entries_nbytes(directions: int, samples: int, stored: int) -> int:
     """Bytes of the :class:`TableEntries` of ``stored`` entries of a (directions, samples) table."""
-    return directions * -(-samples // WORD_BITS) * 16 + stored * (2 + 4 + 2)
+    return directions * -(-samples // WORD_BITS) * 16 + stored * ENTRY_BYTES
 
 
 def table_bytes(directions: int, samples: int) -> int:
     """Memory the table of ``samples`` samples can need, for refusing before allocating: every
     entry stored (a sample's horizon keeps about half), and the bits and word offsets."""
-    return directions * samples * (2 + 4 + 2) + directions * -(-samples // WORD_BITS) * 16
+    return directions * samples * ENTRY_BYTES + directions * -(-samples // WORD_BITS) * 16
 
 
 @dataclass(frozen=True)
@@ -513,6 +544,8 @@ class TraceRequest:
         table averages the footprint; None: from the sample's position
     rotations : (G, 3, 3) float64 and group : (K,) int or None; sample k's direction i is
         ``rotations[group[k]] @ directions[i]`` (interleaved rotations of the set)
+    scratch_folder : where a large table is held in a scratch file (TableEntries.empty), or
+        None to hold it in memory
     """
 
     directions: np.ndarray
@@ -523,6 +556,7 @@ class TraceRequest:
     footprint: np.ndarray | None = None
     rotations: np.ndarray | None = None
     group: np.ndarray | None = None
+    scratch_folder: str | None = None
 
     def rows(self, start: int, stop: int) -> TraceRequest:
         """The request of samples [start, stop) only (0 <= start <= stop <= K): the per-sample
@@ -853,9 +887,10 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     hits = request.hits
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
     above_words, traced_per_sample = above_horizon(directions, request.horizon_normals(), request.chunk_rays)
-    entries = TableEntries.empty(above_words, samples)
+    entries = TableEntries.empty(above_words, samples, request.scratch_folder)
     chunk = _word_chunk(count, request.chunk_rays)
     rays_cast = 0
+    written_since_release = 0
     backface_per_sample = np.zeros(samples, np.int32)
     buffers = RayBuffers(min(chunk, samples) * count)
     for start in range(0, samples, chunk):
@@ -875,8 +910,13 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
             # afterwards, this was a separate pass of 0.1 s on the demo.
             back = entries.hit_object[entry] == BACKFACE
             backface_per_sample[start:stop] = np.bincount(sample_index[back] - start, minlength=stop - start)
+            written_since_release += len(sample_index)
+            if written_since_release * ENTRY_BYTES >= RELEASE_BYTES:
+                entries.release()
+                written_since_release = 0
         if progress is not None:
             progress(stop / samples)
+    entries.release()
     return _finish(directions, entries, traced_per_sample, rays_cast, geometry, backface_per_sample)
 
 

@@ -170,18 +170,18 @@ def test_a_read_only_cache_reads_but_never_writes_or_removes(tmp_path):
 def test_an_interrupted_cache_write_leaves_no_file_and_no_unclosed_archive(tmp_path, monkeypatch):
     unraisable = []
     monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
-    write_array = np.lib.format.write_array
+    write_header = np.lib.format.write_array_header_1_0
     written = []
 
-    def interrupted_after_one(stream, array, **options):
+    def interrupted_after_one(stream, header):
         # Ctrl+C in the middle of the archive: one member written, the next cut short.
         if written:
             stream.write(b"\x93NUMPY half")
             raise KeyboardInterrupt
-        written.append(array)
-        write_array(stream, array, **options)
+        written.append(header)
+        write_header(stream, header)
 
-    monkeypatch.setattr(np.lib.format, "write_array", interrupted_after_one)
+    monkeypatch.setattr(np.lib.format, "write_array_header_1_0", interrupted_after_one)
     path = str(tmp_path / "slot" / "visibility.npz")
     with pytest.raises(KeyboardInterrupt):
         cache_module._write(path, {"kind": "table"}, {"a": np.ones(1000), "b": np.zeros(1000)})
