@@ -1,7 +1,7 @@
 """The visibility trace alone, timed on a real bake's request, split into its parts.
 
     .venv/bin/python benchmarks/trace_timing.py [--scene demo|sun_occluders|...] [--repeats 3]
-        [--chunk-rays N] [--out benchmarks/results/trace_timing.json]
+        [--chunk-rays N] [--scratch DIR] [--out benchmarks/results/trace_timing.json]
 
 Prepares the scene as ``make bench`` bakes its N = 256 row (64^2, exact shadows), or the demo
 as ``visibake demo`` bakes it (128 directions), then traces its table ``--repeats`` times in the
@@ -10,7 +10,8 @@ ray set-up, the record into the table, the finish (the table's counters) and the
 part 8 also the entry bits, "horizon bits", and each chunk's list of rays, "ray list"). The
 table's digest is printed, so that two checkouts can be compared: run the script in each
 (``git worktree add``), alternately, as docs/benchmarks.md's speed part 7 did; both must
-print the same digest.
+print the same digest. ``--scratch DIR`` traces into a scratch file there, as a bake with a
+cache folder does (core.visibility.scratch; from speed part 10), instead of into memory.
 """
 import argparse
 import collections
@@ -31,6 +32,7 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", default="demo")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--chunk-rays", type=int, default=0, help="rays per chunk (default: the bake's setting)")
+    parser.add_argument("--scratch", default=None, help="trace into a scratch file in this folder")
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "trace_timing.json"))
     args = parser.parse_args(argv)
 
@@ -46,6 +48,8 @@ def main(argv=None) -> int:
     request, ray_scene = prepared.trace_request(), prepared.ray_scene
     if args.chunk_rays > 0:
         request = dataclasses.replace(request, chunk_rays=args.chunk_rays)
+    if args.scratch:
+        request = dataclasses.replace(request, scratch_folder=args.scratch)
 
     seconds = collections.defaultdict(float)
 
@@ -84,7 +88,7 @@ def main(argv=None) -> int:
               + ", ".join(f"{k} {v:.3f} s" for k, v in runs[-1].items() if k != "seconds"), flush=True)
         del table
     print(f"table digest {digest}")
-    write_results(args.out, {"scene": args.scene, "chunk_rays": request.chunk_rays,
+    write_results(args.out, {"scene": args.scene, "chunk_rays": request.chunk_rays, "scratch": bool(args.scratch),
                              "rays": int(prepared.table.rays_cast), "digest": digest,
                              "blender": bpy.app.version_string, "runs": runs})
     return 0

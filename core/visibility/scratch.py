@@ -11,7 +11,8 @@ working on.
 The file is made with ``tempfile.TemporaryFile``: on POSIX it has no name from the start, so
 nothing is left behind however the process ends; on Windows the system deletes it when the
 last handle (the mapping's) closes. Its space is reserved up front (``posix_fallocate``), so a
-full disk is found before the trace, not as a fault in the middle of it.
+full disk is found before the trace, not as a fault in the middle of it (where the system has
+no ``posix_fallocate``, twice the file's size must be free on the disk).
 
 Where the system cannot hand pages back (Windows: ``mmap.madvise`` does not exist), the
 mapping still works and :meth:`ScratchArrays.release` does nothing.
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import shutil
 import tempfile
 
 import numpy as np
@@ -45,6 +47,12 @@ class ScratchArrays:
             nbytes = int(np.dtype(dtype).itemsize * np.prod(shape, dtype=np.int64))
             size += -(-nbytes // _ALIGN) * _ALIGN
         self.nbytes = max(size, _ALIGN)
+        if not hasattr(os, "posix_fallocate"):
+            # Without a reservation the file is sparse, and a write into a full disk through the
+            # mapping is a fault (SIGBUS), not an error: ask for twice the room, or stay in memory.
+            free = shutil.disk_usage(folder or tempfile.gettempdir()).free
+            if free < 2 * self.nbytes:
+                raise OSError(f"{free / 2**20:.0f} MiB free in {folder}, {2 * self.nbytes / 2**20:.0f} MiB wanted")
         with tempfile.TemporaryFile(prefix="visibake-table-", dir=folder) as stream:
             if hasattr(os, "posix_fallocate"):
                 os.posix_fallocate(stream.fileno(), 0, self.nbytes)

@@ -2,6 +2,7 @@
 back after each part of a pass: the same bits as a table in memory, and nothing left on disk."""
 import os
 from dataclasses import astuple
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -68,6 +69,23 @@ def test_a_scratch_file_that_cannot_be_made_leaves_the_table_in_memory_and_says_
     mapped = TableEntries.empty(words, 4, str(tmp_path))
     assert mapped.scratch is not None and not mapped.mapping_error
     assert [getattr(mapped, name).dtype for name in ENTRY_ARRAYS] == [d for d, _, _ in ENTRY_ARRAYS.values()]
+
+
+def test_without_a_space_reservation_a_disk_without_room_leaves_the_table_in_memory(monkeypatch, tmp_path):
+    """Where the system cannot reserve the file's space (no posix_fallocate), a write through the
+    mapping into a full disk would be a fault: the table stays in memory unless twice its size is free."""
+    monkeypatch.setattr(scratch, "MIN_MAPPED_BYTES", 0)
+    monkeypatch.delattr(scratch.os, "posix_fallocate", raising=False)
+    words = np.full((3, 1), np.uint64(0b1011), np.uint64)
+    monkeypatch.setattr(scratch.shutil, "disk_usage", lambda folder: SimpleNamespace(free=100))
+    entries = TableEntries.empty(words, 4, str(tmp_path))
+    assert entries.scratch is None and "free" in entries.mapping_error
+    monkeypatch.setattr(scratch.shutil, "disk_usage", lambda folder: SimpleNamespace(free=1 << 40))
+    entries = TableEntries.empty(words, 4, str(tmp_path))
+    assert entries.scratch is not None
+    entries.hit_object[:] = np.arange(9)
+    entries.release()
+    np.testing.assert_array_equal(entries.hit_object, np.arange(9))
 
 
 @pytest.mark.parametrize("shadow_mode", ["exact", "fractions"])
