@@ -28,27 +28,45 @@ def peak_memory_bytes() -> int:
 
 
 _LIBC = None
+# The heap's free bytes above which release_free_heap hands them back: below it, the pages are
+# worth more kept for the next pass (each page given back is a fault when it is used again).
+TRIM_FREE_BYTES = 128 << 20
+
+
+def _libc():
+    """glibc with malloc_trim and mallinfo2 typed, or None (another C library or system)."""
+    global _LIBC
+    if _LIBC is None:
+        _LIBC = False
+        if sys.platform.startswith("linux"):
+            try:
+                import ctypes
+
+                class Mallinfo2(ctypes.Structure):
+                    _fields_ = [(name, ctypes.c_size_t) for name in (
+                        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
+                        "fordblks", "keepcost")]
+
+                libc = ctypes.CDLL("libc.so.6")
+                libc.malloc_trim.argtypes = [ctypes.c_size_t]
+                libc.mallinfo2.restype = Mallinfo2
+                _LIBC = libc
+            except (OSError, AttributeError):  # not glibc, or older than 2.33 (no mallinfo2)
+                pass
+    return _LIBC or None
 
 
 def release_free_heap() -> None:
-    """Hand the allocator's free memory back to the system (glibc's ``malloc_trim``; nothing
-    elsewhere). Numpy's arrays under glibc's mmap threshold, which rises to 32 MiB once
-    larger arrays are freed, come from the heap, whose free pages glibc keeps: between a
-    bake's passes that is a few hundred megabytes of resident memory holding nothing. The
-    call takes milliseconds; a fixed threshold instead cost 20% of a Production bake's time
-    in page faults (docs/benchmarks.md, speed part 10)."""
-    global _LIBC
-    if not sys.platform.startswith("linux"):
-        return
-    if _LIBC is None:
-        try:
-            import ctypes
-            _LIBC = ctypes.CDLL("libc.so.6")
-            _LIBC.malloc_trim.argtypes = [ctypes.c_size_t]
-        except (OSError, AttributeError):
-            _LIBC = False
-    if _LIBC:
-        _LIBC.malloc_trim(0)
+    """Hand the allocator's free memory back to the system where it holds more than
+    TRIM_FREE_BYTES (glibc's ``malloc_trim``; nothing elsewhere). Numpy's arrays under glibc's
+    mmap threshold, which rises to 32 MiB once larger arrays are freed, come from the heap,
+    whose free pages glibc keeps: between the passes of a Production bake that is a few hundred
+    megabytes of resident memory holding nothing. A call takes milliseconds; a fixed threshold
+    instead cost 20% of a Production bake's time in page faults (docs/benchmarks.md, speed
+    part 10)."""
+    libc = _libc()
+    if libc is not None and libc.mallinfo2().fordblks > TRIM_FREE_BYTES:
+        libc.malloc_trim(0)
 
 
 def memory_budget_bytes() -> int:
