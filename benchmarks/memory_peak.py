@@ -3,8 +3,10 @@
 
 Prints the process's resident memory once bpy, the extension and the compiled kernels are
 loaded (before any scene), then runs the command under ``tracemalloc`` and prints the highest
-resident and traced memory in each stage and pass of the bake, and the largest allocations alive
-at its highest traced moment, grouped by where they were made. ``--resident-only`` leaves
+resident and traced memory in each stage and pass of the bake (the resident figure split into its
+anonymous and file-backed parts at that moment: a table in a scratch file's mapping, and the
+libraries' code, are the latter), and the largest allocations alive at its highest traced moment,
+grouped by where they were made. ``--resident-only`` leaves
 tracemalloc off (the resident figures are then a plain run's). tracemalloc
 sees numpy's arrays; its own bookkeeping makes the run slower and its peak RSS higher than a
 plain run's.

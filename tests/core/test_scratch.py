@@ -161,6 +161,12 @@ def test_a_cached_table_is_read_in_place_and_checked(tmp_path):
         assert getattr(loaded, name).flags.writeable and getattr(loaded, name).flags.aligned
     loaded.release()
     np.testing.assert_array_equal(loaded.hit_uv_code, traced.table.entries.hit_uv_code)
+    # The entry bits are stored deflated (they are not mapped), the entries as they are.
+    with cache_module.zipfile.ZipFile(cache.table_path(settings)) as archive:
+        assert archive.getinfo("above_words.npy").compress_type == cache_module.zipfile.ZIP_DEFLATED
+        assert archive.getinfo("above_words.npy").compress_size < archive.getinfo("above_words.npy").file_size
+        assert all(archive.getinfo(f"{name}.npy").compress_type == cache_module.zipfile.ZIP_STORED
+                   for name in ENTRY_ARRAYS)
 
 
 def test_a_cached_table_whose_members_are_not_aligned_is_read_into_memory(monkeypatch, tmp_path):
