@@ -18,8 +18,9 @@ format version is reported and rebuilt, never trusted. Keys are BLAKE2 hashes.
 
 A table file holds the table's stored entries as memory holds them (core.visibility.table.
 TableEntries): only those above their sample's horizon (about half), a bit per entry saying
-which are there, and the per-entry arrays listing those in row-major order. It reads back
-bitwise as it was traced.
+which are there (deflated), and the per-entry arrays listing those in row-major order (stored,
+each starting on a 64-byte boundary of the file, so that a bake maps them in place rather than
+reading them: see :func:`_mapped_arrays`). It reads back bitwise as it was traced.
 
 The folder's total size can be capped (``VisibilityCache(limit_bytes=)``): before a table
 is written, the least recently used slots of any scene are removed until it fits, and a
@@ -356,7 +357,9 @@ def _save_npz(stream, arrays: dict, meta: dict, release=None) -> None:
 
     Each array is checksummed and written in steps of WRITE_STEP_BYTES, ``release()`` (if
     given) called after each: a table held in a scratch file hands back the pages read
-    (TableEntries.release), so the write never holds the whole table resident."""
+    (TableEntries.release), so the write never holds the whole table resident. The arrays of
+    _DEFLATED_ARRAYS (tens of megabytes) are deflated whole; the others are stored, each
+    member's data aligned to MEMBER_ALIGN bytes in the file."""
     digests = {}
     with zipfile.ZipFile(stream, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
         for name, array in arrays.items():
