@@ -157,12 +157,7 @@ def _mapped_arrays(path: str, meta: dict, names) -> tuple[dict, MappedFile] | No
         raise CorruptCache(f"unreadable ({type(error).__name__}: {error})") from None
     digests = meta.get("digests") or {}
     for name, array in arrays.items():
-        crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode())
-        data = array.reshape(-1).view(np.uint8)
-        for start in range(0, len(data), CHECK_STEP_BYTES):
-            crc = zlib.crc32(data[start:start + CHECK_STEP_BYTES], crc)
-            mapped.release()
-        if f"crc32:{crc:08x}" != digests.get(name):
+        if _digest(name, array, CHECK_STEP_BYTES, lambda step: mapped.release()) != digests.get(name):
             raise CorruptCache(f"its {name} does not match its checksum")
     return arrays, mapped
 
@@ -263,13 +258,24 @@ def arrays_key(*parts) -> str:
     return hasher.hexdigest()
 
 
-def _digest(name: str, array: np.ndarray) -> str:
+def _digest(name: str, array: np.ndarray, step_bytes: int | None = None, each=None) -> str:
     """CRC-32 over an array's name, dtype, shape and bytes: a check against damage, not
     tampering, at disk speed (a cryptographic hash of a 700 MB table costs a second more).
-    One per array, so that each can be read and checked on its own."""
+    One per array, so that each can be read and checked on its own.
+
+    With ``step_bytes``, the bytes are taken that many at a time and ``each(step)`` (if given)
+    is called with each step's bytes (uint8) after it is summed: the table's writer writes
+    them, and both it and the mapped reader hand the pages read back."""
     array = np.ascontiguousarray(array)
     crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode())
-    return f"crc32:{zlib.crc32(array.data, crc):08x}"
+    data = array.reshape(-1).view(np.uint8)
+    step_bytes = step_bytes or max(len(data), 1)
+    for start in range(0, len(data), step_bytes):
+        step = data[start:start + step_bytes]
+        crc = zlib.crc32(step, crc)
+        if each is not None:
+            each(step)
+    return f"crc32:{crc:08x}"
 
 
 class CorruptCache(Exception):
@@ -368,26 +374,24 @@ def _save_npz(stream, arrays: dict, meta: dict, release=None) -> None:
                 raise ValueError(f"{name}: object arrays are not stored")
             if not array.flags.c_contiguous:
                 array = np.array(array, order="C")
-            crc = zlib.crc32(f"{name}{array.dtype.str}{array.shape}".encode())
             if name in _DEFLATED_ARRAYS:
                 member = io.BytesIO()
                 np.lib.format.write_array_header_1_0(member, np.lib.format.header_data_from_array_1_0(array))
                 member.write(array.reshape(-1).view(np.uint8))
-                digests[name] = f"crc32:{zlib.crc32(array.reshape(-1).view(np.uint8), crc):08x}"
+                digests[name] = _digest(name, array)
                 archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=time.localtime()[:6]), member.getbuffer(),
                                  compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
                 del member, array
                 continue
             with archive.open(_aligned_member(f"{name}.npy", stream.tell()), "w", force_zip64=True) as member:
                 np.lib.format.write_array_header_1_0(member, np.lib.format.header_data_from_array_1_0(array))
-                data = array.reshape(-1).view(np.uint8)
-                for start in range(0, len(data), WRITE_STEP_BYTES):
-                    step = data[start:start + WRITE_STEP_BYTES]
-                    crc = zlib.crc32(step, crc)
+
+                def write(step, member=member):
                     member.write(step)
                     if release is not None:
                         release()
-            digests[name] = f"crc32:{crc:08x}"
+
+                digests[name] = _digest(name, array, WRITE_STEP_BYTES, write)
             del array
         header = {**meta, "format": FORMAT_VERSION, "digests": digests}
         with archive.open("meta.npy", "w", force_zip64=True) as member:
