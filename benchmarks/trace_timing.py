@@ -7,7 +7,9 @@ Prepares the scene as ``make bench`` bakes its N = 256 row (64^2, exact shadows)
 as ``visibake demo`` bakes it (128 directions), then traces its table ``--repeats`` times in the
 same process. Each trace is split into what embree does (``RayScene.intersect_local``), the
 ray set-up, the record into the table, the finish (the table's counters) and the rest (from
-part 8 also the entry bits, "horizon bits", and each chunk's list of rays, "ray list"). The
+part 8 also the entry bits, "horizon bits", and each chunk's list of rays, "ray list"). From
+part 11 the ray list, the set-up, embree and the record run together, span by span on each
+thread: "span trace" is their sum, and the bake's BLAS is held to one thread here as in a bake. The
 table's digest is printed, so that two checkouts can be compared: run the script in each
 (``git worktree add``), alternately, as docs/benchmarks.md's speed part 7 did; both must
 print the same digest. ``--scratch DIR`` traces into a scratch file there, as a bake with a
@@ -15,6 +17,7 @@ cache folder does (core.visibility.scratch; from speed part 10), instead of into
 """
 import argparse
 import collections
+import contextlib
 import dataclasses
 import hashlib
 import os
@@ -68,9 +71,25 @@ def main(argv=None) -> int:
     timed(table_module.TraceRequest, "rays", "ray set-up")
     timed(table_module, "_record", "record")
     timed(table_module, "_finish", "finish")  # the table's counters, backfaces among them
+    if hasattr(table_module, "SpanTracer"):  # since part 11: list, set-up, embree, record per span, on each thread
+        timed(table_module.SpanTracer, "trace_samples", "span trace")
     if hasattr(table_module, "rays_of_entries"):  # since part 8: the entry bits first, then each chunk's rays
         timed(table_module, "above_horizon", "horizon bits")
         timed(table_module, "rays_of_entries", "ray list")
+    kernels = module("core.kernels")
+    # As a bake runs it (from speed part 11): numpy's BLAS on one thread, its idle threads not spinning.
+    blas = kernels.blas_on_one_thread() if hasattr(kernels, "blas_on_one_thread") else contextlib.nullcontext()
+    with blas:
+        runs, digest = _timed_traces(args, table_module, ray_scene, request, seconds)
+    print(f"table digest {digest}")
+    write_results(args.out, {"scene": args.scene, "chunk_rays": request.chunk_rays, "scratch": bool(args.scratch),
+                             "rays": int(prepared.table.rays_cast), "digest": digest,
+                             "blender": bpy.app.version_string, "runs": runs})
+    return 0
+
+
+def _timed_traces(args, table_module, ray_scene, request, seconds):
+    """``args.repeats`` traces of ``request``, each printed; returns their timings and the table's digest."""
     runs, digest = [], None
     for _ in range(args.repeats):
         seconds.clear()
@@ -87,11 +106,7 @@ def main(argv=None) -> int:
         print(f"{args.scene}: {table.rays_cast} rays in {total:.3f} s ({table.rays_cast / total / 1e6:.2f} M rays/s); "
               + ", ".join(f"{k} {v:.3f} s" for k, v in runs[-1].items() if k != "seconds"), flush=True)
         del table
-    print(f"table digest {digest}")
-    write_results(args.out, {"scene": args.scene, "chunk_rays": request.chunk_rays, "scratch": bool(args.scratch),
-                             "rays": int(prepared.table.rays_cast), "digest": digest,
-                             "blender": bpy.app.version_string, "runs": runs})
-    return 0
+    return runs, digest
 
 
 if __name__ == "__main__":

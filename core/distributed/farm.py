@@ -32,6 +32,7 @@ import tempfile
 from dataclasses import dataclass
 
 from ..errors import BakeRefused
+from ..kernels import blas_on_one_thread
 from ..outputs.atomic import atomic_file
 from ..visibility.table import TableEntries, VisibilityTable
 from .package import read_package, read_values, write_values
@@ -185,15 +186,16 @@ def run_part(folder: str, index: int, threads: int = 0) -> str:
         return f"call {call}: part {index} has no rows (the bake has {len(asked['ranges'])} ranges)"
     start, stop = asked["ranges"][index]
     package_path = os.path.join(folder, PACKAGE_NAME)
-    checksum, bake = packaged_bake(package_path, threads)
-    rows_path = os.path.join(folder, "rows", f"part-{index:04d}.vbv")
-    kept = _load_rows(rows_path, checksum, start, stop)
-    if kept is None:
-        kept = keep_rows(bake.rows(start, stop), threads)
-        os.makedirs(os.path.dirname(rows_path), exist_ok=True)
-        _save_rows(rows_path, checksum, kept)
-    result = getattr(row_tasks, asked["task"])(bake, kept, *asked["per_range"][index], *asked["shared"],
-                                               threads=threads)
+    with blas_on_one_thread():
+        checksum, bake = packaged_bake(package_path, threads)
+        rows_path = os.path.join(folder, "rows", f"part-{index:04d}.vbv")
+        kept = _load_rows(rows_path, checksum, start, stop)
+        if kept is None:
+            kept = keep_rows(bake.rows(start, stop), threads)
+            os.makedirs(os.path.dirname(rows_path), exist_ok=True)
+            _save_rows(rows_path, checksum, kept)
+        result = getattr(row_tasks, asked["task"])(bake, kept, *asked["per_range"][index], *asked["shared"],
+                                                   threads=threads)
     write_values(result_path, {"result": result})
     return f"call {call} ({asked['task']}), part {index}: rows {start} to {stop} answered"
 

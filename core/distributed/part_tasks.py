@@ -7,6 +7,7 @@ version is refused: their results could differ).
 """
 from __future__ import annotations
 
+from ..kernels import blas_on_one_thread
 from ..version import visibake_version
 from .package import PackageRefused
 
@@ -60,4 +61,5 @@ def lightfield_part(version: str, drawn, size, supersampling: int, filter_width:
 
 def run_part(task: str, *arguments):
     """The part task named ``task`` (a function of this module) on ``arguments``."""
-    return globals()[task](*arguments)
+    with blas_on_one_thread():
+        return globals()[task](*arguments)

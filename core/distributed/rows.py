@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..kernels import blas_on_one_thread
 from ..pipeline.prepare import (
     Prepared,
     dense_footprint_of,
@@ -321,5 +322,6 @@ def run_task(package: str | bytes, start: int, stop: int, task: str, *arguments,
     (worker) process: the rows are built and traced on the first task, then kept."""
     from . import row_tasks
 
-    bake, kept = _kept_rows(package, start, stop, threads)
-    return getattr(row_tasks, task)(bake, kept, *arguments, threads=threads)
+    with blas_on_one_thread():
+        bake, kept = _kept_rows(package, start, stop, threads)
+        return getattr(row_tasks, task)(bake, kept, *arguments, threads=threads)

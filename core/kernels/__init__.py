@@ -17,6 +17,7 @@ kernels from its worker thread; the lock also covers a script calling from anoth
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import sys
@@ -31,6 +32,10 @@ ENVIRONMENT_SWITCH = "VISIBAKE_KERNELS"
 # How every kernel is compiled: in parallel, cached on disk, without the GIL; numpy's
 # semantics for division, no bounds checks (the callers pass arrays of checked shapes).
 KERNEL_OPTIONS = {"parallel": True, "cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
+# A kernel that runs on one thread: one whose loop is too short to share, or one that
+# several Python threads call at once (outside :func:`run` and its lock, which only the
+# parallel kernels need: numba's workqueue layer must not be entered twice at once).
+SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 
 _lock = threading.RLock()
 _cache_dir: str | None = None
@@ -40,6 +45,9 @@ _module = None
 _volume_module = None
 _volume_seconds = 0.0
 _appearance_module = None
+_blas_lock = threading.Lock()
+_blas_depth = 0
+_blas_limits = None
 
 
 @dataclass(frozen=True)
@@ -181,16 +189,19 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     table_module.record(objects, uv, np.zeros(1, np.uint16), index, np.zeros(1, np.int32),
                         np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
                         np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32),
-                        cells, np.zeros(0, bool), DISTANCE_SPLITS)
+                        cells, np.zeros(0, bool), DISTANCE_SPLITS, index, np.int64(0), np.zeros(1, np.int32))
     three = np.zeros((1, 3))
-    table_module.ray_setup(index, index, three, np.zeros((1, 0, 3), np.float32), three,
+    table_module.ray_setup(index, index, three, np.zeros((1, 0, 3), np.float32), index, three,
                            np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
                            np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
-                           np.zeros((1, 3), np.float32), np.zeros((1, 3), np.int32), np.zeros((1, 3), np.float32))
+                           np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
     table_module.rays_where(one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
     table_module.rays_of_words(words, base, 0, 1, index, np.zeros(1, np.int64), np.zeros(1, np.int64),
                                np.zeros(1, np.int64))
+    table_module.rays_of_span(words, base, np.int64(0), np.int64(1), index, np.int64(0), np.zeros(1, np.int64),
+                              np.zeros(1, np.int64), np.zeros(1, np.int64))
+    table_module.horizon_bits(three, three, np.zeros((1, 1), np.uint64), np.zeros(1, np.int32))
     table_module.entries_at(words, base, index, index, np.zeros(1, np.int64))
     table_module.count_per_sample(words, base, objects, np.int16(-3), np.zeros(1, np.int32))
     for values in (objects, np.zeros(1, np.uint16), np.zeros(1, np.uint32)):  # each entry array's type
@@ -255,7 +266,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
-               table_module.rays_where, table_module.rays_of_words, table_module.entries_at,
+               table_module.rays_where, table_module.rays_of_words, table_module.rays_of_span,
+               table_module.horizon_bits, table_module.entries_at,
                table_module.count_per_sample, table_module.copy_runs, table_module.entry_columns,
                sample_module.footprint_first_draw,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
@@ -267,6 +279,37 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
                prep_module.texel_owners, prep_module.filter_candidates)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
+
+
+@contextlib.contextmanager
+def blas_on_one_thread():
+    """numpy's BLAS held to one thread while the block runs (nested blocks: until the outermost
+    ends), then as it was; wrapped around every bake, relight and worker task.
+
+    OpenBLAS, which numpy's wheels link, keeps its threads spinning (``sched_yield``) for a
+    while after every call it ran on them, even a (N, 3) x (3, K) product: each spinning thread
+    takes a core from the kernels and embree's queries that follow. With two cores, a
+    visibility trace took as long on two threads as on one (docs/benchmarks.md, speed part 11).
+    The bake's products are too thin to gain from BLAS threads. Done through threadpoolctl,
+    which finds whichever BLAS this process loaded; where it finds none, or cannot load,
+    nothing changes."""
+    global _blas_depth, _blas_limits
+    with _blas_lock:
+        if _blas_depth == 0:
+            try:
+                from threadpoolctl import threadpool_limits
+                _blas_limits = threadpool_limits(limits=1, user_api="blas")
+            except Exception:  # noqa: BLE001 - a missing or failing limiter only costs speed
+                _blas_limits = None
+        _blas_depth += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas_depth -= 1
+            if _blas_depth == 0 and _blas_limits is not None:
+                _blas_limits.restore_original_limits()
+                _blas_limits = None
 
 
 def status() -> KernelStatus:

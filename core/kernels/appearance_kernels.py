@@ -20,9 +20,7 @@ import math
 import numba as nb
 import numpy as np
 
-from . import KERNEL_OPTIONS
-
-SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
+from . import KERNEL_OPTIONS, SERIAL_OPTIONS
 
 
 @nb.njit(**SERIAL_OPTIONS)

@@ -14,9 +14,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from . import KERNEL_OPTIONS
-
-SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
+from . import SERIAL_OPTIONS
 
 
 @nb.njit(**SERIAL_OPTIONS)

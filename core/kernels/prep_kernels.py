@@ -15,10 +15,8 @@ import numba as nb
 import numpy as np
 
 from ..visibility.table import BACKFACE
-from . import KERNEL_OPTIONS
+from . import KERNEL_OPTIONS, SERIAL_OPTIONS
 from .bits import trailing_zeros
-
-SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 
 # Samples per task of exposed_share: its counts (slots x block, int32) stay in the core's cache
 # while every direction's row of the block is read. A multiple of 64: the blocks' words are their own.

@@ -3,8 +3,13 @@ into the table's stored entries (only those above the horizon), and finding them
 
 Imported only through :mod:`core.kernels`. They compute what ``TraceRequest.ray_origins`` /
 ``ray_directions`` and :func:`core.visibility.table._record_numpy` compute, in the same float32
-and float64 operations, so both give bitwise the same rays and entries; they run in parallel
-over rays, each of which owns its output and its table entry.
+and float64 operations, so both give bitwise the same rays and entries. Each ray owns its output
+and its table entry.
+
+The rays' set-up and their record run on one thread, over a span of rays: the trace runs them
+on every thread at once, each thread setting up, tracing and recording a span of its own in
+turn (core.visibility.table.SpanTracer), so that a span's arrays stay in its core's cache and
+no thread waits for the others between the three steps. The rest run in parallel.
 """
 from __future__ import annotations
 
@@ -19,8 +24,8 @@ from ..visibility.table import (
     NO_HIT_DISTANCE_CODE,
     UV_CODE_SCALE,
 )
-from . import KERNEL_OPTIONS
-from .bits import entry_of, popcount, trailing_zeros
+from . import KERNEL_OPTIONS, SERIAL_OPTIONS
+from .bits import bits_float32, entry_of, float32_bits, popcount, trailing_zeros
 
 _F32 = np.float32
 
@@ -35,18 +40,31 @@ def _uv_code(value):
     return np.uint16(np.rint(x * UV_CODE_SCALE))
 
 
+# Where each of the 2048 steps of a float32's top 11 mantissa bits starts among its octave's
+# distance codes (their middles' logarithms): a guess within a code or two of the answer,
+# for the price of a lookup, where np.log2 took 9 of a record's 23 ns a ray.
+_OCTAVE_GUESS = np.floor(DISTANCE_CODES_PER_OCTAVE * np.log2(1.0 + (np.arange(2048) + 0.5) / 2048) + 0.5
+                         ).astype(np.int64)
+
+
 @nb.njit(inline="always")
 def _distance_code(d, splits):
-    """encode_distance of one finite float64 distance: the number of ``splits`` below ``d``
-    (numpy's searchsorted), found from the logarithm's guess and a step or two, not a
-    16-step binary search."""
-    if d <= 0.0:
+    """encode_distance of one finite float32 distance: the number of ``splits`` below it
+    (numpy's searchsorted), found from a guess (its exponent and top mantissa bits) and a step
+    or two, not a 16-step binary search."""
+    if d <= _F32(0.0):
         return np.uint16(0)
-    code = np.int64(np.floor((np.log2(d) - DISTANCE_LOWEST_OCTAVE) * DISTANCE_CODES_PER_OCTAVE + 0.5))
+    bits = float32_bits(d)
+    exponent = (bits >> 23) & 255
+    code = np.int64(0)
+    if exponent > 0:  # not subnormal (those lie far below the lowest code)
+        code = ((np.int64(exponent) - 127 - DISTANCE_LOWEST_OCTAVE) * DISTANCE_CODES_PER_OCTAVE
+                + _OCTAVE_GUESS[(bits >> 12) & 2047])
     code = min(max(code, 0), splits.shape[0])
-    while code > 0 and d <= splits[code - 1]:
+    value = np.float64(d)
+    while code > 0 and value <= splits[code - 1]:
         code -= 1
-    while code < splits.shape[0] and d > splits[code]:
+    while code < splits.shape[0] and value > splits[code]:
         code += 1
     return np.uint16(code)
 
@@ -63,11 +81,12 @@ def _vertex_code(triangle, value, cells, axis):
     return np.uint16(cell * steps + np.int64(np.rint(x * (steps - 1))))
 
 
-@nb.njit(**KERNEL_OPTIONS)
+@nb.njit(**SERIAL_OPTIONS)
 def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, triangle, bary,
            distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_cells, where,
-           distance_splits):
-    """Write rays into their table entries ``entry[r]``: hits, backfaces and misses.
+           distance_splits, sample_index, first_sample, backfaces):
+    """Write rays into their table entries ``entry[r]``: hits, backfaces and misses; count the
+    backfaces per sample where asked.
 
     hit_object : (A,) int16; hit_uv_code : (A, 2) uint16; hit_distance_code : (A,) uint16, the
         table's stored entries (core.visibility.table.TableEntries)
@@ -78,9 +97,13 @@ def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, tria
     vertex_cells : (O,) int64 core.visibility.table.vertex_cells (all 0 without vertex-mode objects)
     where : (n,) bool, or (0,) for every ray; with it only those rays are written, and misses never
     distance_splits : core.visibility.table.DISTANCE_SPLITS
+    sample_index : (n,) int64 the rays' samples; backfaces : (m,) int32, in and out: each
+        backface adds 1 at its sample minus ``first_sample`` (int64); (0,) to count nothing
+        (and ``sample_index`` may then be (0,) too)
     """
     has_where = where.shape[0] > 0
-    for r in nb.prange(entry.shape[0]):
+    counting = backfaces.shape[0] > 0
+    for r in range(entry.shape[0]):
         e = entry[r]
         geometry = hit_geometry[r]
         if has_where:
@@ -104,6 +127,8 @@ def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, tria
             hit_object[e] = BACKFACE
             hit_uv_code[e, 0] = 0
             hit_uv_code[e, 1] = 0
+            if counting:
+                backfaces[sample_index[r] - first_sample] += 1
         else:
             hit_object[e] = geometry
             if cells > 0:
@@ -115,56 +140,77 @@ def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, tria
                 for axis in range(2):
                     landing = (w * corner_uv[t, 0, axis] + u * corner_uv[t, 1, axis]) + v * corner_uv[t, 2, axis]
                     hit_uv_code[e, axis] = _uv_code(landing)
-        d = np.float64(distance[r])
-        if d - d != 0.0:  # inf or NaN
+        d = distance[r]
+        if d - d != _F32(0.0):  # inf or NaN
             hit_distance_code[e] = NO_HIT_DISTANCE_CODE
         else:
             hit_distance_code[e] = _distance_code(d, distance_splits)
 
 
-@nb.njit(**KERNEL_OPTIONS)
-def ray_setup(direction_index, sample_index, positions, footprint, geometric, frame_directions, group, centre,
-              int_scale, float_scale, origin_limit, origins, directions, offsets, nearby):
+@nb.njit(**SERIAL_OPTIONS)
+def ray_setup(direction_index, sample_index, positions, footprint, point_of_direction, geometric, frame_directions,
+              group, centre, int_scale, float_scale, origin_limit, origins, directions):
     """The rays (direction_index[r], sample_index[r]) as embree takes them, computed as
     ``TraceRequest.ray_origins`` and ``ray_directions`` followed by ``RayScene`` moving them
-    into its frame compute them (core.visibility.rays.offset_ray_origins), bitwise.
+    into its frame compute them (core.visibility.rays.offset_ray_origins), bitwise: the origin
+    stepped off the surface by whole float32 ULPs (its bits, as an int32), or by a distance
+    near the world origin.
 
     positions, geometric : (K, 3) float64; footprint : (K, P, 3) float32, or (K, 0, 3) for none
+    point_of_direction : (N,) int64, i % P: direction i's footprint point (a lookup, where the
+        remainder was a 64-bit division per ray)
     frame_directions : (G, N, 3) float32 each rotation's directions (G = 1 without rotations);
     group : (K,) int64 each sample's rotation
     centre : (3,) float64 the ray scene's centre (the caller makes the round trip through world
         space that RayScene's queries make, where it is not zero)
     int_scale, float_scale, origin_limit : float32, core.tolerances' RAY_OFFSET_* constants
     origins : (n, 3) float32, out: in the ray scene's frame; directions : (n, 3) float32, out
-    offsets : (n, 3) int32 and nearby : (n, 3) float32, scratch
     """
     points = footprint.shape[1]
-    for r in nb.prange(direction_index.shape[0]):
+    for r in range(direction_index.shape[0]):
         i = direction_index[r]
         s = sample_index[r]
+        point = point_of_direction[i] if points > 0 else 0
         for axis in range(3):
             x = positions[s, axis]
             if points > 0:
-                x = x + np.float64(footprint[s, i % points, axis])
+                x = x + np.float64(footprint[s, point, axis])
             x = x - centre[axis]
             p = np.float32(x)
             n = np.float32(geometric[s, axis])
-            origins[r, axis] = p
-            offsets[r, axis] = np.int32(int_scale * n)
-            nearby[r, axis] = p + float_scale * n
-            directions[r, axis] = frame_directions[group[s], i, axis]
-    # Each element is read, then written once through one of the two views: no read follows a
-    # write through the other view (which the compiler could reorder).
-    bits = origins.view(np.int32)
-    for r in nb.prange(direction_index.shape[0]):
-        for axis in range(3):
-            p = origins[r, axis]
             if abs(p) < origin_limit:
-                origins[r, axis] = nearby[r, axis]
-            elif p < _F32(0.0):
-                bits[r, axis] = np.int32(bits[r, axis] - offsets[r, axis])
+                origins[r, axis] = p + float_scale * n
             else:
-                bits[r, axis] = np.int32(bits[r, axis] + offsets[r, axis])
+                offset = np.int32(int_scale * n)
+                bits = float32_bits(p)
+                origins[r, axis] = bits_float32(np.int32(bits - offset) if p < _F32(0.0) else np.int32(bits + offset))
+            directions[r, axis] = frame_directions[group[s], i, axis]
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def horizon_bits(directions, horizon, words, counts):
+    """The table's entry bits: bit b of ``words[i, w]`` is set where direction i lies above
+    sample 64 w + b's horizon, (d_x h_x + d_y h_y) + d_z h_z > 0 in float64, summed in that
+    order as core.visibility.table.above_horizon sums it in numpy; ``counts[k]``: how many
+    directions lie above sample k's. In parallel over words, each owning its samples.
+
+    directions : (N, 3) float64; horizon : (K, 3) float64 (TraceRequest.horizon_normals);
+    words : (N, W) uint64, out; counts : (K,) int32, out.
+    """
+    samples = horizon.shape[0]
+    for w in nb.prange(words.shape[1]):
+        start = w * 64
+        stop = min(start + 64, samples)
+        for k in range(start, stop):
+            counts[k] = 0
+        for i in range(directions.shape[0]):
+            x, y, z = directions[i, 0], directions[i, 1], directions[i, 2]
+            word = np.uint64(0)
+            for k in range(start, stop):
+                if (x * horizon[k, 0] + y * horizon[k, 1]) + z * horizon[k, 2] > 0.0:
+                    word |= np.uint64(1) << np.uint64(k - start)
+                    counts[k] += 1
+            words[i, w] = word
 
 
 @nb.njit(**KERNEL_OPTIONS)
@@ -208,6 +254,59 @@ def rays_of_words(above_words, word_base, first_word, last_word, row_offset, dir
                 at += 1
                 e += 1
                 word &= word - np.uint64(1)
+
+
+@nb.njit(**SERIAL_OPTIONS)
+def rays_of_span(above_words, word_base, first_word, last_word, row_offset, first, direction_index, sample_index,
+                 entry):
+    """Rays [first, first + n) of the list :func:`rays_of_words` makes of words [first_word,
+    last_word) (row-major, each row from ``row_offset``), on one thread: a span of the list,
+    made by the thread that traces it, with no list of the whole chunk in memory.
+
+    above_words : (N, W) uint64; word_base : (N, W) int64; row_offset : (N,) int64;
+    first : int64; direction_index, sample_index, entry : (n,) int64, out (n rays, all of
+    which exist).
+    """
+    count = direction_index.shape[0]
+    if count == 0:
+        return
+    # The last row starting at or before ``first``: rows without rays start where the next
+    # one does, so this one holds ray ``first``.
+    low, high = 0, row_offset.shape[0]
+    while high - low > 1:
+        middle = (low + high) // 2
+        if row_offset[middle] <= first:
+            low = middle
+        else:
+            high = middle
+    row = low
+    skip = first - row_offset[row]
+    at = 0
+    while at < count:
+        e = word_base[row, first_word]
+        w = first_word
+        while skip > 0:
+            bits = np.int64(popcount(above_words[row, w]))
+            if bits > skip:
+                break
+            skip -= bits
+            e += bits
+            w += 1
+        while w < last_word and at < count:
+            word = above_words[row, w]
+            while skip > 0:
+                word &= word - np.uint64(1)
+                skip -= 1
+                e += 1
+            while word != np.uint64(0) and at < count:
+                direction_index[at] = row
+                sample_index[at] = w * 64 + np.int64(trailing_zeros(word))
+                entry[at] = e
+                at += 1
+                e += 1
+                word &= word - np.uint64(1)
+            w += 1
+        row += 1
 
 
 @nb.njit(**KERNEL_OPTIONS)

@@ -19,10 +19,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from . import KERNEL_OPTIONS
+from . import KERNEL_OPTIONS, SERIAL_OPTIONS
 
-# Helpers called from the parallel kernels (and the lamp-density lookup), compiled serial.
-SERIAL_OPTIONS = {**KERNEL_OPTIONS, "parallel": False}
 # Distances and escape fractions are stored as 16-bit codes (core.volume.tables).
 CODE_MAX = 65535.0
 # A ray this optically deep lets less than 1/65535 through (exp(-11.1)): its escape code is 0.

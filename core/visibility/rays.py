@@ -80,6 +80,10 @@ class RayScene:
             self._positions.append(vertices)
             self._triangles.append(indices)
         self.threads = threads or default_threads()
+        # embreex builds the BVH on a scene's first query: build it now, so that it is timed
+        # where the scene is made (a bake's "bvh" stage), not in whichever pass traces first,
+        # and so that threads starting queries at once never race to build it.
+        self._scene.run(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
 
     def subset(self, indices) -> RayScene | None:
         """A scene of only the geometries ``indices`` (a lamp's shadow blockers); None if empty.
@@ -116,11 +120,6 @@ class RayScene:
             return offset_ray_origins(points, normals)
         return offset_ray_origins(self.local(points), normals).astype(np.float64) + self.centre
 
-    def _split(self, count: int):
-        parts = min(self.threads, max(1, count // 4096))
-        bounds = np.linspace(0, count, parts + 1).astype(np.int64)
-        return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-
     def intersect(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None):
         """Nearest hit of each ray (before ``distances`` (n,) when given; default: infinity).
 
@@ -145,12 +144,9 @@ class RayScene:
                    np.empty(count, np.float32))
         geometry, triangle, bary, distance = out
 
-        def run(span):
-            a, b = span
-            kwargs = {}
-            if distances is not None:
-                kwargs["dists"] = np.ascontiguousarray(distances[a:b], np.float32)
-            found = self._scene.run(origins[a:b], directions[a:b], output=1, **kwargs)
+        def run(a, b):
+            found = self.intersect_here(origins[a:b], directions[a:b],
+                                        None if distances is None else distances[a:b])
             geometry[a:b] = found["geomID"]
             triangle[a:b] = found["primID"]
             bary[a:b, 0] = found["u"]
@@ -158,8 +154,17 @@ class RayScene:
             distance[a:b] = found["tfar"]
             np.copyto(distance[a:b], np.float32(np.inf), where=found["geomID"] < 0)
 
-        self._map(run, count)
+        run_in_spans(run, count, self.threads)
         return geometry, triangle, bary, distance
+
+    def intersect_here(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None
+                       ) -> dict:
+        """Embree's nearest hits of the rays ``origins``, ``directions`` (n, 3) float32 (in this
+        scene's frame) on the calling thread, as embreex returns them: a dict of (n,) arrays
+        ``geomID`` (int32, -1 for a miss), ``primID`` (int32), ``u``, ``v`` (float32 barycentrics:
+        hit = (1-u-v) p0 + u p1 + v p2) and ``tfar`` (float32, the distance; undefined for a miss)."""
+        kwargs = {} if distances is None else {"dists": np.ascontiguousarray(distances, np.float32)}
+        return self._scene.run(origins, directions, output=1, **kwargs)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, distances: np.ndarray | None = None) -> np.ndarray:
         """Whether anything lies on each ray before ``distances`` (default: infinity).
@@ -171,8 +176,7 @@ class RayScene:
         count = len(origins)
         result = np.empty(count, bool)
 
-        def run(span):
-            a, b = span
+        def run(a, b):
             kwargs = {}
             if distances is not None:
                 kwargs["dists"] = np.ascontiguousarray(distances[a:b], np.float32)
@@ -181,14 +185,21 @@ class RayScene:
                                    query="OCCLUDED", **kwargs)
             result[a:b] = hits >= 0
 
-        self._map(run, count)
+        run_in_spans(run, count, self.threads)
         return result
 
-    def _map(self, function, count: int) -> None:
-        spans = self._split(count)
-        if len(spans) <= 1:
-            for span in spans:
-                function(span)
-            return
-        with ThreadPoolExecutor(len(spans)) as pool:
-            list(pool.map(function, spans))
+
+def run_in_spans(function, count: int, threads: int) -> None:
+    """``function(a, b)`` on consecutive spans [a, b) covering [0, count), at most one per
+    thread of ``threads`` (0: all cores), each at least 4096 items long, on threads of
+    their own: for work that releases the GIL (embree's queries, the serial kernels)."""
+    threads = threads or default_threads()
+    parts = min(threads, max(1, count // 4096))
+    bounds = np.linspace(0, count, parts + 1).astype(np.int64)
+    spans = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    if len(spans) <= 1:
+        for a, b in spans:
+            function(a, b)
+        return
+    with ThreadPoolExecutor(len(spans)) as pool:
+        list(pool.map(lambda span: function(*span), spans))

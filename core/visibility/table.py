@@ -7,14 +7,17 @@ landing point. Directions below the horizon are never traced.
 """
 from __future__ import annotations
 
+import itertools
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .. import kernels
 from .. import tolerances as tol
-from .rays import RayScene
+from .rays import RayScene, run_in_spans
 from .scratch import ScratchArrays, mapped_layout
 
 MISS = -1
@@ -609,19 +612,38 @@ class TraceRequest:
         if buffers is None:
             buffers = RayBuffers(count)
         origins, directions = buffers.origins[:count], buffers.directions[:count]
+        direction_index = np.ascontiguousarray(direction_index, np.int64)
+        sample_index = np.ascontiguousarray(sample_index, np.int64)
+        set_up = self.ray_setup(ray_scene)
+        run_in_spans(lambda a, b: set_up(direction_index[a:b], sample_index[a:b], origins[a:b], directions[a:b]),
+                     count, ray_scene.threads)
+        return origins, directions
+
+    def ray_setup(self, ray_scene: RayScene):
+        """The compiled set-up of this request's rays for ``ray_scene``, on the calling thread:
+        ``set_up(direction_index, sample_index, origins, directions)`` writes the rays
+        (direction_index, sample_index) (n,) int64 each into ``origins`` and ``directions``
+        (n, 3) float32 as :meth:`rays` returns them. Releases the GIL: threads may run it on
+        spans of their own at once. Needs the compiled kernels."""
+        module = kernels.compiled()
+        positions = np.ascontiguousarray(self.positions, np.float64)
+        normals = np.ascontiguousarray(self.geometric_normals, np.float64)
         footprint = (np.zeros((len(self.positions), 0, 3), np.float32) if self.footprint is None
                      else np.ascontiguousarray(self.footprint, np.float32))
-        kernels.run(module.ray_setup, ray_scene.threads, np.ascontiguousarray(direction_index, np.int64),
-                    np.ascontiguousarray(sample_index, np.int64), np.ascontiguousarray(self.positions, np.float64),
-                    footprint, np.ascontiguousarray(self.geometric_normals, np.float64), self._frame_directions(),
-                    self._frame_group(), ray_scene.centre, np.float32(tol.RAY_OFFSET_INT_SCALE),
-                    np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
-                    np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions, buffers.offsets[:count],
-                    buffers.nearby[:count])
-        if ray_scene.centre.any():
-            # RayScene.ray_origins returns world positions, which its queries move back: the same rounding.
-            origins = ((origins.astype(np.float64) + ray_scene.centre) - ray_scene.centre).astype(np.float32)
-        return origins, directions
+        point_of_direction = np.arange(len(self.directions), dtype=np.int64) % max(footprint.shape[1], 1)
+        frame_directions, group, centre = self._frame_directions(), self._frame_group(), ray_scene.centre
+        recentred = bool(centre.any())
+        constants = (np.float32(tol.RAY_OFFSET_INT_SCALE), np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
+                     np.float32(tol.RAY_OFFSET_ORIGIN))
+
+        def set_up(direction_index, sample_index, origins, directions):
+            module.ray_setup(direction_index, sample_index, positions, footprint, point_of_direction, normals,
+                             frame_directions, group, centre, *constants, origins, directions)
+            if recentred:
+                # RayScene.ray_origins returns world positions, which its queries move back: the same rounding.
+                origins[:] = ((origins.astype(np.float64) + centre) - centre).astype(np.float32)
+
+        return set_up
 
     def _frame_directions(self) -> np.ndarray:
         """(G, N, 3) float32 the directions of each rotation (G = 1 without rotations), as
@@ -643,17 +665,22 @@ class TraceRequest:
         return float(np.sqrt(np.max(np.einsum("kpd,kpd->kp", self.footprint, self.footprint))))
 
 
-class RayBuffers:
-    """The arrays a chunk of table rays is set up, traced and recorded in, for up to
-    ``capacity`` rays: made once per trace and reused by every chunk. Made per chunk, they
-    met fresh pages every time, which on a virtual machine (about 1.6 microseconds a page)
-    cost as long as the compiled ray set-up itself (docs/benchmarks.md, speed part 7). Pages
-    are touched only as far as the largest chunk reaches.
+# Rays a thread of the trace sets up, traces and records at a time (SpanTracer): their arrays,
+# embree's results among them, take about 1 MB, which stays in the core's cache.
+SPAN_RAYS = 16384
 
-    direction_index, sample_index, entry : (capacity,) int64; origins, directions, nearby :
-    (capacity, 3) float32; offsets : (capacity, 3) int32 (the set-up's scratch); hit_geometry,
-    triangle : (capacity,) int32; bary : (capacity, 2) float32; distance : (capacity,) float32
-    (:meth:`RayScene.intersect_local`'s results).
+
+class RayBuffers:
+    """The arrays rays are listed, set up, traced and recorded in, for up to ``capacity`` rays:
+    a span's, made once per thread of a trace (SpanTracer), or a chunk's, made once per update
+    or numpy trace and reused by every chunk. Made per chunk, they met fresh pages every time,
+    which on a virtual machine (about 1.6 microseconds a page) cost as long as the compiled ray
+    set-up itself (docs/benchmarks.md, speed part 7). Pages are touched only as far as the
+    largest chunk reaches, and only those arrays that are used.
+
+    direction_index, sample_index, entry : (capacity,) int64; origins, directions : (capacity, 3)
+    float32; hit_geometry, triangle : (capacity,) int32; bary : (capacity, 2) float32;
+    distance : (capacity,) float32 (:meth:`RayScene.intersect_local`'s results).
     """
 
     def __init__(self, capacity: int):
@@ -664,8 +691,6 @@ class RayBuffers:
         self.entry = np.empty(capacity, np.int64)
         self.origins = np.empty((capacity, 3), np.float32)
         self.directions = np.empty((capacity, 3), np.float32)
-        self.offsets = np.empty((capacity, 3), np.int32)
-        self.nearby = np.empty((capacity, 3), np.float32)
         self.hit_geometry = np.empty(capacity, np.int32)
         self.triangle = np.empty(capacity, np.int32)
         self.bary = np.empty((capacity, 2), np.float32)
@@ -711,21 +736,162 @@ def _record(entries: TableEntries, geometry: HitGeometry, ray_directions: np.nda
     those rays are written (an update that keeps the old entry elsewhere). ``threads``: the
     compiled kernel's (0: all cores).
     """
-    module = kernels.compiled()
-    if module is not None:
-        cells = geometry.vertex_cells()
-        cells = np.zeros(len(geometry.triangle_offset), np.int64) if cells is None else cells
-        kernels.run(module.record, threads, entries.hit_object, entries.hit_uv_code, entries.hit_distance_code,
-                    np.ascontiguousarray(entry, np.int64),
-                    np.ascontiguousarray(hit_geometry, np.int32), np.ascontiguousarray(triangle, np.int32),
-                    np.ascontiguousarray(bary, np.float32), np.ascontiguousarray(distance, np.float32),
-                    np.ascontiguousarray(ray_directions, np.float32),
-                    np.ascontiguousarray(geometry.triangle_offset, np.int64),
-                    np.ascontiguousarray(geometry.face_normals, np.float64),
-                    np.ascontiguousarray(geometry.corner_uv, np.float32), cells,
-                    np.zeros(0, bool) if where is None else np.ascontiguousarray(where, bool), DISTANCE_SPLITS)
+    if kernels.compiled() is None:
+        _record_numpy(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance, where)
         return
-    _record_numpy(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance, where)
+    write = _recorder(entries, geometry)
+    entry = np.ascontiguousarray(entry, np.int64)
+    hit_geometry, triangle = np.ascontiguousarray(hit_geometry, np.int32), np.ascontiguousarray(triangle, np.int32)
+    bary, distance = np.ascontiguousarray(bary, np.float32), np.ascontiguousarray(distance, np.float32)
+    ray_directions = np.ascontiguousarray(ray_directions, np.float32)
+    where = None if where is None else np.ascontiguousarray(where, bool)
+    run_in_spans(lambda a, b: write(entry[a:b], hit_geometry[a:b], triangle[a:b], bary[a:b], distance[a:b],
+                                    ray_directions[a:b], None if where is None else where[a:b]),
+                 len(entry), threads)
+
+
+def _recorder(entries: TableEntries, geometry: HitGeometry):
+    """The compiled record of rays into ``entries``, on the calling thread:
+    ``write(entry, hit_geometry, triangle, bary, distance, ray_directions, where, sample_index,
+    first_sample, backfaces)`` takes :func:`_record`'s arrays, contiguous and of its dtypes,
+    and where ``backfaces`` (m,) int32 is given adds each backface at its sample (n,) int64
+    minus ``first_sample``. Releases the GIL: threads may run it at once on rays of their own
+    (each ray owns its entry) with counts of their own."""
+    module = kernels.compiled()
+    cells = geometry.vertex_cells()
+    cells = np.zeros(len(geometry.triangle_offset), np.int64) if cells is None else cells
+    triangle_offset = np.ascontiguousarray(geometry.triangle_offset, np.int64)
+    face_normals = np.ascontiguousarray(geometry.face_normals, np.float64)
+    corner_uv = np.ascontiguousarray(geometry.corner_uv, np.float32)
+    everywhere, uncounted, no_samples = np.zeros(0, bool), np.zeros(0, np.int32), np.zeros(0, np.int64)
+
+    def write(entry, hit_geometry, triangle, bary, distance, ray_directions, where=None, sample_index=None,
+              first_sample=0, backfaces=None):
+        module.record(entries.hit_object, entries.hit_uv_code, entries.hit_distance_code, entry, hit_geometry,
+                      triangle, bary, distance, ray_directions, triangle_offset, face_normals, corner_uv, cells,
+                      everywhere if where is None else where, DISTANCE_SPLITS,
+                      no_samples if sample_index is None else sample_index, np.int64(first_sample),
+                      uncounted if backfaces is None else backfaces)
+
+    return write
+
+
+class SpanTracer:
+    """Traces rays into a table's stored entries: each of ``ray_scene.threads`` threads takes
+    spans of :data:`SPAN_RAYS` rays in turn and lists them (from the entry bits, for a range
+    of samples), sets them up, traces them and records them before it takes the next.
+
+    A span's arrays (about 1 MB) stay in its core's cache from one step to the next, no list
+    of a whole chunk's rays is made, and no thread waits for the others until the last span.
+    As four passes over a chunk of a million rays (its list, the set-up, embree, the record),
+    each split between the threads, the same trace took 20-30% longer (docs/benchmarks.md,
+    speed part 11): the rays' arrays went out to memory and back, and every pass waited for
+    its slowest thread. Where the compiled kernels do not load, the passes run one after the
+    other, in numpy.
+
+    Parameters
+    ----------
+    ray_scene : the scene to trace
+    request : the table's request (its samples, directions, footprints and rotations)
+    geometry : the hit geometry the entries are recorded against
+    entries : the table's stored entries, written at the rays' entries
+    """
+
+    def __init__(self, ray_scene: RayScene, request: TraceRequest, geometry: HitGeometry, entries: TableEntries):
+        self.ray_scene, self.request, self.geometry, self.entries = ray_scene, request, geometry, entries
+        self.threads = ray_scene.threads
+        self._module = kernels.compiled()
+        if self._module is not None:
+            self._set_up = request.ray_setup(ray_scene)
+            self._write = _recorder(entries, geometry)
+        self._buffers = [None] * self.threads
+
+    def trace_samples(self, start: int, stop: int, backfaces: np.ndarray, buffers: RayBuffers | None = None) -> int:
+        """Trace every stored entry of samples [start, stop) (``start`` a multiple of 64; ``stop``
+        one too, or the last sample), adding each backface to ``backfaces`` (stop - start,) int32
+        at its sample. ``buffers``: the numpy passes' arrays, for all the rays, where the compiled
+        kernels do not load. Returns the number of rays traced."""
+        entries = self.entries
+        first_word, last_word = start // WORD_BITS, -(-stop // WORD_BITS)
+        if self._module is None:
+            direction_index, sample_index, entry = rays_of_entries(entries, first_word, last_word, buffers)
+            self.trace(direction_index, sample_index, entry, buffers)
+            back = entries.hit_object[entry] == BACKFACE
+            backfaces += np.bincount(sample_index[back] - start, minlength=stop - start).astype(np.int32)
+            return len(entry)
+        row_offset, count = _row_offsets(entries, first_word, last_word)
+        module, above, word_base = self._module, entries.above_words, entries.word_base
+
+        def list_span(a, b, span):
+            n = b - a
+            direction_index, sample_index, entry = span.direction_index[:n], span.sample_index[:n], span.entry[:n]
+            module.rays_of_span(above, word_base, first_word, last_word, row_offset, a, direction_index,
+                                sample_index, entry)
+            return direction_index, sample_index, entry
+
+        counts = [np.zeros(stop - start, np.int32) for _ in range(self.threads)]
+        self._run(count, list_span, counts, start)
+        for thread_counts in counts:
+            backfaces += thread_counts
+        return count
+
+    def trace(self, direction_index: np.ndarray, sample_index: np.ndarray, entry: np.ndarray,
+              buffers: RayBuffers | None = None) -> None:
+        """Trace the rays (direction_index, sample_index) (n,) int64 each into the stored entries
+        ``entry`` (n,) int64; ``buffers`` (the numpy passes' arrays, for at least n rays) where
+        the compiled kernels do not load."""
+        count = len(entry)
+        if not count:
+            return
+        if self._module is None:
+            origins, ray_directions = self.request.rays(self.ray_scene, direction_index, sample_index, buffers)
+            hit_geometry, triangle, bary, distance = self.ray_scene.intersect_local(
+                origins, ray_directions, out=None if buffers is None else buffers.hits(count))
+            _record_numpy(self.entries, self.geometry, ray_directions, entry, hit_geometry, triangle, bary, distance)
+            return
+        direction_index = np.ascontiguousarray(direction_index, np.int64)
+        sample_index = np.ascontiguousarray(sample_index, np.int64)
+        entry = np.ascontiguousarray(entry, np.int64)
+        self._run(count, lambda a, b, span: (direction_index[a:b], sample_index[a:b], entry[a:b]))
+
+    def _run(self, count: int, span_rays, backfaces: list | None = None, first_sample: int = 0) -> None:
+        """Every span of rays [0, count) in turn on the threads: ``span_rays(a, b, buffers)`` gives
+        rays [a, b)'s (direction_index, sample_index, entry), in the thread's buffers or not;
+        ``backfaces``: one count per thread (:func:`_recorder`), or None."""
+        spans = itertools.count()  # next() is atomic under the GIL: each span goes to one thread
+        failed = threading.Event()
+
+        def work(thread: int) -> None:
+            if self._buffers[thread] is None:
+                self._buffers[thread] = RayBuffers(SPAN_RAYS)
+            span = self._buffers[thread]
+            counts = None if backfaces is None else backfaces[thread]
+            try:
+                while not failed.is_set():
+                    a = next(spans) * SPAN_RAYS
+                    if a >= count:
+                        return
+                    b = min(count, a + SPAN_RAYS)
+                    n = b - a
+                    direction_index, sample_index, entry = span_rays(a, b, span)
+                    origins, directions = span.origins[:n], span.directions[:n]
+                    self._set_up(direction_index, sample_index, origins, directions)
+                    found = self.ray_scene.intersect_here(origins, directions)
+                    bary = span.bary[:n]
+                    bary[:, 0] = found["u"]
+                    bary[:, 1] = found["v"]
+                    # A miss's distance is never read (its entry records the miss).
+                    self._write(entry, found["geomID"], found["primID"], bary, found["tfar"], directions,
+                                None, sample_index, first_sample, counts)
+            except BaseException:
+                failed.set()
+                raise
+
+        if self.threads == 1 or count <= SPAN_RAYS:
+            work(0)
+            return
+        with ThreadPoolExecutor(self.threads) as pool:
+            list(pool.map(work, range(self.threads)))
 
 
 def _record_numpy(entries: TableEntries, geometry: HitGeometry, ray_directions: np.ndarray, entry: np.ndarray,
@@ -815,18 +981,31 @@ def _word_chunk(count: int, chunk_rays: int) -> int:
     return max(WORD_BITS, chunk_rays // max(count, 1) // WORD_BITS * WORD_BITS)
 
 
-def above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int) -> tuple[np.ndarray, np.ndarray]:
+def above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int, threads: int = 0
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Which entries lie above their sample's horizon: (N, W) uint64 entry bits (:class:`TableEntries`)
     and (K,) int32 how many per sample, for ``directions`` (N, 3) and ``horizon`` (K, 3)
-    (TraceRequest.horizon_normals), in batches of about ``chunk_rays`` entries (the whole (N, K)
-    product would take 8 bytes an entry: gigabytes at Production settings)."""
+    (TraceRequest.horizon_normals). Direction d lies above sample k's horizon where
+    (d_x h_x + d_y h_y) + d_z h_z > 0 in float64, summed in that order by the compiled kernel
+    and by numpy alike (a matrix product may sum in another order, or fuse, and decide a
+    direction in the horizon's plane otherwise). numpy takes batches of about ``chunk_rays``
+    entries (the whole (N, K) product would take 8 bytes an entry: gigabytes at Production
+    settings). ``threads``: the compiled kernel's (0: all cores)."""
+    directions = np.ascontiguousarray(directions, np.float64)
+    horizon = np.ascontiguousarray(horizon, np.float64)
     samples = len(horizon)
     words = np.zeros((len(directions), -(-samples // WORD_BITS)), np.uint64)
     counts = np.zeros(samples, np.int32)
+    module = kernels.compiled()
+    if module is not None:
+        kernels.run(module.horizon_bits, threads, directions, horizon, words, counts)
+        return words, counts
     chunk = _word_chunk(len(directions), chunk_rays)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
-        above = (directions @ horizon[start:stop].T) > 0.0
+        part = horizon[start:stop]
+        above = ((directions[:, 0:1] * part[:, 0] + directions[:, 1:2] * part[:, 1])
+                 + directions[:, 2:3] * part[:, 2]) > 0.0
         counts[start:stop] = np.count_nonzero(above, axis=0)
         words[:, start // WORD_BITS:-(-stop // WORD_BITS)] = words_of(above)
     return words, counts
@@ -837,30 +1016,34 @@ def directions_above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_
     return above_horizon(directions, horizon, chunk_rays)[1]
 
 
+def _row_offsets(entries: TableEntries, first_word: int, last_word: int) -> tuple[np.ndarray, int]:
+    """Where each row's rays start in the list of the stored entries of words [first_word,
+    last_word) (row-major): (N,) int64, and how many there are."""
+    start = entries.word_base[:, first_word]
+    stop = (entries.word_base[:, last_word] if last_word < entries.above_words.shape[1]
+            else np.append(entries.word_base[1:, 0], entries.stored))
+    per_row = stop - start
+    row_offset = np.zeros(len(per_row), np.int64)
+    np.cumsum(per_row[:-1], out=row_offset[1:])
+    return row_offset, int(per_row.sum())
+
+
 def rays_of_entries(entries: TableEntries, first_word: int, last_word: int, buffers: RayBuffers | None = None,
                     threads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rays of the stored entries of samples [64 first_word, 64 last_word): (n,) int64
     directions, samples and entries, row-major (direction-major, samples ascending); compiled
     on ``threads`` into ``buffers`` where given (views of them are returned)."""
     above = entries.above_words
-    start = entries.word_base[:, first_word]
-    stop = (entries.word_base[:, last_word] if last_word < above.shape[1]
-            else np.append(entries.word_base[1:, 0], entries.stored))
-    per_row = stop - start
-    count = int(per_row.sum())
+    row_offset, count = _row_offsets(entries, first_word, last_word)
     module = kernels.compiled()
     if module is None:
         mask = mask_of(above[:, first_word:last_word], min(entries.samples, last_word * WORD_BITS)
                        - first_word * WORD_BITS)
         direction_index, sample_index = np.nonzero(mask)
-        row_offset = np.zeros(len(per_row), np.int64)
-        np.cumsum(per_row[:-1], out=row_offset[1:])
-        entry = start[direction_index] + np.arange(count) - row_offset[direction_index]
+        entry = entries.word_base[direction_index, first_word] + np.arange(count) - row_offset[direction_index]
         return direction_index, sample_index + first_word * WORD_BITS, entry
     if buffers is None or buffers.capacity < count:
         buffers = RayBuffers(count)
-    row_offset = np.zeros(len(per_row), np.int64)
-    np.cumsum(per_row[:-1], out=row_offset[1:])
     direction_index, sample_index = buffers.direction_index[:count], buffers.sample_index[:count]
     entry = buffers.entry[:count]
     kernels.run(module.rays_of_words, threads, above, entries.word_base, np.int64(first_word), np.int64(last_word),
@@ -886,34 +1069,27 @@ def trace_table(ray_scene: RayScene, request: TraceRequest, progress=None) -> Vi
     samples = len(positions)
     hits = request.hits
     geometry = HitGeometry(hits.corner_uv, hits.triangle_offset, hits.face_normals, _vertex_mask(hits.vertex_object))
-    above_words, traced_per_sample = above_horizon(directions, request.horizon_normals(), request.chunk_rays)
+    above_words, traced_per_sample = above_horizon(directions, request.horizon_normals(), request.chunk_rays,
+                                                   ray_scene.threads)
     entries = TableEntries.empty(above_words, samples, request.scratch_folder)
     chunk = _word_chunk(count, request.chunk_rays)
     rays_cast = 0
     written_since_release = 0
     backface_per_sample = np.zeros(samples, np.int32)
-    buffers = RayBuffers(min(chunk, samples) * count)
+    # The numpy passes' arrays; the compiled trace lists and sets up its rays span by span.
+    buffers = RayBuffers(min(chunk, samples) * count) if kernels.compiled() is None else None
+    tracer = SpanTracer(ray_scene, request, geometry, entries)
     for start in range(0, samples, chunk):
         stop = min(samples, start + chunk)
-        # Direction-major order: consecutive rays share a direction (coherent for
-        # embree) and land in one row of the table (consecutive entries).
-        direction_index, sample_index, entry = rays_of_entries(entries, start // WORD_BITS, -(-stop // WORD_BITS),
-                                                               buffers, ray_scene.threads)
-        if len(sample_index):
-            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
-            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
-                origins, ray_directions, out=buffers.hits(len(sample_index)))
-            _record(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance,
-                    threads=ray_scene.threads)
-            rays_cast += len(sample_index)
-            # Counted while the chunk's entries are still in cache: over the whole table
-            # afterwards, this was a separate pass of 0.1 s on the demo.
-            back = entries.hit_object[entry] == BACKFACE
-            backface_per_sample[start:stop] = np.bincount(sample_index[back] - start, minlength=stop - start)
-            written_since_release += len(sample_index)
-            if written_since_release * ENTRY_BYTES >= RELEASE_BYTES:
-                entries.release()
-                written_since_release = 0
+        # Direction-major order: consecutive rays share a direction (coherent for embree) and
+        # land in one row of the table (consecutive entries). Backfaces are counted as they
+        # are recorded: over the whole table afterwards, this was a pass of 0.1 s on the demo.
+        traced = tracer.trace_samples(start, stop, backface_per_sample[start:stop], buffers)
+        rays_cast += traced
+        written_since_release += traced
+        if written_since_release * ENTRY_BYTES >= RELEASE_BYTES:
+            entries.release()
+            written_since_release = 0
         if progress is not None:
             progress(stop / samples)
     entries.release()
@@ -1119,7 +1295,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
     horizon = request.horizon_normals()
     # The stored entries are those above the new horizons: a changed object's samples may store
     # others than before, so the entries are laid out anew and the unchanged samples' copied.
-    above_words, traced_per_sample = above_horizon(directions, horizon, chunk_rays)
+    above_words, traced_per_sample = above_horizon(directions, horizon, chunk_rays, ray_scene.threads)
     entries = TableEntries.empty(above_words, samples)
     is_changed = np.zeros(objects, bool)
     is_changed[list(changed)] = True
@@ -1143,6 +1319,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
         spans.extend((index, start, min(b, start + chunk)) for start in range(a, b, chunk))
     buffers = RayBuffers(min(chunk, samples) * count)
     threads = ray_scene.threads
+    tracer = SpanTracer(ray_scene, request, geometry, entries)
     for done, (index, start, stop) in enumerate(spans):
         cols = slice(start, stop)
         if retrace[index]:
@@ -1183,11 +1360,7 @@ def update_table(old: VisibilityTable, old_offset: np.ndarray, sample_offset: np
         direction_index, sample_index = rays_where(redo, start, buffers, threads)
         if len(sample_index):
             entry = entries_at(entries, direction_index, sample_index, threads)
-            origins, ray_directions = request.rays(ray_scene, direction_index, sample_index, buffers)
-            hit_geometry, triangle, bary, distance = ray_scene.intersect_local(
-                origins, ray_directions, out=buffers.hits(len(sample_index)))
-            _record(entries, geometry, ray_directions, entry, hit_geometry, triangle, bary, distance,
-                    threads=threads)
+            tracer.trace(direction_index, sample_index, entry, buffers)
             counts.full += len(sample_index)
         if progress is not None:
             progress((done + 1) / len(spans))

@@ -19,6 +19,7 @@ import bpy
 
 import numpy as np
 
+from ...core import kernels
 from ...core.errors import BakeRefused, OutputRefused
 from ...core.outputs import names
 from ...core.outputs.destinations import FOLDER, check_destinations, destination_problem
@@ -291,8 +292,9 @@ class BakeJob:
 
     def run(self) -> JobResult:
         """Every step on this thread: the blocking bake."""
-        self.start()
-        return self.compute_and_finish()
+        with kernels.blas_on_one_thread():
+            self.start()
+            return self.compute_and_finish()
 
     def compute_and_finish(self) -> JobResult:
         try:

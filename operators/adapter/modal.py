@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 
+from ...core import kernels
 from ...core.errors import Cancelled
 from ...core.pipeline.progress import Progress
 
@@ -73,7 +74,8 @@ class ModalBake:
                 self._thread.start()
                 continue
             try:
-                result = step()
+                with kernels.blas_on_one_thread():
+                    result = step()
             except BaseException as error:  # noqa: BLE001  (reported by the operator)
                 return self._end(error)
             if name == "plan":
@@ -84,7 +86,8 @@ class ModalBake:
 
     def _run_on_worker(self, step) -> None:
         try:
-            step()
+            with kernels.blas_on_one_thread():
+                step()
         except BaseException as error:  # noqa: BLE001  (handed to the main thread in tick())
             self._thread_error = error
 
@@ -106,9 +109,10 @@ class SteppedJob:
         """Every step in turn (the command line, scripts); an error or a cancel aborts first."""
         try:
             *steps, (_, finish, _) = self.modal_steps()
-            for _, step, _ in steps:
-                step()
-            return finish()
+            with kernels.blas_on_one_thread():
+                for _, step, _ in steps:
+                    step()
+                return finish()
         except BaseException:
             self.abort()
             raise

@@ -249,6 +249,30 @@ def test_compiled_table_writes_are_bitwise_those_of_numpy(vertex, masked):
         assert np.max(np.abs(barycentric - bary[on_vertices])) <= 0.5 / steps + 1e-7
 
 
+def test_compiled_distance_codes_are_numpy_s_at_every_scale_and_at_the_codes_edges():
+    # The kernel guesses a code from the float32's bits and steps to the answer: it must land
+    # where numpy's search of the splits does, at the splits themselves, far outside the coded
+    # range (subnormals, the largest floats) and at the octaves' edges.
+    from core.visibility import table as table_module
+
+    rng = np.random.default_rng(12)
+    splits32 = table_module.DISTANCE_SPLITS.astype(np.float32)
+    near_splits = np.concatenate([splits32, np.nextafter(splits32, np.float32(0)),
+                                  np.nextafter(splits32, np.float32(np.inf))])
+    octaves = np.float32(2.0) ** np.arange(-149, 128, dtype=np.float64).astype(np.float32)
+    wide = np.float32(2.0) ** rng.uniform(-149, 127.9, 20000).astype(np.float32)
+    extremes = np.array([0.0, -1.0, 3.4e38, np.inf, np.nan], np.float32)
+    distance = np.concatenate([near_splits, octaves, np.nextafter(octaves, np.float32(0)), wide, extremes])
+    count = len(distance)
+    entries = table_module.TableEntries.from_dense(np.zeros((1, count), np.int16), np.zeros((1, count, 2), np.uint16),
+                                                   np.zeros((1, count), np.uint16))
+    geometry = table_module.HitGeometry(np.zeros((1, 3, 2), np.float32), np.zeros(1, np.int64), np.zeros((1, 3)))
+    table_module._record(entries, geometry, np.tile([[0.0, 0.0, -1.0]], (count, 1)).astype(np.float32),
+                         np.arange(count), np.zeros(count, np.int32), np.zeros(count, np.int32),
+                         np.zeros((count, 2), np.float32), distance)
+    np.testing.assert_array_equal(entries.hit_distance_code, table_module.encode_distance(distance))
+
+
 @pytest.mark.parametrize("footprint, rotated, centre", [(False, False, 0.0), (True, True, 0.0),
                                                         (True, False, 1000.0), (False, True, -3.5)])
 def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotated, centre):
@@ -277,7 +301,7 @@ def test_compiled_rays_are_bitwise_those_of_numpy(monkeypatch, footprint, rotate
     compiled = request.rays(scene, direction_index, sample_index)
     # Into reused buffers, larger than needed and holding an earlier chunk's numbers.
     buffers = table_module.RayBuffers(len(direction_index) + 17)
-    for name in ("origins", "directions", "offsets", "nearby"):
+    for name in ("origins", "directions"):
         getattr(buffers, name)[:] = 7
     buffered = [array.copy() for array in request.rays(scene, direction_index, sample_index, buffers)]
     monkeypatch.setattr(kernels, "_module", None)
@@ -314,6 +338,62 @@ def test_compiled_rays_to_trace_are_numpy_s_nonzero_for_any_thread_count(monkeyp
     rows, cols = rays_where(above, 1000, buffers)
     np.testing.assert_array_equal(rows, np.nonzero(above)[0])
     np.testing.assert_array_equal(cols, np.nonzero(above)[1] + 1000)
+
+
+def test_compiled_horizon_bits_are_numpy_s_even_for_directions_in_the_horizon_s_plane(monkeypatch):
+    from core.visibility.table import above_horizon, mask_of
+
+    rng = np.random.default_rng(4)
+    directions = spherical_fibonacci(97)
+    normals = rng.normal(size=(333, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    # Normals at right angles to a direction (dot 0, or a rounding away from it either way),
+    # and normals along the axes (exact zeros in the products).
+    for k in range(0, 120, 3):
+        d = directions[k % len(directions)]
+        normals[k] = np.cross(d, rng.normal(size=3))
+        normals[k] /= np.linalg.norm(normals[k])
+    normals[200:206] = np.vstack([np.eye(3), -np.eye(3)])
+    words, counts = above_horizon(directions, normals, 97 * 64, threads=2)
+    dots = (directions[:, None, 0] * normals[None, :, 0] + directions[:, None, 1] * normals[None, :, 1]) \
+        + directions[:, None, 2] * normals[None, :, 2]
+    np.testing.assert_array_equal(mask_of(words, len(normals)), dots > 0.0)
+    np.testing.assert_array_equal(counts, np.count_nonzero(dots > 0.0, axis=0))
+    for threads in (1, 0):
+        again = above_horizon(directions, normals, 97 * 64, threads=threads)
+        np.testing.assert_array_equal(again[0], words)
+    monkeypatch.setattr(kernels, "_module", None)
+    for chunk_rays in (1, 97 * 64, 10**9):  # numpy, in batches of samples
+        theirs = above_horizon(directions, normals, chunk_rays)
+        np.testing.assert_array_equal(theirs[0], words)
+        np.testing.assert_array_equal(theirs[1], counts)
+
+
+def test_any_span_of_a_chunk_s_rays_is_that_span_of_the_whole_list():
+    # Each thread of the trace lists its own span of a chunk's rays (rays_of_span): it must be
+    # exactly that slice of the chunk's whole list, wherever the span starts (inside a word,
+    # at a row's end, across rows without rays).
+    from core.visibility.table import TableEntries, _row_offsets, mask_of, rays_of_entries, words_of
+
+    rng = np.random.default_rng(8)
+    samples = 300
+    above = rng.random((23, samples)) < 0.45
+    above[4] = False  # a direction no sample sees
+    above[5] = False
+    above[9, 64:192] = False  # whole words without rays
+    entries = TableEntries.empty(words_of(above), samples)
+    module = kernels.compiled()
+    for first_word, last_word in ((0, 5), (1, 3), (4, 5), (2, 2)):
+        whole = rays_of_entries(entries, first_word, last_word)
+        row_offset, count = _row_offsets(entries, first_word, last_word)
+        assert count == len(whole[0]) == np.count_nonzero(
+            mask_of(entries.above_words[:, first_word:last_word], min(samples, 64 * last_word) - 64 * first_word))
+        cuts = sorted({0, count, *rng.integers(0, count + 1, 12).tolist(), *row_offset.tolist()})
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            span = [np.full(b - a, -1, np.int64) for _ in range(3)]
+            module.rays_of_span(entries.above_words, entries.word_base, first_word, last_word, row_offset, a, *span)
+            for ours, theirs in zip(span, whole):
+                np.testing.assert_array_equal(ours, theirs[a:b])
 
 
 @pytest.mark.parametrize("samples", [101, 128, 1])
@@ -654,3 +734,25 @@ def test_columns_copy_run_by_run_between_tables_and_refuse_other_entry_bits(monk
                                           source.dense(name)[:, start:stop], err_msg=f"{name} {start}:{stop}")
     with pytest.raises(ValueError, match="entry bits differ"):
         copy_columns(source, 0, target, 0, 150)
+
+
+def test_numpy_s_blas_runs_on_one_thread_inside_the_block_and_as_before_after_it():
+    threadpoolctl = pytest.importorskip("threadpoolctl", reason="threadpoolctl is in requirements.txt")
+
+    def blas_threads():
+        return [pool["num_threads"] for pool in threadpoolctl.threadpool_info() if pool["user_api"] == "blas"]
+
+    np.ones((64, 64)) @ np.ones((64, 64))  # numpy loads its BLAS on first use
+    before = blas_threads()
+    if not before:
+        pytest.skip("this numpy links no BLAS that threadpoolctl can see: nothing to limit")
+    with kernels.blas_on_one_thread():
+        assert blas_threads() == [1] * len(before)
+        with kernels.blas_on_one_thread():
+            assert blas_threads() == [1] * len(before)
+        assert blas_threads() == [1] * len(before)  # until the outermost block ends
+    assert blas_threads() == before
+    with pytest.raises(ZeroDivisionError):
+        with kernels.blas_on_one_thread():
+            1 / 0
+    assert blas_threads() == before

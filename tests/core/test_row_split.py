@@ -83,6 +83,47 @@ def test_the_table_is_the_same_in_any_chunking_and_without_the_kernels(traced, m
     _assert_same_table(trace_table(p.ray_scene, dataclasses.replace(request, chunk_rays=48 * 11)), whole)
 
 
+@pytest.mark.parametrize("span_rays, threads", [(1, 2), (7, 3), (100, 1), (4096, 2)])
+def test_the_table_is_the_same_whatever_the_span_and_thread_count(traced, monkeypatch, span_rays, threads):
+    # Each thread sets up, traces and records spans of SPAN_RAYS rays, taking the next free
+    # span in turn (SpanTracer): which thread takes which span varies from run to run, and the
+    # last span of a chunk is short; each ray still owns its entry.
+    from core.visibility import table as table_module
+
+    p, request = traced
+    whole = trace_table(p.ray_scene, request)
+    monkeypatch.setattr(table_module, "SPAN_RAYS", span_rays)
+    monkeypatch.setattr(p.ray_scene, "threads", threads)
+    _assert_same_table(trace_table(p.ray_scene, dataclasses.replace(request, chunk_rays=48 * 23)), whole)
+
+
+def test_an_error_in_one_span_stops_the_trace_and_reaches_the_caller(traced, monkeypatch):
+    from core.visibility import table as table_module
+
+    p, request = traced
+    monkeypatch.setattr(table_module, "SPAN_RAYS", 16)
+    monkeypatch.setattr(p.ray_scene, "threads", 2)
+    calls = []
+    real_setup = type(request).ray_setup
+
+    def failing_setup(self, ray_scene):
+        set_up = real_setup(self, ray_scene)
+
+        def counted(*arguments):
+            calls.append(1)
+            if len(calls) == 5:
+                raise MemoryError("span 5")
+            set_up(*arguments)
+        return counted
+
+    monkeypatch.setattr(type(request), "ray_setup", failing_setup)
+    with pytest.raises(MemoryError, match="span 5"):
+        trace_table(p.ray_scene, request)
+    # The other thread stopped at its next span, not at the end of the chunk.
+    spans = -(-int(p.table.traced_per_sample.sum()) // 16)
+    assert 5 <= len(calls) <= 7 < spans
+
+
 def test_a_row_request_slices_the_samples_and_shares_the_rest(traced):
     _, request = traced
     part = request.rows(10, 30)
