@@ -197,8 +197,6 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                            np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
     table_module.rays_where(one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-    table_module.rays_of_words(words, base, 0, 1, index, np.zeros(1, np.int64), np.zeros(1, np.int64),
-                               np.zeros(1, np.int64))
     table_module.rays_of_span(words, base, np.int64(0), np.int64(1), index, np.int64(0), np.zeros(1, np.int64),
                               np.zeros(1, np.int64), np.zeros(1, np.int64))
     table_module.horizon_bits(three, three, np.zeros((1, 1), np.uint64), np.zeros(1, np.int32))
@@ -266,7 +264,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                   points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
                                   np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
     kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
-               table_module.rays_where, table_module.rays_of_words, table_module.rays_of_span,
+               table_module.rays_where, table_module.rays_of_span,
                table_module.horizon_bits, table_module.entries_at,
                table_module.count_per_sample, table_module.copy_runs, table_module.entry_columns,
                sample_module.footprint_first_draw,

@@ -233,35 +233,13 @@ def rays_where(mask, row_offset, start, direction_index, sample_index):
             at += np.int64(mask[row, col])
 
 
-@nb.njit(**KERNEL_OPTIONS)
-def rays_of_words(above_words, word_base, first_word, last_word, row_offset, direction_index, sample_index, entry):
-    """The (direction, sample, entry) of every stored entry of words [first_word, last_word) of
-    each row (core.visibility.table.rays_of_entries), row-major, each row from ``row_offset``;
-    in parallel over rows.
-
-    above_words : (N, W) uint64; word_base : (N, W) int64; row_offset : (N,) int64;
-    direction_index, sample_index, entry : (n,) int64, out.
-    """
-    for row in nb.prange(above_words.shape[0]):
-        at = row_offset[row]
-        e = word_base[row, first_word]
-        for w in range(first_word, last_word):
-            word = above_words[row, w]
-            while word != np.uint64(0):
-                direction_index[at] = row
-                sample_index[at] = w * 64 + np.int64(trailing_zeros(word))
-                entry[at] = e
-                at += 1
-                e += 1
-                word &= word - np.uint64(1)
-
-
 @nb.njit(**SERIAL_OPTIONS)
 def rays_of_span(above_words, word_base, first_word, last_word, row_offset, first, direction_index, sample_index,
                  entry):
-    """Rays [first, first + n) of the list :func:`rays_of_words` makes of words [first_word,
-    last_word) (row-major, each row from ``row_offset``), on one thread: a span of the list,
-    made by the thread that traces it, with no list of the whole chunk in memory.
+    """Rays [first, first + n) of the list of the stored entries of words [first_word, last_word)
+    of each row (core.visibility.table.rays_of_entries: (direction, sample, entry), row-major,
+    each row from ``row_offset``), on one thread: a span of the list, made by the thread that
+    traces it, with no list of the whole chunk in memory.
 
     above_words : (N, W) uint64; word_base : (N, W) int64; row_offset : (N,) int64;
     first : int64; direction_index, sample_index, entry : (n,) int64, out (n rays, all of

@@ -1028,11 +1028,12 @@ def _row_offsets(entries: TableEntries, first_word: int, last_word: int) -> tupl
     return row_offset, int(per_row.sum())
 
 
-def rays_of_entries(entries: TableEntries, first_word: int, last_word: int, buffers: RayBuffers | None = None,
-                    threads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rays_of_entries(entries: TableEntries, first_word: int, last_word: int, buffers: RayBuffers | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rays of the stored entries of samples [64 first_word, 64 last_word): (n,) int64
     directions, samples and entries, row-major (direction-major, samples ascending); compiled
-    on ``threads`` into ``buffers`` where given (views of them are returned)."""
+    (one span of :func:`SpanTracer`'s list, the whole of it) into ``buffers`` where given (views
+    of them are returned)."""
     above = entries.above_words
     row_offset, count = _row_offsets(entries, first_word, last_word)
     module = kernels.compiled()
@@ -1046,8 +1047,8 @@ def rays_of_entries(entries: TableEntries, first_word: int, last_word: int, buff
         buffers = RayBuffers(count)
     direction_index, sample_index = buffers.direction_index[:count], buffers.sample_index[:count]
     entry = buffers.entry[:count]
-    kernels.run(module.rays_of_words, threads, above, entries.word_base, np.int64(first_word), np.int64(last_word),
-                row_offset, direction_index, sample_index, entry)
+    module.rays_of_span(above, entries.word_base, first_word, last_word, row_offset, 0, direction_index,
+                        sample_index, entry)
     return direction_index, sample_index, entry
 
 

@@ -436,7 +436,7 @@ def test_stored_entries_are_found_alike_compiled_and_in_numpy(monkeypatch, sampl
         expected = np.count_nonzero((hit_object == code) & stored, axis=0)
         np.testing.assert_array_equal(entries.per_sample(code), expected)
     words = entries.above_words.shape[1]
-    compiled = [array.copy() for array in rays_of_entries(entries, 0, words, threads=2)]
+    compiled = [array.copy() for array in rays_of_entries(entries, 0, words)]
     compiled_part = [array.copy() for array in rays_of_entries(entries, words - 1, words)]
     monkeypatch.setattr(kernels, "_module", None)
     reference = rays_of_entries(entries, 0, words)
