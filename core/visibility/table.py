@@ -784,9 +784,9 @@ class SpanTracer:
     A span's arrays (about 1 MB) stay in its core's cache from one step to the next, no list
     of a whole chunk's rays is made, and no thread waits for the others until the last span.
     As four passes over a chunk of a million rays (its list, the set-up, embree, the record),
-    each split between the threads, the same trace took 20-30% longer (docs/benchmarks.md,
+    each split between the threads, the same trace took 15-25% longer (docs/benchmarks.md,
     speed part 11): the rays' arrays went out to memory and back, and every pass waited for
-    its slowest thread. Where the compiled kernels do not load, the passes run one after the
+    its slower thread. Where the compiled kernels do not load, the passes run one after the
     other, in numpy.
 
     Parameters
