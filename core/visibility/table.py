@@ -1011,11 +1011,6 @@ def above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int, 
     return words, counts
 
 
-def directions_above_horizon(directions: np.ndarray, horizon: np.ndarray, chunk_rays: int) -> np.ndarray:
-    """(K,) int32: how many of ``directions`` are above each sample's horizon (:func:`above_horizon`)."""
-    return above_horizon(directions, horizon, chunk_rays)[1]
-
-
 def _row_offsets(entries: TableEntries, first_word: int, last_word: int) -> tuple[np.ndarray, int]:
     """Where each row's rays start in the list of the stored entries of words [first_word,
     last_word) (row-major): (N,) int64, and how many there are."""
