@@ -211,6 +211,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     corners = np.zeros((1, 3, 3))
     sample_module.footprint_first_draw(uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)), corners, 0.5,
                                        1e-4, np.zeros((1, 1, 3)), np.zeros((1, 1), bool))
+    sample_module.footprint_redraws(uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)), corners, 0.5,
+                                    1e-4, 10, np.zeros((1, 1, 3)), np.zeros((1, 1), bool))
     sample_module.footprint_corners(uv, centre, np.zeros(1), corners, np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32),
                                     0.25, 1e-4, np.zeros((1, 4, 3), np.float32))
     sample_module.footprint_jitter(np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros((1, 2), np.uint32),
@@ -267,7 +269,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                table_module.rays_where, table_module.rays_of_span,
                table_module.horizon_bits, table_module.entries_at,
                table_module.count_per_sample, table_module.copy_runs, table_module.entry_columns,
-               sample_module.footprint_first_draw,
+               sample_module.footprint_first_draw, sample_module.footprint_redraws,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
                sample_module.footprint_point_normals,
                image_module.bilinear_points, image_module.seam_product, image_module.seam_solve,

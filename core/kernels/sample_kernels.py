@@ -44,6 +44,48 @@ def footprint_first_draw(uv, centre, inverse, usable, jitter, tri_corners, box_w
                     chosen[k, slot, axis] = np.nan
 
 
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_redraws(uv, centre, inverse, usable, jitter, tri_corners, box_width, inset, redraws, chosen, inside):
+    """Every slot whose first draw fell outside its triangle (``inside`` False on a usable
+    texel) draws again, up to ``redraws`` - 1 times, each draw hashed from the one before
+    (core.sampling.footprint's redraw loop: the same integer and float64 operations in the
+    same order, so the points are bitwise the same); a slot that finds a place gets its point
+    in ``chosen`` (the others keep NaN). Arrays as :func:`footprint_first_draw`; ``inside``
+    is read only.
+    """
+    step = 2.0 ** -24
+    for k in nb.prange(uv.shape[0]):
+        if not usable[k]:
+            continue
+        a0, a1 = uv[k, 0, 0], uv[k, 0, 1]
+        b0, b1 = uv[k, 1, 0], uv[k, 1, 1]
+        c0, c1 = uv[k, 2, 0], uv[k, 2, 1]
+        scale = inverse[k]
+        for slot in range(jitter.shape[1]):
+            if inside[k, slot]:
+                continue
+            u0 = jitter[k, slot, 0]
+            u1 = jitter[k, slot, 1]
+            for attempt in range(1, redraws):
+                bits0 = np.uint64(u0 * 16777216.0)
+                bits1 = np.uint64(u1 * 16777216.0)
+                salt = np.uint64((0x68E31DA4 * attempt) & 0xFFFFFFFF)
+                h0 = _hash32(bits0 ^ _hash32((bits1 + np.uint64(attempt)) & _LOW32))
+                h1 = _hash32(bits1 ^ _hash32((bits0 + salt) & _LOW32))
+                u0 = np.float64(h0 >> np.uint64(8)) * step
+                u1 = np.float64(h1 >> np.uint64(8)) * step
+                x = (centre[k, 0] + (u0 - 0.5) * box_width) - a0
+                y = (centre[k, 1] + (u1 - 0.5) * box_width) - a1
+                w1 = (x * (c1 - a1) - (c0 - a0) * y) * scale
+                w2 = ((b0 - a0) * y - x * (b1 - a1)) * scale
+                w0 = 1.0 - w1 - w2
+                if w0 >= inset and w1 >= inset and w2 >= inset:
+                    for axis in range(3):
+                        chosen[k, slot, axis] = (w0 * tri_corners[k, 0, axis] + w1 * tri_corners[k, 1, axis]) \
+                            + w2 * tri_corners[k, 2, axis]
+                    break
+
+
 @nb.njit(inline="always")
 def _nan_to_num(value):
     """numpy's nan_to_num of one float64: NaN -> 0, infinities -> the largest finite values."""

@@ -89,13 +89,6 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     usable = np.abs(doubled) > 0
     inverse = np.divide(1.0, doubled, out=np.zeros_like(doubled), where=usable)
 
-    def barycentric(point, rows):
-        pa, pb, pc, scale = a[rows], b[rows], c[rows], inverse[rows]
-        x, y = point[:, 0] - pa[:, 0], point[:, 1] - pa[:, 1]
-        w1 = (x * (pc[:, 1] - pa[:, 1]) - (pc[:, 0] - pa[:, 0]) * y) * scale
-        w2 = ((pb[:, 0] - pa[:, 0]) * y - x * (pb[:, 1] - pa[:, 1])) * scale
-        return np.stack([1.0 - w1 - w2, w1, w2], axis=1)
-
     def barycentric_of_slots(point):  # (k, count, 2) points of every texel, the same arithmetic
         pa, pb, pc, scale = a[:, None, :], b[:, None, :], c[:, None, :], inverse[:, None]
         x, y = point[..., 0] - pa[..., 0], point[..., 1] - pa[..., 1]
@@ -120,21 +113,13 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
                   + first[..., 2:3] * tri_corners[:, None, 2])
         del first
         chosen[~inside] = np.nan
-    rows, slots = np.nonzero(~inside & usable[:, None])
-    u = jitter[rows, slots]
-    for attempt in range(1, REDRAWS):
-        if not len(rows):
-            break
-        # Cycles redraws from a hash of the rejected point; so does this, per texel and slot.
-        bits = (u * 2.0 ** 24).astype(np.uint32)
-        salt = np.uint32((0x68E31DA4 * attempt) & 0xFFFFFFFF)
-        u = np.stack([hash32(bits[:, 0] ^ hash32(bits[:, 1] + np.uint32(attempt))),
-                      hash32(bits[:, 1] ^ hash32(bits[:, 0] + salt))], axis=1)
-        u = (u >> np.uint32(8)) * 2.0 ** -24
-        weights = barycentric(centre[rows] + (u - 0.5) * BOX_WIDTH, rows)
-        found = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1)
-        chosen[rows[found], slots[found]] = np.einsum("kc,kcd->kd", weights[found], tri_corners[rows[found]])
-        rows, slots, u = rows[~found], slots[~found], u[~found]
+    # Cycles redraws from a hash of the rejected point; so does this, per texel and slot.
+    if module is not None:
+        kernels.run(module.footprint_redraws, threads, np.ascontiguousarray(uv), centre, inverse, usable, jitter,
+                    np.ascontiguousarray(tri_corners), BOX_WIDTH, tol.SAMPLE_BARYCENTRIC_INSET, REDRAWS, chosen,
+                    inside)
+    else:
+        _redraw(uv, centre, inverse, usable, jitter, tri_corners, chosen, inside)
     # A slot that found no place inside takes the centre, as Cycles' sample does.
     if module is not None:
         offsets = np.empty((samples, count, 3), np.float32)
@@ -142,6 +127,34 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         return offsets
     points = np.where(np.isnan(chosen), position[:, None, :], chosen)
     return (points - position[:, None, :]).astype(np.float32)
+
+
+def _redraw(uv: np.ndarray, centre: np.ndarray, inverse: np.ndarray, usable: np.ndarray, jitter: np.ndarray,
+            tri_corners: np.ndarray, chosen: np.ndarray, inside: np.ndarray) -> None:
+    """The redraws of every slot whose first draw fell outside its triangle, in numpy (the
+    compiled twin is core.kernels.sample_kernels.footprint_redraws): each draws again from a
+    hash of its last draw, up to REDRAWS - 1 times; a slot that lands inside gets its point in
+    ``chosen`` (k, P, 3) float64, the others keep NaN. uv (k, 3, 2), centre (k, 2), inverse
+    (k,), tri_corners (k, 3, 3) float64; usable (k,) and inside (k, P) bool; jitter (k, P, 2)."""
+    rows, slots = np.nonzero(~inside & usable[:, None])
+    u = jitter[rows, slots]
+    for attempt in range(1, REDRAWS):
+        if not len(rows):
+            break
+        bits = (u * 2.0 ** 24).astype(np.uint32)
+        salt = np.uint32((0x68E31DA4 * attempt) & 0xFFFFFFFF)
+        u = np.stack([hash32(bits[:, 0] ^ hash32(bits[:, 1] + np.uint32(attempt))),
+                      hash32(bits[:, 1] ^ hash32(bits[:, 0] + salt))], axis=1)
+        u = (u >> np.uint32(8)) * 2.0 ** -24
+        point = centre[rows] + (u - 0.5) * BOX_WIDTH
+        pa, pb, pc, scale = uv[rows, 0], uv[rows, 1], uv[rows, 2], inverse[rows]
+        x, y = point[:, 0] - pa[:, 0], point[:, 1] - pa[:, 1]
+        w1 = (x * (pc[:, 1] - pa[:, 1]) - (pc[:, 0] - pa[:, 0]) * y) * scale
+        w2 = ((pb[:, 0] - pa[:, 0]) * y - x * (pb[:, 1] - pa[:, 1])) * scale
+        weights = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+        found = np.all(weights >= tol.SAMPLE_BARYCENTRIC_INSET, axis=1)
+        chosen[rows[found], slots[found]] = np.einsum("kc,kcd->kd", weights[found], tri_corners[rows[found]])
+        rows, slots, u = rows[~found], slots[~found], u[~found]
 
 
 def footprint_jitter(pixel: np.ndarray, triangle: np.ndarray, count: int, module=None, threads: int = 0

@@ -51,6 +51,21 @@ for line in sys.stdin:
 _EXIT_SECONDS = 2.0
 
 
+# The first wait for an answer, in seconds; each wait after it is twice as long, up to the
+# poll interval. Most objects unwrap in milliseconds: a fixed 50 ms poll made a scene of 21
+# small objects wait 1.4 s for answers that were ready (docs/benchmarks.md, "Speed, part 12").
+FIRST_POLL_SECONDS = 0.001
+
+
+def poll_pauses(poll_seconds: float):
+    """The pauses (seconds) between looks at the child's answer: FIRST_POLL_SECONDS, doubling
+    up to ``poll_seconds``, then ``poll_seconds`` for ever."""
+    pause = min(FIRST_POLL_SECONDS, poll_seconds)
+    while True:
+        yield pause
+        pause = min(2.0 * pause, poll_seconds)
+
+
 class ChildUnavailable(RuntimeError):
     """No child process could unwrap (no usable interpreter): unwrap in this process instead."""
 
@@ -160,12 +175,14 @@ class UnwrapWorker:
                 pass  # the child has exited: said below
             started = time.monotonic()
             try:
-                while child.poll() is None and not os.path.exists(answer):
+                for pause in poll_pauses(poll_seconds):
+                    if child.poll() is not None or os.path.exists(answer):
+                        break
                     if cancelled is not None and cancelled():
                         raise Cancelled()
                     if deadline_seconds is not None and time.monotonic() - started > deadline_seconds:
                         raise UnwrapHung(f"the unwrap process ran past its {deadline_seconds:.0f} s")
-                    time.sleep(poll_seconds)
+                    time.sleep(pause)
             except BaseException:
                 self._stop()
                 raise
@@ -194,7 +211,8 @@ def unwrap_in_child(positions: np.ndarray, triangles: np.ndarray, resolution: in
                     deadline_seconds: float | None = None, worker: UnwrapWorker | None = None) -> UnwrapResult:
     """:func:`core.sampling.atlas.unwrap` in a child process; the same result, bit for bit.
 
-    ``cancelled`` () -> bool is asked every ``poll_seconds``; when it says yes the child
+    ``cancelled`` () -> bool is asked at least every ``poll_seconds`` (more often at first:
+    :func:`poll_pauses`); when it says yes the child
     is killed and :class:`core.errors.Cancelled` raised. Raises ``ValueError`` where
     ``unwrap`` would, ``RuntimeError`` if the child dies (a crash in xatlas),
     :class:`UnwrapHung` if it runs past ``deadline_seconds`` (killed), and

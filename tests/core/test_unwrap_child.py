@@ -132,3 +132,22 @@ def test_one_worker_unwraps_many_meshes_in_one_child_and_starts_another_after_a_
         assert len(children) == 2
     assert children[1].poll() is not None  # ended with the worker
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_wait_for_an_answer_starts_short_and_doubles_up_to_the_poll_interval(monkeypatch):
+    pauses = unwrap_child.poll_pauses(0.05)
+    assert [next(pauses) for _ in range(8)] == [0.001, 0.002, 0.004, 0.008, 0.016, 0.032, 0.05, 0.05]
+    shorter = unwrap_child.poll_pauses(0.0005)
+    assert [next(shorter) for _ in range(3)] == [0.0005] * 3
+    # A small unwrap is picked up as soon as it is written, not a whole poll interval later.
+    slept = []
+    real_sleep = time.sleep
+
+    def recorded_sleep(seconds):
+        slept.append(seconds)
+        real_sleep(seconds)
+    monkeypatch.setattr(unwrap_child.time, "sleep", recorded_sleep)
+    positions, triangles = _sphere(8, 4)
+    ours = unwrap_in_child(positions, triangles, 64, poll_seconds=60.0)
+    np.testing.assert_array_equal(ours.corner_uv, unwrap(positions, triangles, 64).corner_uv)
+    assert slept and slept[0] == unwrap_child.FIRST_POLL_SECONDS and max(slept) < 60.0
