@@ -226,3 +226,34 @@ def test_skipping_the_rays_that_agree_keeps_the_estimate(monkeypatch, light):
     lit = full > 0.02 * full.max()
     assert np.mean(np.abs(adaptive[lit] / full[lit] - 1.0)) < 0.005
     assert np.max(np.abs(adaptive - full)) < 0.03 * full.max()
+
+
+def test_shadow_rays_traced_together_answer_as_one_query_each_and_keep_the_light_bitwise(monkeypatch):
+    """Several sampler points' shadow rays in one embree query (the probes, a shadow edge's
+    dense footprint): each ray's answer, and so the light, does not depend on the batching."""
+    meshes = _blocked_plane()
+    sun = Light("Sun", "SUN", np.ones(3), 1.0, direction=np.array([0.3, 0.1, -0.9]) / np.linalg.norm([0.3, 0.1, -0.9]))
+    p = prepare(Scene(list(meshes), []), BakeSettings(directions=16, bounces=0, shadows="exact",
+                                                      footprint_samples=16), table_needed=False)
+    samples, shadowing = p.sample_set(), p.shadowing()
+    blockers = shadowing.blocker_scene(sun)
+    from core.lights.lamps import LampPoints
+    lamp = LampPoints(sun, samples.position, samples.normal, footprint=samples.footprint, points=16)
+    count = len(samples.position)
+    requests = [(lamp.contribution(j), np.arange(j, count, 3), None) for j in range(12)]
+    alone = [direct.trace_shadow_rays(blockers, samples, *request) for request in requests]
+    assert 0 < np.mean(np.concatenate(alone)) < 1  # some rays blocked, some not
+    for batch_rays in (1, 500, 10**9):  # every request alone, a few at a time, all at once
+        monkeypatch.setattr(direct, "SHADOW_BATCH_RAYS", batch_rays)
+        together = direct.trace_shadow_rays_together(blockers, samples, requests)
+        assert len(together) == len(alone)
+        for ours, theirs in zip(together, alone):
+            np.testing.assert_array_equal(ours, theirs)
+    monkeypatch.setattr(direct, "SHADOW_BATCH_RAYS", 10**9)
+    batched, batched_rays = lamp_irradiance(samples, shadowing, [sun])
+    # One point's rays per query, as before batching.
+    monkeypatch.setattr(direct, "SHADOW_BATCH_RAYS", 1)
+    monkeypatch.setattr(direct, "EDGE_BATCH_ROWS", 1)
+    single, single_rays = lamp_irradiance(samples, shadowing, [sun])
+    assert batched_rays == single_rays and np.count_nonzero((single[:, 0] > 0.02) & (single[:, 0] < 0.98)) >= 10
+    np.testing.assert_array_equal(batched.view(np.uint64), single.view(np.uint64))

@@ -1,0 +1,63 @@
+"""Bakes of benchmark scenes as ``make bench`` bakes them, timed stage by stage, for A/B runs of
+two trees (issue 16, part 12): run it once per tree, alternating, and compare the medians.
+
+    .venv/bin/python benchmarks/bake_ab.py [--root TREE] [--scenes many_objects dense_mesh]
+        [--directions 32] [--repeats 5] [--out FILE.jsonl]
+
+``--root`` is the tree whose extension is loaded (default: this one), so that an earlier commit
+checked out in a second worktree runs with this script. Each scene is baked once to lay out its
+UV maps (not timed, as in ``make bench``), then ``--repeats`` times at 64^2, 2 bounces, exact
+shadows and ``--directions`` directions; prints (and appends to ``--out``) one JSON line a scene:
+the median total and the median of each stage.
+"""
+import argparse
+import json
+import os
+import statistics
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--root", default=ROOT, help="the tree whose extension is baked with")
+    parser.add_argument("--scenes", nargs="+", default=["many_objects", "dense_mesh"])
+    parser.add_argument("--directions", type=int, default=32)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--out", default=None, help="a JSON-lines file the rows are appended to")
+    args = parser.parse_args(argv)
+
+    sys.path.insert(0, ROOT)
+    import bpy
+
+    from benchmarks import scenes
+    from tools.visibake import loaded_extension
+
+    _, module = loaded_extension(os.path.abspath(args.root))
+    job = module("operators.adapter.job")
+    with module("core.kernels").blas_on_one_thread():
+        for name in args.scenes:
+            scenes.reset()
+            objects = scenes.SCENES[name]("full")
+            props = bpy.context.scene.visibake
+            props.use_cache, props.passes, props.mode = False, {"lighting"}, "atlas"
+            props.resolution, props.bounces, props.shadows, props.rotate = 64, 2, "exact", False
+            props.directions = args.directions
+            job.run_bake(bpy.context, objects)  # lays out the UV maps, as make bench's first bake
+            reports = [job.run_bake(bpy.context, objects).report for _ in range(args.repeats)]
+            stages = {stage: round(statistics.median(r["stage_seconds"][stage] for r in reports), 3)
+                      for stage in reports[0]["stage_seconds"]}
+            row = {"tree": os.path.abspath(args.root), "scene": name, "directions": args.directions,
+                   "median_total": round(statistics.median(r["total_seconds"] for r in reports), 3),
+                   "totals": [r["total_seconds"] for r in reports], "stages": stages,
+                   "shadow_rays": reports[0]["rays"]["shadow_rays"]}
+            print(json.dumps(row), flush=True)
+            if args.out:
+                with open(args.out, "a") as out:
+                    out.write(json.dumps(row) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
