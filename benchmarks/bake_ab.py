@@ -8,7 +8,9 @@ two trees (issue 16, part 12): run it once per tree, alternating, and compare th
 checked out in a second worktree runs with this script. Each scene is baked once to lay out its
 UV maps (not timed, as in ``make bench``), then ``--repeats`` times at 64^2, 2 bounces, exact
 shadows and ``--directions`` directions; prints (and appends to ``--out``) one JSON line a scene:
-the median total and the median of each stage.
+the median total and the median of each stage. With ``--direct-only``, each lamp's direct light
+alone instead (core.transport.direct.lamp_irradiance on the scene's preparation), best of
+``--repeats``, and the digest of its light (equal digests: bitwise the same light).
 """
 import argparse
 import json
@@ -26,6 +28,7 @@ def main(argv=None) -> int:
     parser.add_argument("--directions", type=int, default=32)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=None, help="a JSON-lines file the rows are appended to")
+    parser.add_argument("--direct-only", action="store_true", help="time each lamp's direct light alone")
     args = parser.parse_args(argv)
 
     sys.path.insert(0, ROOT)
@@ -45,6 +48,10 @@ def main(argv=None) -> int:
             props.resolution, props.bounces, props.shadows, props.rotate = 64, 2, "exact", False
             props.directions = args.directions
             job.run_bake(bpy.context, objects)  # lays out the UV maps, as make bench's first bake
+            if args.direct_only:
+                _write(args.out, {"tree": os.path.abspath(args.root), "scene": name, "directions": args.directions,
+                                  "lamps": _direct_light(module, bpy, objects, args.repeats)})
+                continue
             reports = [job.run_bake(bpy.context, objects).report for _ in range(args.repeats)]
             stages = {stage: round(statistics.median(r["stage_seconds"][stage] for r in reports), 3)
                       for stage in reports[0]["stage_seconds"]}
@@ -52,11 +59,39 @@ def main(argv=None) -> int:
                    "median_total": round(statistics.median(r["total_seconds"] for r in reports), 3),
                    "totals": [r["total_seconds"] for r in reports], "stages": stages,
                    "shadow_rays": reports[0]["rays"]["shadow_rays"]}
-            print(json.dumps(row), flush=True)
-            if args.out:
-                with open(args.out, "a") as out:
-                    out.write(json.dumps(row) + "\n")
+            _write(args.out, row)
     return 0
+
+
+def _direct_light(module, bpy, objects, repeats: int) -> list[dict]:
+    """Each lamp's direct light at the scene's samples, alone: best seconds of ``repeats``, the
+    shadow rays, and a digest of the (K, 3) float64 light."""
+    import hashlib
+    import time
+
+    extraction = module("operators.adapter.extraction")
+    settings = module("operators.adapter.settings").bake_settings(bpy.context.scene.visibake)
+    scene = extraction.extract_scene(bpy.context, objects).scene
+    prepared = module("core.pipeline.prepare").prepare(scene, settings, table_needed=True)
+    samples, shadowing = prepared.sample_set(), prepared.shadowing()
+    unit_lamp, lamp_irradiance = module("core.lights.lamps").unit_lamp, module("core.transport.direct").lamp_irradiance
+    lamps = []
+    for light in scene.lights:
+        best = float("inf")
+        for _ in range(repeats):
+            started = time.perf_counter()
+            light_at, rays = lamp_irradiance(samples, shadowing, [unit_lamp(light)])
+            best = min(best, time.perf_counter() - started)
+        lamps.append({"lamp": light.name, "kind": light.kind, "best_seconds": round(best, 4), "shadow_rays": rays,
+                      "light_digest": hashlib.sha256(light_at.tobytes()).hexdigest()[:16]})
+    return lamps
+
+
+def _write(path: str | None, row: dict) -> None:
+    print(json.dumps(row), flush=True)
+    if path:
+        with open(path, "a") as out:
+            out.write(json.dumps(row) + "\n")
 
 
 if __name__ == "__main__":
