@@ -52,8 +52,8 @@ _EXIT_SECONDS = 2.0
 
 
 # The first wait for an answer, in seconds; each wait after it is twice as long, up to the
-# poll interval. Most objects unwrap in milliseconds: a fixed 50 ms poll made a scene of 21
-# small objects wait 1.4 s for answers that were ready (docs/benchmarks.md, "Speed, part 12").
+# poll interval. A small object unwraps in 25-35 ms, which a fixed 50 ms poll rounded up to
+# 50-100 ms (docs/benchmarks.md, "Speed, part 12").
 FIRST_POLL_SECONDS = 0.001
 
 

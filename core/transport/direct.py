@@ -349,8 +349,8 @@ def trace_shadow_rays_together(blockers, samples: SampleSet, requests: list) -> 
 
 
 # The most shadow rays :func:`trace_shadow_rays_together` traces in one query (about 14 MB
-# of rays; a query of this size spends under 3% of its time outside embree), and the most
-# sample rows whose sampler points a shadow edge evaluates at once.
+# of rays), and the most sample rows whose sampler points a shadow edge evaluates at once
+# (about 5 MB of sampler points).
 SHADOW_BATCH_RAYS = 1 << 18
 EDGE_BATCH_ROWS = 1 << 16
 
