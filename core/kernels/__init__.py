@@ -243,6 +243,12 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     light_module.hard_lamp_decided(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
                                    footprint, np.zeros((1, 0, 3), np.float32), np.ones(3), np.zeros(1, np.int64),
                                    flags, flags, 1, flags, 4, 1.0, np.zeros((1, 3)), np.zeros(1, bool))
+    index = np.zeros(1, np.int64)
+    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):  # a ray scene at the origin, and centred
+        light_module.shadow_ray_setup(index, index, np.ones(1), three, np.zeros((0, 3)), three, three, three, three,
+                                      np.zeros(1), sample_origins, np.zeros(3), False, 1.0, np.float32(256.0),
+                                      np.float32(1.0), np.float32(1.0), sample_origins.copy(), np.zeros((1, 3)),
+                                      np.zeros(1, np.float32), np.zeros((1, 3)))
     corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
     offsets = np.zeros(2, np.int64)
     no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
@@ -275,7 +281,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                image_module.bilinear_points, image_module.seam_product, image_module.seam_solve,
                image_module.dilate_rings, image_module.sum_rows, image_module.contact_sums,
                light_module.hard_lamp_point,
-               light_module.hard_lamp_decided, raster_module.triangle_claims, raster_module.resolve_claims,
+               light_module.hard_lamp_decided, light_module.shadow_ray_setup,
+               raster_module.triangle_claims, raster_module.resolve_claims,
                raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
                prep_module.texel_owners, prep_module.filter_candidates)
     return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)

@@ -13,6 +13,7 @@ import numba as nb
 import numpy as np
 
 from . import KERNEL_OPTIONS
+from .bits import bits_float32, float32_bits
 
 # Lamp kinds as the kernel takes them.
 SUN, POINT, SPOT = 0, 1, 2
@@ -139,3 +140,87 @@ def _hard_point(kind, centre, direction, cos_half, band, position, normal, offse
         if not far > 1e-12:
             value = 0.0
     return r0, r1, r2, n0, n1, n2, t0, t1, t2, far, value
+
+
+@nb.njit(inline="always")
+def _lift_amount(shading_cosine, geometric_cosine, cutoff):
+    """core.sampling.terminator.lift_amount of one ray, in its float64 operations."""
+    if not cutoff > 0.0:
+        return 0.0
+    nl = abs(shading_cosine)
+    ngl = -geometric_cosine if shading_cosine < 0.0 else geometric_cosine
+    if nl < cutoff:
+        return min(max(2.0 - (ngl + nl) / cutoff, 0.0), 1.0)
+    return min(max(1.0 - ngl / cutoff, 0.0), 1.0)
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def shadow_ray_setup(rays, sample_rows, distance, to_light, moved, position, normal, geometric, terminator, cutoff,
+                     sample_origins, centre, centred, keep, int_scale, float_scale, origin_limit, origins, directions,
+                     limits, lift):
+    """The shadow rays of rows ``rays`` of one sampler point (core.transport.direct.shadow_rays),
+    bitwise as its numpy code makes them: each ray's length (its distance times ``keep``, inf
+    for a sun) and direction; its origin off the surface (core.visibility.rays.RayScene.
+    ray_origins) from where the point was received, lifted towards the smooth surface
+    (core.sampling.terminator) where the light is near or below the flat face's horizon; and
+    where no ray of the call is lifted and the point was received at the samples themselves,
+    the samples' own origins. In parallel over rays.
+
+    rays, sample_rows : (n,) int64 rows of the point's arrays and the rays' samples
+    distance : (m,) float64; to_light : (m, 3) float64 unit; moved : (m, 3) float64 where the
+        point was received, or (0, 3): at the samples' positions
+    position, normal, geometric : (K, 3) float64; terminator : (K, 3) float64 and cutoff : (K,)
+        float64, or (0, 3) and (0,) where no sample is on a smooth face
+    sample_origins : (K, 3) the samples' origins (float32, or float64 world positions where the
+        ray scene is ``centred`` on ``centre`` (3,) float64)
+    keep : float64 1 - core.tolerances.SHADOW_RAY_SHORTEN; int_scale, float_scale,
+        origin_limit : float32, core.tolerances' RAY_OFFSET_* constants
+    origins : (n, 3) sample_origins' dtype, out; directions : (n, 3) float64, out; limits :
+        (n,) float32, out; lift : (n, 3) float64, scratch
+    """
+    count = rays.shape[0]
+    smooth = terminator.shape[0] > 0
+    lifted = 0
+    for r in nb.prange(count):
+        e = rays[r]
+        s = sample_rows[r]
+        length = distance[e]
+        limits[r] = np.float32(length * keep if np.isfinite(length) else np.inf)
+        t0, t1, t2 = to_light[e, 0], to_light[e, 1], to_light[e, 2]
+        directions[r, 0] = t0
+        directions[r, 1] = t1
+        directions[r, 2] = t2
+        if smooth:
+            amount = _lift_amount(_dot(normal[s, 0], normal[s, 1], normal[s, 2], t0, t1, t2),
+                                  _dot(geometric[s, 0], geometric[s, 1], geometric[s, 2], t0, t1, t2), cutoff[s])
+            any_axis = 0
+            for axis in range(3):
+                lift[r, axis] = terminator[s, axis] * amount
+                if lift[r, axis] != 0.0:
+                    any_axis = 1
+            lifted += any_axis
+    from_samples = moved.shape[0] == 0
+    for r in nb.prange(count):
+        s = sample_rows[r]
+        if from_samples and lifted == 0:
+            for axis in range(3):
+                origins[r, axis] = sample_origins[s, axis]
+            continue
+        for axis in range(3):
+            x = position[s, axis] if from_samples else moved[rays[r], axis]
+            if lifted > 0:
+                x = x + lift[r, axis]
+            if centred:
+                x = x - centre[axis]
+            p = np.float32(x)
+            n = np.float32(geometric[s, axis])
+            if abs(p) < origin_limit:
+                stepped = p + float_scale * n
+            else:
+                offset = np.int32(int_scale * n)
+                bits = float32_bits(p)
+                stepped = bits_float32(np.int32(bits - offset) if p < np.float32(0.0) else np.int32(bits + offset))
+            if centred:
+                origins[r, axis] = np.float64(stepped) + centre[axis]
+            else:
+                origins[r, axis] = stepped

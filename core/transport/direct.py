@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from ..lights.lamps import (
     LampPoints,
@@ -298,8 +299,14 @@ def trace_shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray,
 def shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray, sample_rows: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rays :func:`trace_shadow_rays` traces: origins (n, 3) (as ``blockers.ray_origins``
-    gives them), unit directions (n, 3) float64 and lengths (n,) float32 (inf: unbounded)."""
+    gives them), unit directions (n, 3) float64 and lengths (n,) float32 (inf: unbounded).
+    One compiled pass (core.kernels.light_kernels.shadow_ray_setup) where the kernels load,
+    bitwise what the numpy code below makes: some ten numpy passes over the rays, which took
+    most of the direct light's time (docs/benchmarks.md, "Speed, part 12")."""
     sample_rows = rays if sample_rows is None else sample_rows
+    module = kernels.compiled()
+    if module is not None:
+        return _shadow_rays_compiled(module, blockers, samples, part, rays, sample_rows)
     distance = part.distance[rays]
     limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)
     to_light = part.to_light[rays]
@@ -317,6 +324,35 @@ def shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray, sample_row
         start = samples.position[sample_rows] if part.position is None else part.position[rays]
         origins = blockers.ray_origins(start if lift is None else start + lift, samples.geometric[sample_rows])
     return origins, to_light, limit.astype(np.float32)
+
+
+def _shadow_rays_compiled(module, blockers, samples: SampleSet, part, rays: np.ndarray, sample_rows: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`shadow_rays` through the compiled kernel (arguments as there)."""
+    count = len(rays)
+    smooth = samples.terminator is not None
+    origins = np.empty((count, 3), samples.origins.dtype)
+    directions = np.empty((count, 3))
+    limits = np.empty(count, np.float32)
+    centre = np.asarray(blockers.centre, np.float64)
+    kernels.run(module.shadow_ray_setup, blockers.threads, np.asarray(rays, np.int64),
+                np.asarray(sample_rows, np.int64), np.ascontiguousarray(part.distance, np.float64),
+                np.ascontiguousarray(part.to_light, np.float64),
+                _NOWHERE if part.position is None else np.ascontiguousarray(part.position, np.float64),
+                np.ascontiguousarray(samples.position, np.float64), np.ascontiguousarray(samples.normal, np.float64),
+                np.ascontiguousarray(samples.geometric, np.float64),
+                np.ascontiguousarray(samples.terminator, np.float64) if smooth else _NOWHERE,
+                np.ascontiguousarray(samples.terminator_cutoff, np.float64) if smooth else _NO_CUTOFF,
+                np.ascontiguousarray(samples.origins), centre, bool(centre.any()), 1.0 - tol.SHADOW_RAY_SHORTEN,
+                np.float32(tol.RAY_OFFSET_INT_SCALE), np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
+                np.float32(tol.RAY_OFFSET_ORIGIN), origins, directions, limits,
+                np.empty((count if smooth else 0, 3)))
+    return origins, directions, limits
+
+
+# Stand-ins for the kernel's arrays where there are none (one signature for all calls).
+_NOWHERE = np.zeros((0, 3))
+_NO_CUTOFF = np.zeros(0)
 
 
 def trace_shadow_rays_together(blockers, samples: SampleSet, requests: list) -> list[np.ndarray]:

@@ -765,3 +765,56 @@ def test_numpy_s_blas_runs_on_one_thread_inside_the_block_and_as_before_after_it
         with kernels.blas_on_one_thread():
             1 / 0
     assert blas_threads() == before
+
+
+@pytest.mark.parametrize("centre", [None, (1000.0, -5.0, 3.0)])
+@pytest.mark.parametrize("moved", [False, True])
+@pytest.mark.parametrize("smooth", ["none", "flat lights", "some lifted"])
+def test_compiled_shadow_rays_are_bitwise_those_of_numpy(monkeypatch, centre, moved, smooth):
+    """The shadow rays' set-up (core.transport.direct.shadow_rays): origins from the samples'
+    own, from footprint points, lifted towards smooth surfaces; lamps at a distance and suns;
+    a ray scene at the world origin (float32 origins) and one centred far from it (float64)."""
+    from core.lights.lamps import LightContribution
+    from core.transport import direct
+    from core.transport.contract import SampleSet
+    from core.visibility.rays import RayScene
+
+    rng = np.random.default_rng(5)
+    count, points = 2000, 1500
+    offset = np.zeros(3) if centre is None else np.asarray(centre)
+    scene = RayScene([(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]) + offset, np.array([[0, 1, 2]]))], 2,
+                     None if centre is None else offset)
+    position = rng.uniform(-2, 2, (count, 3)) + offset
+    position[:20] = offset + rng.uniform(-1e-3, 1e-3, (20, 3))  # near the frame's origin: the float step
+    position[20:25, 0] = offset[0]  # a coordinate exactly at it
+    geometric = rng.normal(size=(count, 3))
+    geometric /= np.linalg.norm(geometric, axis=1, keepdims=True)
+    normal = geometric + 0.2 * rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    terminator = cutoff = None
+    if smooth != "none":
+        terminator = 0.01 * rng.normal(size=(count, 3))
+        cutoff = np.where(rng.uniform(size=count) < 0.2, 0.0, rng.uniform(0.05, 0.3, count))
+    samples = SampleSet(position, normal, geometric, scene.ray_origins(position, geometric),
+                        terminator=terminator, terminator_cutoff=cutoff)
+    rows = rng.permutation(points)[:1200]
+    sample_rows = rng.integers(0, count, 1200)
+    to_light = rng.normal(size=(points, 3))
+    if smooth == "flat lights":  # each ray's light well above its face: no ray is lifted
+        to_light[rows] = geometric[sample_rows] + 0.01 * rng.normal(size=(len(rows), 3))
+    to_light /= np.linalg.norm(to_light, axis=1, keepdims=True)
+    distance = rng.uniform(0.1, 10.0, points)
+    distance[::7] = np.inf
+    part = LightContribution(None, to_light, distance,
+                             position[:points] + 0.01 * rng.normal(size=(points, 3)) if moved else None)
+    compiled = direct.shadow_rays(scene, samples, part, rows, sample_rows)
+    monkeypatch.setattr(kernels, "_module", None)
+    reference = direct.shadow_rays(scene, samples, part, rows, sample_rows)
+    if smooth == "some lifted":
+        unlifted = SampleSet(position, normal, geometric, samples.origins)
+        assert not np.array_equal(reference[0], direct.shadow_rays(scene, unlifted, part, rows, sample_rows)[0])
+    elif not moved:  # nothing lifted: the samples' own origins
+        np.testing.assert_array_equal(reference[0], samples.origins[sample_rows])
+    for ours, theirs in zip(compiled, reference):
+        assert ours.dtype == theirs.dtype and ours.shape == theirs.shape
+        np.testing.assert_array_equal(ours.view(np.uint8), theirs.view(np.uint8))
