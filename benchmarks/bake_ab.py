@@ -7,7 +7,8 @@ two trees (issue 16, part 12): run it once per tree, alternating, and compare th
 ``--root`` is the tree whose extension is loaded (default: this one), so that an earlier commit
 checked out in a second worktree runs with this script. Each scene is baked once to lay out its
 UV maps (not timed, as in ``make bench``), then ``--repeats`` times at 64^2, 2 bounces, exact
-shadows and ``--directions`` directions; prints (and appends to ``--out``) one JSON line a scene:
+shadows and ``--directions`` directions (the scene ``demo``: as ``visibake demo`` bakes it, at
+``--preset``); prints (and appends to ``--out``) one JSON line a scene:
 the median total and the median of each stage. With ``--direct-only``, each lamp's direct light
 alone instead (core.transport.direct.lamp_irradiance on the scene's preparation), best of
 ``--repeats``, and the digest of its light (equal digests: bitwise the same light).
@@ -29,6 +30,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=None, help="a JSON-lines file the rows are appended to")
     parser.add_argument("--direct-only", action="store_true", help="time each lamp's direct light alone")
+    parser.add_argument("--preset", choices=("draft", "production"), help="the demo's preset (scene demo only)")
     args = parser.parse_args(argv)
 
     sys.path.insert(0, ROOT)
@@ -42,20 +44,35 @@ def main(argv=None) -> int:
     with module("core.kernels").blas_on_one_thread():
         for name in args.scenes:
             scenes.reset()
-            objects = scenes.SCENES[name]("full")
             props = bpy.context.scene.visibake
-            props.use_cache, props.passes, props.mode = False, {"lighting"}, "atlas"
-            props.resolution, props.bounces, props.shadows, props.rotate = 64, 2, "exact", False
-            props.directions = args.directions
-            job.run_bake(bpy.context, objects)  # lays out the UV maps, as make bench's first bake
+            if name == "demo":  # as visibake demo bakes it
+                objects = module("operators.adapter.demo_scene").build_demo_scene(bpy.context.scene)
+                props = bpy.context.scene.visibake
+                if args.preset:
+                    props.preset = args.preset.upper()
+            else:
+                objects = scenes.SCENES[name]("full")
+                props.passes, props.mode = {"lighting"}, "atlas"
+                props.resolution, props.bounces, props.shadows, props.rotate = 64, 2, "exact", False
+                props.directions = args.directions
+            props.use_cache = False
             if args.direct_only:
-                _write(args.out, {"tree": os.path.abspath(args.root), "scene": name, "directions": args.directions,
+                # The UV maps laid out at the bake's resolution, by a bake that gathers little.
+                kept = props.directions, props.bounces
+                props.directions, props.bounces = 16, 0
+                job.run_bake(bpy.context, objects)
+                props.directions, props.bounces = kept
+            else:
+                job.run_bake(bpy.context, objects)  # lays out the UV maps, as make bench's first bake
+            if args.direct_only:
+                _write(args.out, {"tree": os.path.abspath(args.root), "scene": name, "directions": props.directions,
+                                  "resolution": props.resolution,
                                   "lamps": _direct_light(module, bpy, objects, args.repeats)})
                 continue
             reports = [job.run_bake(bpy.context, objects).report for _ in range(args.repeats)]
             stages = {stage: round(statistics.median(r["stage_seconds"][stage] for r in reports), 3)
                       for stage in reports[0]["stage_seconds"]}
-            row = {"tree": os.path.abspath(args.root), "scene": name, "directions": args.directions,
+            row = {"tree": os.path.abspath(args.root), "scene": name, "directions": props.directions,
                    "median_total": round(statistics.median(r["total_seconds"] for r in reports), 3),
                    "totals": [r["total_seconds"] for r in reports], "stages": stages,
                    "shadow_rays": reports[0]["rays"]["shadow_rays"]}
@@ -72,7 +89,8 @@ def _direct_light(module, bpy, objects, repeats: int) -> list[dict]:
     extraction = module("operators.adapter.extraction")
     settings = module("operators.adapter.settings").bake_settings(bpy.context.scene.visibake)
     scene = extraction.extract_scene(bpy.context, objects).scene
-    prepared = module("core.pipeline.prepare").prepare(scene, settings, table_needed=True)
+    # Exact shadows trace their own rays: the table is only traced where shadow fractions need it.
+    prepared = module("core.pipeline.prepare").prepare(scene, settings, table_needed=settings.shadows == "fractions")
     samples, shadowing = prepared.sample_set(), prepared.shadowing()
     unit_lamp, lamp_irradiance = module("core.lights.lamps").unit_lamp, module("core.transport.direct").lamp_irradiance
     lamps = []
