@@ -8,7 +8,8 @@ checked bitwise equal.
   passes (core.transport.contacts: close_entries, exposed_share, _texel_owners;
   core.transport.interleave.filter_pairs) and, for each hard lamp, the direct light with the
   samples that need no shadow ray summed in one pass (LampPoints.add_untraced) against the
-  point-by-point loop.
+  point-by-point loop, and the set-up of the shadow rays of its first corner probe
+  (core.transport.direct.shadow_rays).
 
 Each figure is the median of ``--repeats`` calls after one unmeasured call. Writes
 ``benchmarks/results/fixed_costs.json`` with the machine, settings and date.
@@ -152,6 +153,26 @@ def main(argv=None) -> int:
                 lamps.LampPoints.add_untraced = one_pass
         compare(f"direct light of {light.name} ({light.kind}, {len(samples.position)} samples)", looped,
                 lambda light=light: direct.lamp_irradiance(samples, shadowing, [light]), "point-by-point loop")
+
+    # The shadow rays of each lamp's first corner probe (as direct._penumbra_probes makes them):
+    # every sample's, from its texel box's corner, lifted where its face is smooth.
+    LightContribution = lamps.LightContribution
+    for light in scene.lights:
+        blockers = shadowing.blocker_scene(light)
+        moved = samples.position + samples.footprint_corners[:, 0]
+        to_light, distance = lamps.centre_probe(light, moved)
+        aimed = np.nonzero(np.einsum("kd,kd->k", to_light, samples.normal) > 0.0)[0]
+        probe = LightContribution(None, to_light, distance, moved)
+
+        def numpy_rays(blockers=blockers, probe=probe, aimed=aimed):
+            compiled = kernels._module
+            kernels._module = None
+            try:
+                return direct.shadow_rays(blockers, samples, probe, aimed)
+            finally:
+                kernels._module = compiled
+        compare(f"shadow rays' set-up, {light.name}'s corner probe ({len(aimed)} rays)", numpy_rays,
+                lambda blockers=blockers, probe=probe, aimed=aimed: direct.shadow_rays(blockers, samples, probe, aimed))
 
     write_results(args.out, {"settings": {"repeats": args.repeats, "demo_directions": settings.directions,
                                           "demo_samples": int(len(p.position))},
