@@ -31,9 +31,6 @@ import numpy as np
 ENVIRONMENT_SWITCH = "VISIBAKE_KERNELS"
 # How every kernel is compiled: in parallel, cached on disk, without the GIL; numpy's
 # semantics for division, no bounds checks (the callers pass arrays of checked shapes).
-# numba 0.68.1 cannot type light_kernels.shadow_ray_setup under Python 3.13 ("unexpected cycle
-# in lookup()", found with bpy 5.3.0): there the shadow rays are set up in numpy.
-SHADOW_RAY_KERNEL = sys.version_info < (3, 13)
 KERNEL_OPTIONS = {"parallel": True, "cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
 # A kernel that runs on one thread: one whose loop is too short to share, or one that
 # several Python threads call at once (outside :func:`run` and its lock, which only the
@@ -247,7 +244,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                    footprint, np.zeros((1, 0, 3), np.float32), np.ones(3), np.zeros(1, np.int64),
                                    flags, flags, 1, flags, 4, 1.0, np.zeros((1, 3)), np.zeros(1, bool))
     index = np.zeros(1, np.int64)
-    for sample_origins in ((np.zeros((1, 3), np.float32), np.zeros((1, 3))) if SHADOW_RAY_KERNEL else ()):
+    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):
         light_module.shadow_ray_setup(index, index, np.ones(1), three, np.zeros((0, 3)), three, three, three, three,
                                       np.zeros(1), sample_origins, np.zeros(3), False, 1.0, np.float32(256.0),
                                       np.float32(1.0), np.float32(1.0), sample_origins.copy(), np.zeros((1, 3)),

@@ -180,7 +180,6 @@ def shadow_ray_setup(rays, sample_rows, distance, to_light, moved, position, nor
     """
     count = rays.shape[0]
     smooth = terminator.shape[0] > 0
-    lifted = 0
     for r in nb.prange(count):
         e = rays[r]
         s = sample_rows[r]
@@ -193,12 +192,16 @@ def shadow_ray_setup(rays, sample_rows, distance, to_light, moved, position, nor
         if smooth:
             amount = _lift_amount(_dot(normal[s, 0], normal[s, 1], normal[s, 2], t0, t1, t2),
                                   _dot(geometric[s, 0], geometric[s, 1], geometric[s, 2], t0, t1, t2), cutoff[s])
-            any_axis = 0
             for axis in range(3):
                 lift[r, axis] = terminator[s, axis] * amount
-                if lift[r, axis] != 0.0:
-                    any_axis = 1
-            lifted += any_axis
+    # A serial scan, not a reduction in the loop above: numba 0.68.1 cannot type that
+    # reduction under Python 3.13 ("unexpected cycle in lookup()").
+    lifted = 0
+    if smooth:
+        for r in range(count):
+            if lift[r, 0] != 0.0 or lift[r, 1] != 0.0 or lift[r, 2] != 0.0:
+                lifted = 1
+                break
     from_samples = moved.shape[0] == 0
     for r in nb.prange(count):
         s = sample_rows[r]

@@ -305,7 +305,7 @@ def shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray, sample_row
     most of the direct light's time (docs/benchmarks.md, "Speed, part 12")."""
     sample_rows = rays if sample_rows is None else sample_rows
     module = kernels.compiled()
-    if module is not None and kernels.SHADOW_RAY_KERNEL:
+    if module is not None:
         return _shadow_rays_compiled(module, blockers, samples, part, rays, sample_rows)
     distance = part.distance[rays]
     limit = np.where(np.isfinite(distance), distance * (1.0 - tol.SHADOW_RAY_SHORTEN), np.inf)

@@ -767,8 +767,6 @@ def test_numpy_s_blas_runs_on_one_thread_inside_the_block_and_as_before_after_it
     assert blas_threads() == before
 
 
-@pytest.mark.skipif(not kernels.SHADOW_RAY_KERNEL, reason="the shadow rays' set-up kernel is off under "
-                    "Python 3.13 (numba cannot type it there): both paths would be numpy's")
 @pytest.mark.parametrize("centre", [None, (1000.0, -5.0, 3.0)])
 @pytest.mark.parametrize("moved", [False, True])
 @pytest.mark.parametrize("smooth", ["none", "flat lights", "some lifted"])
