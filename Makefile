@@ -25,7 +25,8 @@ BPY_DEFAULT  := 5.0.1
 BPY          ?= $(BPY_DEFAULT)
 # What CI tests: the LTS lines, the default, and the newest bpy on the registry (raised deliberately).
 BPY_VERSIONS := 4.2.23 4.5.15 5.0.1 5.3.0
-PYVER        := $(shell echo '$(BPY)' | awk -F. '{ print ($$1 > 5 || ($$1 == 5 && $$2 >= 1)) ? "3.13" : "3.11" }')
+python_of    = $(shell echo '$(1)' | awk -F. '{ print ($$1 > 5 || ($$1 == 5 && $$2 >= 1)) ? "3.13" : "3.11" }')
+PYVER        := $(call python_of,$(BPY))
 # pythonX.Y on the PATH, else pyenv's X.Y (installed but not selected on these machines).
 PYTHON       ?= $(shell tools/find_python.sh $(PYVER))
 VENV         := $(if $(filter $(BPY_DEFAULT),$(BPY)),.venv,.venv-bpy$(BPY))
@@ -35,6 +36,8 @@ PY        := $(VENV)/bin/python
 PIP       := $(PY) -m pip --disable-pip-version-check --no-input
 PIP_PROGRESS := $(if $(CI),--progress-bar off,)
 PYTEST_FLAGS ?= -q -ra
+# What `make test` runs: every test folder, or some of them (test-others narrows it).
+TEST_PATHS   ?= tests
 
 # Reinstall only when the *content* of the requirements or the bpy version changes (not an mtime).
 REQ_KEY    := $(firstword $(shell cksum $(REQUIREMENTS) 2>/dev/null))
@@ -146,13 +149,27 @@ test: venv build
 	  echo "validating $(ZIP) with bpy $(BPY)'s extension tool"; \
 	  $(PY) $(TEST_DIR)/scripts/addons_core/bl_pkg/cli/blender_ext.py validate $(ZIP); \
 	fi
-	$(PY) -m pytest tests $(PYTEST_FLAGS)
+	$(PY) -m pytest $(TEST_PATHS) $(PYTEST_FLAGS)
 
-# The other Blenders of BPY_VERSIONS (CI runs `make test` first, then these).
+# The other Blenders of BPY_VERSIONS (CI runs `make test` first, then these), each without
+# what would repeat the default's run exactly:
+# - tests/core never imports bpy (tests/core/test_layering.py): under a Blender with the
+#   default's Python it runs the same code on the same pinned requirements, so it runs once
+#   per Python line (3.11: the default; 3.13: 5.3.0), not once per Blender;
+# - tests/blender/test_benchmark_smoke.py checks `make bench`, which runs the default Blender.
+SAME_PYTHON_AS_DEFAULT := $(foreach v,$(BPY_VERSIONS),$(if $(filter $(call python_of,$(v)),$(call python_of,$(BPY_DEFAULT))),$(v)))
+OTHERS_IGNORE := --ignore=tests/blender/test_benchmark_smoke.py
+
 test-others:
 	@for version in $(filter-out $(BPY_DEFAULT),$(BPY_VERSIONS)); do \
-	  echo "== tests against bpy $$version"; started=$$(date +%s); \
-	  $(MAKE) --no-print-directory test BPY=$$version || exit 1; \
+	  case " $(SAME_PYTHON_AS_DEFAULT) " in \
+	    *" $$version "*) paths="tests/blender tests/gpu"; why="tests/core ran under the default's Python";; \
+	    *) paths=tests; why="its Python differs from the default's: tests/core runs too";; \
+	  esac; \
+	  echo "== tests against bpy $$version: $$paths ($$why; benchmarks' smoke tests: default Blender only)"; \
+	  started=$$(date +%s); \
+	  $(MAKE) --no-print-directory test BPY=$$version TEST_PATHS="$$paths" \
+	    PYTEST_FLAGS="$(PYTEST_FLAGS) $(OTHERS_IGNORE)" || exit 1; \
 	  echo "== bpy $$version: $$(( $$(date +%s) - started )) s"; \
 	done
 
