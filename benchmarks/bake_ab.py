@@ -10,7 +10,8 @@ UV maps (not timed, as in ``make bench``), then ``--repeats`` times at 64^2, 2 b
 shadows and ``--directions`` directions (the scene ``demo``: as ``visibake demo`` bakes it, at
 ``--preset``); prints (and appends to ``--out``) one JSON line a scene:
 the median total and the median of each stage. With ``--direct-only``, each lamp's direct light
-alone instead (core.transport.direct.lamp_irradiance on the scene's preparation), best of
+alone instead (core.transport.direct.lamp_irradiance on the scene's preparation; each small
+emitter's, core.lights.emitters.emitter_irradiance, where samples integrate it directly), best of
 ``--repeats``, and the digest of its light (equal digests: bitwise the same light).
 """
 import argparse
@@ -101,6 +102,22 @@ def _direct_light(module, bpy, objects, repeats: int) -> list[dict]:
             light_at, rays = lamp_irradiance(samples, shadowing, [unit_lamp(light)])
             best = min(best, time.perf_counter() - started)
         lamps.append({"lamp": light.name, "kind": light.kind, "best_seconds": round(best, 4), "shadow_rays": rays,
+                      "light_digest": hashlib.sha256(light_at.tobytes()).hexdigest()[:16]})
+    # Small emitters, at the samples that integrate them directly (core.pipeline.transport).
+    emitters = module("core.lights.emitters")
+    p = prepared
+    for emitter in emitters.find_emitters(p.meshes, settings.emitter_samples):
+        chosen = emitters.sampled_directly(emitter, p.position, settings.directions).nonzero()[0]
+        if not len(chosen):
+            continue
+        best = float("inf")
+        for _ in range(repeats):
+            started = time.perf_counter()
+            light_at, rays = emitters.emitter_irradiance(emitter, p.position[chosen], p.normal[chosen],
+                                                         p.geometric[chosen], p.origins[chosen], p.ray_scene)
+            best = min(best, time.perf_counter() - started)
+        lamps.append({"lamp": p.meshes[emitter.object_index].name, "kind": "EMITTER", "samples": len(chosen),
+                      "best_seconds": round(best, 4), "shadow_rays": rays,
                       "light_digest": hashlib.sha256(light_at.tobytes()).hexdigest()[:16]})
     return lamps
 

@@ -249,6 +249,12 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                       np.zeros(1), sample_origins, np.zeros(3), False, 1.0, np.float32(256.0),
                                       np.float32(1.0), np.float32(1.0), sample_origins.copy(), np.zeros((1, 3)),
                                       np.zeros(1, np.float32), np.zeros((1, 3)))
+    light_module.emitter_patch(three, three, three, np.ones(3), np.ones(3), np.zeros((1, 3)), np.zeros(1),
+                               np.zeros(1), np.zeros(1, bool))
+    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):
+        light_module.emitter_rays(index, sample_origins, three, np.ones(1), 1.0, sample_origins.copy(),
+                                  np.zeros((1, 3)), np.zeros(1, np.float32))
+    light_module.emitter_add(index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3)))
     corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
     offsets = np.zeros(2, np.int64)
     no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
@@ -281,7 +287,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                image_module.bilinear_points, image_module.seam_product, image_module.seam_solve,
                image_module.dilate_rings, image_module.sum_rows, image_module.contact_sums,
                light_module.hard_lamp_point,
-               light_module.hard_lamp_decided, light_module.shadow_ray_setup,
+               light_module.hard_lamp_decided, light_module.shadow_ray_setup, light_module.emitter_patch,
+               light_module.emitter_rays, light_module.emitter_add,
                raster_module.triangle_claims, raster_module.resolve_claims,
                raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
                prep_module.texel_owners, prep_module.filter_candidates)

@@ -227,3 +227,68 @@ def shadow_ray_setup(rays, sample_rows, distance, to_light, moved, position, nor
                 origins[r, axis] = np.float64(stepped) + centre[axis]
             else:
                 origins[r, axis] = stepped
+
+
+@nb.njit(inline="always")
+def _clip_below(x):
+    """np.clip(x, 0.0, None) of one value: NaN stays NaN, -0.0 becomes +0.0."""
+    return x if x > 0.0 or x != x else 0.0
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def emitter_patch(position, normal, geometric, point, point_normal, to_point, distance, transfer, lit):
+    """One patch of a small emitter (core.lights.emitters) seen from every sample, bitwise
+    as core.lights.lamps.surface_to_point and emitter_irradiance's lit test compute it
+    (numpy's norm sums (0 + 1) + 2; its einsum as :func:`_dot`). In parallel over samples.
+
+    position, normal, geometric : (K, 3) float64 the samples, shading and geometric normals
+    point, point_normal : (3,) float64 the patch and the unit normal it emits along
+    to_point : (K, 3) float64 unit, distance : (K,) float64, transfer : (K,) float64
+        cos(receiver) cos(patch) / distance^2, lit : (K,) bool (transfer > 0 and the patch
+        in front of the geometric face): out
+    """
+    p0, p1, p2 = point[0], point[1], point[2]
+    n0, n1, n2 = point_normal[0], point_normal[1], point_normal[2]
+    for k in nb.prange(position.shape[0]):
+        o0, o1, o2 = p0 - position[k, 0], p1 - position[k, 1], p2 - position[k, 2]
+        length = np.sqrt((o0 * o0 + o1 * o1) + o2 * o2)
+        # np.maximum: a NaN length stays NaN.
+        safe = 1e-12 if length < 1e-12 else length
+        t0, t1, t2 = o0 / safe, o1 / safe, o2 / safe
+        to_point[k, 0] = t0
+        to_point[k, 1] = t1
+        to_point[k, 2] = t2
+        distance[k] = length
+        cos_receiver = _clip_below(_dot(normal[k, 0], normal[k, 1], normal[k, 2], t0, t1, t2))
+        cos_patch = _clip_below(-_dot(t0, t1, t2, n0, n1, n2))
+        value = cos_receiver * cos_patch / (safe * safe) if length > 1e-12 else 0.0
+        transfer[k] = value
+        lit[k] = value > 0.0 and _dot(geometric[k, 0], geometric[k, 1], geometric[k, 2], t0, t1, t2) > 0.0
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def emitter_rays(index, origins, to_point, distance, keep, ray_origins, directions, limits):
+    """The shadow rays of the lit samples ``index`` (n,) int64 towards one patch: their
+    origins (n, 3) (``origins``' dtype), directions (n, 3) float64 and lengths (n,) float32
+    (``distance`` times ``keep``), out. In parallel over rays."""
+    for r in nb.prange(index.shape[0]):
+        k = index[r]
+        for axis in range(3):
+            ray_origins[r, axis] = origins[k, axis]
+            directions[r, axis] = to_point[k, axis]
+        limits[r] = np.float32(distance[k] * keep)
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def emitter_add(index, occluded, transfer, area, radiance, irradiance):
+    """Adds one patch's light, area x transfer x radiance (3,) float64, to ``irradiance``
+    (K, 3) float64 at the lit samples ``index`` (n,) int64 whose ray is not ``occluded``
+    (n,) bool, as emitter_irradiance's numpy code adds it. In parallel over rays (each
+    sample once)."""
+    for r in nb.prange(index.shape[0]):
+        if occluded[r]:
+            continue
+        k = index[r]
+        weight = area * transfer[k]
+        for channel in range(3):
+            irradiance[k, channel] += weight * radiance[channel]

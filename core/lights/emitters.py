@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from ..geometry import mesh_face_normals, triangle_areas
 from ..scene import Mesh
@@ -96,16 +97,25 @@ def emitter_irradiance(emitter: Emitter, positions: np.ndarray, normals: np.ndar
                        origins: np.ndarray, ray_scene) -> tuple[np.ndarray, int]:
     """Irradiance from ``emitter`` at the given samples, shadowed by exact rays.
 
+    Through the compiled kernels where they load (core.kernels.light_kernels.emitter_patch,
+    emitter_rays, emitter_add), bitwise what the numpy code below computes: its dozen passes
+    over the samples per patch cost twice embree's queries (docs/benchmarks.md, "Speed,
+    part 13").
+
     Parameters
     ----------
     positions, normals, geometric : (k, 3) float64 samples, shading and geometric normals
-    origins : (k, 3) float32 ray origins already offset off the surface
+    origins : (k, 3) ray origins already offset off the surface (float32, or float64 where
+        the ray scene is centred)
 
     Returns
     -------
     irradiance : (k, 3) float64
     rays : int, shadow rays traced
     """
+    module = kernels.compiled()
+    if module is not None:
+        return _emitter_irradiance_compiled(module, emitter, positions, normals, geometric, origins, ray_scene)
     irradiance = np.zeros((len(positions), 3))
     rays = 0
     for point, normal, area, radiance in zip(emitter.position, emitter.normal, emitter.area, emitter.radiance):
@@ -117,4 +127,33 @@ def emitter_irradiance(emitter: Emitter, positions: np.ndarray, normals: np.ndar
             rays += len(index)
             index = index[~ray_scene.occluded(origins[index], to_point[index], limit)]
         irradiance[index] += (area * transfer[index])[:, None] * radiance
+    return irradiance, rays
+
+
+def _emitter_irradiance_compiled(module, emitter: Emitter, positions, normals, geometric, origins, ray_scene
+                                 ) -> tuple[np.ndarray, int]:
+    """:func:`emitter_irradiance` through the compiled kernels (arguments as there)."""
+    count = len(positions)
+    positions, normals, geometric = (np.ascontiguousarray(a, np.float64) for a in (positions, normals, geometric))
+    origins = np.ascontiguousarray(origins)
+    irradiance = np.zeros((count, 3))
+    to_point, distance, transfer = np.empty((count, 3)), np.empty(count), np.empty(count)
+    lit = np.empty(count, bool)
+    threads = ray_scene.threads
+    keep = 1.0 - tol.SHADOW_RAY_SHORTEN
+    rays = 0
+    for point, normal, area, radiance in zip(emitter.position, emitter.normal, emitter.area, emitter.radiance):
+        kernels.run(module.emitter_patch, threads, positions, normals, geometric, np.asarray(point, np.float64),
+                    np.asarray(normal, np.float64), to_point, distance, transfer, lit)
+        index = np.flatnonzero(lit)
+        if not len(index):
+            continue
+        ray_origins = np.empty((len(index), 3), origins.dtype)
+        directions, limits = np.empty((len(index), 3)), np.empty(len(index), np.float32)
+        kernels.run(module.emitter_rays, threads, index, origins, to_point, distance, keep, ray_origins,
+                    directions, limits)
+        rays += len(index)
+        occluded = np.ascontiguousarray(ray_scene.occluded(ray_origins, directions, limits), bool)
+        kernels.run(module.emitter_add, threads, index, occluded, transfer, float(area),
+                    np.ascontiguousarray(radiance, np.float64), irradiance)
     return irradiance, rays

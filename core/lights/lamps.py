@@ -78,7 +78,10 @@ def surface_to_point(position: np.ndarray, normal: np.ndarray, point: np.ndarray
     safe = np.maximum(distance, 1e-12)
     to_point = offset / safe[:, None]
     cos_receiver = np.clip(np.einsum("kd,kd->k", normal, to_point), 0.0, None)
-    cos_patch = np.clip(-(to_point @ np.asarray(point_normal, np.float64)), 0.0, None)
+    # Summed in the order of core.kernels.light_kernels._dot (a matrix product's BLAS order
+    # could not be matched by the compiled twin, emitter_patch).
+    n = np.asarray(point_normal, np.float64)
+    cos_patch = np.clip(-((to_point[:, 0] * n[0] + to_point[:, 2] * n[2]) + to_point[:, 1] * n[1]), 0.0, None)
     transfer = np.where(distance > 1e-12, cos_receiver * cos_patch / (safe * safe), 0.0)
     return to_point, distance, transfer
 

@@ -818,3 +818,42 @@ def test_compiled_shadow_rays_are_bitwise_those_of_numpy(monkeypatch, centre, mo
     for ours, theirs in zip(compiled, reference):
         assert ours.dtype == theirs.dtype and ours.shape == theirs.shape
         np.testing.assert_array_equal(ours.view(np.uint8), theirs.view(np.uint8))
+
+
+@pytest.mark.parametrize("centre", [None, (1000.0, -5.0, 3.0)])
+def test_compiled_emitter_light_is_bitwise_that_of_numpy(monkeypatch, centre):
+    """A small emitter's light (core.lights.emitters.emitter_irradiance) through the kernels
+    and through numpy: samples in front of its patches, behind them, behind their own face
+    (shading normal towards the patch, geometric normal away), on a patch itself, and shadowed
+    by a blocker; float32 ray origins and a ray scene centred far from the world's origin
+    (float64)."""
+    from core.lights.emitters import Emitter, emitter_irradiance
+    from core.visibility.rays import RayScene
+
+    rng = np.random.default_rng(11)
+    offset = np.zeros(3) if centre is None else np.asarray(centre)
+    count, patches = 3000, 16
+    blocker = np.array([[-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.0, 0.5, 1.0]]) + offset
+    scene = RayScene([(blocker, np.array([[0, 1, 2]]))], 2, None if centre is None else offset)
+    position = rng.uniform(-2, 2, (count, 3)) + offset
+    geometric = rng.normal(size=(count, 3))
+    geometric /= np.linalg.norm(geometric, axis=1, keepdims=True)
+    normal = geometric + 0.5 * rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    normal[::5, 2] = np.abs(normal[::5, 2]) + 0.1  # shading normals up, some geometric ones down
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    points = rng.uniform(-0.3, 0.3, (patches, 3)) + offset + [0.0, 0.0, 2.0]
+    point_normal = np.tile([0.0, 0.0, -1.0], (patches, 1)) + 0.1 * rng.normal(size=(patches, 3))
+    point_normal /= np.linalg.norm(point_normal, axis=1, keepdims=True)
+    position[:3] = points[:3]  # samples on a patch: no light from that one (distance 0)
+    emitter = Emitter(0, points, point_normal, rng.uniform(0.01, 0.02, patches), rng.uniform(0, 5, (patches, 3)),
+                      points.mean(axis=0), 0.5)
+    origins = scene.ray_origins(position, geometric)
+    compiled, compiled_rays = emitter_irradiance(emitter, position, normal, geometric, origins, scene)
+    monkeypatch.setattr(kernels, "_module", None)
+    reference, reference_rays = emitter_irradiance(emitter, position, normal, geometric, origins, scene)
+    assert compiled_rays == reference_rays > 0
+    assert 0 < np.count_nonzero(reference[:, 0]) < count
+    unshadowed, _ = emitter_irradiance(emitter, position, normal, geometric, origins, RayScene([], 1))
+    assert np.count_nonzero(unshadowed[:, 0]) > np.count_nonzero(reference[:, 0])  # the blocker shadows some
+    np.testing.assert_array_equal(compiled.view(np.uint8), reference.view(np.uint8))
