@@ -79,7 +79,7 @@ if command -v apt-get >/dev/null 2>&1; then \
 else echo "missing system packages ($(1)) and no apt-get to install them" >&2; exit 1; fi
 endef
 
-.PHONY: venv default-venv wheels build build-platforms test test-others test-all test-core lint demo bench clean distclean
+.PHONY: venv default-venv wheels build build-platforms test test-built test-others test-all test-core lint demo bench clean distclean
 
 venv: $(VENV_STAMP)
 
@@ -145,6 +145,11 @@ build-platforms: build
 	@ls -l dist/*.zip
 
 test: venv build
+	@$(MAKE) --no-print-directory test-built
+
+# The tests against the zip already built (test-others builds it once for every Blender).
+test-built: venv
+	@test -f $(ZIP) || { echo "$(ZIP) is missing: run make build first" >&2; exit 1; }
 	@if [ "$(VENV)" != .venv ]; then \
 	  echo "validating $(ZIP) with bpy $(BPY)'s extension tool"; \
 	  $(PY) $(TEST_DIR)/scripts/addons_core/bl_pkg/cli/blender_ext.py validate $(ZIP); \
@@ -157,21 +162,35 @@ test: venv build
 #   default's Python it runs the same code on the same pinned requirements, so it runs once
 #   per Python line (3.11: the default; 3.13: 5.3.0), not once per Blender;
 # - tests/blender/test_benchmark_smoke.py checks `make bench`, which runs the default Blender.
+# They run in two lanes at once, each line prefixed with its Blender: the Blenders with
+# another Python than the default's (tests/core too: the longer runs), and those with the
+# default's. A test run is mostly one busy thread (Blender's operators, Python), so on a
+# 2-core CI machine two lanes take about the time of the longer one, not of both.
 SAME_PYTHON_AS_DEFAULT := $(foreach v,$(BPY_VERSIONS),$(if $(filter $(call python_of,$(v)),$(call python_of,$(BPY_DEFAULT))),$(v)))
-OTHERS_IGNORE := --ignore=tests/blender/test_benchmark_smoke.py
+OTHERS_FLAGS := -p no:cacheprovider --ignore=tests/blender/test_benchmark_smoke.py
 
-test-others:
-	@for version in $(filter-out $(BPY_DEFAULT),$(BPY_VERSIONS)); do \
-	  case " $(SAME_PYTHON_AS_DEFAULT) " in \
-	    *" $$version "*) paths="tests/blender tests/gpu"; why="tests/core ran under the default's Python";; \
-	    *) paths=tests; why="its Python differs from the default's: tests/core runs too";; \
-	  esac; \
-	  echo "== tests against bpy $$version: $$paths ($$why; benchmarks' smoke tests: default Blender only)"; \
-	  started=$$(date +%s); \
-	  $(MAKE) --no-print-directory test BPY=$$version TEST_PATHS="$$paths" \
-	    PYTEST_FLAGS="$(PYTEST_FLAGS) $(OTHERS_IGNORE)" || exit 1; \
-	  echo "== bpy $$version: $$(( $$(date +%s) - started )) s"; \
-	done
+test-others: build
+	@run_lane() { \
+	  for version in "$$@"; do \
+	    case " $(SAME_PYTHON_AS_DEFAULT) " in \
+	      *" $$version "*) paths="tests/blender tests/gpu"; why="tests/core ran under the default's Python";; \
+	      *) paths=tests; why="its Python differs from the default's: tests/core runs too";; \
+	    esac; \
+	    echo "[bpy $$version] == $$paths ($$why; the benchmarks' smoke tests: default Blender only)"; \
+	    started=$$(date +%s); \
+	    $(MAKE) --no-print-directory test-built BPY=$$version TEST_PATHS="$$paths" \
+	      PYTEST_FLAGS="$(PYTEST_FLAGS) $(OTHERS_FLAGS)" 2>&1 | sed -u "s/^/[bpy $$version] /" || return 1; \
+	    echo "[bpy $$version] == passed in $$(( $$(date +%s) - started )) s"; \
+	  done; \
+	}; \
+	other_python=; same_python=; \
+	for version in $(filter-out $(BPY_DEFAULT),$(BPY_VERSIONS)); do \
+	  case " $(SAME_PYTHON_AS_DEFAULT) " in *" $$version "*) same_python="$$same_python $$version";; \
+	    *) other_python="$$other_python $$version";; esac; \
+	done; \
+	run_lane $$other_python & first=$$!; run_lane $$same_python & second=$$!; \
+	status=0; wait $$first || status=1; wait $$second || status=1; \
+	[ $$status = 0 ] && echo "== every other Blender passed" || { echo "== a Blender's tests failed (see its [bpy ...] lines)" >&2; exit 1; }
 
 test-all: test test-others
 
