@@ -255,6 +255,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
         light_module.emitter_rays(index, sample_origins, three, np.ones(1), 1.0, sample_origins.copy(),
                                   np.zeros((1, 3)), np.zeros(1, np.float32))
     light_module.emitter_add(index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3)))
+    light_module.footprint_curvature(footprint, three, 0.5, np.zeros(1, bool))
     corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
     offsets = np.zeros(2, np.int64)
     no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
@@ -288,7 +289,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                image_module.dilate_rings, image_module.sum_rows, image_module.contact_sums,
                light_module.hard_lamp_point,
                light_module.hard_lamp_decided, light_module.shadow_ray_setup, light_module.emitter_patch,
-               light_module.emitter_rays, light_module.emitter_add,
+               light_module.emitter_rays, light_module.emitter_add, light_module.footprint_curvature,
                raster_module.triangle_claims, raster_module.resolve_claims,
                raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
                prep_module.texel_owners, prep_module.filter_candidates)

@@ -292,3 +292,27 @@ def emitter_add(index, occluded, transfer, area, radiance, irradiance):
         weight = area * transfer[k]
         for channel in range(3):
             irradiance[k, channel] += weight * radiance[channel]
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def footprint_curvature(footprint_normals, normal, cosine, curved):
+    """Whether any footprint point's normal turns away from its sample's ``normal`` by more
+    than ``cosine``: core.transport.direct.curved_footprints' einsum and minimum, bitwise
+    (the float32 normals widened to float64, summed as :func:`_dot`), without its (K, P)
+    float64 temporary. In parallel over samples.
+
+    footprint_normals : (K, P, 3) float32; normal : (K, 3) float64; cosine : float64;
+    curved : (K,) bool, out
+    """
+    for k in nb.prange(normal.shape[0]):
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        lowest = np.inf
+        for p in range(footprint_normals.shape[1]):
+            value = _dot(np.float64(footprint_normals[k, p, 0]), np.float64(footprint_normals[k, p, 1]),
+                         np.float64(footprint_normals[k, p, 2]), n0, n1, n2)
+            # numpy's minimum: a NaN wins.
+            if value < lowest or value != value:
+                lowest = value
+                if value != value:
+                    break
+        curved[k] = lowest < cosine

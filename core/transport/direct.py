@@ -114,7 +114,7 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
                 decided[edges] = shadowed[edges] = True
         lamp_light = np.zeros_like(irradiance)
         rows = None  # every sample; after the first points only those still needing more
-        small = _small_lamp_samples(light, lamp, samples, decided) if adaptive else None
+        small = _small_lamp_samples(light, lamp, samples, decided, _threads(shadowing)) if adaptive else None
         pending = None
         if adaptive:
             visible = ~shadowed if receives is None else receives & ~shadowed
@@ -164,16 +164,18 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
     return irradiance, shadow_rays
 
 
-def _small_lamp_samples(light, lamp: LampPoints, samples: SampleSet, decided: np.ndarray) -> np.ndarray:
+def _small_lamp_samples(light, lamp: LampPoints, samples: SampleSet, decided: np.ndarray, threads: int = 0
+                        ) -> np.ndarray:
     """(K,) bool: decided samples whose first SMALL_LAMP_POINTS points stand for all of the
-    lamp's: it looks small from them and their footprint is flat."""
+    lamp's: it looks small from them and their footprint is flat (``threads``: the kernels'
+    thread count, 0: all cores)."""
     small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION)
     if lamp.footprint_normals is not None:
         # A curved footprint's light changes across it: it needs every point's cosine (no ray:
         # it is decided).
         curved = samples.derived.get("curved_footprints")
         if curved is None:
-            curved = curved_footprints(lamp.footprint_normals, samples.normal)
+            curved = curved_footprints(lamp.footprint_normals, samples.normal, threads)
             samples.derived["curved_footprints"] = curved
         small &= ~curved
     return small
@@ -228,9 +230,18 @@ def _threads(shadowing) -> int:
     return getattr(shadowing.ray_scene, "threads", 0) or 0
 
 
-def curved_footprints(footprint_normals: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """(K,) bool: samples whose footprint points' normals (K, P, 3) turn away from their own
-    ``normal`` (K, 3) by more than about a degree."""
+def curved_footprints(footprint_normals: np.ndarray, normal: np.ndarray, threads: int = 0) -> np.ndarray:
+    """(K,) bool: samples whose footprint points' normals (K, P, 3) float32 turn away from
+    their own ``normal`` (K, 3) float64 by more than about a degree. Compiled where the kernels
+    load (core.kernels.light_kernels.footprint_curvature), bitwise this einsum, which widens
+    every normal to a (K, P) float64 temporary first (100 MB at the Production preset);
+    ``threads``: the kernel's thread count (0: all cores)."""
+    module = kernels.compiled()
+    if module is not None and footprint_normals.dtype == np.float32:
+        curved = np.empty(len(normal), bool)
+        kernels.run(module.footprint_curvature, threads, np.ascontiguousarray(footprint_normals),
+                    np.ascontiguousarray(normal, np.float64), CURVED_COSINE, curved)
+        return curved
     return np.einsum("kpd,kd->kp", footprint_normals, normal).min(axis=1) < CURVED_COSINE
 
 

@@ -857,3 +857,33 @@ def test_compiled_emitter_light_is_bitwise_that_of_numpy(monkeypatch, centre):
     unshadowed, _ = emitter_irradiance(emitter, position, normal, geometric, origins, RayScene([], 1))
     assert np.count_nonzero(unshadowed[:, 0]) > np.count_nonzero(reference[:, 0])  # the blocker shadows some
     np.testing.assert_array_equal(compiled.view(np.uint8), reference.view(np.uint8))
+
+
+def test_compiled_footprint_curvature_is_bitwise_that_of_numpy(monkeypatch):
+    """core.transport.direct.curved_footprints through the kernel and through numpy's einsum,
+    with footprint normals whose cosine to the sample's lies within 1e-6 of the threshold,
+    on both sides of it, and a NaN normal."""
+    from core.transport.direct import CURVED_COSINE, curved_footprints
+
+    rng = np.random.default_rng(13)
+    count, points = 4000, 16
+    normal = rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    tilt = rng.normal(size=(count, points, 3)) * rng.choice([1e-4, 0.0316, 0.3], (count, 1, 1))
+    footprint = (normal[:, None, :] + tilt).astype(np.float32)
+    footprint /= np.linalg.norm(footprint, axis=2, keepdims=True)
+    # A point of 600 samples turned by the threshold's angle itself, give or take float32 rounding.
+    edge = np.arange(600)
+    side = np.cross(normal[edge], rng.normal(size=(600, 3)))
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    angle = np.arccos(CURVED_COSINE) * (1.0 + rng.uniform(-1e-4, 1e-4, 600))
+    footprint[edge, 5] = (np.cos(angle)[:, None] * normal[edge] + np.sin(angle)[:, None] * side).astype(np.float32)
+    cosine = np.einsum("kpd,kd->kp", footprint, normal)
+    footprint[7, 3, 1] = np.nan
+    compiled = curved_footprints(footprint, normal)
+    monkeypatch.setattr(kernels, "_module", None)
+    reference = curved_footprints(footprint, normal)
+    near = np.abs(cosine.min(axis=1) - CURVED_COSINE) < 1e-6
+    assert near.sum() > 100 and 0 < reference.sum() < count and not reference[7]
+    assert 0 < reference[near].sum() < near.sum()  # the near ones fall on both sides
+    np.testing.assert_array_equal(compiled, reference)
