@@ -161,25 +161,30 @@ test-built: venv
 # - tests/core never imports bpy (tests/core/test_layering.py): under a Blender with the
 #   default's Python it runs the same code on the same pinned requirements, so it runs once
 #   per Python line (3.11: the default; 3.13: 5.3.0), not once per Blender;
-# - tests/blender/test_benchmark_smoke.py checks `make bench`, which runs the default Blender.
+# - tests/blender/test_benchmark_smoke.py checks `make bench`, which runs the default Blender;
+# - tests/blender/test_cli_cluster.py, under the default's Python: its Dask workers are plain
+#   Python processes running core on the default's packages, and its Blender side is the CLI's
+#   and the panel's bake, which the rest of tests/blender runs under every Blender.
 # They run in two lanes at once, each line prefixed with its Blender: the Blenders with
 # another Python than the default's (tests/core too: the longer runs), and those with the
 # default's. A test run is mostly one busy thread (Blender's operators, Python), so on a
 # 2-core CI machine two lanes take about the time of the longer one, not of both.
 SAME_PYTHON_AS_DEFAULT := $(foreach v,$(BPY_VERSIONS),$(if $(filter $(call python_of,$(v)),$(call python_of,$(BPY_DEFAULT))),$(v)))
 OTHERS_FLAGS := -p no:cacheprovider --ignore=tests/blender/test_benchmark_smoke.py
+SAME_PYTHON_FLAGS := --ignore=tests/blender/test_cli_cluster.py
 
 test-others: build
 	@run_lane() { \
 	  for version in "$$@"; do \
 	    case " $(SAME_PYTHON_AS_DEFAULT) " in \
-	      *" $$version "*) paths="tests/blender tests/gpu"; why="tests/core ran under the default's Python";; \
-	      *) paths=tests; why="its Python differs from the default's: tests/core runs too";; \
+	      *" $$version "*) paths="tests/blender tests/gpu"; flags="$(SAME_PYTHON_FLAGS)"; \
+	        why="the default's Python: tests/core and the cluster tests ran under the default";; \
+	      *) paths=tests; flags=; why="its Python differs from the default's: tests/core runs too";; \
 	    esac; \
 	    echo "[bpy $$version] == $$paths ($$why; the benchmarks' smoke tests: default Blender only)"; \
 	    started=$$(date +%s); \
 	    $(MAKE) --no-print-directory test-built BPY=$$version TEST_PATHS="$$paths" \
-	      PYTEST_FLAGS="$(PYTEST_FLAGS) $(OTHERS_FLAGS)" 2>&1 | sed -u "s/^/[bpy $$version] /" || return 1; \
+	      PYTEST_FLAGS="$(PYTEST_FLAGS) $(OTHERS_FLAGS) $$flags" 2>&1 | sed -u "s/^/[bpy $$version] /" || return 1; \
 	    echo "[bpy $$version] == passed in $$(( $$(date +%s) - started )) s"; \
 	  done; \
 	}; \
