@@ -139,7 +139,7 @@ def _emitter_irradiance_compiled(module, emitter: Emitter, positions, normals, g
     irradiance = np.zeros((count, 3))
     to_point, distance, transfer = np.empty((count, 3)), np.empty(count), np.empty(count)
     lit = np.empty(count, bool)
-    threads = ray_scene.threads
+    threads = getattr(ray_scene, "threads", 0) or 0  # the Threads preference (0: all cores)
     keep = 1.0 - tol.SHADOW_RAY_SHORTEN
     rays = 0
     for point, normal, area, radiance in zip(emitter.position, emitter.normal, emitter.area, emitter.radiance):
