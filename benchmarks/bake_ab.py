@@ -104,8 +104,7 @@ def _direct_light(module, bpy, objects, repeats: int) -> list[dict]:
         lamps.append({"lamp": light.name, "kind": light.kind, "best_seconds": round(best, 4), "shadow_rays": rays,
                       "light_digest": hashlib.sha256(light_at.tobytes()).hexdigest()[:16]})
     # Small emitters, at the samples that integrate them directly (core.pipeline.transport).
-    emitters = module("core.lights.emitters")
-    p = prepared
+    emitters, p = module("core.lights.emitters"), prepared
     for emitter in emitters.find_emitters(p.meshes, settings.emitter_samples):
         chosen = emitters.sampled_directly(emitter, p.position, settings.directions).nonzero()[0]
         if not len(chosen):

@@ -244,16 +244,15 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                                    footprint, np.zeros((1, 0, 3), np.float32), np.ones(3), np.zeros(1, np.int64),
                                    flags, flags, 1, flags, 4, 1.0, np.zeros((1, 3)), np.zeros(1, bool))
     index = np.zeros(1, np.int64)
-    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):
+    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):  # a ray scene at the origin, and centred
         light_module.shadow_ray_setup(index, index, np.ones(1), three, np.zeros((0, 3)), three, three, three, three,
                                       np.zeros(1), sample_origins, np.zeros(3), False, 1.0, np.float32(256.0),
                                       np.float32(1.0), np.float32(1.0), sample_origins.copy(), np.zeros((1, 3)),
                                       np.zeros(1, np.float32), np.zeros((1, 3)))
-    light_module.emitter_patch(three, three, three, np.ones(3), np.ones(3), np.zeros((1, 3)), np.zeros(1),
-                               np.zeros(1), np.zeros(1, bool))
-    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):
         light_module.emitter_rays(index, sample_origins, three, np.ones(1), 1.0, sample_origins.copy(),
                                   np.zeros((1, 3)), np.zeros(1, np.float32))
+    light_module.emitter_patch(three, three, three, np.ones(3), np.ones(3), np.zeros((1, 3)), np.zeros(1),
+                               np.zeros(1), np.zeros(1, bool))
     light_module.emitter_add(index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3)))
     light_module.footprint_curvature(footprint, three, 0.5, np.zeros(1, bool))
     corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])

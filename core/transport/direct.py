@@ -234,7 +234,7 @@ def curved_footprints(footprint_normals: np.ndarray, normal: np.ndarray, threads
     """(K,) bool: samples whose footprint points' normals (K, P, 3) float32 turn away from
     their own ``normal`` (K, 3) float64 by more than about a degree. Compiled where the kernels
     load (core.kernels.light_kernels.footprint_curvature), bitwise this einsum, which widens
-    every normal to a (K, P) float64 temporary first (100 MB at the Production preset);
+    every cosine to a (K, P) float64 temporary first (8 bytes a footprint point: 49 MiB on the demo);
     ``threads``: the kernel's thread count (0: all cores)."""
     module = kernels.compiled()
     if module is not None and footprint_normals.dtype == np.float32:
