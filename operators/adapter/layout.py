@@ -21,7 +21,7 @@ from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_pro
 # Kept importable from here for the tests that name the policy's limits through the adapter.
 from ...core.sampling.layout import TYPICAL_PACKED_UV_AREA
 from ...core.sampling.unwrap_child import ChildUnavailable, UnwrapHung, UnwrapWorker, unwrap_in_child
-from .extract import read_values
+from .extract import read_triangles
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
@@ -131,10 +131,8 @@ def planned_resolution(obj, settings, positions: np.ndarray, triangles: np.ndarr
 
 def _base_triangles(mesh: bpy.types.Mesh):
     mesh.calc_loop_triangles()
-    count = len(mesh.loop_triangles)
-    return (read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64),
-            read_values(mesh.loop_triangles, "vertices", count, 3, np.int32),
-            read_values(mesh.loop_triangles, "loops", count, 3, np.int64))
+    read = read_triangles(mesh)
+    return read.positions, read.triangles, read.loops
 
 
 def write_uv_map(mesh: bpy.types.Mesh, positions: np.ndarray, triangles: np.ndarray, loops: np.ndarray,
@@ -181,7 +179,8 @@ def existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles,
 
 def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles, settings, view_density):
     mesh = obj.data
-    world_area = policy.surface_area(evaluated_positions, evaluated_triangles)
+    measured = policy.needs_areas(*_own_size(obj), settings, view_density)
+    world_area = policy.surface_area(evaluated_positions, evaluated_triangles) if measured else 0.0
     candidates = []
     if owns_uv_map(mesh, UV_MAP_NAME):
         candidates.append(UV_MAP_NAME)
@@ -193,7 +192,7 @@ def _existing_layout(obj, evaluated_uv, evaluated_positions, evaluated_triangles
         corner_uv = evaluated_uv.get(name)
         if corner_uv is None:
             continue
-        uv_area = float(np.sum(triangle_areas(corner_uv.astype(np.float64))))
+        uv_area = float(np.sum(triangle_areas(corner_uv.astype(np.float64)))) if measured else 0.0
         resolution = object_resolution(obj, settings, world_area, uv_area, view_density)
         problems = uv_layout_problems(corner_uv, *resolution)
         if not problems:

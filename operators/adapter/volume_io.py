@@ -243,9 +243,8 @@ def read_mesh_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium,
     mesh = evaluated.to_mesh()
     try:
         mesh.calc_loop_triangles()
-        count = len(mesh.loop_triangles)
-        positions = extract.read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
-        triangles = extract.read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
+        read = extract.read_triangles(mesh)
+        count, positions, triangles = len(read.triangles), read.positions, read.triangles
         has_density_attribute = mesh.attributes.get(shader.density_name) is not None
     finally:
         evaluated.to_mesh_clear()

@@ -392,3 +392,34 @@ def test_hair_curves_cycles_renders_are_named_as_not_read(visibake, clean_scene)
                                                                  bpy.context.scene, warnings)
     assert geometry.meshes == []
     assert any("'Fur': its hair curves (which Cycles renders) are not read" in w for w in warnings)
+
+
+@pytest.mark.parametrize("materials", [True, False], ids=["material-indices", "no-material-attribute"])
+def test_triangles_read_from_attribute_arrays_are_blenders_loop_triangles(visibake, clean_scene, materials):
+    """read_triangles takes the triangles' vertices and materials from the corner and face
+    arrays: on quads, a concave n-gon and triangles, they are what Blender's per-triangle
+    properties give (and the triangle's own material index, 0 without the attribute)."""
+    import importlib
+    extract = importlib.import_module(visibake.__name__ + ".operators.adapter.extract")
+    mesh = bpy.data.meshes.new("Mixed")
+    vertices = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0.2), (3, 0, 0), (3, 2, 0.1), (2.5, 0.5, 0),
+                (2, 2, 0), (4, 0, 0), (4, 1, 0)]
+    faces = [(0, 1, 2, 3), (4, 5, 6, 7, 8), (5, 9, 10), (1, 4, 8, 2)]
+    mesh.from_pydata(vertices, [], faces)
+    if materials:
+        mesh.materials.append(bpy.data.materials.new("A"))
+        mesh.materials.append(bpy.data.materials.new("B"))
+        mesh.polygons.foreach_set("material_index", np.array([1, 0, 1, 1], np.int32))
+    mesh.update()
+    assert (mesh.attributes.get("material_index") is not None) == materials
+    mesh.calc_loop_triangles()
+    read = extract.read_triangles(mesh)
+    count = len(mesh.loop_triangles)
+    assert count == 2 + 3 + 1 + 2
+    np.testing.assert_array_equal(read.triangles, [list(t.vertices) for t in mesh.loop_triangles])
+    np.testing.assert_array_equal(read.loops, [list(t.loops) for t in mesh.loop_triangles])
+    np.testing.assert_array_equal(read.material_index, [t.material_index for t in mesh.loop_triangles])
+    np.testing.assert_array_equal(read.positions, [list(v.co) for v in mesh.vertices])
+    assert read.triangles.dtype == np.int32 and read.loops.dtype == np.int64
+    assert read.material_index.dtype == np.int32 and read.positions.dtype == np.float64
+    assert read.material_index.any() == materials
