@@ -67,3 +67,31 @@ def test_empty_and_degenerate_meshes_are_never_hit():
     geometry, _, _, _ = scene.intersect(np.array([[0.5, 0.0, 0.0], [0.2, 0.2, 0.0]]),
                                         np.array([[0, 0, 1.0], [0, 0, 1.0]]))
     assert list(geometry) == [-1, -1]
+
+
+def test_meshes_given_to_embree_as_python_objects_are_the_arrays_own():
+    """RayScene hands embreex its arrays as Python objects (core.visibility.rays._triangle_mesh):
+    embree must hold exactly the geometry the arrays say, NaN vertex and degenerate triangle
+    included, so every hit equals that of the arrays given as they are."""
+    from embreex.mesh_construction import TriangleMesh
+    from embreex.rtcore_scene import EmbreeScene
+
+    from core.visibility import rays
+
+    rng = np.random.default_rng(4)
+    positions = rng.normal(size=(500, 3)).astype(np.float32)
+    positions[7] = np.nan
+    triangles = rng.integers(0, len(positions), size=(2000, 3)).astype(np.int32)
+    triangles[3] = [5, 5, 9]
+    origins = rng.normal(scale=0.2, size=(20000, 3)).astype(np.float32)
+    directions = rng.normal(size=(20000, 3)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    hits = []
+    for build in (lambda scene: TriangleMesh(scene, positions, triangles),
+                  lambda scene: rays._triangle_mesh(TriangleMesh, scene, positions, triangles)):
+        scene = EmbreeScene()
+        build(scene)
+        hits.append(scene.run(origins, directions, output=1))
+    assert (hits[0]["geomID"] >= 0).sum() > 1000
+    for key in ("geomID", "primID", "u", "v", "tfar"):
+        np.testing.assert_array_equal(hits[0][key], hits[1][key])
