@@ -103,13 +103,19 @@ def find_seams(positions: np.ndarray, triangles: np.ndarray, corner_uvs: np.ndar
     if not len(triangles) or width < 1 or height < 1:
         return None
     corners = _welded(positions)[triangles]  # (m, 3)
+    uvs = np.asarray(corner_uvs, np.float64)
+    scale = np.array([width, height], np.float64)
+    split_vertex = _split_vertices(corners, uvs, scale)
 
     # Edge e of triangle e // 3 runs from its corner e % 3 to the next one.
     start, end = corners.reshape(-1), corners[:, [1, 2, 0]].reshape(-1)
     low, high = np.minimum(start, end), np.maximum(start, end)
     # One int64 key per edge sorts as (low, high) would; stable, so shared edges stay in triangle order.
     key = low * (int(corners.max()) + 1) + high
-    edge = np.flatnonzero(low != high)
+    # An edge with no split vertex at either end joins its faces in the atlas. Leaving those
+    # out keeps or drops every copy of an edge together (they share their ends), so the
+    # pairs found below, and their order, are those of all edges that can be split.
+    edge = np.flatnonzero((low != high) & (split_vertex[low] | split_vertex[high]))
     edge = edge[np.argsort(key[edge], kind="stable")]
     same_as_next = key[edge[1:]] == key[edge[:-1]]
     # Manifold edges only: exactly two faces (an edge shared by three has no two sides).
@@ -132,8 +138,6 @@ def find_seams(positions: np.ndarray, triangles: np.ndarray, corner_uvs: np.ndar
         return edges // 3, np.where(forward, first, second), np.where(forward, second, first)
 
     (tri_a, a_low_corner, a_high_corner), (tri_b, b_low_corner, b_high_corner) = side(edge_a), side(edge_b)
-    uvs = np.asarray(corner_uvs, np.float64)
-    scale = np.array([width, height], np.float64)
     a_low, a_high = uvs[tri_a, a_low_corner], uvs[tri_a, a_high_corner]
     b_low, b_high = uvs[tri_b, b_low_corner], uvs[tri_b, b_high_corner]
     split = np.maximum(np.abs((a_low - b_low) * scale).max(1), np.abs((a_high - b_high) * scale).max(1)) > SPLIT_TEXELS
@@ -170,6 +174,30 @@ def find_seams(positions: np.ndarray, triangles: np.ndarray, corner_uvs: np.ndar
     keep = np.where(np.asarray(coverage, bool).reshape(-1)[texels], 1.0, GUTTER_KEEP)
     return Seams(texels=texels, keep=keep, index=index.reshape(taps.shape),
                  weight=np.concatenate([a_weights, -b_weights], axis=1), edges=int(len(points)))
+
+
+def _split_vertices(corners: np.ndarray, uvs: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """(v,) bool for each welded vertex whether its corners may lie apart in the atlas: some
+    corner's UV is not finite or lies more than a quarter of SPLIT_TEXELS from the one UV
+    chosen for the vertex (the last of its corners). Any two corners of a vertex not marked
+    lie within half SPLIT_TEXELS of each other, so no edge is split there.
+
+    corners : (m, 3) int64 welded vertex of each triangle corner; uvs : (m, 3, 2) float64;
+    scale : (2,) the atlas's width and height in texels
+    """
+    # Each UV as one complex number, so that scattering and gathering them moves one 16-byte
+    # item per corner: numpy's row-wise fancy indexing of (m * 3, 2) is several times slower.
+    corner_uv = np.ascontiguousarray(uvs, np.float64).reshape(-1, 2).view(np.complex128).reshape(-1)
+    vertex = corners.reshape(-1)
+    chosen = np.zeros(int(vertex.max()) + 1, np.complex128)
+    chosen[vertex] = corner_uv
+    offset = corner_uv - chosen[vertex]
+    reach = SPLIT_TEXELS / 4
+    with np.errstate(invalid="ignore"):
+        near = (np.abs(offset.real) * scale[0] <= reach) & (np.abs(offset.imag) * scale[1] <= reach)
+    marked = np.zeros(len(chosen), bool)
+    marked[vertex[~near]] = True
+    return marked
 
 
 def _welded(positions: np.ndarray) -> np.ndarray:

@@ -183,3 +183,36 @@ def test_welding_by_one_key_groups_and_orders_vertices_as_rows_do():
     with_nan[3] = np.nan
     labels = _welded(with_nan)
     assert len(labels) == 50 and len(np.unique(labels)) == 50
+
+
+def test_edges_between_unsplit_vertices_are_left_out_without_changing_the_seams(monkeypatch):
+    """find_seams pairs only edges with a split vertex at an end (_split_vertices): on a
+    smooth grid cut into islands, with UVs jittered well under SPLIT_TEXELS, a NaN corner
+    and a flat-shaded block, the seams are those found when every edge is paired."""
+    from core.outputs import seams as module
+
+    rng = np.random.default_rng(11)
+    n = 40
+    xs, ys = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="xy")
+    positions = np.column_stack([xs.ravel(), ys.ravel(), 0.1 * np.sin(xs.ravel() / 3.0)]).astype(np.float64)
+    cells = np.arange(n * n)
+    corner = (cells // n) * (n + 1) + cells % n
+    triangles = np.concatenate([np.column_stack([corner, corner + 1, corner + n + 2]),
+                                np.column_stack([corner, corner + n + 2, corner + n + 1])]).astype(np.int32)
+    # Islands of 10 x 10 cells, each moved to its own place in the atlas.
+    cell = np.concatenate([cells, cells])
+    island = (cell // n) // 10 * 4 + (cell % n) // 10
+    shift = rng.uniform(0.0, 0.2, size=(16, 2))
+    uv = positions[triangles][..., :2] / (n * 1.3) + shift[island][:, None, :]
+    uv += rng.uniform(-1e-4, 1e-4, size=uv.shape)  # 0.05 texels at 256^2 is 2e-4
+    uv[17, 1] = np.nan
+    normals = np.tile(np.array([0.0, 0.0, 1.0]), (len(triangles), 3, 1))
+    normals[island == 5] = [0.0, 0.6, 0.8]
+    coverage = rng.random((256, 256)) > 0.3
+    found = find_seams(positions, triangles, uv, normals, 256, 256, coverage)
+    monkeypatch.setattr(module, "_split_vertices", lambda corners, uvs, scale: np.ones(int(corners.max()) + 1, bool))
+    every_edge = find_seams(positions, triangles, uv, normals, 256, 256, coverage)
+    assert found is not None and found.edges > 100
+    assert found.edges == every_edge.edges
+    for name in ("texels", "keep", "index", "weight"):
+        np.testing.assert_array_equal(getattr(found, name), getattr(every_edge, name))
