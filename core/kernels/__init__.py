@@ -221,6 +221,8 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     sample_module.footprint_point_normals(np.zeros((1, 1, 3), np.float32), np.zeros((1, 3)), np.zeros(1, np.int64),
                                           np.zeros(1, np.int64), corners, np.zeros((1, 3, 3), np.float32),
                                           np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32))
+    sample_module.face_frames(corners[0], np.array([[0, 1, 2]], np.int32), 1e-12, np.zeros((1, 3)),
+                              np.zeros(1, bool), np.zeros(1))
     int32 = np.zeros(1, np.int32)
     image_module.bilinear_points(np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32, int32,
                                  np.zeros((1, 2), np.float32), np.zeros((1, 3)))
@@ -283,7 +285,7 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
                table_module.count_per_sample, table_module.copy_runs, table_module.entry_columns,
                sample_module.footprint_first_draw, sample_module.footprint_redraws,
                sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
-               sample_module.footprint_point_normals,
+               sample_module.footprint_point_normals, sample_module.face_frames,
                image_module.bilinear_points, image_module.seam_product, image_module.seam_solve,
                image_module.dilate_rings, image_module.sum_rows, image_module.contact_sums,
                light_module.hard_lamp_point,

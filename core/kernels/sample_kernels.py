@@ -293,3 +293,53 @@ def footprint_point_normals(offsets, position, rows, triangle, corners, corner_n
                 out[k, p, 0] = np.float32(normal[k, 0])
                 out[k, p, 1] = np.float32(normal[k, 1])
                 out[k, p, 2] = np.float32(normal[k, 2])
+
+
+@nb.njit(inline="always")
+def _edge_length(ax, ay, az):
+    return np.sqrt((ax * ax + ay * ay) + az * az)
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def face_frames(positions, triangles, ratio, normals, valid, areas):
+    """Every triangle's unit normal, whether it has one, and its area (core.geometry._face_frames:
+    np.cross's products and differences, np.linalg.norm's sums, in their order, so the bits
+    are numpy's).
+
+    positions : (n, 3) float64; triangles : (m, 3) int32; ratio : tolerances'
+    DEGENERATE_TRIANGLE_RATIO. Outputs normals (m, 3) float64 (zero where not valid),
+    valid (m,) bool, areas (m,) float64 (NaN where a corner is not finite).
+    """
+    for t in nb.prange(triangles.shape[0]):
+        i0, i1, i2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        ax = positions[i1, 0] - positions[i0, 0]
+        ay = positions[i1, 1] - positions[i0, 1]
+        az = positions[i1, 2] - positions[i0, 2]
+        bx = positions[i2, 0] - positions[i0, 0]
+        by = positions[i2, 1] - positions[i0, 1]
+        bz = positions[i2, 2] - positions[i0, 2]
+        cx = ay * bz - az * by
+        cy = az * bx - ax * bz
+        cz = ax * by - ay * bx
+        length = _edge_length(cx, cy, cz)
+        # np.maximum's NaN: a NaN edge makes the longest edge NaN.
+        longest = _edge_length(ax, ay, az)
+        second = _edge_length(positions[i2, 0] - positions[i1, 0], positions[i2, 1] - positions[i1, 1],
+                              positions[i2, 2] - positions[i1, 2])
+        third = _edge_length(positions[i0, 0] - positions[i2, 0], positions[i0, 1] - positions[i2, 1],
+                             positions[i0, 2] - positions[i2, 2])
+        if second > longest or second != second:
+            longest = second if longest == longest else longest
+        if third > longest or third != third:
+            longest = third if longest == longest else longest
+        ok = np.isfinite(length) and length > ratio * longest * longest and length > 0
+        valid[t] = ok
+        if ok:
+            normals[t, 0] = cx / length
+            normals[t, 1] = cy / length
+            normals[t, 2] = cz / length
+        else:
+            normals[t, 0] = 0.0
+            normals[t, 1] = 0.0
+            normals[t, 2] = 0.0
+        areas[t] = 0.5 * length

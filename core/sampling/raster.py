@@ -362,10 +362,20 @@ def _uv_corners(corner_uv) -> np.ndarray:
 
 def _degenerate(corners: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", over="ignore"):
-        doubled_area = np.abs(_cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
-        longest = np.max(np.sum((corners[:, [1, 2, 0]] - corners) ** 2, axis=2), axis=1)
+        first = corners[:, 1] - corners[:, 0]
+        doubled_area = np.abs(_cross(first, corners[:, 2] - corners[:, 0]))
+        # The longest edge's squared length, edge by edge as (m, 2) rows: the same sums as
+        # over the (m, 3, 2) edges at once, without its gather and its 2-wide reduction.
+        longest = _squared_length(first)
+        np.maximum(longest, _squared_length(corners[:, 2] - corners[:, 1]), out=longest)
+        np.maximum(longest, _squared_length(corners[:, 0] - corners[:, 2]), out=longest)
         finite = np.isfinite(corners).all(axis=(1, 2)) & np.isfinite(doubled_area) & np.isfinite(longest)
         return ~finite | ~(doubled_area > tol.DEGENERATE_TRIANGLE_RATIO * longest)
+
+
+def _squared_length(edge: np.ndarray) -> np.ndarray:
+    """(m,) x^2 + y^2 of (m, 2) ``edge``."""
+    return edge[:, 0] * edge[:, 0] + edge[:, 1] * edge[:, 1]
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -89,7 +89,7 @@ def _texel_raster(mesh: Mesh, threads: int):
     uv_area = (uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1]) \
         - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0])
     with_area = np.flatnonzero(uv_area != 0)  # NaN counts: the raster skips it
-    all_normals, all_valid = mesh_face_normals(mesh)
+    all_normals, all_valid = mesh_face_normals(mesh, threads)
     normals, valid = np.zeros((len(mesh.triangles), 3)), np.zeros(len(mesh.triangles), bool)
     normals[with_area], valid[with_area] = all_normals[with_area], all_valid[with_area]
     # Degenerate or non-finite triangles get no samples: they have no normal to shade with.

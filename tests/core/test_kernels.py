@@ -887,3 +887,38 @@ def test_compiled_footprint_curvature_is_bitwise_that_of_numpy(monkeypatch):
     assert near.sum() > 100 and 0 < reference.sum() < count and not reference[7]
     assert 0 < reference[near].sum() < near.sum()  # the near ones fall on both sides
     np.testing.assert_array_equal(compiled, reference)
+
+
+def test_compiled_face_normals_and_areas_are_bitwise_those_of_numpy(monkeypatch):
+    """core.geometry's face frames through the kernel and in numpy: random triangles over
+    twelve orders of magnitude, slivers on both sides of the degenerate ratio, a repeated
+    corner, and corners at NaN, infinity and 1e200 (whose squares overflow)."""
+    from core import geometry, tolerances as tol
+
+    kernels.status()
+    if kernels.compiled() is None:
+        pytest.skip("the compiled kernels are not available here (the numpy fallback runs)")
+    rng = np.random.default_rng(17)
+    positions = rng.normal(size=(3000, 3)) * 10.0 ** rng.uniform(-6, 6, (3000, 1))
+    triangles = rng.integers(0, 3000, size=(9000, 3)).astype(np.int32)
+    # Slivers: a third corner off the first edge by a height around the degenerate ratio.
+    sliver = np.arange(3000, 3600)
+    base = rng.normal(size=(600, 3))
+    tip = base + rng.normal(size=(600, 3))
+    away = np.cross(tip - base, rng.normal(size=(600, 3)))
+    away /= np.linalg.norm(away, axis=1, keepdims=True)
+    span = np.linalg.norm(tip - base, axis=1, keepdims=True)
+    third = (base + tip) / 2 + away * span * tol.DEGENERATE_TRIANGLE_RATIO * rng.uniform(0.2, 5.0, (600, 1))
+    positions = np.concatenate([positions, base, tip, third])
+    triangles[sliver] = np.column_stack([3000 + np.arange(600), 3600 + np.arange(600), 4200 + np.arange(600)])
+    positions[[5, 6, 7]] = [[np.nan, 0, 0], [np.inf, 1, 1], [1e200, -1e200, 1e200]]
+    triangles[:3] = [[5, 1, 2], [6, 1, 2], [7, 1, 2]]
+    triangles[3] = [9, 9, 10]
+    compiled = geometry._face_frames(positions, triangles, 2)
+    monkeypatch.setattr(kernels, "_module", None)
+    with np.errstate(all="ignore"):
+        reference = geometry._face_frames(positions, triangles)
+    valid = reference[1]
+    assert 0 < valid[sliver].sum() < len(sliver) and not valid[:4].any() and valid.sum() > 8000
+    for ours, numpy_s in zip(compiled, reference):
+        assert ours.dtype == numpy_s.dtype and ours.tobytes() == numpy_s.tobytes()
