@@ -50,6 +50,15 @@ def _density_size(world_area: float, uv_area: float, density: float, smallest: i
     return int(np.clip(np.ceil(np.sqrt(world_area / max(uv_area, 1e-6)) * density), smallest, 8192))
 
 
+def needs_areas(own_resolution: int, own_density: float, settings: LayoutSettings, view_density: float = 0.0) -> bool:
+    """Whether :func:`object_resolution` reads its ``world_area`` and ``uv_area``: only where a
+    texel density sizes the atlas. Elsewhere callers skip measuring them (0.1 s on a
+    200k-triangle mesh)."""
+    if own_resolution > 0:
+        return False
+    return own_density > 0 or settings.texel_density > 0 or view_density > 0
+
+
 def object_resolution(own_resolution: int, own_density: float, settings: LayoutSettings, world_area: float,
                       uv_area: float, view_density: float = 0.0) -> tuple[int, int]:
     """Atlas size (width, height): the object's own resolution or texel density, else
@@ -80,8 +89,9 @@ def planned_resolution(own_resolution: int, own_density: float, settings: Layout
     With a texel density the real size depends on how much of the UV square the
     layout fills; the typical packed share stands in for it here.
     """
-    return object_resolution(own_resolution, own_density, settings, surface_area(positions, triangles),
-                             TYPICAL_PACKED_UV_AREA, view_density)
+    world_area = (surface_area(positions, triangles)
+                  if needs_areas(own_resolution, own_density, settings, view_density) else 0.0)
+    return object_resolution(own_resolution, own_density, settings, world_area, TYPICAL_PACKED_UV_AREA, view_density)
 
 
 def auto_vertex_reason(positions: np.ndarray, triangles: np.ndarray, own_resolution: int, own_density: float,

@@ -214,7 +214,21 @@ def _feed(hasher, array) -> None:
 
 
 def object_key(mesh: Mesh) -> str:
-    """Hash of what places an object's samples and what its rays can hit."""
+    """Hash of what places an object's samples and what its rays can hit; kept on the mesh
+    for as long as it holds the same arrays and layout (a bake asks twice: for the kept
+    preparation's key and the table's, 35 ms each on a 200k-triangle mesh)."""
+    inputs = (mesh.positions, mesh.triangles, mesh.mode, mesh.corner_normals, mesh.uv_maps.get(mesh.bake_uv_map),
+              tuple(int(r) for r in mesh.resolution))
+    kept = getattr(mesh, "_object_key", None)
+    if kept is not None and len(kept[0]) == len(inputs) and all(a is b or (not isinstance(a, np.ndarray) and a == b)
+                                                                for a, b in zip(kept[0], inputs)):
+        return kept[1]
+    key = _object_key(mesh)
+    mesh._object_key = (inputs, key)
+    return key
+
+
+def _object_key(mesh: Mesh) -> str:
     hasher = _hasher()
     _feed(hasher, np.asarray(mesh.positions, np.float64))
     _feed(hasher, np.asarray(mesh.triangles, np.int32))

@@ -230,3 +230,25 @@ def test_a_damaged_table_found_when_read_refuses_a_relight_and_is_rebuilt_by_a_b
     _assert_same_table(good.table, rebuilt.table)
     assert prepare(Scene(_meshes(), [SUN]), settings, cache=cache).cache_status.state == "hit"
 
+
+
+def test_an_object_key_kept_on_its_mesh_follows_every_array_and_setting_it_hashes():
+    """object_key is kept on the mesh between the two times a bake asks for it; replacing
+    any array it hashes, or the layout's resolution or mode, gives the key computed afresh."""
+    from core.visibility import cache as module
+
+    mesh = quad_mesh("Q", [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    first = module.object_key(mesh)
+    assert module.object_key(mesh) == first == module._object_key(mesh)
+    changes = [
+        ("positions", lambda m: setattr(m, "positions", m.positions + 1.0)),
+        ("triangles", lambda m: setattr(m, "triangles", m.triangles[:, [0, 2, 1]].copy())),
+        ("uv map", lambda m: m.uv_maps.__setitem__(m.bake_uv_map, m.uv_maps[m.bake_uv_map] * 0.5)),
+        ("resolution", lambda m: setattr(m, "resolution", (m.resolution[0] * 2, m.resolution[1]))),
+        ("mode", lambda m: setattr(m, "mode", "vertex")),
+    ]
+    for name, change in changes:
+        changed = dataclasses.replace(mesh, uv_maps=dict(mesh.uv_maps))
+        changed._object_key = mesh._object_key
+        change(changed)
+        assert module.object_key(changed) == module._object_key(changed) != first, name

@@ -91,3 +91,20 @@ def test_auto_takes_vertex_tables_for_a_mesh_too_big_to_unwrap():
 def test_unwrap_seconds_grow_faster_than_the_triangles():
     assert layout.unwrap_seconds(20_000) == pytest.approx(2.2)
     assert layout.unwrap_seconds(40_000) > 2 * layout.unwrap_seconds(20_000)
+
+
+@pytest.mark.parametrize("own_resolution", [0, 48])
+@pytest.mark.parametrize("own_density", [0.0, 30.0])
+@pytest.mark.parametrize("texel_density", [0.0, 20.0])
+@pytest.mark.parametrize("view_density", [0.0, 10.0])
+def test_the_areas_are_measured_wherever_the_atlas_size_reads_them(own_resolution, own_density, texel_density,
+                                                                   view_density):
+    """Callers skip measuring the areas where needs_areas says the size does not read them:
+    there, any areas give the size that none do."""
+    settings = LayoutSettings(resolution=64, texel_density=texel_density)
+    sizes = {layout.object_resolution(own_resolution, own_density, settings, world, uv, view_density)
+             for world, uv in ((0.0, 0.0), (3.0, 0.4), (900.0, 0.7))}
+    if not layout.needs_areas(own_resolution, own_density, settings, view_density):
+        assert len(sizes) == 1
+    elif own_resolution == 0:
+        assert len(sizes) > 1
