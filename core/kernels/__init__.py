@@ -20,10 +20,14 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -68,17 +72,20 @@ class KernelStatus:
     compiled: bool = False
     cache_dir: str | None = None
     reason: str | None = None
+    helpers: int = 0
 
     def describe(self) -> str:
         """One line for the report and the terminal."""
         if self.backend != "numba":
             return f"numpy lookups (compiled kernels unavailable: {self.reason})"
         how = "compiled on first use" if self.compiled else "loaded from the kernel cache"
-        return f"numba {self.version} kernels, {how} in {self.load_seconds:.1f} s"
+        shared = f" ({self.helpers + 1} processes)" if self.helpers else ""
+        return f"numba {self.version} kernels, {how} in {self.load_seconds:.1f} s{shared}"
 
     def as_dict(self) -> dict:
         return {"backend": self.backend, "version": self.version, "load_seconds": round(self.load_seconds, 3),
-                "compiled": self.compiled, "cache_dir": self.cache_dir, "reason": self.reason}
+                "compiled": self.compiled, "cache_dir": self.cache_dir, "reason": self.reason,
+                "helpers": self.helpers}
 
 
 def default_cache_dir() -> str:
@@ -127,28 +134,146 @@ def _load() -> KernelStatus:
     started = time.perf_counter()
     try:
         os.makedirs(cache_dir, exist_ok=True)
-        # numba reads these when it is first imported; set them for an import still to come.
-        os.environ["NUMBA_CACHE_DIR"] = cache_dir
-        os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
-        import numba
-        numba.config.CACHE_DIR = cache_dir
-        numba.config.THREADING_LAYER = "workqueue"
-        from . import (
-            image_kernels,
-            light_kernels,
-            prep_kernels,
-            raster_kernels,
-            sample_kernels,
-            table_kernels,
-            transport_kernels,
-        )
-        misses = _warm_up(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels,
-                          raster_kernels, prep_kernels)
+        numba, modules = _import_kernels(cache_dir)
+        misses, helpers = _warm_up_shared(modules, package, cache_dir)
     except Exception as error:  # noqa: BLE001 - any failure to load means: use numpy, and say why
         return KernelStatus("numpy", cache_dir=cache_dir, reason=f"{type(error).__name__}: {error}")
-    _module = _Kernels(transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels,
-                       raster_kernels, prep_kernels)
-    return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir)
+    _module = _Kernels(*modules)
+    return KernelStatus("numba", numba.__version__, time.perf_counter() - started, misses > 0, cache_dir,
+                        helpers=helpers)
+
+
+def _import_kernels(cache_dir: str) -> tuple:
+    """numba, set to cache in ``cache_dir``, and the kernel modules (transport, table, sample,
+    image, light, raster, prep)."""
+    # numba reads these when it is first imported; set them for an import still to come.
+    os.environ["NUMBA_CACHE_DIR"] = cache_dir
+    os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
+    import numba
+    numba.config.CACHE_DIR = cache_dir
+    numba.config.THREADING_LAYER = "workqueue"
+    from . import (
+        image_kernels,
+        light_kernels,
+        prep_kernels,
+        raster_kernels,
+        sample_kernels,
+        table_kernels,
+        transport_kernels,
+    )
+    return numba, (transport_kernels, table_kernels, sample_kernels, image_kernels, light_kernels, raster_kernels,
+                   prep_kernels)
+
+
+# A first load with an empty kernel cache compiles about 40 kernels one after the other,
+# 100-200 s on one core of a 2-core machine (docs/benchmarks.md, speed part 14), while the other
+# cores wait. Helper processes compile some of them into the same cache at the same time.
+# Each holds numba's compiler (about 230 MiB), so there are at most this many.
+MAX_COMPILE_HELPERS = 3
+HELPERS_SWITCH = "VISIBAKE_COMPILE_HELPERS"  # how many helpers at most (0: compile alone)
+_HELPER_BOOTSTRAP = """
+import importlib, importlib.util, os, sys, types
+core_dir, package, cache_dir, claims = sys.argv[1:5]
+# The kernels' package under the parent's import name (numba's cache records it), without the
+# packages above it (the extension's __init__ needs bpy): empty ones stand in for them.
+parts = package.split(".")
+for depth in range(1, len(parts)):
+    name = ".".join(parts[:depth])
+    if name not in sys.modules:
+        stand_in = types.ModuleType(name)
+        stand_in.__path__ = []
+        sys.modules[name] = stand_in
+spec = importlib.util.spec_from_file_location(package, os.path.join(core_dir, "__init__.py"),
+                                              submodule_search_locations=[core_dir])
+module = importlib.util.module_from_spec(spec)
+sys.modules[package] = module
+spec.loader.exec_module(module)
+importlib.import_module(package + ".kernels")._helper_main(cache_dir, claims)
+"""
+
+
+def _helper_count() -> int:
+    wanted = os.environ.get(HELPERS_SWITCH, "").strip()
+    most = int(wanted) if wanted.isdigit() else MAX_COMPILE_HELPERS
+    return max(0, min(most, (os.cpu_count() or 1) - 1))
+
+
+def _claim(claims: str, number: int) -> bool:
+    """Take warm-up step ``number`` for this process, unless another has taken it."""
+    try:
+        os.close(os.open(os.path.join(claims, f"{number}.claimed"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        return True
+    except FileExistsError:
+        return False
+
+
+def _done_path(claims: str, number: int) -> str:
+    return os.path.join(claims, f"{number}.done")
+
+
+def _helper_main(cache_dir: str, claims: str) -> None:
+    """A helper process: compile into ``cache_dir`` every warm-up step no other process has
+    claimed in the folder ``claims``, saying each one done there."""
+    _, modules = _import_kernels(cache_dir)
+    for number, step in enumerate(_warm_up_steps(*modules)):
+        if _claim(claims, number):
+            step()
+            open(_done_path(claims, number), "w").close()
+
+
+def _warm_up_shared(modules, package: str, cache_dir: str) -> tuple[int, int]:
+    """:func:`_warm_up`, shared with helper processes when its first kernel was not in the
+    cache (a first load after an install or an update): each process claims steps in turn
+    (:func:`_claim`), and this one then runs the helpers' steps once they are done, which
+    reads what they compiled (or compiles it, where a helper stopped). Returns (kernels
+    compiled, helper processes that finished their share)."""
+    steps = _warm_up_steps(*modules)
+    steps[0]()
+    first_kernel = steps[0].func
+    count = _helper_count()
+    helpers, claims = [], None
+    if sum(first_kernel.stats.cache_misses.values()) > 0 and count > 0:
+        claims = tempfile.mkdtemp(prefix="visibake-compile-")
+        _claim(claims, 0)
+        core_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        environment = {**os.environ, "NUMBA_CACHE_DIR": cache_dir}
+        flags = getattr(subprocess, "CREATE_NO_WINDOW", 0)  # no console window on Windows
+        for _ in range(count):
+            try:
+                helpers.append(subprocess.Popen([sys.executable, "-c", _HELPER_BOOTSTRAP, core_dir, package,
+                                                 cache_dir, claims], env=environment, stdin=subprocess.DEVNULL,
+                                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                                creationflags=flags))
+            except OSError:
+                break  # no interpreter to start: the steps not taken are this process's
+    finished = False
+    try:
+        theirs = []
+        for number, step in enumerate(steps[1:], 1):
+            if claims is None or _claim(claims, number):
+                step()
+            else:
+                theirs.append((number, step))
+        for number, step in theirs:
+            while not os.path.exists(_done_path(claims, number)) and any(h.poll() is None for h in helpers):
+                time.sleep(0.05)
+            step()
+        finished = True
+    finally:
+        for helper in helpers:
+            try:
+                # Every step is done: a helper still running is only exiting.
+                helper.wait(timeout=10.0 if finished else 0.0)
+            except subprocess.TimeoutExpired:
+                helper.kill()
+                helper.wait()
+        if claims is not None:
+            shutil.rmtree(claims, ignore_errors=True)
+    return _compiled_count(modules), sum(1 for helper in helpers if helper.returncode == 0)
+
+
+def _compiled_count(modules) -> int:
+    return sum(1 for kernel in _kernel_functions(*modules) if sum(kernel.stats.cache_misses.values()) > 0)
 
 
 class _Kernels:
@@ -161,14 +286,16 @@ class _Kernels:
                     setattr(self, name, value)
 
 
-def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module, prep_module) -> int:
-    """Compile (or read from the cache) every kernel for the one signature the callers use,
-    by running each on a tiny input. Returns how many kernels had to be compiled."""
+def _warm_up_steps(module, table_module, sample_module, image_module, light_module, raster_module,
+                   prep_module) -> list:
+    """Every kernel's first call on a tiny input, in the one signature the callers use: one
+    callable per kernel (the raster's three in one, each feeding the next), in the order a
+    load runs them. Running them compiles each kernel, or reads it from the cache."""
     # One stored entry (direction 0, sample 0) of a one-sample table.
     words = np.ones((1, 1), np.uint64)
     base = np.zeros((1, 1), np.int64)
     objects = np.zeros(1, np.int16)
-    uv = np.zeros((1, 2), np.uint16)
+    uv_codes = np.zeros((1, 2), np.uint16)
     cells = np.zeros(1, np.int64)
     directions = np.zeros((1, 3), np.float32)
     normals = np.zeros((1, 3), np.float32)
@@ -176,125 +303,137 @@ def _warm_up(module, table_module, sample_module, image_module, light_module, ra
     samples = np.zeros(1, np.int64)
     radiance = np.zeros((4, 3), np.float32)
     sizes = np.ones(1, np.int64)
-    module.gather(words, base, objects, uv, cells, directions, normals, one32, samples, 0, 1, radiance, sizes, sizes,
-                  np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32), np.zeros(1, np.int64),
-                  False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool), np.zeros((1, 3)))
-    module.cosine_sum(words, base, objects, directions, normals, one32, np.int16(-2), False, np.zeros(1))
-    module.cosine_sum(words, base, objects, directions.astype(np.float64), normals.astype(np.float64), np.ones(1),
-                      np.int16(-1), True, np.zeros(1))
-    module.bare_lookup(words, base, objects, uv, samples, 0, 1, radiance, sizes, sizes, np.zeros(1, np.int64),
-                       np.zeros((1, 3)))
-    from ..visibility.table import DISTANCE_SPLITS
     index = np.zeros(1, np.int64)
-    table_module.record(objects, uv, np.zeros(1, np.uint16), index, np.zeros(1, np.int32),
-                        np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
-                        np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32),
-                        cells, np.zeros(0, bool), DISTANCE_SPLITS, index, np.int64(0), np.zeros(1, np.int32))
     three = np.zeros((1, 3))
-    table_module.ray_setup(index, index, three, np.zeros((1, 0, 3), np.float32), index, three,
-                           np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0),
-                           np.float32(1.0), np.float32(1.0), np.zeros((1, 3), np.float32),
-                           np.zeros((1, 3), np.float32))
     one = np.ones((1, 1), bool)
-    table_module.rays_where(one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-    table_module.rays_of_span(words, base, np.int64(0), np.int64(1), index, np.int64(0), np.zeros(1, np.int64),
-                              np.zeros(1, np.int64), np.zeros(1, np.int64))
-    table_module.horizon_bits(three, three, np.zeros((1, 1), np.uint64), np.zeros(1, np.int32))
-    table_module.entries_at(words, base, index, index, np.zeros(1, np.int64))
-    table_module.count_per_sample(words, base, objects, np.int16(-3), np.zeros(1, np.int32))
-    for values in (objects, np.zeros(1, np.uint16), np.zeros(1, np.uint32)):  # each entry array's type
-        table_module.copy_runs(index, index, index, values, values.copy())
-    for values in (objects, np.zeros(1, np.uint16)):
-        table_module.entry_columns(words, base, values, np.int64(0), np.int64(1), np.zeros((1, 1), values.dtype))
     uv = np.zeros((1, 3, 2))
     centre = np.zeros((1, 2))
     corners = np.zeros((1, 3, 3))
-    sample_module.footprint_first_draw(uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)), corners, 0.5,
-                                       1e-4, np.zeros((1, 1, 3)), np.zeros((1, 1), bool))
-    sample_module.footprint_redraws(uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)), corners, 0.5,
-                                    1e-4, 10, np.zeros((1, 1, 3)), np.zeros((1, 1), bool))
-    sample_module.footprint_corners(uv, centre, np.zeros(1), corners, np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32),
-                                    0.25, 1e-4, np.zeros((1, 4, 3), np.float32))
-    sample_module.footprint_jitter(np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros((1, 2), np.uint32),
-                                   np.zeros((1, 1, 2)))
-    sample_module.footprint_offsets_of(np.zeros((1, 1, 3)), np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32))
-    sample_module.footprint_point_normals(np.zeros((1, 1, 3), np.float32), np.zeros((1, 3)), np.zeros(1, np.int64),
-                                          np.zeros(1, np.int64), corners, np.zeros((1, 3, 3), np.float32),
-                                          np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32))
-    sample_module.face_frames(corners[0], np.array([[0, 1, 2]], np.int32), 1e-12, np.zeros((1, 3)),
-                              np.zeros(1, bool), np.zeros(1))
     int32 = np.zeros(1, np.int32)
-    image_module.bilinear_points(np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32, int32,
-                                 np.zeros((1, 2), np.float32), np.zeros((1, 3)))
-    image_module.seam_product(np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0, np.zeros((1, 3)),
-                              np.zeros((1, 3)))
-    image_module.seam_solve(np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0, np.ones(1),
-                            np.zeros((1, 3)), np.ones(3), 4, np.zeros((1, 3)))
-    image_module.dilate_rings(np.zeros((1, 3), np.float32), np.ones(1, bool), np.zeros(0, np.int64), 1, 1, 1)
-    image_module.sum_rows(np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros(0, np.int64), np.zeros((1, 3)))
-    image_module.sum_rows(int32, np.zeros((1, 3)), int32, np.zeros((1, 3)))  # the filter's int32 pairs
-    image_module.contact_sums(np.zeros((4, 3), np.float32), np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32,
-                              int32, np.zeros((1, 2), np.float32), np.zeros(1, np.float32), np.zeros((1, 3)),
-                              np.zeros(1, np.int64), np.zeros((1, 3)))
-    three = np.zeros((1, 3))
     footprint = np.zeros((1, 1, 3), np.float32)
-    light_module.hard_lamp_point(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
-                                 footprint, 0, footprint, 0, np.ones(3), np.zeros((1, 3)), np.zeros((1, 3)),
-                                 np.zeros(1), np.zeros((1, 3)), np.zeros(1, bool))
     flags = np.zeros(1, bool)
-    light_module.hard_lamp_decided(light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three,
-                                   footprint, np.zeros((1, 0, 3), np.float32), np.ones(3), np.zeros(1, np.int64),
-                                   flags, flags, 1, flags, 4, 1.0, np.zeros((1, 3)), np.zeros(1, bool))
-    index = np.zeros(1, np.int64)
-    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):  # a ray scene at the origin, and centred
-        light_module.shadow_ray_setup(index, index, np.ones(1), three, np.zeros((0, 3)), three, three, three, three,
-                                      np.zeros(1), sample_origins, np.zeros(3), False, 1.0, np.float32(256.0),
-                                      np.float32(1.0), np.float32(1.0), sample_origins.copy(), np.zeros((1, 3)),
-                                      np.zeros(1, np.float32), np.zeros((1, 3)))
-        light_module.emitter_rays(index, sample_origins, three, np.ones(1), 1.0, sample_origins.copy(),
-                                  np.zeros((1, 3)), np.zeros(1, np.float32))
-    light_module.emitter_patch(three, three, three, np.ones(3), np.ones(3), np.zeros((1, 3)), np.zeros(1),
-                               np.zeros(1), np.zeros(1, bool))
-    light_module.emitter_add(index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3)))
-    light_module.footprint_curvature(footprint, three, 0.5, np.zeros(1, bool))
-    corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
-    offsets = np.zeros(2, np.int64)
-    no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
-    raster_module.triangle_claims(corner_uv, 1, 1, 1e-7, 1e-6, 1e-12, offsets, *no_claims, False)
-    claims = np.zeros(offsets[1], np.int32), np.zeros(offsets[1], np.int32), np.zeros(offsets[1], bool)
-    weights = np.zeros((offsets[1], 3), np.float32)
-    raster_module.triangle_claims(corner_uv, 1, 1, 1e-7, 1e-6, 1e-12, offsets, *claims, weights, True)
-    chosen = np.zeros(1, np.int64)
-    raster_module.resolve_claims(claims[0], claims[2], chosen, np.zeros(1, np.int8), np.zeros(2, np.int64))
-    raster_module.gather_claims(chosen, claims[1], weights, np.zeros(1, np.int64), np.zeros(1, np.int32),
-                                np.zeros((1, 3), np.float32), np.zeros(1, bool))
-    from ..visibility.table import DISTANCE_VALUES
-    prep_module.close_entries(words, base, objects, np.zeros(1, np.uint16), DISTANCE_VALUES, np.ones(1, np.float32),
-                              np.zeros(0), np.zeros(2, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), False)
-    prep_module.exposed_share(words, base, objects, 1, 0.9, 0, np.zeros(1))
-    first = np.zeros(1, np.int64)
-    prep_module.texel_owners(first, np.zeros((1, 2), np.float32), first + 1, first + 1, first, first,
-                             np.zeros((1, 2), np.int64), np.zeros(1, np.int64))
     points = np.zeros((1, 3))
-    prep_module.filter_candidates(first, np.ones(1, bool), first, 0, 1, 1, np.zeros((1, 2), np.int64), 1, points,
-                                  points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
-                                  np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False)
-    kernels = (module.gather, module.cosine_sum, module.bare_lookup, table_module.record, table_module.ray_setup,
-               table_module.rays_where, table_module.rays_of_span,
-               table_module.horizon_bits, table_module.entries_at,
-               table_module.count_per_sample, table_module.copy_runs, table_module.entry_columns,
-               sample_module.footprint_first_draw, sample_module.footprint_redraws,
-               sample_module.footprint_corners, sample_module.footprint_jitter, sample_module.footprint_offsets_of,
-               sample_module.footprint_point_normals, sample_module.face_frames,
-               image_module.bilinear_points, image_module.seam_product, image_module.seam_solve,
-               image_module.dilate_rings, image_module.sum_rows, image_module.contact_sums,
-               light_module.hard_lamp_point,
-               light_module.hard_lamp_decided, light_module.shadow_ray_setup, light_module.emitter_patch,
-               light_module.emitter_rays, light_module.emitter_add, light_module.footprint_curvature,
-               raster_module.triangle_claims, raster_module.resolve_claims,
-               raster_module.gather_claims, prep_module.close_entries, prep_module.exposed_share,
-               prep_module.texel_owners, prep_module.filter_candidates)
-    return sum(1 for kernel in kernels if sum(kernel.stats.cache_misses.values()) > 0)
+    from ..visibility.table import DISTANCE_SPLITS, DISTANCE_VALUES
+
+    def raster():
+        corner_uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
+        offsets = np.zeros(2, np.int64)
+        no_claims = np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, bool), np.zeros((0, 3), np.float32)
+        raster_module.triangle_claims(corner_uv, 1, 1, 1e-7, 1e-6, 1e-12, offsets, *no_claims, False)
+        claims = np.zeros(offsets[1], np.int32), np.zeros(offsets[1], np.int32), np.zeros(offsets[1], bool)
+        weights = np.zeros((offsets[1], 3), np.float32)
+        raster_module.triangle_claims(corner_uv, 1, 1, 1e-7, 1e-6, 1e-12, offsets, *claims, weights, True)
+        chosen = np.zeros(1, np.int64)
+        raster_module.resolve_claims(claims[0], claims[2], chosen, np.zeros(1, np.int8), np.zeros(2, np.int64))
+        raster_module.gather_claims(chosen, claims[1], weights, np.zeros(1, np.int64), np.zeros(1, np.int32),
+                                    np.zeros((1, 3), np.float32), np.zeros(1, bool))
+
+    steps = [
+        partial(table_module.rays_where, one, index, 0, np.zeros(1, np.int64), np.zeros(1, np.int64)),
+        partial(module.gather, words, base, objects, uv_codes, cells, directions, normals, one32, samples, 0, 1,
+                radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32),
+                np.zeros(1, np.int64), False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool),
+                np.zeros((1, 3))),
+        partial(module.cosine_sum, words, base, objects, directions, normals, one32, np.int16(-2), False,
+                np.zeros(1)),
+        partial(module.cosine_sum, words, base, objects, directions.astype(np.float64), normals.astype(np.float64),
+                np.ones(1), np.int16(-1), True, np.zeros(1)),
+        partial(module.bare_lookup, words, base, objects, uv_codes, samples, 0, 1, radiance, sizes, sizes,
+                np.zeros(1, np.int64), np.zeros((1, 3))),
+        partial(table_module.record, objects, uv_codes, np.zeros(1, np.uint16), index, np.zeros(1, np.int32),
+                np.zeros(1, np.int32), np.zeros((1, 2), np.float32), np.ones(1, np.float32),
+                np.ones((1, 3), np.float32), index, np.zeros((1, 3)), np.zeros((1, 3, 2), np.float32), cells,
+                np.zeros(0, bool), DISTANCE_SPLITS, index, np.int64(0), np.zeros(1, np.int32)),
+        partial(table_module.ray_setup, index, index, three, np.zeros((1, 0, 3), np.float32), index, three,
+                np.zeros((1, 1, 3), np.float32), index, np.zeros(3), np.float32(256.0), np.float32(1.0),
+                np.float32(1.0), np.zeros((1, 3), np.float32), np.zeros((1, 3), np.float32)),
+        partial(table_module.rays_of_span, words, base, np.int64(0), np.int64(1), index, np.int64(0),
+                np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64)),
+        partial(table_module.horizon_bits, three, three, np.zeros((1, 1), np.uint64), np.zeros(1, np.int32)),
+        partial(table_module.entries_at, words, base, index, index, np.zeros(1, np.int64)),
+        partial(table_module.count_per_sample, words, base, objects, np.int16(-3), np.zeros(1, np.int32)),
+        # Each entry array's type.
+        *(partial(table_module.copy_runs, index, index, index, values, values.copy())
+          for values in (objects, np.zeros(1, np.uint16), np.zeros(1, np.uint32))),
+        *(partial(table_module.entry_columns, words, base, values, np.int64(0), np.int64(1),
+                  np.zeros((1, 1), values.dtype)) for values in (objects, np.zeros(1, np.uint16))),
+        partial(sample_module.footprint_first_draw, uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)),
+                corners, 0.5, 1e-4, np.zeros((1, 1, 3)), np.zeros((1, 1), bool)),
+        partial(sample_module.footprint_redraws, uv, centre, np.zeros(1), np.ones(1, bool), np.zeros((1, 1, 2)),
+                corners, 0.5, 1e-4, 10, np.zeros((1, 1, 3)), np.zeros((1, 1), bool)),
+        partial(sample_module.footprint_corners, uv, centre, np.zeros(1), corners, np.zeros((1, 3)),
+                np.zeros((1, 1, 3), np.float32), 0.25, 1e-4, np.zeros((1, 4, 3), np.float32)),
+        partial(sample_module.footprint_jitter, np.zeros(1, np.int64), np.zeros(1, np.int32),
+                np.zeros((1, 2), np.uint32), np.zeros((1, 1, 2))),
+        partial(sample_module.footprint_offsets_of, np.zeros((1, 1, 3)), np.zeros((1, 3)),
+                np.zeros((1, 1, 3), np.float32)),
+        partial(sample_module.footprint_point_normals, np.zeros((1, 1, 3), np.float32), np.zeros((1, 3)),
+                np.zeros(1, np.int64), np.zeros(1, np.int64), corners, np.zeros((1, 3, 3), np.float32),
+                np.zeros((1, 3)), np.zeros((1, 1, 3), np.float32)),
+        partial(sample_module.face_frames, corners[0], np.array([[0, 1, 2]], np.int32), 1e-12, np.zeros((1, 3)),
+                np.zeros(1, bool), np.zeros(1)),
+        partial(image_module.bilinear_points, np.zeros((4, 3), np.float32), int32 + 1, int32 + 1, int32, int32,
+                np.zeros((1, 2), np.float32), np.zeros((1, 3))),
+        partial(image_module.seam_product, np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0,
+                np.zeros((1, 3)), np.zeros((1, 3))),
+        partial(image_module.seam_solve, np.zeros((1, 8)), np.zeros((1, 8), np.int64), np.ones(1), 1.0, np.ones(1),
+                np.zeros((1, 3)), np.ones(3), 4, np.zeros((1, 3))),
+        partial(image_module.dilate_rings, np.zeros((1, 3), np.float32), np.ones(1, bool), np.zeros(0, np.int64),
+                1, 1, 1),
+        partial(image_module.sum_rows, np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros(0, np.int64),
+                np.zeros((1, 3))),
+        partial(image_module.sum_rows, int32, np.zeros((1, 3)), int32, np.zeros((1, 3))),  # the filter's int32 pairs
+        partial(image_module.contact_sums, np.zeros((4, 3), np.float32), np.zeros((4, 3), np.float32), int32 + 1,
+                int32 + 1, int32, int32, np.zeros((1, 2), np.float32), np.zeros(1, np.float32), np.zeros((1, 3)),
+                np.zeros(1, np.int64), np.zeros((1, 3))),
+        partial(light_module.hard_lamp_point, light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5, 0.1,
+                three, three, footprint, 0, footprint, 0, np.ones(3), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1),
+                np.zeros((1, 3)), np.zeros(1, bool)),
+        partial(light_module.hard_lamp_decided, light_module.POINT, np.ones(3), np.array([0.0, 0.0, -1.0]), 0.5,
+                0.1, three, three, footprint, np.zeros((1, 0, 3), np.float32), np.ones(3), np.zeros(1, np.int64),
+                flags, flags, 1, flags, 4, 1.0, np.zeros((1, 3)), np.zeros(1, bool)),
+    ]
+    for sample_origins in (np.zeros((1, 3), np.float32), np.zeros((1, 3))):  # a ray scene at the origin, and centred
+        steps.append(partial(light_module.shadow_ray_setup, index, index, np.ones(1), three, np.zeros((0, 3)), three,
+                             three, three, three, np.zeros(1), sample_origins, np.zeros(3), False, 1.0,
+                             np.float32(256.0), np.float32(1.0), np.float32(1.0), sample_origins.copy(),
+                             np.zeros((1, 3)), np.zeros(1, np.float32), np.zeros((1, 3))))
+        steps.append(partial(light_module.emitter_rays, index, sample_origins, three, np.ones(1), 1.0,
+                             sample_origins.copy(), np.zeros((1, 3)), np.zeros(1, np.float32)))
+    first = np.zeros(1, np.int64)
+    steps += [
+        partial(light_module.emitter_patch, three, three, three, np.ones(3), np.ones(3), np.zeros((1, 3)), np.zeros(1),
+                np.zeros(1), np.zeros(1, bool)),
+        partial(light_module.emitter_add, index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3))),
+        partial(light_module.footprint_curvature, footprint, three, 0.5, np.zeros(1, bool)),
+        raster,
+        partial(prep_module.close_entries, words, base, objects, np.zeros(1, np.uint16), DISTANCE_VALUES,
+                np.ones(1, np.float32), np.zeros(0), np.zeros(2, np.int64), np.zeros(0, np.int64),
+                np.zeros(0, np.int64), False),
+        partial(prep_module.exposed_share, words, base, objects, 1, 0.9, 0, np.zeros(1)),
+        partial(prep_module.texel_owners, first, np.zeros((1, 2), np.float32), first + 1, first + 1, first, first,
+                np.zeros((1, 2), np.int64), np.zeros(1, np.int64)),
+        partial(prep_module.filter_candidates, first, np.ones(1, bool), first, 0, 1, 1, np.zeros((1, 2), np.int64), 1,
+                points, points, points, 0.5, 1.0, np.zeros(2, np.int64), np.zeros(2, np.int64), first, first,
+                np.zeros((1, 3), np.float32), np.zeros(1, np.float32), False),
+    ]
+    return steps
+
+
+def _kernel_functions(*modules) -> list:
+    """Every compiled kernel of ``modules`` (numba dispatchers), in a fixed order."""
+    return [value for module in modules for name, value in sorted(vars(module).items())
+            if hasattr(value, "stats") and hasattr(value, "py_func") and not name.startswith("_")]
+
+
+def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module, prep_module) -> int:
+    """Compile (or read from the cache) every kernel for the one signature the callers use,
+    by running each on a tiny input (:func:`_warm_up_steps`). Returns how many kernels had to
+    be compiled."""
+    modules = (module, table_module, sample_module, image_module, light_module, raster_module, prep_module)
+    for step in _warm_up_steps(*modules):
+        step()
+    return _compiled_count(modules)
 
 
 @contextlib.contextmanager

@@ -177,22 +177,47 @@ def test_the_numpy_fallback_runs_and_says_why(switch, reason):
     assert result["furnace"] < 1e-5
 
 
+# The furnace of _STATUS_AND_FURNACE with the package imported as Blender imports the
+# extension's: under a dotted name whose parents (the extension's __init__ needs bpy) stand empty.
+_EXTENSION_PACKAGE = "bl_ext.user_default.visibake.core"
+_AS_EXTENSION = f"""
+import importlib, importlib.util, os, sys, types
+for depth in range(1, 4):
+    name = ".".join({_EXTENSION_PACKAGE!r}.split(".")[:depth])
+    sys.modules[name] = types.ModuleType(name)
+    sys.modules[name].__path__ = []
+spec = importlib.util.spec_from_file_location({_EXTENSION_PACKAGE!r}, os.path.join("core", "__init__.py"),
+                                              submodule_search_locations=[os.path.abspath("core")])
+sys.modules[{_EXTENSION_PACKAGE!r}] = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(sys.modules[{_EXTENSION_PACKAGE!r}])
+""" + _STATUS_AND_FURNACE.replace("from core", "from " + _EXTENSION_PACKAGE)
+
+
 def test_first_use_compiles_into_the_configured_folder_and_later_loads_read_it(tmp_path):
     # One cold compile (a minute or two on a CI machine) checks both ways of choosing the
     # folder: configure() before the first load (a later call moves nothing), then
-    # NUMBA_CACHE_DIR alone, which must read what the first process compiled.
+    # NUMBA_CACHE_DIR alone, which must read what the first process compiled, helpers included
+    # (each under the package's import name, here the extension's).
     cache = str(tmp_path / "kernels")
-    configured = ("from core import kernels; kernels.configure(%r)\n" % cache
-                  + _STATUS_AND_FURNACE.replace("print(json.dumps({", "kernels.configure('/elsewhere')\n"
-                                                "print(json.dumps({'root': kernels.cache_root(), "))
-    first = _run_python(configured, NUMBA_CACHE_DIR=str(tmp_path / "not-this-one"), VISIBAKE_KERNELS="numba")
-    second = _run_python(_STATUS_AND_FURNACE, NUMBA_CACHE_DIR=cache, VISIBAKE_KERNELS="numba")
+    configured = _AS_EXTENSION.replace("import json, numpy as np\n", "import json, numpy as np\n"
+                                       f"from {_EXTENSION_PACKAGE} import kernels; kernels.configure({cache!r})\n")
+    configured = configured.replace("print(json.dumps({", "kernels.configure('/elsewhere')\n"
+                                    "print(json.dumps({'root': kernels.cache_root(), 'left': "
+                                    "[n for n in os.listdir(__import__('tempfile').gettempdir()) "
+                                    "if n.startswith('visibake-compile-')], ")
+    first = _run_python(configured, NUMBA_CACHE_DIR=str(tmp_path / "not-this-one"), VISIBAKE_KERNELS="numba",
+                        VISIBAKE_COMPILE_HELPERS="", TMPDIR=str(tmp_path))
+    second = _run_python(_AS_EXTENSION, NUMBA_CACHE_DIR=cache, VISIBAKE_KERNELS="numba")
     assert first["status"]["backend"] == second["status"]["backend"] == "numba"
     assert first["status"]["compiled"] and not second["status"]["compiled"]
     assert "compiled on first use" in first["line"] and "from the kernel cache" in second["line"]
-    # One folder per import name of the package (here `core`), inside the one asked for.
-    assert first["status"]["cache_dir"] == second["status"]["cache_dir"] == os.path.join(cache, "core")
-    assert first["root"] == cache and os.listdir(os.path.join(cache, "core"))
+    # Helper processes shared the compile wherever there is a core to spare, and cleaned up.
+    assert first["status"]["helpers"] == min(3, (os.cpu_count() or 1) - 1) and not first["left"]
+    assert second["status"]["helpers"] == 0
+    # One folder per import name of the package, inside the one asked for.
+    folder = os.path.join(cache, _EXTENSION_PACKAGE)
+    assert first["status"]["cache_dir"] == second["status"]["cache_dir"] == folder
+    assert first["root"] == cache and os.listdir(folder)
     assert not os.path.exists(tmp_path / "not-this-one")
     assert first["furnace"] < 1e-5 and second["furnace"] < 1e-5
 
@@ -893,7 +918,8 @@ def test_compiled_face_normals_and_areas_are_bitwise_those_of_numpy(monkeypatch)
     """core.geometry's face frames through the kernel and in numpy: random triangles over
     twelve orders of magnitude, slivers on both sides of the degenerate ratio, a repeated
     corner, and corners at NaN, infinity and 1e200 (whose squares overflow)."""
-    from core import geometry, tolerances as tol
+    from core import geometry
+    from core import tolerances as tol
 
     kernels.status()
     if kernels.compiled() is None:
