@@ -198,6 +198,14 @@ def _helper_count() -> int:
     return max(0, min(most, (os.cpu_count() or 1) - 1))
 
 
+def _helper_environment(cache_dir: str) -> dict:
+    """A helper process's environment: this one's, caching in ``cache_dir``, with this
+    process's module path (Blender adds the extensions' wheels, numba among them, to sys.path
+    at run time, where a bare interpreter would not look)."""
+    paths = [path for path in sys.path if path and os.path.isdir(path)]
+    return {**os.environ, "NUMBA_CACHE_DIR": cache_dir, "PYTHONPATH": os.pathsep.join(paths)}
+
+
 def _claim(claims: str, number: int) -> bool:
     """Take warm-up step ``number`` for this process, unless another has taken it."""
     try:
@@ -236,7 +244,7 @@ def _warm_up_shared(modules, package: str, cache_dir: str) -> tuple[int, int]:
         claims = tempfile.mkdtemp(prefix="visibake-compile-")
         _claim(claims, 0)
         core_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        environment = {**os.environ, "NUMBA_CACHE_DIR": cache_dir}
+        environment = _helper_environment(cache_dir)
         flags = getattr(subprocess, "CREATE_NO_WINDOW", 0)  # no console window on Windows
         for _ in range(count):
             try:

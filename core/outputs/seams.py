@@ -179,7 +179,7 @@ def find_seams(positions: np.ndarray, triangles: np.ndarray, corner_uvs: np.ndar
 def _split_vertices(corners: np.ndarray, uvs: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """(v,) bool for each welded vertex whether its corners may lie apart in the atlas: some
     corner's UV is not finite or lies more than a quarter of SPLIT_TEXELS from the one UV
-    chosen for the vertex (the last of its corners). Any two corners of a vertex not marked
+    chosen for the vertex (one of its corners'). Any two corners of a vertex not marked
     lie within half SPLIT_TEXELS of each other, so no edge is split there.
 
     corners : (m, 3) int64 welded vertex of each triangle corner; uvs : (m, 3, 2) float64;

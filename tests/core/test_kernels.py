@@ -948,3 +948,19 @@ def test_compiled_face_normals_and_areas_are_bitwise_those_of_numpy(monkeypatch)
     assert 0 < valid[sliver].sum() < len(sliver) and not valid[:4].any() and valid.sum() > 8000
     for ours, numpy_s in zip(compiled, reference):
         assert ours.dtype == numpy_s.dtype and ours.tobytes() == numpy_s.tobytes()
+
+
+def test_compile_helpers_find_what_this_process_imports_from(tmp_path, monkeypatch):
+    """A helper process gets this process's module path, where Blender puts the extensions'
+    wheels at run time (numba among them), and the cache folder it compiles into."""
+    extra = tmp_path / "wheels-added-at-run-time"
+    extra.mkdir()
+    monkeypatch.syspath_prepend(str(extra))
+    environment = kernels._helper_environment(str(tmp_path / "cache"))
+    paths = environment["PYTHONPATH"].split(os.pathsep)
+    assert paths[0] == str(extra)
+    assert os.path.dirname(os.path.dirname(np.__file__)) in paths
+    assert environment["NUMBA_CACHE_DIR"] == str(tmp_path / "cache")
+    done = subprocess.run([sys.executable, "-S", "-c", "import numpy, numba; print('ok')"], env=environment,
+                          capture_output=True, text=True, timeout=120)
+    assert done.stdout.strip() == "ok", done.stderr
