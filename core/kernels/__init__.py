@@ -532,15 +532,25 @@ def compiled():
     return _module
 
 
+# Asked once: a bake runs about a thousand kernels on a scene of many small objects, and each
+# os.cpu_count() and numba.set_num_threads cost 10-20 us here (docs/benchmarks.md, speed part 14).
+_CORES = os.cpu_count() or 1
+_threads_set = threading.local()  # the count this thread last gave numba.set_num_threads
+
+
 def thread_count(threads: int) -> int:
     """The kernels' thread count for the Threads preference ``threads`` (0: all cores)."""
     import numba
-    return max(1, min(int(threads) or os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
+    return max(1, min(int(threads) or _CORES, numba.config.NUMBA_NUM_THREADS))
 
 
 def run(kernel, threads: int, *arguments) -> None:
     """Call ``kernel(*arguments)`` on ``threads`` threads (0: all cores), one call at a time."""
     import numba
+    count = thread_count(threads)
     with _lock:
-        numba.set_num_threads(thread_count(threads))
+        # numba's count is the calling thread's own: set it where it differs from the last one set.
+        if getattr(_threads_set, "count", None) != count:
+            numba.set_num_threads(count)
+            _threads_set.count = count
         kernel(*arguments)

@@ -964,3 +964,29 @@ def test_compile_helpers_find_what_this_process_imports_from(tmp_path, monkeypat
     done = subprocess.run([sys.executable, "-S", "-c", "import numpy, numba; print('ok')"], env=environment,
                           capture_output=True, text=True, timeout=120)
     assert done.stdout.strip() == "ok", done.stderr
+
+
+def test_each_run_gets_the_thread_count_asked_for_on_every_thread():
+    """kernels.run sets numba's count only where the calling thread's differs from the last it
+    set: every call still runs on the count asked for, on this thread and on new ones."""
+    import threading
+
+    import numba
+
+    kernels.status()
+    if kernels.compiled() is None:
+        pytest.skip("the compiled kernels are not available here (the numpy fallback runs)")
+    seen = []
+
+    def record():
+        seen.append(numba.get_num_threads())
+
+    most = numba.config.NUMBA_NUM_THREADS
+    asked = [1, 1, 2, 0, 1]
+    for threads in asked:
+        kernels.run(record, threads)
+    worker = threading.Thread(target=lambda: [kernels.run(record, t) for t in (1, 0)])
+    worker.start()
+    worker.join()
+    expected = [min(t or os.cpu_count(), most) for t in asked + [1, 0]]
+    assert seen == expected
