@@ -193,6 +193,8 @@ importlib.import_module(package + ".kernels")._helper_main(cache_dir, claims)
 
 
 def _helper_count() -> int:
+    if not sys.executable:  # an embedded interpreter that cannot start another
+        return 0
     wanted = os.environ.get(HELPERS_SWITCH, "").strip()
     most = int(wanted) if wanted.isdigit() else MAX_COMPILE_HELPERS
     return max(0, min(most, (os.cpu_count() or 1) - 1))
