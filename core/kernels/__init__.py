@@ -417,6 +417,8 @@ def _warm_up_steps(module, table_module, sample_module, image_module, light_modu
         partial(light_module.emitter_add, index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3))),
         partial(light_module.footprint_curvature, footprint, three, 0.5, np.zeros(1, bool)),
         raster,
+        partial(raster_module.uv_checks, np.zeros((1, 3, 2)), 1, 1, 1e-6, 1e-12, np.zeros(1, bool),
+                np.zeros(1, np.int8), np.zeros(1, np.int8)),
         partial(prep_module.close_entries, words, base, objects, np.zeros(1, np.uint16), DISTANCE_VALUES,
                 np.ones(1, np.float32), np.zeros(0), np.zeros(2, np.int64), np.zeros(0, np.int64),
                 np.zeros(0, np.int64), False),

@@ -207,3 +207,40 @@ def gather_claims(chosen, owner, weight, pixel, triangle, barycentric, coverage)
             barycentric[k, 1] = weight[i, 1]
             barycentric[k, 2] = weight[i, 2]
             k += 1
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def uv_checks(uv, width, height, slack, ratio, degenerate, non_finite, outside):
+    """What core.sampling.atlas.uv_layout_stats counts, per triangle, in parallel: whether it
+    is degenerate at ``width`` x ``height`` texels (core.sampling.raster.degenerate_uv_triangles:
+    the test :func:`_triangle_claims` starts with, in its float64 operations), how many of its
+    corners are not finite, and how many finite ones lie outside [-slack, 1 + slack].
+
+    uv : (m, 3, 2) float64; slack : tolerances' UV_RANGE_SLACK; ratio : DEGENERATE_TRIANGLE_RATIO.
+    Outputs degenerate (m,) bool, non_finite (m,) int8, outside (m,) int8.
+    """
+    w, h = np.float64(width), np.float64(height)
+    low, high = -slack, 1.0 + slack
+    for t in nb.prange(uv.shape[0]):
+        bad, away = 0, 0
+        for corner in range(3):
+            u, v = uv[t, corner, 0], uv[t, corner, 1]
+            if _finite(u) and _finite(v):
+                if u < low or u > high or v < low or v > high:
+                    away += 1
+            else:
+                bad += 1
+        non_finite[t] = bad
+        outside[t] = away
+        c0x, c0y = uv[t, 0, 0] * w, uv[t, 0, 1] * h
+        c1x, c1y = uv[t, 1, 0] * w, uv[t, 1, 1] * h
+        c2x, c2y = uv[t, 2, 0] * w, uv[t, 2, 1] * h
+        if not (_finite(c0x) and _finite(c0y) and _finite(c1x) and _finite(c1y) and _finite(c2x) and _finite(c2y)):
+            degenerate[t] = True
+            continue
+        area = (c1x - c0x) * (c2y - c0y) - (c1y - c0y) * (c2x - c0x)
+        e0x, e0y = c1x - c0x, c1y - c0y
+        e1x, e1y = c2x - c1x, c2y - c1y
+        e2x, e2y = c0x - c2x, c0y - c2y
+        longest = max(e0x * e0x + e0y * e0y, e1x * e1x + e1y * e1y, e2x * e2x + e2y * e2y)
+        degenerate[t] = not (_finite(area) and _finite(longest) and abs(area) > ratio * longest)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import kernels
 from .. import tolerances as tol
 from ..errors import UnwrapFailed
 from ..geometry import edge_cross, triangle_areas
@@ -101,15 +102,27 @@ def uv_layout_stats(corner_uv: np.ndarray, width: int, height: int) -> UVLayoutS
     corners = np.asarray(corner_uv, dtype=np.float64)
     if corners.ndim != 3 or corners.shape[1:] != (3, 2):
         raise ValueError(f"corner_uv must have shape (m, 3, 2), got {corners.shape}")
-    finite = np.isfinite(corners).all(axis=2)
-    with np.errstate(invalid="ignore"):
-        outside = ((corners < -tol.UV_RANGE_SLACK) | (corners > 1.0 + tol.UV_RANGE_SLACK)).any(axis=2)
     raster = rasterize(corners, width, height, load_kernels=False)
+    # As the raster: the kernels only where this process has loaded them (this check runs on
+    # Blender's main thread, before a bake's kernels stage).
+    module = kernels.compiled() if kernels.tried() else None
+    if module is not None:
+        count = corners.shape[0]
+        degenerate, non_finite, outside = np.empty(count, bool), np.empty(count, np.int8), np.empty(count, np.int8)
+        kernels.run(module.uv_checks, 0, np.ascontiguousarray(corners), int(width), int(height), tol.UV_RANGE_SLACK,
+                    tol.DEGENERATE_TRIANGLE_RATIO, degenerate, non_finite, outside)
+        non_finite_corners, out_of_range_corners = int(non_finite.sum()), int(outside.sum())
+    else:
+        finite = np.isfinite(corners).all(axis=2)
+        with np.errstate(invalid="ignore"):
+            away = ((corners < -tol.UV_RANGE_SLACK) | (corners > 1.0 + tol.UV_RANGE_SLACK)).any(axis=2)
+        degenerate = degenerate_uv_triangles(corners, width, height)
+        non_finite_corners, out_of_range_corners = int(np.count_nonzero(~finite)), int(np.count_nonzero(away & finite))
     return UVLayoutStats(
         triangles=int(corners.shape[0]),
-        non_finite_corners=int(np.count_nonzero(~finite)),
-        out_of_range_corners=int(np.count_nonzero(outside & finite)),
-        zero_area_triangles=int(np.count_nonzero(degenerate_uv_triangles(corners, width, height))),
+        non_finite_corners=non_finite_corners,
+        out_of_range_corners=out_of_range_corners,
+        zero_area_triangles=int(np.count_nonzero(degenerate)),
         covered_texels=int(raster.pixel.size),
         overlap_texels=int(raster.overlap_count),
     )

@@ -990,3 +990,32 @@ def test_each_run_gets_the_thread_count_asked_for_on_every_thread():
     worker.join()
     expected = [min(t or os.cpu_count(), most) for t in asked + [1, 0]]
     assert seen == expected
+
+
+def test_compiled_uv_layout_counts_are_numpy_s(monkeypatch):
+    """core.sampling.atlas.uv_layout_stats through the kernel and in numpy: random UVs, some
+    outside [0, 1] by less and by more than the slack, non-finite corners, zero-area and
+    sliver triangles at the degenerate ratio, at two atlas sizes."""
+    from core import tolerances as tol
+    from core.sampling.atlas import uv_layout_stats
+
+    kernels.status()
+    if kernels.compiled() is None:
+        pytest.skip("the compiled kernels are not available here (the numpy fallback runs)")
+    rng = np.random.default_rng(23)
+    # Small triangles (the raster holds every claim at once) about centres across the atlas.
+    uv = rng.uniform(-0.01, 1.01, size=(5000, 1, 2)) + rng.uniform(-0.02, 0.02, size=(5000, 3, 2))
+    uv[:50, 0, 0] = 1.0 + tol.UV_RANGE_SLACK * rng.uniform(0.5, 1.5, 50)
+    uv[50:60, 1] = np.nan
+    uv[60:70, 2, 1] = np.inf
+    uv[70:80, 1] = uv[70:80, 0]
+    sliver = np.arange(80, 400)
+    uv[sliver, 2] = (uv[sliver, 0] + uv[sliver, 1]) / 2 + rng.uniform(-1e-7, 1e-7, (len(sliver), 2))
+    for width, height in ((64, 64), (4096, 512)):
+        compiled = uv_layout_stats(uv, width, height)
+        monkeypatch.setattr(kernels, "_module", None)
+        reference = uv_layout_stats(uv, width, height)
+        monkeypatch.undo()
+        assert compiled == reference
+        assert reference.non_finite_corners == 20 and reference.out_of_range_corners > 100
+        assert 20 < reference.zero_area_triangles < 350
