@@ -220,8 +220,8 @@ def object_key(mesh: Mesh) -> str:
     inputs = (mesh.positions, mesh.triangles, mesh.mode, mesh.corner_normals, mesh.uv_maps.get(mesh.bake_uv_map),
               tuple(int(r) for r in mesh.resolution))
     kept = getattr(mesh, "_object_key", None)
-    if kept is not None and len(kept[0]) == len(inputs) and all(a is b or (not isinstance(a, np.ndarray) and a == b)
-                                                                for a, b in zip(kept[0], inputs)):
+    if kept is not None and all(a is b or not isinstance(a, np.ndarray) and not isinstance(b, np.ndarray) and a == b
+                                for a, b in zip(kept[0], inputs)):
         return kept[1]
     key = _object_key(mesh)
     mesh._object_key = (inputs, key)

@@ -238,6 +238,7 @@ def test_an_object_key_kept_on_its_mesh_follows_every_array_and_setting_it_hashe
     from core.visibility import cache as module
 
     mesh = quad_mesh("Q", [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    mesh.uv_maps["Other"] = mesh.uv_maps[mesh.bake_uv_map][:, ::-1].copy()
     first = module.object_key(mesh)
     assert module.object_key(mesh) == first == module._object_key(mesh)
     changes = [
@@ -246,9 +247,16 @@ def test_an_object_key_kept_on_its_mesh_follows_every_array_and_setting_it_hashe
         ("uv map", lambda m: m.uv_maps.__setitem__(m.bake_uv_map, m.uv_maps[m.bake_uv_map] * 0.5)),
         ("resolution", lambda m: setattr(m, "resolution", (m.resolution[0] * 2, m.resolution[1]))),
         ("mode", lambda m: setattr(m, "mode", "vertex")),
+        ("a bake UV map where there was none", lambda m: setattr(m, "bake_uv_map", "Other")),
     ]
     for name, change in changes:
         changed = dataclasses.replace(mesh, uv_maps=dict(mesh.uv_maps))
         changed._object_key = mesh._object_key
         change(changed)
         assert module.object_key(changed) == module._object_key(changed) != first, name
+    # A vertex-mode mesh without its bake UV map, then with one (which vertex keys do not
+    # hash): the kept key's None is compared with an array without asking numpy for a truth.
+    vertex = dataclasses.replace(mesh, mode="vertex", bake_uv_map="None yet", uv_maps=dict(mesh.uv_maps))
+    before = module.object_key(vertex)
+    vertex.uv_maps["None yet"] = mesh.uv_maps[mesh.bake_uv_map]
+    assert module.object_key(vertex) == module._object_key(vertex) == before
