@@ -232,8 +232,8 @@ def _helper_main(cache_dir: str, claims: str) -> None:
 
 
 def _warm_up_shared(modules, package: str, cache_dir: str) -> tuple[int, int]:
-    """:func:`_warm_up`, shared with helper processes when its first kernel was not in the
-    cache (a first load after an install or an update): each process claims steps in turn
+    """Run every warm-up step (:func:`_warm_up_steps`), shared with helper processes when its
+    first kernel was not in the cache (a first load after an install or an update): each process claims steps in turn
     (:func:`_claim`), and this one then runs the helpers' steps once they are done, which
     reads what they compiled (or compiles it, where a helper stopped). Returns (kernels
     compiled, helper processes that finished their share)."""
@@ -436,16 +436,6 @@ def _kernel_functions(*modules) -> list:
     """Every compiled kernel of ``modules`` (numba dispatchers), in a fixed order."""
     return [value for module in modules for name, value in sorted(vars(module).items())
             if hasattr(value, "stats") and hasattr(value, "py_func") and not name.startswith("_")]
-
-
-def _warm_up(module, table_module, sample_module, image_module, light_module, raster_module, prep_module) -> int:
-    """Compile (or read from the cache) every kernel for the one signature the callers use,
-    by running each on a tiny input (:func:`_warm_up_steps`). Returns how many kernels had to
-    be compiled."""
-    modules = (module, table_module, sample_module, image_module, light_module, raster_module, prep_module)
-    for step in _warm_up_steps(*modules):
-        step()
-    return _compiled_count(modules)
 
 
 @contextlib.contextmanager

@@ -54,9 +54,9 @@ class MeshTriangles:
 
 def _attribute_values(mesh: bpy.types.Mesh, name: str, domain: str, field: str, count: int, width: int, dtype):
     """(count, width) values of the mesh attribute ``name`` on ``domain``, or None where the
-    mesh has no such attribute of that size. Attribute arrays are read in one copy; the per-element collections
-    (``mesh.loop_triangles``, ``mesh.loops``) go through RNA per element, which on a
-    200k-triangle mesh costs 50-90 ms a property (bpy 5.0.1, docs/benchmarks.md part 14)."""
+    mesh has no such attribute of that size. Attribute arrays are read in one copy; the
+    per-element collections (``mesh.loop_triangles``, ``mesh.loops``) go through RNA per
+    element, 50-90 ms a property on a 200k-triangle mesh (bpy 5.0.1, docs/benchmarks.md part 14)."""
     attribute = mesh.attributes.get(name)
     if attribute is None or attribute.domain != domain or len(attribute.data) != count:
         return None
@@ -80,15 +80,12 @@ def read_triangles(mesh: bpy.types.Mesh) -> MeshTriangles:
         triangles = corner_vertex[loops]
     else:
         triangles = read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
-    face_of = (read_values(mesh.loop_triangle_polygons, "value", count, 1, np.int64)
-               if hasattr(mesh, "loop_triangle_polygons") else None)
-    face_material = _attribute_values(mesh, "material_index", "FACE", "value", len(mesh.polygons), 1, np.int32)
-    if face_of is None:
+    if not hasattr(mesh, "loop_triangle_polygons"):
         material_index = read_values(mesh.loop_triangles, "material_index", count, 1, np.int32)
-    elif face_material is None:
-        material_index = np.zeros(count, np.int32)
     else:
-        material_index = face_material[face_of]
+        face_material = _attribute_values(mesh, "material_index", "FACE", "value", len(mesh.polygons), 1, np.int32)
+        material_index = (np.zeros(count, np.int32) if face_material is None else
+                          face_material[read_values(mesh.loop_triangle_polygons, "value", count, 1, np.int64)])
     return MeshTriangles(positions, triangles, loops, material_index)
 
 
