@@ -56,16 +56,16 @@ def _libc():
     return _LIBC or None
 
 
-def release_free_heap() -> None:
+def release_free_heap(above: int = TRIM_FREE_BYTES) -> None:
     """Hand the allocator's free memory back to the system where it holds more than
-    TRIM_FREE_BYTES (glibc's ``malloc_trim``; nothing elsewhere). Numpy's arrays under glibc's
+    ``above`` bytes (glibc's ``malloc_trim``; nothing elsewhere). Numpy's arrays under glibc's
     mmap threshold, which rises to 32 MiB once larger arrays are freed, come from the heap,
     whose free pages glibc keeps: between the passes of a Production bake that is a few hundred
     megabytes of resident memory holding nothing. A call takes milliseconds; a fixed threshold
     instead cost 20% of a Production bake's time in page faults (docs/benchmarks.md, speed
     part 10)."""
     libc = _libc()
-    if libc is not None and libc.mallinfo2().fordblks > TRIM_FREE_BYTES:
+    if libc is not None and libc.mallinfo2().fordblks > above:
         libc.malloc_trim(0)
 
 
