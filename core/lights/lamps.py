@@ -8,6 +8,7 @@ distance. Shadowing is applied by the caller (fractions or exact rays).
 from __future__ import annotations
 
 import copy
+import itertools
 from collections.abc import Iterator
 from dataclasses import dataclass, fields, replace
 
@@ -151,9 +152,10 @@ def centre_probe(light: Light, position: np.ndarray) -> tuple[np.ndarray, np.nda
     return offset / np.maximum(distance, 1e-12)[:, None], distance
 
 
-def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Shadow-ray targets that tell a penumbra from full light or full shadow: the lamp's
-    centre and points on its outline, as [(to_light (K, 3) unit, distance (K,))].
+    centre and points on its outline, as (to_light (K, 3) unit, distance (K,)) one after the
+    other (each is made when asked for: at the demo's 403k texels they are 12 MiB each).
 
     An occluder edge that is straight at the lamp's scale and crosses the lamp separates
     two of them: a rectangle's four corners always are, and eight points on a round
@@ -166,37 +168,36 @@ def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> 
         axis = np.broadcast_to(-np.asarray(light.direction, np.float64), position.shape)
         tangent, bitangent = orthonormal_frame(np.ascontiguousarray(axis))
         half = light.angle / 2.0
-        probes = [(np.array(axis), np.full(len(position), np.inf))]
+        yield np.array(axis), np.full(len(position), np.inf)
         for k in range(8):
             phi = (rotation + k * np.pi / 4.0)[:, None]
             direction = np.cos(half) * axis + np.sin(half) * (np.cos(phi) * tangent + np.sin(phi) * bitangent)
-            probes.append((direction, np.full(len(position), np.inf)))
-        return probes
+            yield direction, np.full(len(position), np.inf)
+        return
     if light.kind == "AREA":
         axis_x = 0.5 * light.size_x * np.asarray(light.axis_x, np.float64)
         axis_y = 0.5 * light.size_y * np.asarray(light.axis_y, np.float64)
         if light.area_shape in ("DISK", "ELLIPSE"):
             angles = rotation[:, None] + np.arange(8) * np.pi / 4.0
-            targets = [centre + np.cos(angles[:, k:k + 1]) * axis_x + np.sin(angles[:, k:k + 1]) * axis_y
-                       for k in range(8)]
+            targets = (centre + np.cos(angles[:, k:k + 1]) * axis_x + np.sin(angles[:, k:k + 1]) * axis_y
+                       for k in range(8))
         else:
-            targets = [centre + sx * axis_x + sy * axis_y for sx in (-1, 1) for sy in (-1, 1)]
-        targets = [centre] + targets
+            targets = (centre + sx * axis_x + sy * axis_y for sx in (-1, 1) for sy in (-1, 1))
+        targets = itertools.chain([centre], targets)
     else:
         # A point or spot lamp: the disk of its radius facing the receiver (a sphere's outline
         # is a little smaller; outside it a probe only errs towards "penumbra").
         towards = position - centre
         tangent, bitangent = orthonormal_frame(towards / np.maximum(np.linalg.norm(towards, axis=1), 1e-300)[:, None])
-        targets = [np.broadcast_to(centre, position.shape)]
-        for k in range(8):
-            phi = (rotation + k * np.pi / 4.0)[:, None]
-            targets.append(centre + light.radius * (np.cos(phi) * tangent + np.sin(phi) * bitangent))
-    probes = []
+        del towards
+        targets = itertools.chain(
+            [np.broadcast_to(centre, position.shape)],
+            (centre + light.radius * (np.cos(phi) * tangent + np.sin(phi) * bitangent)
+             for phi in ((rotation + k * np.pi / 4.0)[:, None] for k in range(8))))
     for target in targets:
         offset = target - position
         distance = np.linalg.norm(offset, axis=1)
-        probes.append((offset / np.maximum(distance, 1e-12)[:, None], distance))
-    return probes
+        yield offset / np.maximum(distance, 1e-12)[:, None], distance
 
 
 def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray, area_light_samples: int = 8,

@@ -2,6 +2,8 @@
 from the paper's shadow fractions or from exact shadow rays."""
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from .. import kernels
@@ -267,28 +269,33 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
     # Each sample turns its round outline by its own scramble, so missed caps do not align.
     rotation = (lamp.scrambles[0] >> np.uint32(8)) * (2.0 * np.pi * 2.0 ** -24)
     footprint = lamp.footprint
-    if not lamp.point_lamp:
-        probes = [(to_light, distance, None)
-                  for to_light, distance in outline_probes(light, samples.position, rotation)]
-    else:
-        # A lamp without extent has no outline: its centre, from the sample or from the corners.
-        probes = [] if footprint is not None else [(*centre_probe(light, samples.position), None)]
-    if footprint is not None and samples.footprint_corners is not None:
-        for corner in range(FOOTPRINT_PROBES):
-            moved = samples.position + samples.footprint_corners[:, corner]
-            to_light, distance = centre_probe(light, moved)
-            probes.append((to_light, distance, moved))
-    requests = []
-    for to_light, distance, moved in probes:
-        aimed = np.einsum("kd,kd->k", to_light, samples.normal) > 0.0
-        if receives is not None:
-            aimed &= receives
-        local = np.nonzero(aimed)[0]
-        if len(local):
-            # A probe carries no light: only its rays are traced.
-            requests.append((LightContribution(None, to_light, distance, moved), local, local))
+
+    def probes():
+        # One probe's arrays at a time (each (K, 3) float64, 9 MiB at the demo's 403k
+        # texels): made as they are traced, not all thirteen kept side by side.
+        if not lamp.point_lamp:
+            yield from ((to_light, distance, None)
+                        for to_light, distance in outline_probes(light, samples.position, rotation))
+        elif footprint is None:
+            # A lamp without extent has no outline: its centre, from the sample or from the corners.
+            yield (*centre_probe(light, samples.position), None)
+        if footprint is not None and samples.footprint_corners is not None:
+            for corner in range(FOOTPRINT_PROBES):
+                moved = samples.position + samples.footprint_corners[:, corner]
+                yield (*centre_probe(light, moved), moved)
+
+    def requests():
+        for to_light, distance, moved in probes():
+            aimed = np.einsum("kd,kd->k", to_light, samples.normal) > 0.0
+            if receives is not None:
+                aimed &= receives
+            local = np.nonzero(aimed)[0]
+            if len(local):
+                # A probe carries no light: only its rays are traced.
+                yield LightContribution(None, to_light, distance, moved), local, local
+
     rays = 0
-    for (_, local, _), blocked in zip(requests, trace_shadow_rays_together(blockers, samples, requests)):
+    for (_, local, _), blocked in trace_shadow_rays_streamed(blockers, samples, requests()):
         seen_blocked[local[blocked]] = True
         seen_open[local[~blocked]] = True
         rays += len(local)
@@ -373,26 +380,39 @@ def trace_shadow_rays_together(blockers, samples: SampleSet, requests: list) -> 
     where a request has a few hundred rays (a shadow edge's 64 points each trace only the
     texels the edge crosses). A ray's answer does not depend on the rays beside it, so the
     answers are those of one query per request. Returns (len(rays),) bool per request."""
-    answers: list[np.ndarray] = []
+    return [blocked for _, blocked in trace_shadow_rays_streamed(blockers, samples, requests)]
+
+
+def trace_shadow_rays_streamed(blockers, samples: SampleSet, requests) -> Iterator[tuple[tuple, np.ndarray]]:
+    """:func:`trace_shadow_rays_together` of an iterable of requests, taken one at a time:
+    yields (request, (len(rays),) bool) in their order as each batch is traced, so a request
+    and its rays are let go once answered, not all kept until the last is made."""
     batch: list[tuple] = []
+    taken: list[tuple] = []
     queued = 0
 
     def trace_batch():
         if len(batch) == 1:
-            answers.append(blockers.occluded(*batch[0]))
+            answers = [blockers.occluded(*batch[0])]
         elif batch:
             blocked = blockers.occluded(*(np.concatenate([rays[i] for rays in batch]) for i in range(3)))
-            answers.extend(np.split(blocked, np.cumsum([len(rays[0]) for rays in batch])[:-1]))
+            answers = np.split(blocked, np.cumsum([len(rays[0]) for rays in batch])[:-1])
+        else:
+            answers = []
+        done = list(zip(taken, answers))
         batch.clear()
+        taken.clear()
+        return done
 
-    for part, rays, sample_rows in requests:
+    for request in requests:
+        part, rays, sample_rows = request
         if queued and queued + len(rays) > SHADOW_BATCH_RAYS:
-            trace_batch()
+            yield from trace_batch()
             queued = 0
         batch.append(shadow_rays(blockers, samples, part, rays, sample_rows))
+        taken.append(request)
         queued += len(rays)
-    trace_batch()
-    return answers
+    yield from trace_batch()
 
 
 # The most shadow rays :func:`trace_shadow_rays_together` traces in one query (about 14 MB
