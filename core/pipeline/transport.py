@@ -162,14 +162,20 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             result.direct += part
     gathered = np.zeros((len(p.position), 3 * count))
     direct = wide([r.direct for r in results])
-    albedo = np.tile(p.albedo, count)
+    # (K, 3 * count) float64: what each sample reflects of a unit of light, per group.
+    reflectance = np.tile(p.albedo, count) / np.pi
     correction = None
     for bounce in range(1, bounces + 1):
-        if not np.any(direct + gathered > 0):
+        # In place, each (K, 3 * count) array made once: at the demo's 403k texels each one is
+        # 9 MiB, and the gathers are where a bake holds the most beside its table.
+        reflected = direct + gathered
+        if not np.any(reflected > 0):
             skipped.append(f"bounce {bounce} and later: no light left to reflect")
             break
+        del gathered
         # Rays land only on what is not buried under other geometry (core.transport.contacts).
-        reflected_atlas = p.lookup_atlas(albedo / np.pi * (direct + gathered), dilate)
+        reflected_atlas = p.lookup_atlas(np.multiply(reflectance, reflected, out=reflected), dilate)
+        del reflected
         gathered = timed_gather(f"gather of bounce {bounce}", GatherSource(reflected_atlas, np.zeros(3 * count)),
                                 step_progress(bounce), outputs if bounce == bounces else None)
         gathers += 1
@@ -178,7 +184,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             # b - 1 bounces), so every one gets the same correction of its short hits.
             if correction is None:
                 short, lamp_direct, at_hits = contacts
-                correction = contact_correction(short, p.layout, p.lookup_atlas(albedo / np.pi * lamp_direct, dilate),
+                correction = contact_correction(short, p.layout, p.lookup_atlas(reflectance * lamp_direct, dilate),
                                                 at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
             gathered += correction
     if bounces and p.rotations is not None and np.any(gathered):

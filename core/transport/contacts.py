@@ -261,10 +261,19 @@ def close_entries(p, target_reach: np.ndarray, sample_reach: np.ndarray | None =
         rows = slice(starts[i], starts[i + 1])
         cosine[rows] = normals[sample[rows]] @ directions[i]
     weight = np.maximum(cosine, 0.0) * p.gather_scale().astype(np.float32)[sample]
+    del cosine, normals
     keep = weight > 0
     if not keep.any():
         return None
-    return CloseEntries(sample[keep], direction[keep], weight[keep], obj[keep], uv[keep], floor[keep])
+    # Each array is let go as soon as its kept part is taken: the whole ones and the kept ones
+    # side by side were the demo's highest memory.
+    sample = sample[keep]
+    direction = direction[keep]
+    weight = weight[keep]
+    obj = obj[keep]
+    uv = uv[keep]
+    floor = floor[keep]
+    return CloseEntries(sample, direction, weight, obj, uv, floor)
 
 
 def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray | None = None) -> CloseEntries | None:
@@ -273,7 +282,7 @@ def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray |
 
 
 # Landing points :func:`find_short_hits` works out at a time.
-LANDING_CHUNK = 1 << 19
+LANDING_CHUNK = 1 << 17
 
 
 def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None:
