@@ -1,12 +1,13 @@
-"""Where a bake's memory goes: ``python benchmarks/memory_peak.py [--resident-only] demo --out DIR``
-(then any arguments of ``tools/visibake.py``).
+"""Where a bake's memory goes: ``python benchmarks/memory_peak.py [--resident-only | --window NAME]
+demo --out DIR`` (then any arguments of ``tools/visibake.py``).
 
 Prints the process's resident memory once bpy, the extension and the compiled kernels are
 loaded (before any scene), then runs the command under ``tracemalloc`` and prints the highest
 resident and traced memory in each stage and pass of the bake (the resident figure split into its
 anonymous and file-backed parts at that moment: a table in a scratch file's mapping, and the
 libraries' code, are the latter), and the largest allocations alive at its highest traced moment,
-grouped by where they were made. ``--resident-only`` leaves
+grouped by where they were made (``--window NAME``: its highest traced moment inside the windows
+whose name contains NAME, such as ``transport``). ``--resident-only`` leaves
 tracemalloc off (the resident figures are then a plain run's). tracemalloc
 sees numpy's arrays; its own bookkeeping makes the run slower and its peak RSS higher than a
 plain run's.
@@ -23,6 +24,8 @@ import tracemalloc
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # Snapshots are taken each time the traced total has grown by this much since the last one.
 SNAPSHOT_STEP_BYTES = 64 << 20
+# The same inside a ``--window``, finer: the window's peak is usually not far above its start.
+WINDOW_STEP_BYTES = 8 << 20
 POLL_SECONDS = 0.05
 
 
@@ -50,6 +53,9 @@ def main(argv: list[str]) -> int:
     resident_only = bool(argv) and argv[0] == "--resident-only"
     if resident_only:
         argv = argv[1:]
+    window_wanted = ""
+    if len(argv) > 1 and argv[0] == "--window":
+        window_wanted, argv = argv[1], argv[2:]
     extension = visibake.load_extension()
     extension.core.kernels.status()
     print(f"before any scene (bpy, the extension, the kernels): {resident_mib():.0f} MiB")
@@ -75,9 +81,13 @@ def main(argv: list[str]) -> int:
         if tracemalloc.is_tracing():
             tracemalloc.reset_peak()
 
+    # Which window the bake is in now (a pass's window is named when it closes, so a pass inside
+    # the wanted stage counts as that stage's).
+    current = {"name": "(start)"}
+
     def start_and_note(stages, name):
         close(f"stage {getattr(stages, '_noted_stage', '(start)')}")
-        stages._noted_stage = name
+        stages._noted_stage = current["name"] = name
         return start_stage(stages, name)
 
     def record_and_note(stages, name, *arguments):
@@ -91,10 +101,11 @@ def main(argv: list[str]) -> int:
     def watch():
         while not done.is_set():
             watch_resident()
-            if not resident_only:
-                current, _ = tracemalloc.get_traced_memory()
-                if current > highest["bytes"] + SNAPSHOT_STEP_BYTES:
-                    highest["bytes"], highest["snapshot"] = current, tracemalloc.take_snapshot()
+            if not resident_only and window_wanted in current["name"]:
+                traced, _ = tracemalloc.get_traced_memory()
+                step = SNAPSHOT_STEP_BYTES if not window_wanted else WINDOW_STEP_BYTES
+                if traced > highest["bytes"] + step:
+                    highest["bytes"], highest["snapshot"] = traced, tracemalloc.take_snapshot()
             time.sleep(POLL_SECONDS)
 
     watcher = threading.Thread(target=watch, daemon=True)
