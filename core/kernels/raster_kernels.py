@@ -48,6 +48,21 @@ def _clip(value, low, high):
     return min(max(value, low), high)
 
 
+@nb.njit(inline="always")
+def _live_area(c0x, c0y, c1x, c1y, c2x, c2y, ratio):
+    """Twice the signed area of the triangle with corners c0, c1, c2 (texel units), and
+    whether it is live: finite corners, and an area above ``ratio`` times its longest squared
+    edge (core.sampling.raster.degenerate_uv_triangles' test, in its float64 operations)."""
+    if not (_finite(c0x) and _finite(c0y) and _finite(c1x) and _finite(c1y) and _finite(c2x) and _finite(c2y)):
+        return 0.0, False
+    area = (c1x - c0x) * (c2y - c0y) - (c1y - c0y) * (c2x - c0x)
+    e0x, e0y = c1x - c0x, c1y - c0y
+    e1x, e1y = c2x - c1x, c2y - c1y
+    e2x, e2y = c0x - c2x, c0y - c2y
+    longest = max(e0x * e0x + e0y * e0y, e1x * e1x + e1y * e1y, e2x * e2x + e2y * e2y)
+    return area, _finite(area) and _finite(longest) and abs(area) > ratio * longest
+
+
 @nb.njit
 def _triangle_claims(uv, t, width, height, eps, margin, ratio, at, pixel, owner, strict, weight, write):
     """Count triangle ``t``'s claims, and with ``write`` store them from index ``at`` on."""
@@ -55,14 +70,8 @@ def _triangle_claims(uv, t, width, height, eps, margin, ratio, at, pixel, owner,
     c0x, c0y = uv[t, 0, 0] * w, uv[t, 0, 1] * h
     c1x, c1y = uv[t, 1, 0] * w, uv[t, 1, 1] * h
     c2x, c2y = uv[t, 2, 0] * w, uv[t, 2, 1] * h
-    if not (_finite(c0x) and _finite(c0y) and _finite(c1x) and _finite(c1y) and _finite(c2x) and _finite(c2y)):
-        return 0
-    area = (c1x - c0x) * (c2y - c0y) - (c1y - c0y) * (c2x - c0x)
-    e0x, e0y = c1x - c0x, c1y - c0y
-    e1x, e1y = c2x - c1x, c2y - c1y
-    e2x, e2y = c0x - c2x, c0y - c2y
-    longest = max(e0x * e0x + e0y * e0y, e1x * e1x + e1y * e1y, e2x * e2x + e2y * e2y)
-    if not (_finite(area) and _finite(longest) and abs(area) > ratio * longest):
+    area, live = _live_area(c0x, c0y, c1x, c1y, c2x, c2y, ratio)
+    if not live:
         return 0
 
     # The grown corners and row spans are finite: a live triangle's corners differ by less than
@@ -212,8 +221,8 @@ def gather_claims(chosen, owner, weight, pixel, triangle, barycentric, coverage)
 @nb.njit(**KERNEL_OPTIONS)
 def uv_checks(uv, width, height, slack, ratio, degenerate, non_finite, outside):
     """What core.sampling.atlas.uv_layout_stats counts, per triangle, in parallel: whether it
-    is degenerate at ``width`` x ``height`` texels (core.sampling.raster.degenerate_uv_triangles:
-    the test :func:`_triangle_claims` starts with, in its float64 operations), how many of its
+    is degenerate at ``width`` x ``height`` texels (:func:`_live_area`, the test
+    :func:`_triangle_claims` starts with), how many of its
     corners are not finite, and how many finite ones lie outside [-slack, 1 + slack].
 
     uv : (m, 3, 2) float64; slack : tolerances' UV_RANGE_SLACK; ratio : DEGENERATE_TRIANGLE_RATIO.
@@ -235,12 +244,4 @@ def uv_checks(uv, width, height, slack, ratio, degenerate, non_finite, outside):
         c0x, c0y = uv[t, 0, 0] * w, uv[t, 0, 1] * h
         c1x, c1y = uv[t, 1, 0] * w, uv[t, 1, 1] * h
         c2x, c2y = uv[t, 2, 0] * w, uv[t, 2, 1] * h
-        if not (_finite(c0x) and _finite(c0y) and _finite(c1x) and _finite(c1y) and _finite(c2x) and _finite(c2y)):
-            degenerate[t] = True
-            continue
-        area = (c1x - c0x) * (c2y - c0y) - (c1y - c0y) * (c2x - c0x)
-        e0x, e0y = c1x - c0x, c1y - c0y
-        e1x, e1y = c2x - c1x, c2y - c1y
-        e2x, e2y = c0x - c2x, c0y - c2y
-        longest = max(e0x * e0x + e0y * e0y, e1x * e1x + e1y * e1y, e2x * e2x + e2y * e2y)
-        degenerate[t] = not (_finite(area) and _finite(longest) and abs(area) > ratio * longest)
+        degenerate[t] = not _live_area(c0x, c0y, c1x, c1y, c2x, c2y, ratio)[1]

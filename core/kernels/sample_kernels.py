@@ -322,16 +322,14 @@ def face_frames(positions, triangles, ratio, normals, valid, areas):
         cy = az * bx - ax * bz
         cz = ax * by - ay * bx
         length = _edge_length(cx, cy, cz)
-        # np.maximum's NaN: a NaN edge makes the longest edge NaN.
-        longest = _edge_length(ax, ay, az)
-        second = _edge_length(positions[i2, 0] - positions[i1, 0], positions[i2, 1] - positions[i1, 1],
-                              positions[i2, 2] - positions[i1, 2])
-        third = _edge_length(positions[i0, 0] - positions[i2, 0], positions[i0, 1] - positions[i2, 1],
-                             positions[i0, 2] - positions[i2, 2])
-        if second > longest or second != second:
-            longest = second if longest == longest else longest
-        if third > longest or third != third:
-            longest = third if longest == longest else longest
+        # A plain max, not np.maximum's NaN rules: a non-finite edge makes the cross product
+        # non-finite too (inf times anything is inf or NaN), so such a triangle fails the
+        # finiteness test below whatever its longest edge is.
+        longest = max(_edge_length(ax, ay, az),
+                      _edge_length(positions[i2, 0] - positions[i1, 0], positions[i2, 1] - positions[i1, 1],
+                                   positions[i2, 2] - positions[i1, 2]),
+                      _edge_length(positions[i0, 0] - positions[i2, 0], positions[i0, 1] - positions[i2, 1],
+                                   positions[i0, 2] - positions[i2, 2]))
         ok = np.isfinite(length) and length > ratio * longest * longest and length > 0
         valid[t] = ok
         if ok:
