@@ -91,3 +91,38 @@ def test_skipped_work_changes_no_requested_output():
     assert any("no requested pass contains indirect light" in line for line in direct_only.report["skipped"])
     for a, b in zip(direct_only.objects, full.objects):
         np.testing.assert_array_equal(a.images["direct"], b.images["direct"])
+
+
+def test_the_objects_samples_and_footprints_are_views_of_the_bake_s_arrays():
+    """prepare holds each object's samples once: its positions, normals and footprints are
+    views into the bake's concatenated arrays (prepare.adopted), with the values it built,
+    and an object without footprint normals (a flat one) reads its own normal at every point."""
+    from core.pipeline.prepare import adopted
+    from core.sampling.samples import build_samples
+    floor = quad_mesh("Floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], resolution=16)
+    wall = quad_mesh("Wall", [(-1, 0, 0), (1, 0, 0), (1, 0, 1), (-1, 0, 1)], resolution=8)
+    p = prepare(Scene([floor, wall], [Light("Sun", "SUN", np.ones(3), 1.0, direction=np.array([0.0, 0.3, -1.0]))]),
+                BakeSettings(directions=16, bounces=0, footprint_samples=4))
+    points, corners, _ = p.footprint
+    for index, (samples, start) in enumerate(zip(p.object_samples, p.sample_offset[:-1])):
+        rows = slice(int(start), int(start) + len(samples))
+        fresh = build_samples(p.meshes[index], 4)
+        for own, whole, built in ((samples.position, p.position, fresh.position),
+                                  (samples.normal, p.normal, fresh.normal),
+                                  (samples.footprint, points, fresh.footprint),
+                                  (samples.footprint_corners, corners, fresh.footprint_corners)):
+            assert np.shares_memory(own, whole)
+            np.testing.assert_array_equal(whole[rows], built)
+
+    class Flat:
+        def __init__(self, normal):
+            self.normal, self.footprint_normals = normal, None
+
+        def __len__(self):
+            return len(self.normal)
+
+    flat = [Flat(np.array([[0.0, 0.0, 1.0]] * 3)), Flat(np.array([[0.0, 1.0, 0.0]] * 2))]
+    normals = adopted(flat, "footprint_normals", (4, 3), np.float32,
+                      lambda s: np.broadcast_to(s.normal.astype(np.float32)[:, None], (len(s), 4, 3)))
+    assert normals.shape == (5, 4, 3) and all(s.footprint_normals is None for s in flat)
+    np.testing.assert_array_equal(normals[3:, 2], [[0.0, 1.0, 0.0]] * 2)
