@@ -239,4 +239,5 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     np.divide(total, np.maximum(count, 1.0)[:, None], out=total)
     np.multiply(total, far_weight[:, None], out=total)
     np.copyto(total, far, where=~(count > 0)[:, None])
-    return np.add(total, near, out=far)
+    # Into the far light's array where it is float64 (numpy's sum is float64 whatever the inputs).
+    return np.add(total, near, out=far if far.dtype == np.float64 else None)
