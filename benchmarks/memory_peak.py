@@ -5,12 +5,12 @@ Prints the process's resident memory once bpy, the extension and the compiled ke
 loaded (before any scene), then runs the command under ``tracemalloc`` and prints the highest
 resident and traced memory in each stage and pass of the bake (the resident figure split into its
 anonymous and file-backed parts at that moment: a table in a scratch file's mapping, and the
-libraries' code, are the latter), and the largest allocations alive at its highest traced moment,
-grouped by where they were made (``--window NAME``: its highest traced moment inside the windows
-whose name contains NAME, such as ``transport``). ``--resident-only`` leaves
-tracemalloc off (the resident figures are then a plain run's). tracemalloc
-sees numpy's arrays; its own bookkeeping makes the run slower and its peak RSS higher than a
-plain run's.
+libraries' code, are the latter; and glibc's heap in use and free then, where glibc runs), and
+the largest allocations alive at its highest traced moment, grouped by where they were made
+(``--window NAME``: its highest traced moment inside the windows whose name contains NAME, such
+as ``transport``). ``--resident-only`` leaves tracemalloc off (the resident figures are then a
+plain run's). tracemalloc sees numpy's arrays; its own bookkeeping makes the run slower and its
+peak RSS higher than a plain run's.
 """
 from __future__ import annotations
 
@@ -64,19 +64,28 @@ def main(argv: list[str]) -> int:
     # The highest resident and traced memory of each window of the bake: a window closes when a
     # stage starts (it was the stage before's) or a pass is recorded (it was that pass's).
     windows = []
-    window = {"resident": 0.0, "anon": 0.0, "file": 0.0}
+    window = {"resident": 0.0, "anon": 0.0, "file": 0.0, "heap": (float("nan"), float("nan"))}
+    libc = importlib.import_module(f"{extension.__name__}.core.pipeline.budget")._libc()
+
+    def heap_parts() -> tuple[float, float]:
+        """glibc's heap in use and free, in MiB (NaN elsewhere): the anonymous memory that
+        holds nothing shows as the latter."""
+        if libc is None:
+            return float("nan"), float("nan")
+        info = libc.mallinfo2()
+        return info.uordblks / 2**20, info.fordblks / 2**20
 
     def watch_resident():
         resident, anon, file = resident_parts()
         if resident > window["resident"]:
-            window.update(resident=resident, anon=anon, file=file)
+            window.update(resident=resident, anon=anon, file=file, heap=heap_parts())
     progress = importlib.import_module(f"{extension.__name__}.core.pipeline.progress")
     start_stage, record_pass = progress.Stages.start, progress.Stages.record_pass
 
     def close(name):
         traced = tracemalloc.get_traced_memory()[1] / 2**20 if tracemalloc.is_tracing() else 0.0
         watch_resident()
-        windows.append((name, window["resident"], window["anon"], window["file"], traced))
+        windows.append((name, window["resident"], window["anon"], window["file"], *window["heap"], traced))
         window.update(resident=0.0, anon=0.0, file=0.0)
         if tracemalloc.is_tracing():
             tracemalloc.reset_peak()
@@ -115,9 +124,9 @@ def main(argv: list[str]) -> int:
     watcher.join()
     close("the rest")
     print("highest memory in each window of the bake (MiB: resident, its anonymous and file-backed parts "
-          "then, and traced):")
-    for name, resident, anon, file, traced in windows:
-        print(f"  {resident:7.0f} {anon:7.0f} {file:7.0f} {traced:7.0f}  {name}")
+          "then, glibc's heap in use and free then, and traced):")
+    for name, resident, anon, file, in_use, free, traced in windows:
+        print(f"  {resident:7.0f} {anon:7.0f} {file:7.0f} {in_use:7.0f} {free:7.0f} {traced:7.0f}  {name}")
     if resident_only:
         return status
     print(f"exit status {status}; traced peak {tracemalloc.get_traced_memory()[1] / 2**20:.0f} MiB; "
