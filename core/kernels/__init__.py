@@ -410,12 +410,19 @@ def _warm_up_steps(module, table_module, sample_module, image_module, light_modu
                              np.zeros((1, 3)), np.zeros(1, np.float32), np.zeros((1, 3))))
         steps.append(partial(light_module.emitter_rays, index, sample_origins, three, np.ones(1), 1.0,
                              sample_origins.copy(), np.zeros((1, 3)), np.zeros(1, np.float32)))
+        steps.append(partial(light_module.hard_lamp_edge_rays, light_module.POINT, np.ones(3),
+                             np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three, three, three, np.zeros(1), footprint,
+                             np.zeros((1, 0, 3), np.float32), 0, np.ones(1, bool), np.ones(3), 1.0, np.zeros(3), False,
+                             np.float32(256.0), np.float32(1.0), np.float32(1.0), np.zeros((1, 1, 3)),
+                             np.zeros((1, 1), bool), sample_origins[None].copy(), np.zeros((1, 1, 3)),
+                             np.zeros((1, 1), np.float32)))
     first = np.zeros(1, np.int64)
     steps += [
         partial(light_module.emitter_patch, three, three, three, np.ones(3), np.ones(3), np.zeros((1, 3)), np.zeros(1),
                 np.zeros(1), np.zeros(1, bool)),
         partial(light_module.emitter_add, index, np.zeros(1, bool), np.ones(1), 1.0, np.ones(3), np.zeros((1, 3))),
         partial(light_module.footprint_curvature, footprint, three, 0.5, np.zeros(1, bool)),
+        partial(light_module.edge_light_add, np.zeros((1, 1, 3)), np.zeros((1, 1), bool), np.zeros((1, 3))),
         raster,
         partial(raster_module.uv_checks, np.zeros((1, 3, 2)), 1, 1, 1e-6, 1e-12, np.zeros(1, bool),
                 np.zeros(1, np.int8), np.zeros(1, np.int8)),

@@ -213,20 +213,95 @@ def shadow_ray_setup(rays, sample_rows, distance, to_light, moved, position, nor
             x = position[s, axis] if from_samples else moved[rays[r], axis]
             if lifted > 0:
                 x = x + lift[r, axis]
-            if centred:
-                x = x - centre[axis]
-            p = np.float32(x)
-            n = np.float32(geometric[s, axis])
-            if abs(p) < origin_limit:
-                stepped = p + float_scale * n
-            else:
-                offset = np.int32(int_scale * n)
-                bits = float32_bits(p)
-                stepped = bits_float32(np.int32(bits - offset) if p < np.float32(0.0) else np.int32(bits + offset))
-            if centred:
-                origins[r, axis] = np.float64(stepped) + centre[axis]
-            else:
-                origins[r, axis] = stepped
+            origins[r, axis] = _origin_axis(x, geometric[s, axis], centre[axis], centred, int_scale, float_scale,
+                                            origin_limit)
+
+
+@nb.njit(inline="always")
+def _origin_axis(x, geometric, centre, centred, int_scale, float_scale, origin_limit):
+    """One coordinate of a ray's origin stepped off the surface along the geometric normal's
+    coordinate (core.visibility.rays.offset_ray_origins' float32 steps), for a ray scene
+    ``centred`` on ``centre`` or at the origin: float64 where centred, float32 otherwise."""
+    if centred:
+        x = x - centre
+    p = np.float32(x)
+    n = np.float32(geometric)
+    if abs(p) < origin_limit:
+        stepped = p + float_scale * n
+    else:
+        offset = np.int32(int_scale * n)
+        bits = float32_bits(p)
+        stepped = bits_float32(np.int32(bits - offset) if p < np.float32(0.0) else np.int32(bits + offset))
+    if centred:
+        return np.float64(stepped) + centre
+    return np.float64(stepped)
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def hard_lamp_edge_rays(kind, centre, direction, cos_half, band, position, normal, geometric, terminator, cutoff,
+                        offsets, point_normals, first, receives, scale, keep, ray_centre, centred, int_scale,
+                        float_scale, origin_limit, irradiance, lit, origins, directions, limits):
+    """Points ``first`` to ``first + J - 1`` of a hard lamp at E samples that a shadow edge
+    crosses, each received at its own point of the samples' dense footprints, and each lit
+    point's shadow ray: in one pass what :func:`hard_lamp_point` then :func:`shadow_ray_setup`
+    give point by point (core.transport.direct._edge_irradiance), bitwise. In parallel over samples.
+
+    kind, centre, direction, cos_half, band, scale : the lamp, as :func:`hard_lamp_point`
+    position, normal, geometric : (E, 3) float64 the samples, their shading and geometric
+        normals; terminator : (E, 3) float64 and cutoff : (E,) float64, or (0, 3) and (0,)
+        where no sample is on a smooth face (core.sampling.terminator)
+    offsets : (E, P, 3) float32 footprint offsets (point j at slot j % P); point_normals :
+        (E, Q, 3) float32 the shading normals there, or (E, 0, 3): the samples' own
+    first : int the first point; receives : (E,) bool the lamp lights the sample (light linking)
+    keep, ray_centre, centred, int_scale, float_scale, origin_limit : as :func:`shadow_ray_setup`
+        (``ray_centre`` its ``centre``)
+    Outputs, (J, E, ...) point by point: irradiance (J, E, 3) float64 unshadowed; lit (J, E)
+    bool (the point gives light above its normal's horizon at a receiving sample); origins
+    (J, E, 3) (float32, or float64 where ``centred``), directions (J, E, 3) float64 and limits
+    (J, E) float32, written where ``lit`` only.
+    """
+    points, normal_points = offsets.shape[1], point_normals.shape[1]
+    smooth = terminator.shape[0] > 0
+    for k in nb.prange(position.shape[0]):
+        for j in range(lit.shape[0]):
+            point = first + j
+            r0, r1, r2, n0, n1, n2, t0, t1, t2, far, value = _hard_point(
+                kind, centre, direction, cos_half, band, position, normal, offsets, point % points, point_normals,
+                point % normal_points if normal_points > 0 else -1, k)
+            gives = False
+            for c in range(3):
+                irradiance[j, k, c] = value * scale[c]
+                gives = gives or irradiance[j, k, c] > 0.0
+            on = gives and _dot(t0, t1, t2, n0, n1, n2) > 0.0 and receives[k]
+            lit[j, k] = on
+            if not on:
+                continue
+            limits[j, k] = np.float32(far * keep if np.isfinite(far) else np.inf)
+            directions[j, k, 0], directions[j, k, 1], directions[j, k, 2] = t0, t1, t2
+            if smooth:
+                amount = _lift_amount(_dot(normal[k, 0], normal[k, 1], normal[k, 2], t0, t1, t2),
+                                      _dot(geometric[k, 0], geometric[k, 1], geometric[k, 2], t0, t1, t2), cutoff[k])
+                r0 = r0 + terminator[k, 0] * amount
+                r1 = r1 + terminator[k, 1] * amount
+                r2 = r2 + terminator[k, 2] * amount
+            origins[j, k, 0] = _origin_axis(r0, geometric[k, 0], ray_centre[0], centred, int_scale, float_scale,
+                                            origin_limit)
+            origins[j, k, 1] = _origin_axis(r1, geometric[k, 1], ray_centre[1], centred, int_scale, float_scale,
+                                            origin_limit)
+            origins[j, k, 2] = _origin_axis(r2, geometric[k, 2], ray_centre[2], centred, int_scale, float_scale,
+                                            origin_limit)
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def edge_light_add(irradiance, lit, light):
+    """Adds each sample's lit points' irradiance (J, E, 3) float64 where ``lit`` (J, E) bool
+    (shadowed points cleared), point by point in order, to ``light`` (E, 3) float64: bitwise
+    the numpy loop's ``light += irradiance[j] * lit[j][:, None]``. In parallel over samples."""
+    for k in nb.prange(light.shape[0]):
+        for j in range(lit.shape[0]):
+            if lit[j, k]:
+                for c in range(3):
+                    light[k, c] += irradiance[j, k, c]
 
 
 @nb.njit(inline="always")

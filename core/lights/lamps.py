@@ -291,9 +291,9 @@ class LampPoints:
         point_normals = (np.zeros((len(self.position), 0, 3), np.float32) if self.footprint_normals is None
                          else np.ascontiguousarray(self.footprint_normals, np.float32))
         pending = np.zeros(len(self.position), bool)
-        kernels.run(module.hard_lamp_decided, self.threads, _KERNEL_KINDS[light_kind.kind],
+        kernels.run(module.hard_lamp_decided, self.threads, KERNEL_KINDS[light_kind.kind],
                     np.asarray(light_kind.position, np.float64), np.asarray(light_kind.direction, np.float64),
-                    *_spot_cone(light_kind), np.ascontiguousarray(self.position, np.float64),
+                    *spot_cone(light_kind), np.ascontiguousarray(self.position, np.float64),
                     np.ascontiguousarray(self.normal, np.float64),
                     np.ascontiguousarray(self.footprint, np.float32), point_normals, self.scale / self.count,
                     np.nonzero(rows)[0].astype(np.int64), np.ascontiguousarray(decided, bool),
@@ -324,14 +324,14 @@ class LampPoints:
 
 # Lamp kinds numbered as core.kernels.light_kernels numbers them (that module imports numba,
 # so it is not imported here).
-_KERNEL_KINDS = {"SUN": 0, "POINT": 1, "SPOT": 2}
+KERNEL_KINDS = {"SUN": 0, "POINT": 1, "SPOT": 2}
 # Stand-ins for the kernel's footprint and receiver arrays where there are none (one
 # signature for all calls).
 _NO_FOOTPRINT = np.zeros((1, 1, 3), np.float32)
 _NO_RECEIVER = np.zeros((0, 3))
 
 
-def _spot_cone(light: Light) -> tuple[float, float]:
+def spot_cone(light: Light) -> tuple[float, float]:
     """A spot's cone as the compiled kernels take it: the cosine of its half angle, and its
     blend band in cosine (<= 0: a hard edge)."""
     cos_half = float(np.cos(light.spot_size / 2.0))
@@ -352,10 +352,10 @@ def _compiled_point(lamp: LampPoints, point: int) -> LightContribution | None:
     point_normals, normal_slot = _NO_FOOTPRINT, -1
     if lamp.footprint_normals is not None:
         point_normals, normal_slot = lamp.footprint_normals, point % lamp.footprint_normals.shape[1]
-    cos_half, band = _spot_cone(light)
+    cos_half, band = spot_cone(light)
     part = LightContribution(np.empty((count, 3)), np.empty((count, 3)), np.empty(count),
                              np.empty((count, 3)) if offset_slot >= 0 else None, np.empty(count, bool))
-    kernels.run(module.hard_lamp_point, lamp.threads, _KERNEL_KINDS[light.kind],
+    kernels.run(module.hard_lamp_point, lamp.threads, KERNEL_KINDS[light.kind],
                 np.asarray(light.position, np.float64), np.asarray(light.direction, np.float64), cos_half, band,
                 np.ascontiguousarray(lamp.position, np.float64), np.ascontiguousarray(lamp.normal, np.float64),
                 np.ascontiguousarray(offsets, np.float32), offset_slot,

@@ -1019,3 +1019,65 @@ def test_compiled_uv_layout_counts_are_numpy_s(monkeypatch):
         assert compiled == reference
         assert reference.non_finite_corners == 20 and reference.out_of_range_corners > 100
         assert 20 < reference.zero_area_triangles < 350
+
+
+@pytest.mark.parametrize("kind", ["SUN", "POINT", "SPOT"])
+@pytest.mark.parametrize("centre", [None, (1000.0, -5.0, 3.0)])
+@pytest.mark.parametrize("smooth", [False, True])
+def test_compiled_shadow_edges_of_a_hard_lamp_are_bitwise_the_point_by_point_loop(monkeypatch, kind, centre, smooth):
+    """A hard lamp's light over the dense footprints of the samples a shadow edge crosses
+    (core.transport.direct._edge_irradiance): one compiled pass of points and shadow rays
+    against the loop of one contribution and one set-up a point, through the kernels and
+    through numpy; a blocker that shadows some points, light linking, points batched (more
+    edge samples than one batch of EDGE_BATCH_ROWS holds for every point), footprint normals,
+    rays lifted towards smooth surfaces, a ray scene at the origin and one centred far away."""
+    from types import SimpleNamespace
+
+    from core.lights import lamps
+    from core.scene import Light
+    from core.transport import direct
+    from core.transport.contract import SampleSet
+    from core.visibility.rays import RayScene
+
+    rng = np.random.default_rng([len(kind), int(smooth), centre is None])
+    offset = np.zeros(3) if centre is None else np.asarray(centre)
+    blocker = np.array([[-2.0, -2.0, 1.0], [-0.2, -2.0, 1.0], [-0.2, 2.0, 1.0], [-2.0, 2.0, 1.0]]) + offset
+    scene = RayScene([(blocker, np.array([[0, 1, 2], [0, 2, 3]]))], 2, None if centre is None else offset)
+    count = 3000
+    position = np.column_stack([rng.uniform(-1, 1, (count, 2)), np.zeros(count)]) + offset
+    geometric = np.tile([0.0, 0.0, 1.0], (count, 1))
+    normal = geometric + 0.05 * rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    terminator = cutoff = None
+    if smooth:
+        terminator = 0.002 * rng.normal(size=(count, 3))
+        cutoff = rng.uniform(0.0, 0.4, count)
+    dense_points = direct.EDGE_FOOTPRINT_POINTS
+
+    def dense_footprint(ids, points):
+        local = np.random.default_rng(ids)  # the same points for the same samples on every call
+        offsets = (local.normal(size=(len(ids), points, 3)) * [0.02, 0.02, 0.0]).astype(np.float32)
+        normals = normal[ids][:, None, :] + 0.05 * local.normal(size=(len(ids), points, 3))
+        return offsets, (normals / np.linalg.norm(normals, axis=2, keepdims=True)).astype(np.float32)
+
+    samples = SampleSet(position, normal, geometric, scene.ray_origins(position, geometric),
+                        terminator=terminator, terminator_cutoff=cutoff, dense_footprint=dense_footprint)
+    direction = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
+    light = Light("Lamp", kind, np.array([1.0, 0.8, 0.5]), 100.0, position=offset + [0.1, 0.0, 2.5],
+                  direction=direction, spot_size=2.0, spot_blend=0.0)
+    shadowing = SimpleNamespace(area_light_samples=8, seed=0, ray_scene=scene)
+    receives = rng.uniform(size=count) < 0.9
+    edges = np.sort(rng.choice(count, 2 * direct.EDGE_BATCH_ROWS // dense_points + 7, replace=False))
+    assert lamps.lamp_points(light, 8) == 1
+    compiled_calls = []
+    compiled_pass = direct._hard_edge_irradiance
+    monkeypatch.setattr(direct, "_hard_edge_irradiance", lambda *a: compiled_calls.append(1) or compiled_pass(*a))
+    ours, our_rays = direct._edge_irradiance(light, samples, edges, shadowing, scene, receives, 16)
+    monkeypatch.setattr(kernels, "_module", None)
+    theirs, their_rays = direct._edge_irradiance(light, samples, edges, shadowing, scene, receives, 16)
+    assert compiled_calls == [1]  # the kernels' pass, then the loop
+    assert our_rays == their_rays > 0
+    np.testing.assert_array_equal(ours, theirs)
+    lit_share = np.mean(ours[:, 0] > 0)
+    assert 0.3 < lit_share < 0.95  # some edge samples shadowed wholly, some not
+    assert np.any((ours[:, 0] > 0) & (ours[:, 0] < np.max(ours[:, 0]) * 0.5))  # and some in part
