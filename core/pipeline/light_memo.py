@@ -60,6 +60,11 @@ class LightMemo:
             while sum(self._size(v) for v in self._entries.values()) > self.limit_bytes:
                 self._entries.popitem(last=False)
 
+    def clear(self) -> None:
+        """Drop everything kept (a preparation that will not be relit again needs none of it)."""
+        with self._lock:
+            self._entries.clear()
+
     def nbytes(self) -> int:
         with self._lock:
             return sum(self._size(v) for v in self._entries.values())

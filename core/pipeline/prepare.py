@@ -99,6 +99,7 @@ class Prepared:
     # computed (drop_direct_inputs).
     relit_once: bool = False
     _direct_inputs_dropped: bool = False
+    _short_hits_dropped: bool = False
     _footprint_shading_dropped: bool = False
 
     def drop_footprint_shading(self) -> None:
@@ -135,10 +136,19 @@ class Prepared:
 
     def drop_direct_inputs(self) -> None:
         """:meth:`drop_footprints`, and let go of the short hits' landing points (about 300 MiB at
-        the Production preset) once their direct light is computed too."""
+        the Production preset) and the smooth faces' shadow-ray lifts once their direct light
+        is computed too."""
         self.drop_footprints()
         if self._short_hits:
             self._short_hits = replace(self._short_hits, points=None)
+        self.terminator = None  # read by the samples' shadow rays alone (sample_set, now gone)
+
+    def drop_short_hits(self) -> None:
+        """Let go of the short hits (22 MiB on the demo) once the contacts' correction is computed,
+        for a preparation relit once (:attr:`relit_once`): every later gather adds that
+        correction and reads no short hit. A later read of them is a bug and raises."""
+        self._short_hits = None
+        self._short_hits_dropped = True
 
     def _check_direct_inputs(self, what: str, shading: bool = False) -> None:
         """Raise where ``what`` is read after the preparation let it go: the footprints, or with
@@ -191,6 +201,9 @@ class Prepared:
     def short_hits(self):
         """The table entries whose rays land close by (core.transport.contacts), found once
         per preparation: they depend on geometry alone. None when there are none."""
+        if self._short_hits_dropped:
+            raise RuntimeError("bug: the short hits read after the preparation let go of them "
+                               "(Prepared.drop_short_hits)")
         if self._short_hits is False:
             self._check_direct_inputs("the footprints the short hits are found from")
             self._short_hits = find_short_hits(self)

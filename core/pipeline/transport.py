@@ -88,7 +88,8 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     for index, group in enumerate(groups):
         irradiance, rays = lamp_light(p, backend, "samples", p.sample_set(), group.lights, reused,
                                       lambda f, i=index: report(lamp_share * (i + f) / count))
-        results.append(Transported(irradiance, np.zeros_like(irradiance), shadow_rays=rays))
+        # The gathered light is set once the gathers are done (a (K, 3) array kept until then).
+        results.append(Transported(irradiance, None, shadow_rays=rays))
     contacts = _contact_light(p, backend, groups, results, stages, skipped, reused, last_direct)
     if last_direct:
         p.drop_direct_inputs()  # the emitters' light below reads neither footprints nor short hits
@@ -104,6 +105,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             irradiance, rays = kept, 0
             reused.add(name)
         results[owner].direct[chosen] += irradiance
+        del irradiance
         results[owner].emitter_rays += rays
         results[owner].emitters_sampled += (name,)
         report(lamp_share + (direct_share - lamp_share) * (number + 1) / len(sampled))
@@ -112,6 +114,9 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
                        "earlier relight of this preparation; its kept light was scaled, no shadow ray traced")
     stages.book("direct", time.perf_counter() - direct_started)
     stages.record_pass(f"direct light ({count} groups)", backend.name, time.perf_counter() - direct_started)
+    if last_direct:
+        # No later relight of this preparation: what the memo kept of its direct light is never read again.
+        p.light_memo.clear()
 
     per_sample_emitting = np.stack([np.repeat(g.emitting, np.diff(p.sample_offset)) for g in groups])
     emissions = [np.where(per_sample_emitting[i][:, None], p.emission, 0.0) for i in range(count)]
@@ -119,6 +124,8 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     gathers_emission = any(np.any(e > 0) for e in emissions) or any(np.any(w > 0) for w in worlds)
     bounces = p.bounces_needed()
     if not (bounces > 0 or gathers_emission):
+        for result in results:
+            result.gathered = np.zeros_like(result.direct)
         return results, 0
     geometry = p.gather_geometry()
     # Only objects with outputs need the last gather's result; the others' radiance
@@ -129,8 +136,8 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     def step_progress(step):
         return lambda fraction: report(direct_share + (1.0 - direct_share) * (step + fraction) / steps)
 
-    def wide(arrays):
-        return np.concatenate(arrays, axis=1)
+    def wide(arrays):  # one group's array as it is (no copy: nothing writes into it)
+        return arrays[0] if len(arrays) == 1 else np.concatenate(arrays, axis=1)
 
     def narrow(array):
         return [array[:, 3 * i:3 * i + 3] for i in range(count)]
@@ -151,15 +158,20 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             emitting_atlas = p.to_atlas(wide(emissions), dilate)
             emitted = _gather_emission(p, timed_gather, emitting_atlas, np.concatenate(worlds, axis=-1), exclude,
                                        step_progress(0), outputs if bounces == 0 else None)
-            emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude))
+            emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude),
+                                              scratch=True)
+            del emitting_atlas
             np.maximum(emitted, 0.0, out=emitted)  # the filter's subtraction may leave -1e-10
-            p.light_memo.put(key, emitted)
+            if not last_direct:
+                p.light_memo.put(key, emitted)
             gathers += 1
         else:
             skipped.append("gather of emitted and world light: emitters and world unchanged since an earlier "
                            "relight of this preparation; its result was kept")
         for result, part in zip(results, narrow(emitted)):
             result.direct += part
+        del emitted
+    del emissions
     gathered = np.zeros((len(p.position), 3 * count))
     direct = wide([r.direct for r in results])
     # (K, 3 * count) float64: what each sample reflects of a unit of light, per group.
@@ -179,18 +191,26 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         gathered = timed_gather(f"gather of bounce {bounce}", GatherSource(reflected_atlas, np.zeros(3 * count)),
                                 step_progress(bounce), outputs if bounce == bounces else None)
         gathers += 1
+        # Every gather looks the lamps' direct light up again (bounce b gathers direct plus
+        # b - 1 bounces), so every one gets the same correction of its short hits, found at the first.
         if contacts is not None:
-            # Every gather looks the lamps' direct light up again (bounce b gathers direct plus
-            # b - 1 bounces), so every one gets the same correction of its short hits.
-            if correction is None:
-                short, lamp_direct, at_hits = contacts
-                correction = contact_correction(short, p.layout, p.lookup_atlas(reflectance * lamp_direct, dilate),
-                                                at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
+            short, lamp_direct, at_hits = contacts
+            correction = contact_correction(short, p.layout, p.lookup_atlas(reflectance * lamp_direct, dilate),
+                                            at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
+            # The correction is all later gathers need of the short hits and their light.
+            contacts = short = lamp_direct = at_hits = None
+            if last_direct:
+                p.drop_short_hits()
+        if correction is not None:
             gathered += correction
+    del direct, reflectance
     if bounces and p.rotations is not None and np.any(gathered):
         # The last gather's near part (its near entries' lookups, and the contacts' correction) stays sharp.
         near = near_light(p, p.near_hits(), reflected_atlas)
-        gathered = reconstruct_interleaved(p, gathered, near if correction is None else near + correction)
+        if correction is not None:
+            near += correction
+        del correction
+        gathered = reconstruct_interleaved(p, gathered, near, scratch=True)
     # A contact correction takes light away where a lookup overestimated it; rounding there
     # (and in the filter's subtraction) must never leave negative light.
     np.maximum(gathered, 0.0, out=gathered)
@@ -278,11 +298,12 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         irradiance, rays = lamp_light(p, backend, "short hits", short.points, group.lights, reused)
         at_hits.append(irradiance)
         result.shadow_rays += rays
-    at_hits = np.concatenate(at_hits, axis=1)
+    at_hits = at_hits[0] if len(at_hits) == 1 else np.concatenate(at_hits, axis=1)
     stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
     if last_direct:
         short = replace(short, points=None)
-    return short, np.concatenate([r.direct for r in results], axis=1).copy(), at_hits
+    # A copy: the emitters' and the emitted light are added to the groups' direct light later.
+    return short, np.concatenate([r.direct for r in results], axis=1), at_hits
 
 
 def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,

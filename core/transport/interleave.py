@@ -203,15 +203,17 @@ def _pair_dtype(p):
     return np.int32 if len(p.position) < 2 ** 31 else np.int64
 
 
-def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
+def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None, scratch: bool = False
+                            ) -> np.ndarray:
     """(K, C) ``values`` (gathered light) with its far part averaged over each atlas texel's
     neighbours (:func:`filter_pairs`) and its ``near`` part (K, C) kept; unchanged without
     interleaving (``p.rotations`` None) and for texels without pairs (vertex samples, buried
-    texels). ``p`` is a core.pipeline.prepare.Prepared."""
+    texels). ``p`` is a core.pipeline.prepare.Prepared. ``scratch``: ``values`` (float64) may be
+    overwritten (the caller lets it go): its far part is then worked out in its array, not a new one."""
     if p.rotations is None:
         return values
     near = np.zeros_like(values) if near is None else near
-    far = values - near
+    far = np.subtract(values, near, out=values if scratch and values.dtype == np.float64 else None)
     # What is averaged is the far light per unit of far weight (the mean radiance arriving
     # from afar), put back with the texel's own far weight: texels whose near and far shares
     # differ (one beside a wall, one in the open) then agree wherever the light is uniform,

@@ -148,7 +148,7 @@ ENTRY_ARRAYS = {"hit_object": (np.int16, (), BELOW_HORIZON), "hit_uv_code": (np.
 ENTRY_BYTES = 8
 # A pass over a table held in a scratch file hands its pages back after about this many bytes
 # of entries (TableEntries.release): what it keeps resident, against one system call per step.
-RELEASE_BYTES = 64 << 20
+RELEASE_BYTES = 16 << 20
 
 
 def words_of(mask: np.ndarray) -> np.ndarray:

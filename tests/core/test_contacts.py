@@ -207,7 +207,8 @@ def test_landing_points_found_by_chunks_are_bitwise_those_found_at_once(monkeypa
 def test_a_preparation_relit_once_lets_its_footprints_go_and_gives_the_same_light():
     """A command's bake relights its preparation once (Prepared.relit_once): the footprints go
     once the short hits are found, the short hits' landing points once their light is known,
-    so the gathers run without them. The light is bitwise a kept preparation's, and a later
+    the short hits themselves once the first gather's correction is found, so the gathers run
+    without them. The light is bitwise a kept preparation's, and a later
     read of what went is a bug that says so."""
     from core.pipeline.prepare import prepare
     from core.pipeline.relight import relight
@@ -221,7 +222,11 @@ def test_a_preparation_relit_once_lets_its_footprints_go_and_gives_the_same_ligh
     result = relight(once, scene.lights, World())
     assert kept.footprint is not None and kept.short_hits().points is not None
     assert once.footprint is None and all(s.footprint is None for s in once.object_samples)
-    assert once.short_hits() is not None and once.short_hits().points is None
+    # What only direct light and the first gather's correction read is gone too: the short hits, the memo.
+    assert kept.short_hits() is not None and len(kept.light_memo) > 0
+    with pytest.raises(RuntimeError, match="bug: the short hits"):
+        once.short_hits()
+    assert len(once.light_memo) == 0 and once.terminator is None
     for ours, theirs in zip(result.objects, expected.objects):
         for name, image in theirs.images.items():
             assert np.any(image[..., :3] > 0)
