@@ -1,14 +1,18 @@
 """VisiBake on the demo scene against a converged Cycles bake of the same UV layout.
 
-    .venv/bin/python benchmarks/demo_vs_cycles.py --directions 128 256 --samples 1024
+    .venv/bin/python benchmarks/demo_vs_cycles.py --directions 128 256 --samples 1024 --sweep 16 64 256
 
 For each direction count and shadow mode: VisiBake's stage times and its relative
 RMSE / mean bias / max error of ``lighting`` against Cycles (DIFFUSE, DIRECT+INDIRECT+COLOR,
-same bounces, units as in DESIGN.md), over texels both cover. Also the Cycles bake time
-at the reference sample count and at a lower one. Writes JSON (and prints a table).
-The reference is baked as two halves with different seeds, cached in --cache (.npz
-keyed by samples, seed, resolution, bounces); half the RMS difference of the halves is
-the reference's own noise, printed beside the errors (they include it).
+same bounces, units as in DESIGN.md), over texels both cover, per texel and on the means of
+4x4-texel blocks (benchmarks/reference.py). Cycles is baked at each ``--sweep`` sample count
+too, and the time it needs for VisiBake's error is interpolated from that sweep as ``make
+bench`` does (benchmarks/run.py: log-log, extrapolated as error ~ samples^-1/2 beyond it):
+the ratio Cycles / VisiBake at equal error, per texel and on blocks. Writes JSON (and prints
+a table). The reference is baked as two halves with different seeds, cached in --cache (.npz
+keyed by samples, seed, resolution, bounces) like the sweep's bakes (with their times); half
+the RMS difference of the halves is the reference's own noise, printed beside the errors
+(they include it).
 """
 import argparse
 import json
@@ -23,7 +27,9 @@ sys.path.insert(0, ROOT)
 
 import numpy as np  # noqa: E402
 
+from benchmarks import reference as references  # noqa: E402
 from benchmarks.limits import embree_rays_per_second  # noqa: E402
+from benchmarks.run import interpolate_time_at_error  # noqa: E402
 from tools.visibake import load_extension  # noqa: E402
 
 
@@ -47,11 +53,13 @@ def covered_error(ours: dict, reference: dict) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--directions", type=int, nargs="+", default=[128, 256])
-    parser.add_argument("--shadows", nargs="+", default=["fractions", "exact"])
+    parser.add_argument("--shadows", nargs="+", default=["exact"])
     parser.add_argument("--bounces", type=int, default=2)
     parser.add_argument("--resolution", type=int, default=256)
+    parser.add_argument("--interleave", type=int, default=None, help="interleaved rotations (default: the setting's)")
     parser.add_argument("--samples", type=int, default=1024, help="Cycles samples of the reference")
-    parser.add_argument("--timing-samples", type=int, default=64, help="a cheaper Cycles bake, timed too")
+    parser.add_argument("--sweep", type=int, nargs="+", default=[16, 64, 256],
+                        help="Cycles sample counts baked and timed, to interpolate its time at VisiBake's error")
     parser.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "cache"))
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "demo_vs_cycles.json"))
     args = parser.parse_args()
@@ -71,6 +79,8 @@ def main() -> int:
     props = bpy.context.scene.visibake
     props.bounces, props.resolution, props.passes = args.bounces, args.resolution, {"lighting"}
     props.use_cache = False  # every run traces its own table, so its timing is the method's
+    if args.interleave is not None:
+        props.interleave = args.interleave
 
     runs = []
     for directions in args.directions:
@@ -114,9 +124,25 @@ def main() -> int:
         reference_seconds += seconds
     reference = {name: 0.5 * (halves[0][name] + halves[1][name]) for name in halves[0]}
     reference_noise = 0.5 * covered_error(halves[0], halves[1])["relative_rmse"]
-    print(f"Cycles {args.samples} spp: {reference_seconds:.1f} s, relative noise {reference_noise:.4f}", flush=True)
-    cheap, cheap_seconds = cycles(args.timing_samples)
-    print(f"Cycles {args.timing_samples} spp: {cheap_seconds:.1f} s", flush=True)
+    whole = references.Reference(images=reference, seconds=reference_seconds, noise=reference_noise, cached=True,
+                                 halves=tuple(halves))
+    block_noise = references.block_errors(reference, whole)["block_noise"]
+    print(f"Cycles {args.samples} spp: {reference_seconds:.1f} s, relative noise {reference_noise:.4f} per texel, "
+          f"{block_noise:.4f} on 4x4 blocks", flush=True)
+    sweep = []
+    for samples in args.sweep:
+        # Cached like the reference's halves: a second run (another VisiBake setting) reuses them.
+        cached = os.path.join(args.cache, f"demo_cycles_s{samples}_seed3_r{args.resolution}_b{args.bounces}.npz")
+        if os.path.isfile(cached):
+            data = np.load(cached)
+            images, seconds = {k: data[k] for k in data.files if k != "__seconds__"}, float(data["__seconds__"])
+        else:
+            images, seconds = cycles(samples, seed=3)
+            np.savez_compressed(cached, __seconds__=seconds, **images)
+        sweep.append({"samples": samples, "seconds": seconds, **covered_error(images, reference),
+                      "block_rmse": references.block_errors(images, whole)["block_rmse"]})
+        print(f"Cycles {samples} spp: {seconds:.1f} s, RMSE {sweep[-1]['relative_rmse']:.4f}, "
+              f"blocks {sweep[-1]['block_rmse']:.4f}", flush=True)
 
     extract = importlib.import_module(f"{extension.__name__}.operators.adapter.extract")
     depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -129,30 +155,41 @@ def main() -> int:
         visibility_seconds = max(run["stage_seconds"]["visibility"], 1e-9)
         run["visibility_rays_per_second"] = run["rays"]["visibility_cast"] / visibility_seconds
         run["visibility_fraction_of_embree"] = run["visibility_rays_per_second"] / raw_rate
-        error = covered_error(run.pop("images"), reference)
-        rows.append({**run, **error})
-    cheap_error = covered_error(cheap, reference)
+        images = run.pop("images")
+        error = covered_error(images, reference)
+        blocks = references.block_errors(images, whole)["block_rmse"]
+        at = interpolate_time_at_error(sweep, error["relative_rmse"])
+        at_blocks = interpolate_time_at_error([{"seconds": c["seconds"], "relative_rmse": c["block_rmse"]}
+                                               for c in sweep], blocks)
+        rows.append({**run, **error, "block_rmse": blocks, "cycles_seconds_at_error": at,
+                     "cycles_over_visibake": at / run["total_seconds"], "cycles_seconds_at_block_error": at_blocks,
+                     "cycles_over_visibake_on_blocks": at_blocks / run["total_seconds"]})
     result = {
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "machine": {"platform": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count()},
         "blender": bpy.app.version_string,
-        "settings": {"bounces": args.bounces, "resolution": args.resolution, "reference_samples": args.samples},
+        "settings": {"bounces": args.bounces, "resolution": args.resolution, "reference_samples": args.samples,
+                     "interleave": props.interleave},
         "embree_rays_per_second": raw_rate,
         "cycles_reference_seconds": reference_seconds,
         "cycles_reference_relative_noise": reference_noise,
-        "cycles_timing": {"samples": args.timing_samples, "seconds": cheap_seconds, **cheap_error},
+        "cycles_reference_block_noise": block_noise,
+        "cycles_sweep": sweep,
         "visibake": rows,
     }
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as handle:
         json.dump(result, handle, indent=2, default=float)
-    print(f"\n{'run':<28}{'seconds':>9}{'rel.RMSE':>10}{'bias':>9}")
+    print(f"\n{'run':<28}{'seconds':>9}{'rel.RMSE':>10}{'bias':>9}{'blocks':>9}")
     for row in rows:
         print(f"VisiBake N={row['directions']:<4} {row['shadows']:<10}{row['total_seconds']:>9.1f}"
-              f"{row['relative_rmse']:>10.4f}{row['bias']:>+9.4f}  stages {row['stage_seconds']}"
+              f"{row['relative_rmse']:>10.4f}{row['bias']:>+9.4f}{row['block_rmse']:>9.4f}"
+              f"  Cycles / VisiBake at equal error {row['cycles_over_visibake']:.1f} per texel, "
+              f"{row['cycles_over_visibake_on_blocks']:.1f} on blocks; stages {row['stage_seconds']}"
               f"  visibility at {row['visibility_fraction_of_embree']:.0%} of embreex alone")
-    print(f"{'Cycles ' + str(args.timing_samples) + ' spp':<28}{cheap_seconds:>9.1f}"
-          f"{cheap_error['relative_rmse']:>10.4f}{cheap_error['bias']:>+9.4f}")
+    for point in sweep:
+        print(f"{'Cycles ' + str(point['samples']) + ' spp':<28}{point['seconds']:>9.1f}"
+              f"{point['relative_rmse']:>10.4f}{point['bias']:>+9.4f}{point['block_rmse']:>9.4f}")
     print(f"{'Cycles ' + str(args.samples) + ' spp (reference)':<28}{reference_seconds:>9.1f}"
           f"{reference_noise:>10.4f}  (its own noise, from two independent halves)")
     return 0

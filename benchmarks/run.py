@@ -62,7 +62,8 @@ RELIGHT_DIRECTIONS = 128
 
 FIELDS = ["scene", "method", "resolution", "bounces", "directions", "shadows", "rotate", "samples", "seconds",
           "stage_seconds", "peak_memory_bytes", "relative_rmse", "bias", "max_abs_error", "max_relative_error",
-          "texels", "reference_noise", "visibility_fraction_of_embree", "gather_fraction_of_numpy"]
+          "texels", "reference_noise", "block_rmse", "block_noise", "visibility_fraction_of_embree",
+          "gather_fraction_of_numpy"]
 
 
 def machine() -> dict:
@@ -233,11 +234,13 @@ def main(argv=None) -> int:
                             images = {r.name: r.images["lighting"] for r in outcome.result.objects}
                             report = outcome.report
                             errors = reference.relative_errors(images, ref.images)
+                            blocks = reference.block_errors(images, ref)
                             rows.append({
                                 "scene": name, "method": "visibake", "resolution": resolution, "bounces": bounces,
                                 "directions": directions, "shadows": shadows, "rotate": rotate, "samples": "",
                                 "seconds": report["total_seconds"], "stage_seconds": report["stage_seconds"],
                                 "peak_memory_bytes": peak, "reference_noise": ref.noise,
+                                "block_rmse": blocks["block_rmse"], "block_noise": blocks["block_noise"],
                                 "_rays": report["rays"]["visibility_cast"], "_gathers": report["gathers"],
                                 **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error",
                                                           "max_relative_error", "texels")}})
@@ -252,12 +255,14 @@ def main(argv=None) -> int:
                         images.update(bake_diffuse(group, uv_map, resolution, resolution, bounces, samples, seed=3))
                     seconds = time.perf_counter() - started
                     errors = reference.relative_errors(images, ref.images)
+                    blocks = reference.block_errors(images, ref)
                     rows.append({
                         "scene": name, "method": "cycles", "resolution": resolution, "bounces": bounces,
                         "directions": "", "shadows": "", "rotate": False, "samples": samples, "seconds": seconds,
                         "stage_seconds": {"bake": round(seconds, 4)},
                         "peak_memory_bytes": limits.peak_memory_bytes() or pipeline.peak_memory_bytes(),
                         "reference_noise": ref.noise,
+                        "block_rmse": blocks["block_rmse"], "block_noise": blocks["block_noise"],
                         **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error", "max_relative_error",
                                                   "texels")}})
                     print(f"  Cycles {samples} spp: {seconds:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
@@ -448,6 +453,16 @@ def _number(value):
         return None
 
 
+def _block_columns(row: dict, cycles_blocks: list) -> str:
+    """The block metric's columns of a VisiBake row in summary.md: its block RMSE, the Cycles time
+    at that block error, the ratio, and the reference's block noise ("n/a" in a results folder
+    written before the metric was)."""
+    if row.get("block_rmse") in ("", None) or not cycles_blocks:
+        return "n/a | n/a | n/a | n/a |"
+    at = interpolate_time_at_error(cycles_blocks, row["block_rmse"])
+    return f"{row['block_rmse']:.4f} | {at:.2f} | {at / row['seconds']:.1f} | {row.get('block_noise') or 0:.4f} |"
+
+
 def write_markdown(path: str, summary: dict, out: str) -> None:
     """The figures that matter, per scene: VisiBake against Cycles at equal error,
     shadow fractions against exact shadows, the share of each library's ceiling,
@@ -455,9 +470,12 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
     lines = [f"Profile `{summary['profile']}`, {summary['date']}, {summary['machine']['platform']}, "
              f"{summary['machine']['cpus']} CPUs, Blender {summary['blender']}.", "",
              "VisiBake (exact shadows, fixed direction set) against the time Cycles needs for the same error "
-             "(log-log interpolation of its sample sweep; beyond the sweep, extrapolated as error ~ samples^-1/2).",
+             "(log-log interpolation of its sample sweep; beyond the sweep, extrapolated as error ~ samples^-1/2), "
+             "per texel and on the means of 4x4-texel blocks (the error a denoiser leaves: Cycles' noise "
+             "averages out there, VisiBake's structured error does not).",
              "", "| scene | res | bounces | N | VisiBake s | rel. RMSE | Cycles s at that error | Cycles / VisiBake "
-             "| reference noise |", "|---|---|---|---|---|---|---|---|---|"]
+             "| reference noise | block RMSE | Cycles s at that block error | Cycles / VisiBake on blocks "
+             "| reference block noise |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     fraction_lines = ["", "Shadow fractions (the paper's method) against exact shadows, same N:", "",
                       "| scene | res | N | exact RMSE | fractions RMSE | fractions bias | rotated set (exact) RMSE |",
                       "|---|---|---|---|---|---|---|"]
@@ -468,13 +486,15 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
             rows = list(csv.DictReader(handle))
         for row in rows:
             for key in ("seconds", "relative_rmse", "bias", "reference_noise", "visibility_fraction_of_embree",
-                        "gather_fraction_of_numpy"):
+                        "gather_fraction_of_numpy", "block_rmse", "block_noise"):
                 row[key] = _number(row[key])
         groups = sorted({(int(r["resolution"]), int(r["bounces"])) for r in rows})
         for resolution, bounces in groups:
             group = [r for r in rows if int(r["resolution"]) == resolution and int(r["bounces"]) == bounces]
             cycles = [{"seconds": r["seconds"], "relative_rmse": r["relative_rmse"]}
                       for r in group if r["method"] == "cycles"]
+            cycles_blocks = [{"seconds": r["seconds"], "relative_rmse": r["block_rmse"]}
+                             for r in group if r["method"] == "cycles" and r.get("block_rmse") not in ("", None)]
             ours = [r for r in group if r["method"] == "visibake"]
             for r in ours:
                 if r["shadows"] != "exact" or r["rotate"] == "True":
@@ -482,7 +502,7 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
                 at = interpolate_time_at_error(cycles, r["relative_rmse"])
                 lines.append(f"| {name} | {resolution} | {bounces} | {r['directions']} | {r['seconds']:.2f} | "
                              f"{r['relative_rmse']:.4f} | {at:.2f} | {at / r['seconds']:.1f} | "
-                             f"{r['reference_noise'] or 0:.4f} |")
+                             f"{r['reference_noise'] or 0:.4f} | " + _block_columns(r, cycles_blocks))
                 twin = next((f for f in ours if f["directions"] == r["directions"] and f["shadows"] == "fractions"
                              and f["rotate"] != "True"), None)
                 rotated = next((f for f in ours if f["directions"] == r["directions"] and f["shadows"] == "exact"
