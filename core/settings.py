@@ -151,11 +151,11 @@ SETTINGS = _table(
     Setting("rotate", bool, False, "Rotate Directions",
             help="Randomly rotate the direction set (seeded): structured artefacts become noise"),
     Setting("seed", int, 0, "Seed", minimum=0, help="Seed of the direction rotation"),
-    Setting("interleave", int, 3, "Interleaved Rotations", minimum=1, maximum=8,
+    Setting("interleave", int, 4, "Interleaved Rotations", minimum=1, maximum=8,
             help="Neighbouring texels use different rotations of the direction set (a tile of this many texels "
-                 "squared, one rotation each) and their indirect light is averaged over the tile, so the fixed "
-                 "set's streaks from small bright patches become fine noise the average removes (1: one set for "
-                 "every texel)"),
+                 "squared, one rotation each) and their indirect light is averaged over the 3 x 3 texels around "
+                 "each (at most the tile), so the fixed set's streaks from small bright patches become fine noise "
+                 "the average removes (1: one set for every texel)"),
     Setting("passes", tuple, ("lighting",), "Passes", help="Which passes to write",
             choices=tuple((p, p.capitalize(), f"Write the {p} pass") for p in PASSES)),
     Setting("margin", int, 4, "Margin", minimum=0, soft_max=32,

@@ -7,21 +7,22 @@ sampling (Keller and Heidrich, 2001) gives the texels of every tile x tile block
 atlas their own rotation of the set (core.pipeline.prepare.interleaving): a block then
 sees tile^2 times as many directions, and the structured error turns into a fine
 per-texel pattern. :func:`reconstruct_interleaved` averages each texel's gathered light
-over the tile x tile block around it, where the neighbours lie on the same surface
+over the window x window texels around it (:func:`filter_window`: at most FILTER_WINDOW,
+however large the tile), where the neighbours lie on the same surface
 (similar normal, close in space: never across a chart's border into another part of the
 mesh, and in sight of each other: never across a wall standing between them), which
-removes the pattern and keeps the light's shape at the tile's scale. Texels
+removes the pattern and keeps the light's shape at the window's scale. Texels
 buried inside other geometry (core.visibility.table.VisibilityTable.buried: a floor
 under a wall standing on it) neither give nor take light there: nobody sees them, and
 their dark would bleed into the visible texels beside them. Nor are neighbours averaged
 whose near field differs (:func:`near_field`: how much of what a texel sees is close by,
 within a few texels): beside a contact or in a corner, the light changes faster than the
-tile, and averaging there would blur what the contact correction and the footprint made sharp.
+window, and averaging there would blur what the contact correction and the footprint made sharp.
 
 Only the light that arrives from afar is filtered: the ray effects of small bright patches
 come from there, while light from within a few texels (a wall standing on the floor, the
 inside of a corner, what the contact correction and the footprint made sharp) changes
-faster than the tile and is kept as it was gathered (:func:`find_near_hits`,
+faster than the window and is kept as it was gathered (:func:`find_near_hits`,
 :func:`near_light`). The lamps' direct light, with its shadow edges, is never filtered;
 texels buried inside other geometry (core.visibility.table.VisibilityTable.buried: a
 floor under a wall standing on it) neither give nor take light (nobody sees them); vertex
@@ -42,9 +43,23 @@ SAME_SURFACE_COSINE = 0.995
 # Neighbours farther than this many texels (of the object's mean texel size) apart in
 # space are across a chart's border, on another part of the mesh.
 SAME_SURFACE_TEXELS = 2.0
-# Light arriving from hits within this many tiles of the sample's texels is near light,
-# which the filter keeps as gathered.
+# Light arriving from hits within this many filter windows of the sample's texels is near
+# light, which the filter keeps as gathered.
 NEAR_FIELD_TILES = 2.0
+# The filter's window: a tile of more rotations than this squared is averaged over this many
+# texels squared around each texel. Each window then averages 9 rotations, as a 3 x 3 tile's
+# does, while neighbouring windows hold other rotations, so what the average leaves of the
+# fixed set's error no longer repeats every 3 texels and falls away over larger areas too
+# (a 4 x 4 tile: every 4 x 4 block of texels, the means a denoiser would leave, holds all 16
+# rotations; docs/benchmarks.md, speed part 16). A window as large as a 5 x 5 tile blurred
+# the direct-lit scenes' indirect light per texel.
+FILTER_WINDOW = 3
+
+
+def filter_window(p) -> int:
+    """The filter's window (texels across) of prepared scene ``p``: its interleaving tile, at
+    most FILTER_WINDOW (``p.rotations`` holds tile^2 rotations)."""
+    return min(int(round(np.sqrt(len(p.rotations)))), FILTER_WINDOW)
 # Texels per task of the compiled candidate search: thousands of tasks on a large atlas, to
 # balance the threads, each long enough that its start costs nothing.
 PAIR_TASK_TEXELS = 4096
@@ -52,7 +67,7 @@ PAIR_TASK_TEXELS = 4096
 
 @dataclass
 class NearHits:
-    """Table entries that land near their sample (within NEAR_FIELD_TILES tiles of its texels)
+    """Table entries that land near their sample (within NEAR_FIELD_TILES windows of its texels)
     on an atlas object: sample (m,) int64, weight (m,) float32 (the gather's), obj (m,)
     int64 and uv (m, 2) float32 (where it landed)."""
 
@@ -67,9 +82,9 @@ def find_near_hits(p) -> NearHits | None:
     or the set is not interleaved)."""
     if p.rotations is None or p.table is None:
         return None
-    tile = int(round(np.sqrt(len(p.rotations))))
+    window = filter_window(p)
     sizes = texel_sizes(p.meshes, p.object_samples)
-    reach = np.repeat(NEAR_FIELD_TILES * tile * sizes, np.diff(p.sample_offset)).astype(np.float32)
+    reach = np.repeat(NEAR_FIELD_TILES * window * sizes, np.diff(p.sample_offset)).astype(np.float32)
     atlas = np.array([np.inf if m.mode == "atlas" else 0.0 for m in p.meshes])
     entries = close_entries(p, atlas, reach)
     if entries is None:
@@ -91,10 +106,11 @@ def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray 
 def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     """The (texel, neighbour) pairs the filter averages, global sample indices (n,) int32 each
     (int64 past 2^31 samples),
-    every visible atlas texel paired with itself too: the neighbours within its tile x tile
-    block that lie on the same surface (normals within SAME_SURFACE_COSINE, closer than
-    SAME_SURFACE_TEXELS tiles), are not buried, and see each other (the segment between
-    them, just off the surface, is clear: never across a wall standing between them).
+    every visible atlas texel paired with itself too: the neighbours within its window x
+    window block (:func:`filter_window`) that lie on the same surface (normals within
+    SAME_SURFACE_COSINE, closer than SAME_SURFACE_TEXELS windows), are not buried, and see
+    each other (the segment between them, just off the surface, is clear: never across a wall
+    standing between them).
     Listed by object, then by shift (dy, then dx, ascending), then by texel. Geometry alone,
     found once per preparation (p.filter_pairs()). The candidates are found by a compiled
     kernel where the kernels load, and each object's occlusion rays cast in one query;
@@ -102,8 +118,8 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     module = kernels.compiled()
     if module is None:
         return _filter_pairs_numpy(p)
-    tile = int(round(np.sqrt(len(p.rotations))))
-    steps = range(-(tile // 2), tile - tile // 2)
+    window = filter_window(p)
+    steps = range(-(window // 2), window - window // 2)
     shifts = np.array([(dx, dy) for dy in steps for dx in steps], np.int64)
     centre = int(np.nonzero(~shifts.any(axis=1))[0][0])
     sizes = texel_sizes(p.meshes, p.object_samples)
@@ -114,7 +130,7 @@ def filter_pairs(p) -> tuple[np.ndarray, np.ndarray]:
     texels, neighbours = [], []
     for index, samples, first, visible, owner in _atlas_texels(p, buried):
         count, width, height = len(samples), samples.width, samples.height
-        reach = (SAME_SURFACE_TEXELS * tile * sizes[index]) ** 2
+        reach = (SAME_SURFACE_TEXELS * window * sizes[index]) ** 2
         arguments = (np.asarray(samples.pixel, np.int64), visible, owner, first, int(width), int(height), shifts,
                      PAIR_TASK_TEXELS, *geometry, SAME_SURFACE_COSINE, float(reach))
         tasks = -(-count // PAIR_TASK_TEXELS)
@@ -160,8 +176,8 @@ def _atlas_texels(p, buried: np.ndarray):
 
 def _filter_pairs_numpy(p) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_pairs` in numpy."""
-    tile = int(round(np.sqrt(len(p.rotations))))
-    offsets = range(-(tile // 2), tile - tile // 2)
+    window = filter_window(p)
+    offsets = range(-(window // 2), window - window // 2)
     sizes = texel_sizes(p.meshes, p.object_samples)
     buried = p.table.buried() if p.table is not None else np.zeros(len(p.position), bool)
     origins = np.asarray(p.origins, np.float64)
@@ -169,7 +185,7 @@ def _filter_pairs_numpy(p) -> tuple[np.ndarray, np.ndarray]:
     for index, samples, first, visible, owner in _atlas_texels(p, buried):
         width, height = samples.width, samples.height
         x, y = samples.pixel % width, samples.pixel // width
-        reach = (SAME_SURFACE_TEXELS * tile * sizes[index]) ** 2
+        reach = (SAME_SURFACE_TEXELS * window * sizes[index]) ** 2
         for dy in offsets:
             for dx in offsets:
                 xx, yy = x + dx, y + dy

@@ -191,3 +191,30 @@ def test_compiled_filter_pairs_round_as_numpy_does_at_the_same_surface_threshold
                   != (np.einsum("kd,kd->k", gap, gap) < reach))
     assert np.any(((facing[:, 0] + facing[:, 1]) + facing[:, 2] > SAME_SURFACE_COSINE)
                   != (np.einsum("kd,kd->k", normal[rows], normal[other]) > SAME_SURFACE_COSINE))
+
+
+@pytest.mark.parametrize("interleave, window", [(2, 2), (3, 3), (4, 3), (5, 3)])
+def test_the_filter_averages_over_at_most_3_x_3_texels_however_many_rotations(interleave, window):
+    """A tile of more than 3 x 3 rotations is filtered over the 3 x 3 texels around each texel
+    (core.transport.interleave.FILTER_WINDOW): each texel's pairs reach at most one texel away
+    (a tile of two: its 2 x 2 block), and every 4 x 4 block of a 4 x 4 tile holds all 16 rotations
+    wherever it starts, as the rotation of each texel repeats every ``interleave`` texels."""
+    from core.transport.interleave import filter_window, find_near_hits
+
+    floor = quad_mesh("Floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], resolution=16)
+    p = prepare(Scene([floor], []), BakeSettings(directions=32, interleave=interleave), table_needed=True)
+    assert len(p.rotations) == interleave ** 2 and filter_window(p) == window
+    texels, neighbours = filter_pairs(p)
+    pixel = p.object_samples[0].pixel
+    dx = np.abs(pixel[texels] % 16 - pixel[neighbours] % 16)
+    dy = np.abs(pixel[texels] // 16 - pixel[neighbours] // 16)
+    assert max(dx.max(), dy.max()) == window // 2  # an open floor: every shift of the window is paired
+    per_texel = np.bincount(texels, minlength=len(p.position))
+    assert per_texel.max() == window * window  # the texel itself and its neighbours
+    x, y = pixel % 16, pixel // 16
+    for start_x, start_y in ((0, 0), (1, 2), (3, 1)):
+        inside = (x >= start_x) & (x < start_x + 4) & (y >= start_y) & (y < start_y + 4)
+        if interleave == 4:
+            assert sorted(p.group[inside]) == list(range(16))
+    near = find_near_hits(p)  # within NEAR_FIELD_TILES windows, not tiles
+    assert near is None or len(near.sample) > 0
