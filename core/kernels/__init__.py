@@ -410,6 +410,10 @@ def _warm_up_steps(module, table_module, sample_module, image_module, light_modu
                              np.zeros((1, 3)), np.zeros(1, np.float32), np.zeros((1, 3))))
         steps.append(partial(light_module.emitter_rays, index, sample_origins, three, np.ones(1), 1.0,
                              sample_origins.copy(), np.zeros((1, 3)), np.zeros(1, np.float32)))
+        steps.append(partial(light_module.corner_probe_rays, False, np.ones(3), np.array([0.0, 0.0, -1.0]), three,
+                             three, three, three, np.zeros(1), np.zeros((1, 4, 3), np.float32), 0, np.ones(1, bool),
+                             1.0, np.zeros(3), False, np.float32(256.0), np.float32(1.0), np.float32(1.0),
+                             np.zeros(1, bool), sample_origins.copy(), np.zeros((1, 3)), np.zeros(1, np.float32)))
         steps.append(partial(light_module.hard_lamp_edge_rays, light_module.POINT, np.ones(3),
                              np.array([0.0, 0.0, -1.0]), 0.5, 0.1, three, three, three, three, np.zeros(1), footprint,
                              np.zeros((1, 0, 3), np.float32), 0, np.ones(1, bool), np.ones(3), 1.0, np.zeros(3), False,

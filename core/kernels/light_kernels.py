@@ -293,6 +293,56 @@ def hard_lamp_edge_rays(kind, centre, direction, cos_half, band, position, norma
 
 
 @nb.njit(**KERNEL_OPTIONS)
+def corner_probe_rays(is_sun, centre, direction, position, normal, geometric, terminator, cutoff, corners, corner,
+                      receives, keep, ray_centre, centred, int_scale, float_scale, origin_limit, aimed, origins,
+                      directions, limits):
+    """One corner probe of a texel's footprint box at every sample (core.transport.direct.
+    _penumbra_probes): the ray from the box's corner to the lamp's centre, made in one pass as
+    core.lights.lamps.centre_probe, the aim test and :func:`shadow_ray_setup` make it, bitwise.
+    In parallel over samples.
+
+    is_sun : bool (a sun's centre is its direction, at infinity); centre : (3,) float64 the
+    lamp's position; direction : (3,) float64 the direction its light travels
+    position, normal, geometric : (K, 3) float64; terminator : (K, 3) float64 and cutoff :
+        (K,) float64, or (0, 3) and (0,) where no sample is on a smooth face
+    corners : (K, 4, 3) float32 the footprint boxes' corners, offsets from the samples;
+        corner : int, which one; receives : (K,) bool the lamp lights the sample
+    keep, ray_centre, centred, int_scale, float_scale, origin_limit : as :func:`shadow_ray_setup`
+    Outputs: aimed (K,) bool (the lamp's centre above the sample's shading horizon, at a
+    receiving sample); origins (K, 3) (float32, or float64 where ``centred``), directions
+    (K, 3) float64 and limits (K,) float32, written where ``aimed`` only.
+    """
+    smooth = terminator.shape[0] > 0
+    for k in nb.prange(position.shape[0]):
+        m0 = position[k, 0] + np.float64(corners[k, corner, 0])
+        m1 = position[k, 1] + np.float64(corners[k, corner, 1])
+        m2 = position[k, 2] + np.float64(corners[k, corner, 2])
+        if is_sun:
+            t0, t1, t2 = -direction[0], -direction[1], -direction[2]
+            far = np.inf
+        else:
+            o0, o1, o2 = centre[0] - m0, centre[1] - m1, centre[2] - m2
+            far = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+            safe = max(far, 1e-12)
+            t0, t1, t2 = o0 / safe, o1 / safe, o2 / safe
+        on = _dot(t0, t1, t2, normal[k, 0], normal[k, 1], normal[k, 2]) > 0.0 and receives[k]
+        aimed[k] = on
+        if not on:
+            continue
+        limits[k] = np.float32(far * keep if np.isfinite(far) else np.inf)
+        directions[k, 0], directions[k, 1], directions[k, 2] = t0, t1, t2
+        if smooth:
+            amount = _lift_amount(_dot(normal[k, 0], normal[k, 1], normal[k, 2], t0, t1, t2),
+                                  _dot(geometric[k, 0], geometric[k, 1], geometric[k, 2], t0, t1, t2), cutoff[k])
+            m0 = m0 + terminator[k, 0] * amount
+            m1 = m1 + terminator[k, 1] * amount
+            m2 = m2 + terminator[k, 2] * amount
+        origins[k, 0] = _origin_axis(m0, geometric[k, 0], ray_centre[0], centred, int_scale, float_scale, origin_limit)
+        origins[k, 1] = _origin_axis(m1, geometric[k, 1], ray_centre[1], centred, int_scale, float_scale, origin_limit)
+        origins[k, 2] = _origin_axis(m2, geometric[k, 2], ray_centre[2], centred, int_scale, float_scale, origin_limit)
+
+
+@nb.njit(**KERNEL_OPTIONS)
 def edge_light_add(irradiance, lit, light):
     """Adds each sample's lit points' irradiance (J, E, 3) float64 where ``lit`` (J, E) bool
     (shadowed points cleared), point by point in order, to ``light`` (E, 3) float64: bitwise

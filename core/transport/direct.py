@@ -323,6 +323,9 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
     rotation = (lamp.scrambles[0] >> np.uint32(8)) * (2.0 * np.pi * 2.0 ** -24)
     footprint = lamp.footprint
 
+    module = kernels.compiled()
+    corners_compiled = module is not None and footprint is not None and samples.footprint_corners is not None
+
     def probes():
         # One probe's arrays at a time (each (K, 3) float64, 9 MiB at the demo's 403k
         # texels): made as they are traced, not all thirteen kept side by side.
@@ -332,7 +335,7 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
         elif footprint is None:
             # A lamp without extent has no outline: its centre, from the sample or from the corners.
             yield (*centre_probe(light, samples.position), None)
-        if footprint is not None and samples.footprint_corners is not None:
+        if footprint is not None and samples.footprint_corners is not None and not corners_compiled:
             for corner in range(FOOTPRINT_PROBES):
                 moved = samples.position + samples.footprint_corners[:, corner]
                 yield (*centre_probe(light, moved), moved)
@@ -352,8 +355,44 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
         seen_blocked[local[blocked]] = True
         seen_open[local[~blocked]] = True
         rays += len(local)
+    if corners_compiled:
+        for local, blocked in _corner_probes(module, light, samples, blockers, receives):
+            seen_blocked[local[blocked]] = True
+            seen_open[local[~blocked]] = True
+            rays += len(local)
     decided = seen_open != seen_blocked
     return decided, decided & seen_blocked, seen_open & seen_blocked, rays
+
+
+def _corner_probes(module, light, samples: SampleSet, blockers, receives) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The footprint box's corner probes of :func:`_penumbra_probes` through the compiled
+    kernels, one corner at a time: yields (the samples whose probe was traced (n,) int64,
+    whether each ray was blocked (n,) bool), bitwise the numpy probes' answers. Each corner's
+    rays are made in one pass (core.kernels.light_kernels.corner_probe_rays), where the numpy
+    probe took some ten passes over (K, 3) arrays and a set-up kernel (0.23 of the demo's 0.38 s
+    of probes: docs/benchmarks.md, speed part 16)."""
+    count = len(samples.position)
+    smooth = samples.terminator is not None
+    receiving = np.ones(count, bool) if receives is None else np.ascontiguousarray(receives, bool)
+    centre = np.asarray(blockers.centre, np.float64)
+    arguments = (light.kind == "SUN", np.asarray(light.position, np.float64),
+                 np.asarray(light.direction, np.float64), np.ascontiguousarray(samples.position, np.float64),
+                 np.ascontiguousarray(samples.normal, np.float64), np.ascontiguousarray(samples.geometric, np.float64),
+                 np.ascontiguousarray(samples.terminator, np.float64) if smooth else _NOWHERE,
+                 np.ascontiguousarray(samples.terminator_cutoff, np.float64) if smooth else _NO_CUTOFF,
+                 np.ascontiguousarray(samples.footprint_corners, np.float32))
+    for corner in range(FOOTPRINT_PROBES):
+        aimed = np.empty(count, bool)
+        origins = np.empty((count, 3), samples.origins.dtype)
+        directions = np.empty((count, 3))
+        limits = np.empty(count, np.float32)
+        kernels.run(module.corner_probe_rays, blockers.threads,
+                    *arguments, corner, receiving, 1.0 - tol.SHADOW_RAY_SHORTEN, centre, bool(centre.any()),
+                    np.float32(tol.RAY_OFFSET_INT_SCALE), np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
+                    np.float32(tol.RAY_OFFSET_ORIGIN), aimed, origins, directions, limits)
+        local = np.flatnonzero(aimed)
+        if len(local):
+            yield local, blockers.occluded(origins[local], directions[local], limits[local])
 
 
 def trace_shadow_rays(blockers, samples: SampleSet, part, rays: np.ndarray,

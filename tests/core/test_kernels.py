@@ -1081,3 +1081,54 @@ def test_compiled_shadow_edges_of_a_hard_lamp_are_bitwise_the_point_by_point_loo
     lit_share = np.mean(ours[:, 0] > 0)
     assert 0.3 < lit_share < 0.95  # some edge samples shadowed wholly, some not
     assert np.any((ours[:, 0] > 0) & (ours[:, 0] < np.max(ours[:, 0]) * 0.5))  # and some in part
+
+
+@pytest.mark.parametrize("kind, radius", [("SUN", 0.0), ("POINT", 0.0), ("POINT", 0.3), ("SPOT", 0.0)])
+@pytest.mark.parametrize("centre", [None, (1000.0, -5.0, 3.0)])
+@pytest.mark.parametrize("smooth", [False, True])
+def test_compiled_corner_probes_answer_as_the_numpy_probes(monkeypatch, kind, radius, centre, smooth):
+    """The penumbra probes (core.transport.direct._penumbra_probes) with a footprint box: its
+    four corner probes made by one kernel a corner, against the numpy probes, for lamps with
+    and without extent (whose outline probes stay numpy), a ray scene centred far away, smooth
+    faces' lifts and light linking: the same decided, shadowed and mixed samples and rays."""
+    from core.lights import lamps
+    from core.scene import Light
+    from core.transport import direct
+    from core.transport.contract import SampleSet
+    from core.visibility.rays import RayScene
+
+    rng = np.random.default_rng([len(kind), int(radius * 10), int(smooth), centre is None])
+    offset = np.zeros(3) if centre is None else np.asarray(centre)
+    blocker = np.array([[-2.0, -2.0, 1.0], [-0.2, -2.0, 1.0], [-0.2, 2.0, 1.0], [-2.0, 2.0, 1.0]]) + offset
+    scene = RayScene([(blocker, np.array([[0, 1, 2], [0, 2, 3]]))], 2, None if centre is None else offset)
+    count = 4000
+    position = np.column_stack([rng.uniform(-1, 1, (count, 2)), np.zeros(count)]) + offset
+    geometric = np.tile([0.0, 0.0, 1.0], (count, 1))
+    normal = geometric + 0.05 * rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    terminator = cutoff = None
+    if smooth:
+        terminator = 0.002 * rng.normal(size=(count, 3))
+        cutoff = rng.uniform(0.0, 0.4, count)
+    footprint = (rng.normal(size=(count, 16, 3)) * [0.02, 0.02, 0.0]).astype(np.float32)
+    corners = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * 0.03
+               * rng.uniform(0.5, 1.5, (count, 1, 1))).astype(np.float32)
+    samples = SampleSet(position, normal, geometric, scene.ray_origins(position, geometric), footprint=footprint,
+                        footprint_corners=corners, terminator=terminator, terminator_cutoff=cutoff)
+    direction = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])
+    light = Light("Lamp", kind, np.array([1.0, 0.8, 0.5]), 100.0, position=offset + [0.1, 0.0, 2.5],
+                  direction=direction, spot_size=2.0, spot_blend=0.0, radius=radius)
+    receives = rng.uniform(size=count) < 0.9
+    lamp = lamps.LampPoints(light, position, normal, 8, None, 0, footprint, 16)
+    corner_calls = []
+    compiled_corners = direct._corner_probes
+    monkeypatch.setattr(direct, "_corner_probes", lambda *a: corner_calls.append(1) or compiled_corners(*a))
+    ours = direct._penumbra_probes(light, lamp, samples, scene, receives)
+    monkeypatch.setattr(kernels, "_module", None)
+    theirs = direct._penumbra_probes(light, lamp, samples, scene, receives)
+    assert corner_calls == [1]  # the kernels' corners, then numpy's
+    for a, b in zip(ours[:3], theirs[:3]):
+        np.testing.assert_array_equal(a, b)
+    assert ours[3] == theirs[3] > 0
+    decided, shadowed, mixed, _ = ours
+    assert shadowed.any() and (decided & ~shadowed).any() and mixed.any()
