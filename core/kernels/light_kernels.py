@@ -221,7 +221,8 @@ def shadow_ray_setup(rays, sample_rows, distance, to_light, moved, position, nor
 def _origin_axis(x, geometric, centre, centred, int_scale, float_scale, origin_limit):
     """One coordinate of a ray's origin stepped off the surface along the geometric normal's
     coordinate (core.visibility.rays.offset_ray_origins' float32 steps), for a ray scene
-    ``centred`` on ``centre`` or at the origin: float64 where centred, float32 otherwise."""
+    ``centred`` on ``centre`` or at the origin. Returned as float64: back in world space where
+    centred, else the float32 step itself (exact in a float32 array)."""
     if centred:
         x = x - centre
     p = np.float32(x)
