@@ -238,6 +238,25 @@ def _origin_axis(x, geometric, centre, centred, int_scale, float_scale, origin_l
     return np.float64(stepped)
 
 
+@nb.njit(inline="always")
+def _shadow_ray(k, r0, r1, r2, t0, t1, t2, far, normal, geometric, terminator, cutoff, keep, ray_centre, centred,
+                int_scale, float_scale, origin_limit):
+    """Sample k's shadow ray from where its point was received (r0, r1, r2) towards the unit
+    (t0, t1, t2), ``far`` away: its origin, lifted towards the smooth surface where
+    ``terminator`` has rows and stepped off the face (:func:`_origin_axis`), and its length,
+    as :func:`shadow_ray_setup` makes them (arguments as there)."""
+    if terminator.shape[0] > 0:
+        amount = _lift_amount(_dot(normal[k, 0], normal[k, 1], normal[k, 2], t0, t1, t2),
+                              _dot(geometric[k, 0], geometric[k, 1], geometric[k, 2], t0, t1, t2), cutoff[k])
+        r0 = r0 + terminator[k, 0] * amount
+        r1 = r1 + terminator[k, 1] * amount
+        r2 = r2 + terminator[k, 2] * amount
+    return (_origin_axis(r0, geometric[k, 0], ray_centre[0], centred, int_scale, float_scale, origin_limit),
+            _origin_axis(r1, geometric[k, 1], ray_centre[1], centred, int_scale, float_scale, origin_limit),
+            _origin_axis(r2, geometric[k, 2], ray_centre[2], centred, int_scale, float_scale, origin_limit),
+            np.float32(far * keep if np.isfinite(far) else np.inf))
+
+
 @nb.njit(**KERNEL_OPTIONS)
 def hard_lamp_edge_rays(kind, centre, direction, cos_half, band, position, normal, geometric, terminator, cutoff,
                         offsets, point_normals, first, receives, scale, keep, ray_centre, centred, int_scale,
@@ -262,7 +281,6 @@ def hard_lamp_edge_rays(kind, centre, direction, cos_half, band, position, norma
     (J, E) float32, written where ``lit`` only.
     """
     points, normal_points = offsets.shape[1], point_normals.shape[1]
-    smooth = terminator.shape[0] > 0
     for k in nb.prange(position.shape[0]):
         for j in range(lit.shape[0]):
             point = first + j
@@ -277,20 +295,10 @@ def hard_lamp_edge_rays(kind, centre, direction, cos_half, band, position, norma
             lit[j, k] = on
             if not on:
                 continue
-            limits[j, k] = np.float32(far * keep if np.isfinite(far) else np.inf)
             directions[j, k, 0], directions[j, k, 1], directions[j, k, 2] = t0, t1, t2
-            if smooth:
-                amount = _lift_amount(_dot(normal[k, 0], normal[k, 1], normal[k, 2], t0, t1, t2),
-                                      _dot(geometric[k, 0], geometric[k, 1], geometric[k, 2], t0, t1, t2), cutoff[k])
-                r0 = r0 + terminator[k, 0] * amount
-                r1 = r1 + terminator[k, 1] * amount
-                r2 = r2 + terminator[k, 2] * amount
-            origins[j, k, 0] = _origin_axis(r0, geometric[k, 0], ray_centre[0], centred, int_scale, float_scale,
-                                            origin_limit)
-            origins[j, k, 1] = _origin_axis(r1, geometric[k, 1], ray_centre[1], centred, int_scale, float_scale,
-                                            origin_limit)
-            origins[j, k, 2] = _origin_axis(r2, geometric[k, 2], ray_centre[2], centred, int_scale, float_scale,
-                                            origin_limit)
+            origins[j, k, 0], origins[j, k, 1], origins[j, k, 2], limits[j, k] = _shadow_ray(
+                k, r0, r1, r2, t0, t1, t2, far, normal, geometric, terminator, cutoff, keep, ray_centre, centred,
+                int_scale, float_scale, origin_limit)
 
 
 @nb.njit(**KERNEL_OPTIONS)
@@ -313,7 +321,6 @@ def corner_probe_rays(is_sun, centre, direction, position, normal, geometric, te
     receiving sample); origins (K, 3) (float32, or float64 where ``centred``), directions
     (K, 3) float64 and limits (K,) float32, written where ``aimed`` only.
     """
-    smooth = terminator.shape[0] > 0
     for k in nb.prange(position.shape[0]):
         m0 = position[k, 0] + np.float64(corners[k, corner, 0])
         m1 = position[k, 1] + np.float64(corners[k, corner, 1])
@@ -330,17 +337,10 @@ def corner_probe_rays(is_sun, centre, direction, position, normal, geometric, te
         aimed[k] = on
         if not on:
             continue
-        limits[k] = np.float32(far * keep if np.isfinite(far) else np.inf)
         directions[k, 0], directions[k, 1], directions[k, 2] = t0, t1, t2
-        if smooth:
-            amount = _lift_amount(_dot(normal[k, 0], normal[k, 1], normal[k, 2], t0, t1, t2),
-                                  _dot(geometric[k, 0], geometric[k, 1], geometric[k, 2], t0, t1, t2), cutoff[k])
-            m0 = m0 + terminator[k, 0] * amount
-            m1 = m1 + terminator[k, 1] * amount
-            m2 = m2 + terminator[k, 2] * amount
-        origins[k, 0] = _origin_axis(m0, geometric[k, 0], ray_centre[0], centred, int_scale, float_scale, origin_limit)
-        origins[k, 1] = _origin_axis(m1, geometric[k, 1], ray_centre[1], centred, int_scale, float_scale, origin_limit)
-        origins[k, 2] = _origin_axis(m2, geometric[k, 2], ray_centre[2], centred, int_scale, float_scale, origin_limit)
+        origins[k, 0], origins[k, 1], origins[k, 2], limits[k] = _shadow_ray(
+            k, m0, m1, m2, t0, t1, t2, far, normal, geometric, terminator, cutoff, keep, ray_centre, centred,
+            int_scale, float_scale, origin_limit)
 
 
 @nb.njit(**KERNEL_OPTIONS)

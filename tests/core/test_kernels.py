@@ -1037,21 +1037,10 @@ def test_compiled_shadow_edges_of_a_hard_lamp_are_bitwise_the_point_by_point_loo
     from core.scene import Light
     from core.transport import direct
     from core.transport.contract import SampleSet
-    from core.visibility.rays import RayScene
 
     rng = np.random.default_rng([len(kind), int(smooth), centre is None])
-    offset = np.zeros(3) if centre is None else np.asarray(centre)
-    blocker = np.array([[-2.0, -2.0, 1.0], [-0.2, -2.0, 1.0], [-0.2, 2.0, 1.0], [-2.0, 2.0, 1.0]]) + offset
-    scene = RayScene([(blocker, np.array([[0, 1, 2], [0, 2, 3]]))], 2, None if centre is None else offset)
-    count = 3000
-    position = np.column_stack([rng.uniform(-1, 1, (count, 2)), np.zeros(count)]) + offset
-    geometric = np.tile([0.0, 0.0, 1.0], (count, 1))
-    normal = geometric + 0.05 * rng.normal(size=(count, 3))
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    terminator = cutoff = None
-    if smooth:
-        terminator = 0.002 * rng.normal(size=(count, 3))
-        cutoff = rng.uniform(0.0, 0.4, count)
+    offset, scene, position, geometric, normal, terminator, cutoff = _half_shadowed_floor(rng, centre, smooth, 3000)
+    count = len(position)
     dense_points = direct.EDGE_FOOTPRINT_POINTS
 
     def dense_footprint(ids, points):
@@ -1095,21 +1084,10 @@ def test_compiled_corner_probes_answer_as_the_numpy_probes(monkeypatch, kind, ra
     from core.scene import Light
     from core.transport import direct
     from core.transport.contract import SampleSet
-    from core.visibility.rays import RayScene
 
     rng = np.random.default_rng([len(kind), int(radius * 10), int(smooth), centre is None])
-    offset = np.zeros(3) if centre is None else np.asarray(centre)
-    blocker = np.array([[-2.0, -2.0, 1.0], [-0.2, -2.0, 1.0], [-0.2, 2.0, 1.0], [-2.0, 2.0, 1.0]]) + offset
-    scene = RayScene([(blocker, np.array([[0, 1, 2], [0, 2, 3]]))], 2, None if centre is None else offset)
-    count = 4000
-    position = np.column_stack([rng.uniform(-1, 1, (count, 2)), np.zeros(count)]) + offset
-    geometric = np.tile([0.0, 0.0, 1.0], (count, 1))
-    normal = geometric + 0.05 * rng.normal(size=(count, 3))
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    terminator = cutoff = None
-    if smooth:
-        terminator = 0.002 * rng.normal(size=(count, 3))
-        cutoff = rng.uniform(0.0, 0.4, count)
+    offset, scene, position, geometric, normal, terminator, cutoff = _half_shadowed_floor(rng, centre, smooth, 4000)
+    count = len(position)
     footprint = (rng.normal(size=(count, 16, 3)) * [0.02, 0.02, 0.0]).astype(np.float32)
     corners = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * 0.03
                * rng.uniform(0.5, 1.5, (count, 1, 1))).astype(np.float32)
@@ -1132,3 +1110,24 @@ def test_compiled_corner_probes_answer_as_the_numpy_probes(monkeypatch, kind, ra
     assert ours[3] == theirs[3] > 0
     decided, shadowed, mixed, _ = ours
     assert shadowed.any() and (decided & ~shadowed).any() and mixed.any()
+
+
+def _half_shadowed_floor(rng, centre, smooth: bool, count: int):
+    """A floor of ``count`` samples in [-1, 1]^2 at z = 0 (around ``centre``, or the origin) under a
+    blocker over its x < -0.2 side at z = 1, in a ray scene centred there: (offset (3,), the
+    RayScene, position, geometric and shading normals (count, 3) float64, and the smooth faces'
+    terminator lifts (count, 3) and cutoffs (count,), or None twice)."""
+    from core.visibility.rays import RayScene
+
+    offset = np.zeros(3) if centre is None else np.asarray(centre)
+    blocker = np.array([[-2.0, -2.0, 1.0], [-0.2, -2.0, 1.0], [-0.2, 2.0, 1.0], [-2.0, 2.0, 1.0]]) + offset
+    scene = RayScene([(blocker, np.array([[0, 1, 2], [0, 2, 3]]))], 2, None if centre is None else offset)
+    position = np.column_stack([rng.uniform(-1, 1, (count, 2)), np.zeros(count)]) + offset
+    geometric = np.tile([0.0, 0.0, 1.0], (count, 1))
+    normal = geometric + 0.05 * rng.normal(size=(count, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    terminator = cutoff = None
+    if smooth:
+        terminator = 0.002 * rng.normal(size=(count, 3))
+        cutoff = rng.uniform(0.0, 0.4, count)
+    return offset, scene, position, geometric, normal, terminator, cutoff
