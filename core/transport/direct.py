@@ -248,7 +248,6 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
     point_normals = (np.zeros((count, 0, 3), np.float32) if lamp.footprint_normals is None
                      else np.ascontiguousarray(lamp.footprint_normals, np.float32))
     light = lamp.light
-    centre = np.asarray(blockers.centre, np.float64)
     origin_type = samples.origins.dtype
     geometric = np.ascontiguousarray(samples.geometric[edges], np.float64)
     light_sum = np.zeros((count, 3))
@@ -266,9 +265,7 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
                     *spot_cone(light), np.ascontiguousarray(lamp.position, np.float64),
                     np.ascontiguousarray(lamp.normal, np.float64), geometric, terminator, cutoff,
                     np.ascontiguousarray(lamp.footprint, np.float32), point_normals, first, receiving,
-                    lamp.scale / lamp.count, 1.0 - tol.SHADOW_RAY_SHORTEN, centre, bool(centre.any()),
-                    np.float32(tol.RAY_OFFSET_INT_SCALE), np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
-                    np.float32(tol.RAY_OFFSET_ORIGIN), irradiance, lit, origins, directions, limits)
+                    lamp.scale / lamp.count, *_ray_constants(blockers), irradiance, lit, origins, directions, limits)
         flat = lit.reshape(-1)
         traced = np.flatnonzero(flat)
         if len(traced):
@@ -278,6 +275,16 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
             rays += len(traced)
         kernels.run(module.edge_light_add, lamp.threads, irradiance, lit, light_sum)
     return light_sum, rays
+
+
+def _ray_constants(blockers) -> tuple:
+    """What the edge and corner-probe kernels take to make shadow rays in ``blockers``' frame
+    (core.kernels.light_kernels._shadow_ray): the share of a ray's length kept, the ray scene's
+    centre (3,) float64 and whether it is off the origin, and core.tolerances' RAY_OFFSET_*
+    steps as float32."""
+    centre = np.asarray(blockers.centre, np.float64)
+    return (1.0 - tol.SHADOW_RAY_SHORTEN, centre, bool(centre.any()), np.float32(tol.RAY_OFFSET_INT_SCALE),
+            np.float32(tol.RAY_OFFSET_FLOAT_SCALE), np.float32(tol.RAY_OFFSET_ORIGIN))
 
 
 def _threads(shadowing) -> int:
@@ -369,12 +376,11 @@ def _corner_probes(module, light, samples: SampleSet, blockers, receives) -> Ite
     kernels, one corner at a time: yields (the samples whose probe was traced (n,) int64,
     whether each ray was blocked (n,) bool), bitwise the numpy probes' answers. Each corner's
     rays are made in one pass (core.kernels.light_kernels.corner_probe_rays), where the numpy
-    probe took some ten passes over (K, 3) arrays and a set-up kernel (0.23 of the demo's 0.38 s
-    of probes: docs/benchmarks.md, speed part 16)."""
+    probe took some ten passes over (K, 3) arrays and a set-up kernel (the demo's point lamp:
+    0.40 s to 0.30 s of direct light; docs/benchmarks.md, speed part 16)."""
     count = len(samples.position)
     smooth = samples.terminator is not None
     receiving = np.ones(count, bool) if receives is None else np.ascontiguousarray(receives, bool)
-    centre = np.asarray(blockers.centre, np.float64)
     arguments = (light.kind == "SUN", np.asarray(light.position, np.float64),
                  np.asarray(light.direction, np.float64), np.ascontiguousarray(samples.position, np.float64),
                  np.ascontiguousarray(samples.normal, np.float64), np.ascontiguousarray(samples.geometric, np.float64),
@@ -386,10 +392,8 @@ def _corner_probes(module, light, samples: SampleSet, blockers, receives) -> Ite
         origins = np.empty((count, 3), samples.origins.dtype)
         directions = np.empty((count, 3))
         limits = np.empty(count, np.float32)
-        kernels.run(module.corner_probe_rays, blockers.threads,
-                    *arguments, corner, receiving, 1.0 - tol.SHADOW_RAY_SHORTEN, centre, bool(centre.any()),
-                    np.float32(tol.RAY_OFFSET_INT_SCALE), np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
-                    np.float32(tol.RAY_OFFSET_ORIGIN), aimed, origins, directions, limits)
+        kernels.run(module.corner_probe_rays, blockers.threads, *arguments, corner, receiving,
+                    *_ray_constants(blockers), aimed, origins, directions, limits)
         local = np.flatnonzero(aimed)
         if len(local):
             yield local, blockers.occluded(origins[local], directions[local], limits[local])
