@@ -16,7 +16,9 @@ Facts this relies on (DESIGN.md, re-checked with bpy 5.0.1 on Mesa llvmpipe):
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -28,6 +30,10 @@ SHADER_FOLDER = os.path.dirname(os.path.abspath(__file__))
 # Renderers that draw on the CPU: there the numpy twin of every pass is faster
 # (DESIGN.md: a 1024^2 x 64 gather took ~1.9 s on llvmpipe against ~1.1 s in numpy).
 SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software rasterizer", "microsoft basic render")
+# The files a Linux process reaches a GPU through: DRM nodes (Mesa's drivers, virtio, NVIDIA with
+# nvidia-drm), NVIDIA's own nodes, and WSL's paravirtualised GPU. With none of them, any context
+# would be a software renderer.
+GPU_DEVICE_FILES = ("/dev/dri/renderD*", "/dev/dri/card*", "/dev/nvidia[0-9]*", "/dev/dxg")
 MAX_TEXTURE_SIZE = 16384
 MAX_LAYERS = 2048
 _ENGINE_ID = "VISIBAKE_GPU_CONTEXT"
@@ -154,14 +160,27 @@ def device_info() -> DeviceInfo:
                       software=any(name in renderer.lower() for name in SOFTWARE_RENDERERS))
 
 
+def gpu_device_files() -> list[str] | None:
+    """On Linux, the device files of :data:`GPU_DEVICE_FILES` present (empty: no GPU to reach);
+    elsewhere None (not known without a context)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    return sorted(path for pattern in GPU_DEVICE_FILES for path in glob.glob(pattern))
+
+
 def choose_device(requested: str) -> tuple[str, str, DeviceInfo | None]:
     """('gpu' or 'cpu', the reason, device facts or None) for 'auto', 'gpu' or 'cpu'.
 
     'gpu' raises GPUUnavailable if there is no context; 'auto' falls back to the CPU
-    then, and on software renderers, where the CPU kernels are faster.
+    then, and on software renderers, where the CPU kernels are faster. On a Linux machine with
+    no GPU device file, 'auto' picks the CPU without making a context: in background mode a
+    context costs 0.1-0.3 s and about 96 MiB that the bake would carry to its end, only to learn
+    that the renderer is llvmpipe (docs/benchmarks.md, speed part 17).
     """
     if requested == "cpu":
         return "cpu", "asked for", None
+    if requested == "auto" and gpu_device_files() == []:
+        return "cpu", "auto: no GPU device on this machine (none of " + ", ".join(GPU_DEVICE_FILES) + ")", None
     try:
         info = device_info()
     except GPUUnavailable as error:

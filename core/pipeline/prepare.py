@@ -126,13 +126,17 @@ class Prepared:
         For a preparation relit once (:attr:`relit_once`); a later read of them is a bug and raises."""
         if self._direct_inputs_dropped:
             return
-        self.exposed()  # the one pass after direct light that reads the footprint (its point count)
+        # The one pass after direct light that reads the footprints reads only their point
+        # count, and runs after they are gone: it pages the table's entries in (the demo's
+        # highest moment when the footprints were still alive).
+        slots = 1 if self.footprint is None else self.footprint[0].shape[1]
         self.drop_footprint_shading()
         self.footprint = None
         for samples in self.object_samples:
             if getattr(samples, "footprint", None) is not None:
                 samples.footprint = None
         self._direct_inputs_dropped = True
+        self.exposed(slots)
 
     def drop_direct_inputs(self) -> None:
         """:meth:`drop_footprints`, and let go of the short hits' landing points (about 300 MiB at
@@ -157,16 +161,19 @@ class Prepared:
             raise RuntimeError(f"bug: {what} read after the preparation let go of its footprints "
                                "(Prepared.drop_direct_inputs)")
 
-    def exposed(self) -> np.ndarray:
+    def exposed(self, slots: int | None = None) -> np.ndarray:
         """(K,) float64 each sample's share of footprint points not buried inside other geometry
         (core.transport.contacts.exposed_share); ones without a table. Found once per
-        preparation: it depends on geometry alone."""
+        preparation: it depends on geometry alone. ``slots``: the footprints' point count, where
+        they are let go already (:meth:`drop_footprints`)."""
         if self._exposed is None:
             if self.table is None:
                 self._exposed = np.ones(len(self.position))
             else:
-                self._exposed = exposed_share(self.table, 1 if self.footprint is None else self.footprint[0].shape[1],
-                                              self.settings.threads)
+                if slots is None:
+                    self._check_direct_inputs("the footprints' point count")
+                    slots = 1 if self.footprint is None else self.footprint[0].shape[1]
+                self._exposed = exposed_share(self.table, slots, self.settings.threads)
         return self._exposed
 
     def dense_footprint(self, rows: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray | None]:

@@ -91,6 +91,13 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         # The gathered light is set once the gathers are done (a (K, 3) array kept until then).
         results.append(Transported(irradiance, None, shadow_rays=rays))
     contacts = _contact_light(p, backend, groups, results, stages, skipped, reused, last_direct)
+    # (K, 3 * count) float64: what each sample reflects of a unit of light, per group.
+    reflectance = np.tile(p.albedo, count) / np.pi
+    # Every gather looks the lamps' direct light up again (bounce b gathers direct plus b - 1
+    # bounces), so every one gets the same correction of its short hits. It reads no gathered
+    # light, so it is made before the gathers and the short hits go before the first one.
+    correction = None if contacts is None else _contacts_corrected(p, contacts, reflectance, dilate, last_direct)
+    del contacts
     if last_direct:
         p.drop_direct_inputs()  # the emitters' light below reads neither footprints nor short hits
     for number, (owner, emitter, chosen) in enumerate(sampled):
@@ -174,9 +181,6 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     del emissions
     gathered = np.zeros((len(p.position), 3 * count))
     direct = wide([r.direct for r in results])
-    # (K, 3 * count) float64: what each sample reflects of a unit of light, per group.
-    reflectance = np.tile(p.albedo, count) / np.pi
-    correction = None
     for bounce in range(1, bounces + 1):
         # In place, each (K, 3 * count) array made once: at the demo's 403k texels each one is
         # 9 MiB, and the gathers are where a bake holds the most beside its table.
@@ -191,16 +195,6 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         gathered = timed_gather(f"gather of bounce {bounce}", GatherSource(reflected_atlas, np.zeros(3 * count)),
                                 step_progress(bounce), outputs if bounce == bounces else None)
         gathers += 1
-        # Every gather looks the lamps' direct light up again (bounce b gathers direct plus
-        # b - 1 bounces), so every one gets the same correction of its short hits, found at the first.
-        if contacts is not None:
-            short, lamp_direct, at_hits = contacts
-            correction = contact_correction(short, p.layout, p.lookup_atlas(reflectance * lamp_direct, dilate),
-                                            at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
-            # The correction is all later gathers need of the short hits and their light.
-            contacts = short = lamp_direct = at_hits = None
-            if last_direct:
-                p.drop_short_hits()
         if correction is not None:
             gathered += correction
     del direct, reflectance
@@ -259,6 +253,7 @@ def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, ligh
             else:
                 irradiance, traced = backend.lamp_irradiance(samples, p.shadowing(), [unit_lamp(light)], part)
             unit = np.ascontiguousarray(irradiance[:, 0], dtype=np.float64)
+            del irradiance  # (K, 3): not held while the next lamp's is made
             rays += traced
             p.light_memo.put(key, unit)
         else:
@@ -304,6 +299,19 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
         short = replace(short, points=None)
     # A copy: the emitters' and the emitted light are added to the groups' direct light later.
     return short, np.concatenate([r.direct for r in results], axis=1), at_hits
+
+
+def _contacts_corrected(p: Prepared, contacts, reflectance: np.ndarray, dilate, last_direct: bool) -> np.ndarray:
+    """(K, 3G) float64: what every bounce's gather gains at the short hits of ``contacts``
+    (:func:`_contact_light`'s triple) when they reflect the lamps' light at their landing points
+    (core.transport.contacts.contact_correction); ``reflectance`` (K, 3G) is albedo / pi per group.
+    The correction is all the gathers need of the short hits: with ``last_direct`` they go now."""
+    short, lamp_direct, at_hits = contacts
+    correction = contact_correction(short, p.layout, p.lookup_atlas(reflectance * lamp_direct, dilate),
+                                    at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
+    if last_direct:
+        p.drop_short_hits()
+    return correction
 
 
 def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,

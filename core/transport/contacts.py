@@ -282,7 +282,7 @@ def _close_entries_numpy(p, target_reach: np.ndarray, sample_reach: np.ndarray |
 
 
 # Landing points :func:`find_short_hits` works out at a time.
-LANDING_CHUNK = 1 << 17
+LANDING_CHUNK = 1 << 16
 
 
 def find_short_hits(p, max_texels: float = SHORT_HIT_TEXELS) -> ShortHits | None:

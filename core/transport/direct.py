@@ -24,7 +24,7 @@ from .contract import SampleSet, Shadowing
 # Samples one exact-shadow direct-light pass evaluates at a time: its working arrays (about a
 # dozen of (n, 3) float64) stay near 100 MB however many samples there are, where the 3.8 M
 # short hits of the demo at the Production preset took 700 MB in one pass, the bake's highest.
-DIRECT_LIGHT_CHUNK = 1 << 19
+DIRECT_LIGHT_CHUNK = 1 << 18
 
 
 def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None) -> tuple[np.ndarray, int]:

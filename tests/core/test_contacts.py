@@ -206,10 +206,10 @@ def test_landing_points_found_by_chunks_are_bitwise_those_found_at_once(monkeypa
 
 def test_a_preparation_relit_once_lets_its_footprints_go_and_gives_the_same_light():
     """A command's bake relights its preparation once (Prepared.relit_once): the footprints go
-    once the short hits are found, the short hits' landing points once their light is known,
-    the short hits themselves once the first gather's correction is found, so the gathers run
-    without them. The light is bitwise a kept preparation's, and a later
-    read of what went is a bug that says so."""
+    once the short hits are found (their exposed shares, which read the footprints' point count,
+    are found after), the short hits' landing points once their light is known, the short hits
+    themselves once the gathers' correction is found, before the first gather. The light is
+    bitwise a kept preparation's, and a later read of what went is a bug that says so."""
     from core.pipeline.prepare import prepare
     from core.pipeline.relight import relight
     from core.scene import World
@@ -222,6 +222,9 @@ def test_a_preparation_relit_once_lets_its_footprints_go_and_gives_the_same_ligh
     result = relight(once, scene.lights, World())
     assert kept.footprint is not None and kept.short_hits().points is not None
     assert once.footprint is None and all(s.footprint is None for s in once.object_samples)
+    assert kept.footprint[0].shape[1] > 1
+    np.testing.assert_array_equal(once.exposed(), kept.exposed())
+    assert np.any(kept.exposed() < 1)  # the wall buries some of the floor's footprint points
     # What only direct light and the first gather's correction read is gone too: the short hits, the memo.
     assert kept.short_hits() is not None and len(kept.light_memo) > 0
     with pytest.raises(RuntimeError, match="bug: the short hits"):

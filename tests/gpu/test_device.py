@@ -1,5 +1,6 @@
 """Device choice end to end: the same bake on the GPU and in numpy, and what auto picks."""
 import json
+import sys
 
 import bpy
 
@@ -72,9 +73,39 @@ def test_gpu_and_cpu_bakes_agree(visibake, gpu_shaders, scene_file, tmp_path):
         np.testing.assert_allclose(ours, twin, rtol=1e-4, atol=1e-6, err_msg=str(name))
 
 
-def test_auto_picks_numpy_on_a_software_renderer(visibake, gpu_shaders, scene_file, tmp_path):
+def test_auto_picks_numpy_on_a_software_renderer(visibake, gpu_shaders, scene_file, tmp_path, monkeypatch):
+    """Where a GPU device file is present, auto asks the context's renderer."""
     info = gpu_shaders.runtime.device_info()
+    monkeypatch.setattr(gpu_shaders.runtime, "gpu_device_files", lambda: ["/dev/dri/renderD128"])
     report = _bake(visibake, scene_file, tmp_path / "auto", "auto")
     expected = "cpu" if info.software else "gpu"
     assert report["device"]["used"] == expected
     assert info.renderer in report["device"]["reason"]
+
+
+def test_auto_picks_the_cpu_without_a_context_where_linux_has_no_gpu_device(visibake, gpu_shaders, scene_file,
+                                                                             tmp_path, monkeypatch):
+    """No GPU device file on Linux: auto takes the CPU kernels without making a context (which
+    held 96 MiB to the bake's end on the demo) and says why; gpu still makes one."""
+    runtime = gpu_shaders.runtime
+    monkeypatch.setattr(runtime, "gpu_device_files", lambda: [])
+
+    def no_context():
+        raise AssertionError("auto made a GPU context")
+
+    monkeypatch.setattr(runtime, "device_info", no_context)
+    report = _bake(visibake, scene_file, tmp_path / "auto", "auto")
+    assert report["device"]["used"] == "cpu" and "renderer" not in report["device"]
+    assert "no GPU device on this machine" in report["device"]["reason"]
+    assert all(p["device"] == "cpu" for p in report["passes"])
+    with pytest.raises(AssertionError, match="made a GPU context"):
+        runtime.choose_device("gpu")
+
+
+def test_gpu_device_files_are_listed_on_linux_only(gpu_shaders, monkeypatch):
+    runtime = gpu_shaders.runtime
+    found = runtime.gpu_device_files()
+    if sys.platform.startswith("linux"):
+        assert isinstance(found, list) and all(path.startswith("/dev/") for path in found)
+    monkeypatch.setattr(runtime.sys, "platform", "darwin")
+    assert runtime.gpu_device_files() is None
