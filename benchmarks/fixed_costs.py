@@ -8,7 +8,8 @@ checked bitwise equal.
   loop triangles' vertex and material indices read through the attributes
   (operators.adapter.extract.read_triangles) against ``loop_triangles.foreach_get``; and
   embree's copy of the mesh (core.visibility.rays._triangle_mesh) against embreex's own
-  ``TriangleMesh`` on the numpy arrays (the same buffers: not compared bit by bit, "n/a").
+  ``TriangleMesh`` on the numpy arrays (the same buffers: not compared bit by bit, "n/a"), and
+  the mesh handed to embree where it lies (core.visibility.embree_shared) against that copy.
 - On the demo scene (403k texels, 128 directions, interleaved): the contact and near-field
   passes (core.transport.contacts: close_entries, exposed_share, _texel_owners;
   core.transport.interleave.filter_pairs) and, for each hard lamp, the direct light with the
@@ -152,6 +153,14 @@ def main(argv=None) -> int:
         return None
     compare("embree's copy of dense_mesh", lambda: embree_copy(lambda make, *a: make(*a)),
             lambda: embree_copy(rays._triangle_mesh), "embreex TriangleMesh on numpy arrays", checked=False)
+    shared = module("core.visibility.embree_shared")
+
+    def attached_where_it_lies():
+        scene, device = shared.new_scene()
+        if shared.attach(scene, device, shared.padded_vertices(vertices32), indices32) != 0:
+            raise RuntimeError("embree_shared could not attach dense_mesh here")
+    compare("dense_mesh handed to embree without a copy (speed part 17)", lambda: embree_copy(rays._triangle_mesh),
+            attached_where_it_lies, "embreex TriangleMesh on Python objects (part 14)", checked=False)
 
     # The demo's per-preparation passes and its lamps.
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -13,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .. import tolerances as tol
+from . import embree_shared
 
 
 def offset_ray_origins(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -61,9 +62,8 @@ class RayScene:
 
     def __init__(self, meshes, threads: int = 0, centre=None):
         from embreex.mesh_construction import TriangleMesh
-        from embreex.rtcore_scene import EmbreeScene
 
-        self._scene = EmbreeScene()
+        self._scene, self._device = embree_shared.new_scene()
         self._meshes = []
         self._positions = []
         self._triangles = []
@@ -76,7 +76,10 @@ class RayScene:
                 # geometry ids aligned with mesh indices and is never hit.
                 vertices = np.zeros((3, 3), np.float32)
                 indices = np.array([[0, 1, 2]], np.int32)
-            self._meshes.append(_triangle_mesh(TriangleMesh, self._scene, vertices, indices))
+            # Embree reads the arrays kept below where they lie (embree_shared); else embreex copies them.
+            vertices = embree_shared.padded_vertices(vertices)
+            if embree_shared.attach(self._scene, self._device, vertices, indices) is None:
+                self._meshes.append(_triangle_mesh(TriangleMesh, self._scene, vertices, indices))
             self._positions.append(vertices)
             self._triangles.append(indices)
         self.threads = threads or default_threads()
@@ -191,7 +194,8 @@ class RayScene:
 
 def _triangle_mesh(triangle_mesh, scene, vertices: np.ndarray, indices: np.ndarray):
     """embreex's ``TriangleMesh(scene, vertices, indices)`` of (n, 3) float32 ``vertices`` and
-    (m, 3) int32 ``indices``, with the same buffers, built 1.7x faster.
+    (m, 3) int32 ``indices``, with the same buffers, built 1.7x faster: where a mesh cannot be
+    handed to embree without a copy (core.visibility.embree_shared).
 
     embreex copies both arrays into embree's buffers element by element through untyped
     indexing: ``indices[i][0]`` makes a numpy view of row ``i`` before reading it, 1.2 us a

@@ -95,3 +95,63 @@ def test_meshes_given_to_embree_as_python_objects_are_the_arrays_own():
     assert (hits[0]["geomID"] >= 0).sum() > 1000
     for key in ("geomID", "primID", "u", "v", "tfar"):
         np.testing.assert_array_equal(hits[0][key], hits[1][key])
+
+
+def _random_rays(rng, count, scale):
+    origins = rng.normal(scale=scale, size=(count, 3)).astype(np.float32)
+    directions = rng.normal(size=(count, 3)).astype(np.float32)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return origins, directions
+
+
+def test_meshes_attached_where_they_lie_answer_bitwise_as_embreex_s_copies(monkeypatch):
+    """RayScene hands embree its arrays without embreex's copy (core.visibility.embree_shared),
+    where the pinned embreex's layout proves itself: on this platform it must, and every query
+    (nearest hits, their barycentrics and distances, occlusion, several meshes' ids, a NaN vertex,
+    a degenerate triangle, an empty mesh) answers bitwise as with embreex's copy."""
+    from core.visibility import embree_shared
+
+    assert embree_shared.available()
+    rng = np.random.default_rng(9)
+    positions = rng.normal(size=(500, 3)) + [4.0, 0.0, 0.0]  # beside the rays' origins, between the planes
+    positions[7] = np.nan
+    triangles = rng.integers(0, len(positions), size=(2000, 3)).astype(np.int32)
+    triangles[3] = [5, 5, 9]
+    meshes = [(positions, triangles), *(_plane(z, 1.5) for z in (-1.0, 1.0)),
+              (np.zeros((0, 3)), np.zeros((0, 3), np.int32))]
+    origins, directions = _random_rays(rng, 20000, 0.3)
+    limits = rng.uniform(0.1, 3.0, len(origins))
+    attached = []
+    real_attach = embree_shared.attach
+    monkeypatch.setattr(embree_shared, "attach", lambda *args: attached.append(real_attach(*args)) or attached[-1])
+    shared = RayScene(meshes, threads=2)
+    assert attached == [0, 1, 2, 3]  # geometry ids in mesh order
+    monkeypatch.setattr(embree_shared, "attach", lambda *args: None)
+    copied = RayScene(meshes, threads=2)
+    ours, theirs = shared.intersect(origins, directions), copied.intersect(origins, directions)
+    assert len(np.unique(ours[0])) == 4  # misses and the three meshes with area
+    for a, b in zip(ours, theirs):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(shared.occluded(origins, directions, limits),
+                                  copied.occluded(origins, directions, limits))
+    np.testing.assert_array_equal(shared.positions(1), copied.positions(1))
+
+
+def test_a_scene_whose_fields_do_not_prove_themselves_is_not_attached_to():
+    """The scene's handle is read only where the embreex objects are the ones made together
+    (embree_shared.new_scene) and the vertices are padded for embree's 16-byte reads; else
+    nothing is attached and RayScene uses embreex's copy."""
+    from embreex.rtcore import EmbreeDevice
+
+    from core.visibility import embree_shared
+
+    scene, device = embree_shared.new_scene()
+    vertices = embree_shared.padded_vertices(np.eye(3, dtype=np.float32))
+    triangles = np.array([[0, 1, 2]], np.int32)
+    assert embree_shared.attach(scene, EmbreeDevice(), vertices, triangles) is None
+    assert embree_shared.attach(scene, device, np.eye(3, dtype=np.float32), triangles) is None  # not padded
+    assert embree_shared.attach(scene, device, vertices, triangles.astype(np.int64)) is None
+    assert embree_shared.attach(scene, device, vertices, triangles) == 0
+    found = scene.run(np.array([[0.2, 0.2, 0.2]], np.float32), np.array([[1, 1, 1]], np.float32) / np.sqrt(3),
+                      output=1)
+    assert found["geomID"][0] == 0 and found["primID"][0] == 0
