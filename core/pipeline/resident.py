@@ -87,7 +87,9 @@ def prepare_or_reuse(scene: Scene, settings: BakeSettings, progress=None, table_
     spared, and its cache state is 'resident'.
     """
     global _kept
-    key = preparation_key(scene, settings, table_needed, cache)
+    # Without a bound nothing is reused or kept, so no key is needed: it hashes every mesh's
+    # arrays (54 ms of a 200k-triangle mesh's 0.5 s bake; docs/benchmarks.md, speed part 17).
+    key = preparation_key(scene, settings, table_needed, cache) if keep_bytes > 0 else None
     with _lock:
         kept = _kept
         if keep_bytes <= 0:

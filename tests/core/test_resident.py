@@ -75,6 +75,17 @@ def test_the_memory_bound_is_kept_and_zero_lets_go():
     assert resident.prepare_or_reuse(_scene(), SETTINGS, keep_bytes=PLENTY) is not kept
 
 
+def test_a_bake_that_keeps_nothing_hashes_nothing(monkeypatch):
+    """Without a bound (a command's one bake) the key, which hashes every mesh's arrays, is
+    never computed; and what was kept is let go all the same."""
+    kept = resident.prepare_or_reuse(_scene(), SETTINGS, keep_bytes=PLENTY)
+    keys = []
+    real_key = resident.preparation_key
+    monkeypatch.setattr(resident, "preparation_key", lambda *args: keys.append(real_key(*args)) or keys[-1])
+    assert resident.prepare_or_reuse(_scene(), SETTINGS, keep_bytes=0) is not kept and keys == []
+    assert resident.prepare_or_reuse(_scene(), SETTINGS, keep_bytes=PLENTY) is not kept and len(keys) == 1
+
+
 POINT = Light("Bulb", "POINT", np.array([1.0, 0.9, 0.8]), 40.0, position=np.array([0.2, -0.3, 0.8]), radius=0.1)
 MEMO_SETTINGS = dataclasses.replace(SETTINGS, footprint_samples=4, area_light_samples=2)
 
