@@ -49,7 +49,6 @@ _module = None
 _volume_module = None
 _volume_seconds = 0.0
 _appearance_module = None
-_embree_module = None  # the fused trace kernel, False where it cannot load here
 _blas_lock = threading.Lock()
 _blas_depth = 0
 _blas_limits = None
@@ -520,32 +519,6 @@ def appearance():
             appearance_kernels.warm_up()
             _appearance_module = appearance_kernels
         return _appearance_module
-
-
-def embree():
-    """The fused trace kernel (:mod:`core.kernels.embree_kernels`), compiled or read from the
-    cache on first use; None where numba cannot load, or where embree cannot be called from it
-    (core.visibility.embree_shared.bind_intersect): the span tracer's three steps run then."""
-    global _embree_module
-    if compiled() is None:
-        return None
-    with _lock:
-        if _embree_module is None:
-            _embree_module = False
-            try:
-                from ..visibility import embree_shared
-                from ..visibility.rays import RayScene
-
-                if embree_shared.bind_intersect():
-                    from . import embree_kernels
-                    probe = RayScene([(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
-                                       np.array([[0, 1, 2]]))], threads=1)
-                    if probe.handle is not None:
-                        embree_kernels.warm_up(probe.handle)
-                        _embree_module = embree_kernels
-            except Exception:  # noqa: BLE001 - whatever fails, the three-step trace gives the same entries
-                _embree_module = False
-        return _embree_module or None
 
 
 def volume_load_seconds() -> float:

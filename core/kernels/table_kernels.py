@@ -81,48 +81,6 @@ def _vertex_code(triangle, value, cells, axis):
     return np.uint16(cell * steps + np.int64(np.rint(x * (steps - 1))))
 
 
-@nb.njit(inline="always")
-def record_hit(hit_object, hit_uv_code, hit_distance_code, e, geometry, triangle, u, v, distance, dx, dy, dz,
-               triangle_offset, face_normals, corner_uv, vertex_cells, distance_splits):
-    """Write one ray's hit of ``geometry`` (>= 0), local ``triangle``, barycentrics ``u``, ``v``,
-    ``distance`` (float32 each) and direction (dx, dy, dz) (float32) into entry ``e`` (as
-    :func:`record`); returns whether it hit a back face."""
-    t = triangle_offset[geometry] + triangle
-    facing = (face_normals[t, 0] * np.float64(dx) + face_normals[t, 1] * np.float64(dy)) \
-        + face_normals[t, 2] * np.float64(dz)
-    back = facing > 0.0
-    cells = vertex_cells[geometry]
-    if back:
-        hit_object[e] = BACKFACE
-        hit_uv_code[e, 0] = 0
-        hit_uv_code[e, 1] = 0
-    else:
-        hit_object[e] = geometry
-        if cells > 0:
-            local = np.int64(triangle)
-            hit_uv_code[e, 0] = _vertex_code(local, u, cells, 0)
-            hit_uv_code[e, 1] = _vertex_code(local, v, cells, 1)
-        else:
-            w = (_F32(1.0) - u) - v
-            for axis in range(2):
-                landing = (w * corner_uv[t, 0, axis] + u * corner_uv[t, 1, axis]) + v * corner_uv[t, 2, axis]
-                hit_uv_code[e, axis] = _uv_code(landing)
-    if distance - distance != _F32(0.0):  # inf or NaN
-        hit_distance_code[e] = NO_HIT_DISTANCE_CODE
-    else:
-        hit_distance_code[e] = _distance_code(distance, distance_splits)
-    return back
-
-
-@nb.njit(inline="always")
-def record_miss(hit_object, hit_uv_code, hit_distance_code, e):
-    """Write a missed ray into entry ``e`` (as :func:`record`)."""
-    hit_object[e] = MISS
-    hit_uv_code[e, 0] = 0
-    hit_uv_code[e, 1] = 0
-    hit_distance_code[e] = NO_HIT_DISTANCE_CODE
-
-
 @nb.njit(**SERIAL_OPTIONS)
 def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, triangle, bary,
            distance, ray_directions, triangle_offset, face_normals, corner_uv, vertex_cells, where,
@@ -152,40 +110,41 @@ def record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry, tria
             if not where[r] or geometry < 0:
                 continue
         elif geometry < 0:
-            record_miss(hit_object, hit_uv_code, hit_distance_code, e)
+            hit_object[e] = MISS
+            hit_uv_code[e, 0] = 0
+            hit_uv_code[e, 1] = 0
+            hit_distance_code[e] = NO_HIT_DISTANCE_CODE
             continue
-        back = record_hit(hit_object, hit_uv_code, hit_distance_code, e, geometry, triangle[r], bary[r, 0], bary[r, 1],
-                          distance[r], ray_directions[r, 0], ray_directions[r, 1], ray_directions[r, 2],
-                          triangle_offset, face_normals, corner_uv, vertex_cells, distance_splits)
-        if back and counting:
-            backfaces[sample_index[r] - first_sample] += 1
-
-
-@nb.njit(inline="always")
-def set_up_ray(i, s, positions, footprint, point_of_direction, geometric, frame_directions, group, centre, recentred,
-               int_scale, float_scale, origin_limit, origin, direction):
-    """Ray (direction ``i``, sample ``s``) into ``origin`` and ``direction`` (3,) float32 each
-    (as :func:`ray_setup`); with ``recentred``, the origin also makes the round trip through
-    world space that RayScene's queries make (float64 plus and minus ``centre``)."""
-    points = footprint.shape[1]
-    point = point_of_direction[i] if points > 0 else 0
-    for axis in range(3):
-        x = positions[s, axis]
-        if points > 0:
-            x = x + np.float64(footprint[s, point, axis])
-        x = x - centre[axis]
-        p = np.float32(x)
-        n = np.float32(geometric[s, axis])
-        if abs(p) < origin_limit:
-            o = p + float_scale * n
+        t = triangle_offset[geometry] + triangle[r]
+        facing = (face_normals[t, 0] * np.float64(ray_directions[r, 0])
+                  + face_normals[t, 1] * np.float64(ray_directions[r, 1])) \
+            + face_normals[t, 2] * np.float64(ray_directions[r, 2])
+        back = facing > 0.0
+        u = bary[r, 0]
+        v = bary[r, 1]
+        cells = vertex_cells[geometry]
+        if back:
+            hit_object[e] = BACKFACE
+            hit_uv_code[e, 0] = 0
+            hit_uv_code[e, 1] = 0
+            if counting:
+                backfaces[sample_index[r] - first_sample] += 1
         else:
-            offset = np.int32(int_scale * n)
-            bits = float32_bits(p)
-            o = bits_float32(np.int32(bits - offset) if p < _F32(0.0) else np.int32(bits + offset))
-        if recentred:
-            o = np.float32((np.float64(o) + centre[axis]) - centre[axis])
-        origin[axis] = o
-        direction[axis] = frame_directions[group[s], i, axis]
+            hit_object[e] = geometry
+            if cells > 0:
+                local = np.int64(triangle[r])
+                hit_uv_code[e, 0] = _vertex_code(local, u, cells, 0)
+                hit_uv_code[e, 1] = _vertex_code(local, v, cells, 1)
+            else:
+                w = (_F32(1.0) - u) - v
+                for axis in range(2):
+                    landing = (w * corner_uv[t, 0, axis] + u * corner_uv[t, 1, axis]) + v * corner_uv[t, 2, axis]
+                    hit_uv_code[e, axis] = _uv_code(landing)
+        d = distance[r]
+        if d - d != _F32(0.0):  # inf or NaN
+            hit_distance_code[e] = NO_HIT_DISTANCE_CODE
+        else:
+            hit_distance_code[e] = _distance_code(d, distance_splits)
 
 
 @nb.njit(**SERIAL_OPTIONS)
@@ -207,10 +166,25 @@ def ray_setup(direction_index, sample_index, positions, footprint, point_of_dire
     int_scale, float_scale, origin_limit : float32, core.tolerances' RAY_OFFSET_* constants
     origins : (n, 3) float32, out: in the ray scene's frame; directions : (n, 3) float32, out
     """
+    points = footprint.shape[1]
     for r in range(direction_index.shape[0]):
-        set_up_ray(direction_index[r], sample_index[r], positions, footprint, point_of_direction, geometric,
-                   frame_directions, group, centre, False, int_scale, float_scale, origin_limit, origins[r],
-                   directions[r])
+        i = direction_index[r]
+        s = sample_index[r]
+        point = point_of_direction[i] if points > 0 else 0
+        for axis in range(3):
+            x = positions[s, axis]
+            if points > 0:
+                x = x + np.float64(footprint[s, point, axis])
+            x = x - centre[axis]
+            p = np.float32(x)
+            n = np.float32(geometric[s, axis])
+            if abs(p) < origin_limit:
+                origins[r, axis] = p + float_scale * n
+            else:
+                offset = np.int32(int_scale * n)
+                bits = float32_bits(p)
+                origins[r, axis] = bits_float32(np.int32(bits - offset) if p < _F32(0.0) else np.int32(bits + offset))
+            directions[r, axis] = frame_directions[group[s], i, axis]
 
 
 @nb.njit(**KERNEL_OPTIONS)

@@ -365,7 +365,6 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
         # compiled (a fresh kernel cache), shown as a stage of its own.
         stages.start("kernels")
         kernels.status()
-        kernels.embree()  # the fused trace kernel too (20 ms from the cache, 3 s to compile)
     stages.start("samples")
     meshes = meshes_with_faces(scene.meshes)
     warnings += [f"object {mesh.name!r} has no faces and was skipped" for mesh in scene.meshes

@@ -182,40 +182,6 @@ def attach(scene, device, vertices: np.ndarray, indices: np.ndarray) -> int | No
         return _attach_unchecked(scene, device, vertices, indices)
 
 
-def bind_intersect() -> bool:
-    """Bind embree's ``rtcIntersect1`` to core.kernels.embree_kernels.INTERSECT_SYMBOL in
-    llvmlite's symbol table (compiled kernels call it there); False where it cannot be (no
-    library, or meshes are not attached here, so that no scene handle is known)."""
-    with _lock:
-        if "bound" not in _state:
-            bound = False
-            library = _library()
-            if library is not None and _proven():
-                try:
-                    import llvmlite.binding
-
-                    from ..kernels.embree_kernels import INTERSECT_SYMBOL
-
-                    address = ctypes.cast(library.rtcIntersect1, ctypes.c_void_p).value
-                    if address:
-                        llvmlite.binding.add_symbol(INTERSECT_SYMBOL, address)
-                        bound = True
-                except (ImportError, AttributeError, OSError):
-                    bound = False
-            _state["bound"] = bound
-        return _state["bound"]
-
-
-def handle(scene, device) -> int | None:
-    """The RTCScene handle of an embreex ``scene`` made by :func:`new_scene` with ``device``, for
-    compiled code to query; None where its fields do not prove themselves."""
-    with _lock:
-        if not _proven():
-            return None
-        found = _handles(scene, device)
-        return None if found is None else found[0]
-
-
 def available() -> bool:
     """Whether meshes are attached without embreex's copy in this process."""
     with _lock:

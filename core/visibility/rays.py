@@ -87,8 +87,6 @@ class RayScene:
         # where the scene is made (a bake's "bvh" stage), not in whichever pass traces first,
         # and so that threads starting queries at once never race to build it.
         self._scene.run(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
-        # embree's handle of the built scene, for compiled code that queries it (core.kernels.embree).
-        self.handle = embree_shared.handle(self._scene, self._device)
 
     def subset(self, indices) -> RayScene | None:
         """A scene of only the geometries ``indices`` (a lamp's shadow blockers); None if empty.

@@ -636,8 +636,15 @@ class TraceRequest:
         (n, 3) float32 as :meth:`rays` returns them. Releases the GIL: threads may run it on
         spans of their own at once. Needs the compiled kernels."""
         module = kernels.compiled()
-        (positions, footprint, point_of_direction, normals, frame_directions, group, centre, recentred,
-         *constants) = self.ray_setup_arguments(ray_scene)
+        positions = np.ascontiguousarray(self.positions, np.float64)
+        normals = np.ascontiguousarray(self.geometric_normals, np.float64)
+        footprint = (np.zeros((len(self.positions), 0, 3), np.float32) if self.footprint is None
+                     else np.ascontiguousarray(self.footprint, np.float32))
+        point_of_direction = np.arange(len(self.directions), dtype=np.int64) % max(footprint.shape[1], 1)
+        frame_directions, group, centre = self._frame_directions(), self._frame_group(), ray_scene.centre
+        recentred = bool(centre.any())
+        constants = (np.float32(tol.RAY_OFFSET_INT_SCALE), np.float32(tol.RAY_OFFSET_FLOAT_SCALE),
+                     np.float32(tol.RAY_OFFSET_ORIGIN))
 
         def set_up(direction_index, sample_index, origins, directions):
             module.ray_setup(direction_index, sample_index, positions, footprint, point_of_direction, normals,
@@ -647,20 +654,6 @@ class TraceRequest:
                 origins[:] = ((origins.astype(np.float64) + centre) - centre).astype(np.float32)
 
         return set_up
-
-    def ray_setup_arguments(self, ray_scene: RayScene) -> tuple:
-        """The arguments core.kernels.table_kernels.set_up_ray takes after its ray's direction
-        and sample: positions, footprint, point_of_direction, geometric normals, frame_directions,
-        group, centre, recentred and the three RAY_OFFSET constants, as contiguous arrays of
-        its dtypes (:meth:`ray_setup` documents them)."""
-        footprint = (np.zeros((len(self.positions), 0, 3), np.float32) if self.footprint is None
-                     else np.ascontiguousarray(self.footprint, np.float32))
-        centre = ray_scene.centre
-        return (np.ascontiguousarray(self.positions, np.float64), footprint,
-                np.arange(len(self.directions), dtype=np.int64) % max(footprint.shape[1], 1),
-                np.ascontiguousarray(self.geometric_normals, np.float64), self._frame_directions(),
-                self._frame_group(), centre, bool(centre.any()), np.float32(tol.RAY_OFFSET_INT_SCALE),
-                np.float32(tol.RAY_OFFSET_FLOAT_SCALE), np.float32(tol.RAY_OFFSET_ORIGIN))
 
     def _frame_directions(self) -> np.ndarray:
         """(G, N, 3) float32 the directions of each rotation (G = 1 without rotations), as
@@ -775,41 +768,28 @@ def _recorder(entries: TableEntries, geometry: HitGeometry):
     minus ``first_sample``. Releases the GIL: threads may run it at once on rays of their own
     (each ray owns its entry) with counts of their own."""
     module = kernels.compiled()
-    hit_object, hit_uv_code, hit_distance_code, triangle_offset, face_normals, corner_uv, cells, splits = \
-        _record_arguments(entries, geometry)
+    cells = geometry.vertex_cells()
+    cells = np.zeros(len(geometry.triangle_offset), np.int64) if cells is None else cells
+    triangle_offset = np.ascontiguousarray(geometry.triangle_offset, np.int64)
+    face_normals = np.ascontiguousarray(geometry.face_normals, np.float64)
+    corner_uv = np.ascontiguousarray(geometry.corner_uv, np.float32)
     everywhere, uncounted, no_samples = np.zeros(0, bool), np.zeros(0, np.int32), np.zeros(0, np.int64)
 
     def write(entry, hit_geometry, triangle, bary, distance, ray_directions, where=None, sample_index=None,
               first_sample=0, backfaces=None):
-        module.record(hit_object, hit_uv_code, hit_distance_code, entry, hit_geometry,
+        module.record(entries.hit_object, entries.hit_uv_code, entries.hit_distance_code, entry, hit_geometry,
                       triangle, bary, distance, ray_directions, triangle_offset, face_normals, corner_uv, cells,
-                      everywhere if where is None else where, splits,
+                      everywhere if where is None else where, DISTANCE_SPLITS,
                       no_samples if sample_index is None else sample_index, np.int64(first_sample),
                       uncounted if backfaces is None else backfaces)
 
     return write
 
 
-def _record_arguments(entries: TableEntries, geometry: HitGeometry) -> tuple:
-    """What core.kernels.table_kernels.record_hit takes besides the ray: the entries' three
-    arrays, triangle_offset, face_normals, corner_uv, vertex_cells and DISTANCE_SPLITS, as
-    contiguous arrays of its dtypes."""
-    cells = geometry.vertex_cells()
-    cells = np.zeros(len(geometry.triangle_offset), np.int64) if cells is None else cells
-    return (entries.hit_object, entries.hit_uv_code, entries.hit_distance_code,
-            np.ascontiguousarray(geometry.triangle_offset, np.int64),
-            np.ascontiguousarray(geometry.face_normals, np.float64),
-            np.ascontiguousarray(geometry.corner_uv, np.float32), cells, DISTANCE_SPLITS)
-
-
 class SpanTracer:
     """Traces rays into a table's stored entries: each of ``ray_scene.threads`` threads takes
     spans of :data:`SPAN_RAYS` rays in turn and lists them (from the entry bits, for a range
     of samples), sets them up, traces them and records them before it takes the next.
-
-    Where embree can be called from compiled code (core.kernels.embree), one loop sets up,
-    traces and records each ray of the span in turn (core.kernels.embree_kernels.trace_span):
-    the same entries, 10% sooner on the demo (docs/benchmarks.md, speed part 17).
 
     A span's arrays (about 1 MB) stay in its core's cache from one step to the next, no list
     of a whole chunk's rays is made, and no thread waits for the others until the last span.
@@ -831,13 +811,7 @@ class SpanTracer:
         self.ray_scene, self.request, self.geometry, self.entries = ray_scene, request, geometry, entries
         self.threads = ray_scene.threads
         self._module = kernels.compiled()
-        # One compiled loop sets up, traces and records each ray where embree can be called from
-        # it (core.kernels.embree); else three steps a span, embreex's query between two kernels.
-        self._fused = None if self._module is None or ray_scene.handle is None else kernels.embree()
-        if self._fused is not None:
-            self._fused_arguments = (*request.ray_setup_arguments(ray_scene), *_record_arguments(entries, geometry))
-            self._rayhits = [self._fused.rayhit_buffer() for _ in range(self.threads)]
-        elif self._module is not None:
+        if self._module is not None:
             self._set_up = request.ray_setup(ray_scene)
             self._write = _recorder(entries, geometry)
         self._buffers = [None] * self.threads
@@ -896,7 +870,6 @@ class SpanTracer:
         ``backfaces``: one count per thread (:func:`_recorder`), or None."""
         spans = itertools.count()  # next() is atomic under the GIL: each span goes to one thread
         failed = threading.Event()
-        uncounted = np.zeros(0, np.int32)
 
         def work(thread: int) -> None:
             if self._buffers[thread] is None:
@@ -911,11 +884,6 @@ class SpanTracer:
                     b = min(count, a + SPAN_RAYS)
                     n = b - a
                     direction_index, sample_index, entry = span_rays(a, b, span)
-                    if self._fused is not None:
-                        self._fused.trace_span(self.ray_scene.handle, self._rayhits[thread], direction_index,
-                                               sample_index, entry, *self._fused_arguments, np.int64(first_sample),
-                                               uncounted if counts is None else counts)
-                        continue
                     origins, directions = span.origins[:n], span.directions[:n]
                     self._set_up(direction_index, sample_index, origins, directions)
                     found = self.ray_scene.intersect_here(origins, directions)

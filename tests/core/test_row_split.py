@@ -97,59 +97,10 @@ def test_the_table_is_the_same_whatever_the_span_and_thread_count(traced, monkey
     _assert_same_table(trace_table(p.ray_scene, dataclasses.replace(request, chunk_rays=48 * 23)), whole)
 
 
-@pytest.mark.parametrize("far", [False, True])
-def test_the_fused_trace_gives_the_three_step_trace_s_table_bitwise(monkeypatch, far):
-    """Where embree can be called from compiled code (core.kernels.embree), each ray is set up,
-    traced and recorded in one loop: the table (hits, backfaces and their counts, misses) is
-    bitwise that of the set-up kernel, embreex's query and the record kernel, for a scene at the
-    world origin and one recentred far from it (the origins' round trip through world space)."""
-    from core import kernels
-
-    assert kernels.embree() is not None  # on this platform the fused trace must load
-    scene = _scene()
-    if far:
-        for mesh in scene.meshes:
-            mesh.positions = mesh.positions + np.array([1e5, -2e5, 3e4])
-    settings = BakeSettings(directions=48, bounces=1, footprint_samples=8, interleave=3, chunk_rays=48 * 37)
-    p = prepare(scene, settings, table_needed=True)
-    assert p.ray_scene.centre.any() == far and p.ray_scene.handle is not None
-    request = p.trace_request()
-    fused = trace_table(p.ray_scene, request)
-    assert fused.backface_hits > 0 and np.any(fused.hit_object == -1)  # misses too (MISS)
-    monkeypatch.setattr(kernels, "_embree_module", False)
-    _assert_same_table(trace_table(p.ray_scene, request), fused)
-
-
-def test_an_error_in_one_span_of_the_fused_trace_stops_it_and_reaches_the_caller(traced, monkeypatch):
-    from core import kernels
-    from core.visibility import table as table_module
-
-    p, request = traced
-    monkeypatch.setattr(table_module, "SPAN_RAYS", 16)
-    monkeypatch.setattr(p.ray_scene, "threads", 2)
-    fused = kernels.embree()
-    calls = []
-    real_trace = fused.trace_span
-
-    def failing_trace(*arguments):
-        calls.append(1)
-        if len(calls) == 5:
-            raise MemoryError("span 5")
-        real_trace(*arguments)
-
-    monkeypatch.setattr(fused, "trace_span", failing_trace)
-    with pytest.raises(MemoryError, match="span 5"):
-        trace_table(p.ray_scene, request)
-    spans = -(-int(p.table.traced_per_sample.sum()) // 16)
-    assert 5 <= len(calls) <= 7 < spans
-
-
 def test_an_error_in_one_span_stops_the_trace_and_reaches_the_caller(traced, monkeypatch):
-    from core import kernels
     from core.visibility import table as table_module
 
     p, request = traced
-    monkeypatch.setattr(kernels, "_embree_module", False)  # the three steps: set-up, embreex, record
     monkeypatch.setattr(table_module, "SPAN_RAYS", 16)
     monkeypatch.setattr(p.ray_scene, "threads", 2)
     calls = []
