@@ -152,6 +152,6 @@ def test_a_scene_whose_fields_do_not_prove_themselves_is_not_attached_to():
     assert embree_shared.attach(scene, device, np.eye(3, dtype=np.float32), triangles) is None  # not padded
     assert embree_shared.attach(scene, device, vertices, triangles.astype(np.int64)) is None
     assert embree_shared.attach(scene, device, vertices, triangles) == 0
-    found = scene.run(np.array([[0.2, 0.2, 0.2]], np.float32), np.array([[1, 1, 1]], np.float32) / np.sqrt(3),
+    found = scene.run(np.array([[0.2, 0.2, 0.2]], np.float32), np.full((1, 3), 1 / np.sqrt(3), np.float32),
                       output=1)
     assert found["geomID"][0] == 0 and found["primID"][0] == 0
