@@ -102,9 +102,9 @@ def _handles(scene, device) -> tuple[int, int] | None:
 
 
 def padded_vertices(vertices: np.ndarray) -> np.ndarray:
-    """(n, 3) float32 ``vertices`` in an array with one float more after them: embree reads a
-    shared vertex buffer with 16-byte loads, so its last vertex needs 4 bytes of padding.
-    Returns the (n, 3) view; its base holds the padding."""
+    """(n, 3) ``vertices`` (any float dtype, rounded to float32 as ``astype`` rounds) in a float32
+    array with one float more after them: embree reads a shared vertex buffer with 16-byte loads,
+    so its last vertex needs 4 bytes of padding. Returns the (n, 3) view; its base holds the padding."""
     padded = np.zeros(3 * len(vertices) + 1, np.float32)
     view = padded[:3 * len(vertices)].reshape(-1, 3)
     view[...] = vertices

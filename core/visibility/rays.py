@@ -69,15 +69,15 @@ class RayScene:
         self._triangles = []
         self.centre = np.zeros(3) if centre is None else np.asarray(centre, np.float64).reshape(3)
         for positions, triangles in meshes:
-            vertices = np.ascontiguousarray(self.local(positions), dtype=np.float32)
             indices = np.ascontiguousarray(triangles, dtype=np.int32)
             if len(indices) == 0:
                 # embree rejects empty buffers; a single degenerate triangle keeps
                 # geometry ids aligned with mesh indices and is never hit.
-                vertices = np.zeros((3, 3), np.float32)
+                vertices = embree_shared.padded_vertices(np.zeros((3, 3)))
                 indices = np.array([[0, 1, 2]], np.int32)
+            else:
+                vertices = embree_shared.padded_vertices(self.local(positions))
             # Embree reads the arrays kept below where they lie (embree_shared); else embreex copies them.
-            vertices = embree_shared.padded_vertices(vertices)
             if embree_shared.attach(self._scene, self._device, vertices, indices) is None:
                 self._meshes.append(_triangle_mesh(TriangleMesh, self._scene, vertices, indices))
             self._positions.append(vertices)
