@@ -43,7 +43,7 @@ from ..pipeline.prepare import (
 from ..sampling.samples import ObjectSamples, TexelSummary, build_samples, build_vertex_samples, texel_summary
 from ..settings import BakeSettings
 from ..transport.contract import SampleSet, direction_chunks
-from ..transport.gather import AtlasLayout, gather_normalisation
+from ..transport.gather import AtlasLayout, gather_normalisation, open_hemisphere_weight
 from ..visibility.directions import direction_set
 from ..visibility.rays import RayScene
 from ..visibility.table import TraceRequest, VisibilityTable, frame_vectors, trace_table
@@ -65,6 +65,8 @@ class RowsPreparation:
     request : the rows' TraceRequest (k = stop - start samples)
     frame_normal : (k, 3) float64 the rows' shading normals in their frames of the direction set
     group : (k,) int64 the rows' interleaved rotations, or None (one set)
+    open_weight : (k,) float64 what each row's gather weights sum to
+        (core.transport.gather.open_hemisphere_weight)
     """
 
     samples: int
@@ -74,6 +76,7 @@ class RowsPreparation:
     request: TraceRequest
     frame_normal: np.ndarray
     group: np.ndarray | None
+    open_weight: np.ndarray
 
 
 def rows_of(p: Prepared, start: int, stop: int) -> RowsPreparation:
@@ -81,7 +84,8 @@ def rows_of(p: Prepared, start: int, stop: int) -> RowsPreparation:
     if not 0 <= start <= stop <= len(p.position):
         raise ValueError(f"rows [{start}, {stop}) outside the bake's {len(p.position)} samples")
     return RowsPreparation(len(p.position), start, stop, p.ray_scene, p.trace_request().rows(start, stop),
-                           p.frame_normal[start:stop], None if p.group is None else p.group[start:stop])
+                           p.frame_normal[start:stop], None if p.group is None else p.group[start:stop],
+                           open_hemisphere_weight(p.normal[start:stop], p.geometric[start:stop]))
 
 
 @dataclass
@@ -223,7 +227,8 @@ class PackagedBake:
         request = table_request(self.meshes, self.settings, self.directions, samples.position, samples.geometric,
                                 None if samples.footprint is None else (samples.footprint,), self.rotations, group)
         return RowsPreparation(self.samples, start, stop, self.ray_scene, request,
-                               frame_vectors(samples.normal, self.rotations, group), group)
+                               frame_vectors(samples.normal, self.rotations, group), group,
+                               open_hemisphere_weight(samples.normal, samples.geometric))
 
 
 def _joined(pieces, values, shape: tuple, dtype) -> np.ndarray:
@@ -254,7 +259,8 @@ def keep_rows(rows: RowsPreparation, threads: int = 0) -> KeptRows:
     """Trace ``rows``' table and normalise it."""
     table = trace_table(rows.ray_scene, rows.request)
     return KeptRows(rows.start, rows.stop, rows.samples, table,
-                    gather_normalisation(table, rows.frame_normal, threads), rows.frame_normal, rows.group)
+                    gather_normalisation(table, rows.frame_normal, rows.open_weight, threads), rows.frame_normal,
+                    rows.group)
 
 
 def row_ranges(samples: int, parts: int) -> list[range]:

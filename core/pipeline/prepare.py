@@ -18,7 +18,7 @@ from ..scene import Scene
 from ..settings import BakeSettings
 from ..transport.contacts import MIN_EXPOSED_SHARE, exposed_share, find_short_hits, lookup_scale
 from ..transport.contract import GatherGeometry, SampleSet, Shadowing
-from ..transport.gather import AtlasLayout, gather_normalisation
+from ..transport.gather import AtlasLayout, gather_normalisation, open_hemisphere_weight
 from ..transport.groups import LightGroup, light_key_parts
 from ..transport.interleave import filter_pairs, find_near_hits
 from ..visibility.cache import (
@@ -45,6 +45,11 @@ from ..visibility.table import (
 from .budget import check_budget, release_free_heap
 from .light_memo import LightMemo
 from .progress import Stages
+
+# Part of every lighting key: raised whenever the same table and lights give other light (a
+# change of the transport's formulas), so that lighting cached by an older VisiBake is not
+# reused. 2: the gathers' weights sum to pi (1 + n . n_g) / 2, not pi (speed part 18).
+TRANSPORT_REVISION = 2
 
 
 @dataclass
@@ -273,8 +278,14 @@ class Prepared:
     def gather_scale(self) -> np.ndarray:
         """Per-sample gather normalisation (K,), computed once per preparation."""
         if self._gather_scale is None:
-            self._gather_scale = gather_normalisation(self.table, self.frame_normal, self.settings.threads)
+            self._gather_scale = gather_normalisation(self.table, self.frame_normal, self.open_weight(),
+                                                      self.settings.threads)
         return self._gather_scale
+
+    def open_weight(self) -> np.ndarray:
+        """(K,) float64 what each sample's gather weights sum to: pi (1 + n . n_g) / 2
+        (core.transport.gather.open_hemisphere_weight)."""
+        return open_hemisphere_weight(self.normal, self.geometric)
 
     def bounces_needed(self) -> int:
         """The bounces to gather: none when no requested pass contains indirect light."""
@@ -292,8 +303,8 @@ class Prepared:
         """Hash of everything one group's transport depends on besides the table's key."""
         s = self.settings
         emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
-        parts = [self.table_key, self.bounces_needed(), s.shadows, s.shadow_regions, s.area_light_samples,
-                 s.sharp_contacts,
+        parts = [TRANSPORT_REVISION, self.table_key, self.bounces_needed(), s.shadows, s.shadow_regions,
+                 s.area_light_samples, s.sharp_contacts,
                  s.emitter_samples, max(s.margin, 2), s.vertex_lookup, self.albedo, self.normal,
                  np.where(emitting[:, None], self.emission, 0.0), group.world, group.emitting,
                  np.array([m.output for m in self.meshes])]

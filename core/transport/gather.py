@@ -134,13 +134,39 @@ class AtlasLayout:
 LOOKUPS_PER_CALL = 1 << 23
 
 
-def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: int = 0) -> np.ndarray:
-    """Per-sample factor that makes the weights max(0, d_i . n) of one sample sum to pi.
+def open_hemisphere_weight(normals: np.ndarray, geometric: np.ndarray) -> np.ndarray:
+    """(K,) float64: the integral of max(0, d . n) over the directions d above the geometric
+    horizon (d . n_g > 0), pi (1 + n . n_g) / 2 for unit shading normals ``normals`` and
+    geometric normals ``geometric`` (K, 3) each (any common frame; both are normalised here).
 
-    With a finite direction set the raw sum is only near pi; normalising makes a
+    Cycles' diffuse lobe drops the directions below the face (its sampled directions there
+    carry nothing, and so do its AO rays), so a smooth-shaded texel whose shading normal leans
+    by theta from its face receives pi (1 + cos theta) / 2 from a uniform world, not pi: 2%
+    less on a coarse sphere of 8 x 4 faces (docs/benchmarks.md, speed part 18). Projected onto
+    the plane normal to n, the lost directions are half the unit disc less half an ellipse of
+    semi-axes 1 and cos theta: pi (1 - cos theta) / 2. Each row is computed on its own, with
+    no sum across rows, so a slice of the rows gives bitwise the slice of the whole.
+    """
+    normals = np.asarray(normals, np.float64)
+    geometric = np.asarray(geometric, np.float64)
+    dot = normals[:, 0] * geometric[:, 0] + normals[:, 1] * geometric[:, 1] + normals[:, 2] * geometric[:, 2]
+    squares = (normals[:, 0] * normals[:, 0] + normals[:, 1] * normals[:, 1] + normals[:, 2] * normals[:, 2]) \
+        * (geometric[:, 0] * geometric[:, 0] + geometric[:, 1] * geometric[:, 1] + geometric[:, 2] * geometric[:, 2])
+    lengths = np.sqrt(squares)
+    cosine = np.divide(dot, lengths, out=np.ones_like(dot), where=lengths > 0)
+    return 0.5 * np.pi * (1.0 + np.clip(cosine, -1.0, 1.0))
+
+
+def gather_normalisation(table: VisibilityTable, normals: np.ndarray, open_weight, threads: int = 0) -> np.ndarray:
+    """Per-sample factor that makes the weights max(0, d_i . n) of one sample's directions
+    above its horizon sum to ``open_weight``, what they integrate to over the sphere.
+
+    With a finite direction set the raw sum only nears that integral; normalising makes a
     white furnace exact for any N (DESIGN.md). Samples with no open direction get 0.
 
-    normals : (K, 3) float; threads : the kernels' threads (0: all cores)
+    normals : (K, 3) float in the table's frame; open_weight : (K,) float64 from
+    :func:`open_hemisphere_weight`, or pi where each shading normal is its geometric normal;
+    threads : the kernels' threads (0: all cores)
 
     Returns
     -------
@@ -150,7 +176,7 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: i
         return table.gather_normalisation()
     # The cosines in float32, as the gathers weigh with them: at a grazing direction the
     # float32 dot product differs from the float64 one by up to 1e-4 of itself, and the
-    # weights must sum to pi as the gathers compute them.
+    # weights must sum to their target as the gathers compute them.
     normals32 = np.ascontiguousarray(normals, np.float32)
     directions32 = np.ascontiguousarray(table.directions, np.float32)
     module = kernels.compiled()
@@ -161,7 +187,8 @@ def gather_normalisation(table: VisibilityTable, normals: np.ndarray, threads: i
                         np.ones(len(normals32), np.float32), np.int16(BELOW_HORIZON), False, total)
     else:
         total = _open_cosine_sum_numpy(table, directions32, normals32)
-    return np.divide(np.pi, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
+    target = np.broadcast_to(np.asarray(open_weight, np.float64), total.shape)
+    return np.divide(target, total, out=np.zeros_like(total), where=total > tol.MIN_WEIGHT_SUM)
 
 
 def _open_cosine_sum_numpy(table, directions32: np.ndarray, normals32: np.ndarray) -> np.ndarray:
@@ -354,7 +381,9 @@ def gather_numpy(geometry: GatherGeometry, source: GatherSource, progress=None, 
 
 def ambient_occlusion(table: VisibilityTable, normals: np.ndarray, scale: np.ndarray, threads: int = 0
                       ) -> np.ndarray:
-    """Cosine-weighted fraction of open directions, (K,) float64 in [0, 1].
+    """Cosine-weighted fraction of open directions, (K,) float64 in [0, 1]: pi is the whole
+    sphere's weight, so on a smooth-shaded face the directions below the face count as
+    occluded, as Cycles' AO rays there count (:func:`open_hemisphere_weight`).
 
     normals : (K, 3) float; scale : (K,) float from :func:`gather_normalisation`
     """

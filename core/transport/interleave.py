@@ -236,7 +236,7 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     # and a white furnace stays exact.
     hits = p.near_hits()
     near_weight = np.zeros(len(far)) if hits is None else np.bincount(hits.sample, hits.weight, minlength=len(far))
-    far_weight = np.where(p.gather_scale() > 0, np.pi, 0.0) - near_weight
+    far_weight = np.where(p.gather_scale() > 0, p.open_weight(), 0.0) - near_weight
     usable = far_weight > 1e-6 * np.pi
     channels = far.shape[1]
     # Each texel's far radiance (0 where unusable) and, in the last column, whether it is usable.

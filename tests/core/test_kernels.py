@@ -61,7 +61,7 @@ def _random_scene(seed, samples=300, count=97, channels=6, vertex=True, nearest=
 def test_compiled_gather_matches_numpy(vertex, nearest, channels):
     table, normals, layout, radiance, world, exclude = _random_scene(1, vertex=vertex, nearest=nearest,
                                                                      channels=channels)
-    scale = gather_normalisation(table, normals)
+    scale = gather_normalisation(table, normals, np.pi)
     geometry = GatherGeometry(table, normals, scale, layout, threads=2)
     for source in (GatherSource(radiance, world, exclude), GatherSource(radiance, np.zeros(channels)),
                    GatherSource(radiance, world[0])):
@@ -73,7 +73,7 @@ def test_compiled_gather_matches_numpy(vertex, nearest, channels):
 
 def test_compiled_gather_of_chosen_samples_and_direction_ranges_matches_numpy():
     table, normals, layout, radiance, world, exclude = _random_scene(2)
-    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals), layout, threads=2)
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi), layout, threads=2)
     source = GatherSource(radiance, world, exclude)
     chosen = np.array([5, 0, 299, 17, 17, 120])
     np.testing.assert_allclose(gather(geometry, source, samples=chosen, directions=range(10, 60)),
@@ -116,11 +116,11 @@ def test_the_bare_walk_reads_one_texel_per_hit_entry_walking_words_or_finding_ea
 
 def test_normalisation_and_ambient_occlusion_match_numpy(monkeypatch):
     table, normals, *_ = _random_scene(3, vertex=False)
-    scale = gather_normalisation(table, normals)
+    scale = gather_normalisation(table, normals, np.pi)
     occlusion = ambient_occlusion(table, normals, scale)
     monkeypatch.setattr(kernels, "_module", None)  # the numpy passes, as where numba cannot load
     # float32 cosines: numpy's dot product rounds in another order (a few ULPs).
-    np.testing.assert_allclose(scale, gather_normalisation(table, normals), rtol=1e-6)
+    np.testing.assert_allclose(scale, gather_normalisation(table, normals, np.pi), rtol=1e-6)
     np.testing.assert_allclose(occlusion, ambient_occlusion(table, normals, scale), rtol=1e-12, atol=1e-15)
     assert np.any(scale > 0) and np.any((occlusion > 0) & (occlusion < 1))
 
@@ -129,8 +129,8 @@ def test_gather_is_bitwise_the_same_for_any_thread_count_and_call_split(monkeypa
     """Each sample sums its directions in one fixed order, whatever the threads or the
     number of kernel calls the directions are walked in (the scale-out contract)."""
     table, normals, layout, radiance, world, exclude = _random_scene(4, samples=1000)
-    scale = gather_normalisation(table, normals, threads=1)
-    assert np.array_equal(scale, gather_normalisation(table, normals, threads=2))
+    scale = gather_normalisation(table, normals, np.pi, threads=1)
+    assert np.array_equal(scale, gather_normalisation(table, normals, np.pi, threads=2))
     source = GatherSource(radiance, world, exclude)
     results = [gather(GatherGeometry(table, normals, scale, layout, threads=t), source) for t in (1, 2)]
     monkeypatch.setattr(gather_module, "LOOKUPS_PER_CALL", 3000)  # three directions a call
@@ -161,7 +161,7 @@ d = spherical_fibonacci(64)
 hit = np.where((normals @ d.T).T > 0, MISS, BELOW_HORIZON).astype(np.int16)
 table = VisibilityTable.from_values(d, hit, np.zeros((64, 2, 2), np.float32), np.ones((64, 2), np.float32))
 layout = AtlasLayout.from_sizes([(2, 2)])
-e = gather(GatherGeometry(table, normals, gather_normalisation(table, normals), layout),
+e = gather(GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi), layout),
            GatherSource(np.zeros((layout.size, 3), np.float32), np.ones(3)))
 print(json.dumps({"status": kernels.status().as_dict(), "line": kernels.status().describe(),
                   "furnace": float(np.max(np.abs(e - np.pi)))}))
@@ -717,7 +717,7 @@ def test_compiled_close_entries_and_exposed_shares_are_bitwise_numpy_s_for_any_t
     table, normals, *_ = _random_scene(13, samples=1500, vertex=False)
     stored = table.entries.hit_distance_code
     stored[:] = encode_distance(rng.lognormal(-2.0, 2.0, stored.shape))
-    scale = gather_normalisation(table, normals)
+    scale = gather_normalisation(table, normals, np.pi)
     reaches = [(np.array([0.05, np.inf]), None), (np.array([0.3, 0.0]), rng.uniform(0, 0.5, 1500).astype(np.float32))]
     for threads in (1, 2):
         p = SimpleNamespace(table=table, frame_normal=normals, gather_scale=lambda: scale,

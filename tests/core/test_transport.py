@@ -4,7 +4,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from core.transport.contract import GatherGeometry, GatherSource, direction_chunks
-from core.transport.gather import AtlasLayout, ambient_occlusion, gather, gather_normalisation
+from core.transport.gather import (
+    AtlasLayout,
+    ambient_occlusion,
+    gather,
+    gather_normalisation,
+    open_hemisphere_weight,
+)
 from core.visibility.directions import ShadowRegions, spherical_fibonacci
 from core.visibility.shadows import shadow_fractions
 from core.visibility.table import BELOW_HORIZON, MISS, VisibilityTable
@@ -27,7 +33,7 @@ def _open_table(count, normals, code=MISS):
 def test_white_furnace_is_exact_for_any_direction_count(count):
     normals = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -1.0, 0.0]])
     table = _open_table(count, normals)
-    scale = gather_normalisation(table, normals)
+    scale = gather_normalisation(table, normals, np.pi)
     layout = AtlasLayout.from_sizes([(2, 2)])
     radiance = np.zeros((layout.size, 3), np.float32)
     irradiance = gather(GatherGeometry(table, normals, scale, layout), GatherSource(radiance, np.ones(3)))
@@ -35,6 +41,53 @@ def test_white_furnace_is_exact_for_any_direction_count(count):
     # Exact up to the gather's float32 sums (a few ULPs of pi).
     np.testing.assert_allclose(irradiance[open_samples], np.pi, rtol=1e-6)
     np.testing.assert_allclose(ambient_occlusion(table, normals, scale)[open_samples], 1.0)
+
+
+@pytest.mark.parametrize("lean_degrees", [0.0, 5.0, 22.5, 60.0, 120.0, 180.0])
+def test_the_open_hemisphere_weight_is_the_integral_over_the_directions_above_the_face(lean_degrees):
+    """pi (1 + cos theta) / 2 against a sum over 200k evenly spread directions of the cosine
+    about the shading normal, over those above the face only."""
+    lean = np.radians(lean_degrees)
+    geometric = np.array([[0.0, 0.0, 1.0]])
+    shading = np.array([[np.sin(lean), 0.0, np.cos(lean)]])
+    d = spherical_fibonacci(200_000)
+    above_face = d @ geometric[0] > 0
+    numeric = np.sum(np.maximum(d @ shading[0], 0.0) * above_face) * 4.0 * np.pi / len(d)
+    weight = open_hemisphere_weight(shading, geometric)
+    assert weight.shape == (1,) and weight.dtype == np.float64
+    assert weight[0] == pytest.approx(numeric, abs=2e-4)
+    # Unnormalised normals give the same weight.
+    assert open_hemisphere_weight(3.0 * shading, 0.5 * geometric)[0] == pytest.approx(weight[0], rel=1e-12)
+
+
+def test_the_open_hemisphere_weight_of_rows_is_bitwise_the_rows_of_the_whole():
+    """The scale-out's workers compute it for their rows alone."""
+    rng = np.random.default_rng(5)
+    shading, geometric = rng.normal(size=(2, 1000, 3))
+    whole = open_hemisphere_weight(shading, geometric)
+    assert np.array_equal(open_hemisphere_weight(shading[317:640], geometric[317:640]), whole[317:640])
+    assert np.all((whole >= 0) & (whole <= np.pi))
+
+
+@pytest.mark.parametrize("count", [16, 128, 1024])
+def test_a_smooth_shaded_sample_in_a_white_world_gets_what_cycles_diffuse_lobe_gets(count):
+    """A shading normal leaning from its face: the world light of the directions above the face
+    only, pi (1 + cos theta) / 2 (what Cycles bakes on a smooth low-poly face), exact for any
+    N; its ambient occlusion in the open (1 + cos theta) / 2, as Cycles' AO rays below the face
+    count as occluded. The old normalisation gave pi and 1."""
+    geometric = np.array([[0.0, 0.0, 1.0]] * 3)
+    lean = np.radians([0.0, 15.0, 40.0])
+    shading = np.stack([np.sin(lean), np.zeros(3), np.cos(lean)], axis=1)
+    d = spherical_fibonacci(count)
+    hit = np.where((geometric @ d.T).T > 0, MISS, BELOW_HORIZON).astype(np.int16)
+    table = _table(d, geometric, hit, np.zeros((count, 3, 2), np.float32))
+    scale = gather_normalisation(table, shading, open_hemisphere_weight(shading, geometric))
+    layout = AtlasLayout.from_sizes([(1, 1)])
+    irradiance = gather(GatherGeometry(table, shading, scale, layout),
+                        GatherSource(np.zeros((layout.size, 3), np.float32), np.ones(3)))
+    expected = np.pi * (1.0 + np.cos(lean)) / 2.0
+    np.testing.assert_allclose(irradiance, np.repeat(expected[:, None], 3, axis=1), rtol=1e-6)
+    np.testing.assert_allclose(ambient_occlusion(table, shading, scale), (1.0 + np.cos(lean)) / 2.0, rtol=1e-6)
 
 
 def test_gather_of_uniform_atlas_equals_pi_times_radiance():
@@ -46,7 +99,7 @@ def test_gather_of_uniform_atlas_equals_pi_times_radiance():
     table = _table(d, normals, hit, uv)
     layout = AtlasLayout.from_sizes([(8, 4)])
     flat = layout.pack([np.full((4, 8, 3), 0.25, np.float32)])
-    irradiance = gather(GatherGeometry(table, normals, gather_normalisation(table, normals), layout),
+    irradiance = gather(GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi), layout),
                         GatherSource(flat, np.zeros(3)))
     np.testing.assert_allclose(irradiance, np.pi * 0.25, rtol=1e-6)
 
@@ -116,7 +169,7 @@ def test_gather_of_uniform_radiance_is_pi_times_it_for_any_table(count, seed, le
     table = _table(d, normals, hit, uv)
     layout = AtlasLayout.from_sizes([(5, 3), (1, 1), (7, 9)])
     flat = layout.pack([np.full((h, w, 3), level, np.float32) for w, h in [(5, 3), (1, 1), (7, 9)]])
-    scale = gather_normalisation(table, normals)
+    scale = gather_normalisation(table, normals, np.pi)
     irradiance = gather(GatherGeometry(table, normals, scale, layout, threads=2), GatherSource(flat, np.full(3, level)))
     open_samples = scale > 0
     np.testing.assert_allclose(irradiance[open_samples], np.pi * level, rtol=2e-6, atol=1e-12)
@@ -136,7 +189,7 @@ def test_gathers_over_direction_subsets_add_up_to_the_whole(parts):
     layout = AtlasLayout.from_sizes([(4, 4), (3, 5)])
     flat = layout.pack([rng.uniform(0, 2, (4, 4, 6)).astype(np.float32),
                         rng.uniform(0, 2, (5, 3, 6)).astype(np.float32)])
-    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals), layout, threads=1)
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi), layout, threads=1)
     source = GatherSource(flat, rng.uniform(0, 1, (61, 6)))
     whole = gather(geometry, source)
     chunks = direction_chunks(len(d), parts)
@@ -149,6 +202,7 @@ def test_gathers_over_direction_subsets_add_up_to_the_whole(parts):
 def test_a_direction_range_outside_the_set_is_refused():
     normals = np.array([[0.0, 0.0, 1.0]])
     table = _open_table(8, normals)
-    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals), AtlasLayout.from_sizes([(1, 1)]))
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi),
+                              AtlasLayout.from_sizes([(1, 1)]))
     with pytest.raises(ValueError, match="contiguous range"):
         gather(geometry, GatherSource(np.zeros((4, 3), np.float32), np.ones(3)), directions=range(4, 9))

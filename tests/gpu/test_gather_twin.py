@@ -31,7 +31,7 @@ def _random_codes(core, rng, samples, directions, objects):
 def _case(core, rng, layout, dirs, normals, codes, uv, channels, triangles=None, vertex_cells=None):
     table = core.visibility.table.VisibilityTable.from_values(dirs, codes, uv, np.ones(codes.shape, np.float32),
                                                           triangles, vertex_cells)
-    scale = core.transport.gather.gather_normalisation(table, normals)
+    scale = core.transport.gather.gather_normalisation(table, normals, np.pi)
     radiance = rng.uniform(0, 2, size=(layout.size, channels)).astype(np.float32)
     world = rng.uniform(0, 1, size=(len(dirs), channels))
     return table, normals, scale, layout, radiance, world
