@@ -343,7 +343,7 @@ def _warm_up_steps(module, table_module, sample_module, image_module, light_modu
         partial(module.gather, words, base, objects, uv_codes, cells, directions, normals, one32, samples, 0, 1,
                 radiance, sizes, sizes, np.zeros(1, np.int64), np.zeros(1, bool), np.zeros((1, 3), np.int32),
                 np.zeros(1, np.int64), False, np.zeros((0, 3), np.float32), np.zeros((0, 0), bool),
-                np.zeros((1, 3))),
+                np.ones(1, bool), np.zeros((1, 3))),
         partial(module.cosine_sum, words, base, objects, directions, normals, one32, np.int16(-2), False,
                 np.zeros(1)),
         partial(module.cosine_sum, words, base, objects, directions.astype(np.float64), normals.astype(np.float64),

@@ -92,13 +92,15 @@ def _block_word(above_words, i, first_word, w, size):
 
 @nb.njit(inline="always")
 def _add_entry(acc, j, s, e, i, cosines, sample_scale, hit_object, hit_uv, has_world, world, has_exclude, exclude,
-               any_vertex, is_vertex, vertex_cells, corner_flat, corner_base, nearest_vertex, radiance, offsets,
-               widths, heights):
+               lit_object, any_vertex, is_vertex, vertex_cells, corner_flat, corner_base, nearest_vertex, radiance,
+               offsets, widths, heights):
     """Add stored entry ``e`` (direction i) to the block's sample j (sample s): :func:`gather`'s body."""
     channels = radiance.shape[1]
     obj = hit_object[e]
     if obj < 0 and not (obj == MISS and has_world):
         return
+    if obj >= 0 and not lit_object[obj]:
+        return  # its whole atlas is 0: no lookup (most of an emission gather's entries)
     cosine = cosines[j]
     if cosine <= _F32(0.0):
         return
@@ -133,7 +135,7 @@ def _add_entry(acc, j, s, e, i, cosines, sample_scale, hit_object, hit_uv, has_w
 @nb.njit(**KERNEL_OPTIONS)
 def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions, normals, scale, samples, first,
            stop, radiance, widths, heights, offsets, is_vertex, corner_flat, corner_base, nearest_vertex,
-           world, exclude, out):
+           world, exclude, lit_object, out):
     """out[j] += sum_{i in [first, stop)} w_i(s) L(S_i[s]) for s = samples[j].
 
     above_words : (N, W) uint64, word_base : (N, W) int64, hit_object : (A,) int16, hit_uv :
@@ -147,6 +149,8 @@ def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions,
         of length 1 when no object is in vertex mode); nearest_vertex : bool
     world : (N, C) float32 radiance of misses, or (0, C) for a black world
     exclude : (K, O) bool, or (0, 0) for no exclusion
+    lit_object : (O,) bool, False where an object's atlas (and corners) hold only zeros: its
+        entries add nothing and are skipped without a lookup
     out : (k, C) float64, added to
     """
     count = samples.shape[0]
@@ -197,8 +201,9 @@ def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions,
                         j = w * 64 + np.int64(trailing_zeros(word))
                         word &= word - np.uint64(1)
                         _add_entry(acc, j, samples[start] + j, e, i, cosines, sample_scale, hit_object, hit_uv,
-                                   has_world, world, has_exclude, exclude, any_vertex, is_vertex, vertex_cells,
-                                   corner_flat, corner_base, nearest_vertex, radiance, offsets, widths, heights)
+                                   has_world, world, has_exclude, exclude, lit_object, any_vertex, is_vertex,
+                                   vertex_cells, corner_flat, corner_base, nearest_vertex, radiance, offsets, widths,
+                                   heights)
                         e += 1
             else:
                 for j in range(size):
@@ -206,8 +211,8 @@ def gather(above_words, word_base, hit_object, hit_uv, vertex_cells, directions,
                     e = entry_of(above_words, word_base, i, s)
                     if e >= 0:
                         _add_entry(acc, j, s, e, i, cosines, sample_scale, hit_object, hit_uv, has_world, world,
-                                   has_exclude, exclude, any_vertex, is_vertex, vertex_cells, corner_flat,
-                                   corner_base, nearest_vertex, radiance, offsets, widths, heights)
+                                   has_exclude, exclude, lit_object, any_vertex, is_vertex, vertex_cells,
+                                   corner_flat, corner_base, nearest_vertex, radiance, offsets, widths, heights)
         for j in range(size):
             for c in range(channels):
                 out[start + j, c] = acc[j, c]

@@ -62,6 +62,16 @@ class AtlasLayout:
             layout.corner_base = np.array(bases, np.int64)
         return layout
 
+    def lit_objects(self, flat: np.ndarray) -> np.ndarray:
+        """(O,) bool: whether any value of each object's padded atlas in ``flat`` (size, C) is not
+        0 (a vertex-mode object's corners point into its own atlas, so the same region holds them)."""
+        if not len(self.offsets):
+            return np.zeros(0, bool)
+        if not len(flat):
+            return np.zeros(len(self.offsets), bool)
+        nonzero = np.any(flat != 0, axis=1) if flat.ndim == 2 else flat != 0
+        return np.logical_or.reduceat(nonzero, self.offsets)
+
     def vertex_lookup(self, flat: np.ndarray, obj: np.ndarray, triangle: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Radiance where rays landed on vertex-mode objects: the hit triangle's samples mixed
         by the barycentrics ``uv`` (n, 2) (embree's: w0 = 1 - u - v), or the nearest one."""
@@ -306,7 +316,8 @@ def gather_kernel_arguments(geometry: GatherGeometry, source: GatherSource, chos
     atlases = (radiance, layout.widths.astype(np.int64), layout.heights.astype(np.int64),
                layout.offsets.astype(np.int64), np.ascontiguousarray(is_vertex, bool),
                np.ascontiguousarray(corner_flat, np.int32), np.ascontiguousarray(corner_base, np.int64),
-               bool(layout.nearest_vertex), world32, exclude, out)
+               bool(layout.nearest_vertex), world32, exclude, np.ascontiguousarray(layout.lit_objects(radiance), bool),
+               out)
     return arguments, atlases
 
 

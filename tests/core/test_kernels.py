@@ -71,6 +71,29 @@ def test_compiled_gather_matches_numpy(vertex, nearest, channels):
         np.testing.assert_allclose(compiled, reference, rtol=2e-6, atol=1e-9)
 
 
+@pytest.mark.parametrize("dark", [[0], [2], [0, 1, 2]])
+def test_entries_on_dark_objects_are_skipped_and_the_gather_is_bitwise_the_same(dark):
+    """An object whose atlas holds only zeros (every non-emitter in an emission gather) is not
+    looked up: the sums are bitwise those of a gather that looks every entry up."""
+    table, normals, layout, radiance, world, exclude = _random_scene(7, vertex=True, channels=3)
+    for index in dark:
+        start = layout.offsets[index]
+        stop = layout.offsets[index + 1] if index + 1 < len(layout.offsets) else layout.size
+        radiance[start:stop] = 0.0
+    lit = layout.lit_objects(radiance)
+    assert lit.tolist() == [index not in dark for index in range(3)]
+    geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi), layout, threads=2)
+    chosen = np.arange(len(normals), dtype=np.int64)
+    for source in (GatherSource(radiance, world, exclude), GatherSource(radiance, np.zeros(3))):
+        before, after = gather_module.gather_kernel_arguments(geometry, source, chosen)
+        assert np.array_equal(after[-2], lit)
+        every = (*after[:-2], np.ones(3, bool), np.zeros_like(after[-1]))
+        kernels.run(kernels.compiled().gather, 2, *before, 0, len(table.directions), *after)
+        kernels.run(kernels.compiled().gather, 2, *before, 0, len(table.directions), *every)
+        assert np.array_equal(after[-1], every[-1])
+        np.testing.assert_allclose(after[-1], gather_numpy(geometry, source), rtol=2e-6, atol=1e-9)
+
+
 def test_compiled_gather_of_chosen_samples_and_direction_ranges_matches_numpy():
     table, normals, layout, radiance, world, exclude = _random_scene(2)
     geometry = GatherGeometry(table, normals, gather_normalisation(table, normals, np.pi), layout, threads=2)
