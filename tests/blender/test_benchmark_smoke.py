@@ -71,6 +71,21 @@ def test_accuracy_benchmark_writes_errors_with_the_reference_noise_and_a_plot(tm
     assert "| variant | N |" in (out / "summary.md").read_text()
 
 
+def test_the_accuracy_benchmark_s_last_variant_is_the_product_s_default():
+    """Its figures are quoted as the default's: a default changed without it (interleave 3 -> 4,
+    speed part 16) went unmeasured until part 18."""
+    import importlib.util
+
+    from core.settings import BakeSettings
+
+    spec = importlib.util.spec_from_file_location("accuracy_benchmark", REPO_ROOT / "benchmarks" / "accuracy.py")
+    accuracy = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(accuracy)
+    default = BakeSettings()
+    last = list(accuracy.VARIANTS.values())[-1]
+    assert {name: getattr(default, name) for name in last} == last
+
+
 def test_seam_benchmark_renders_both_bakes_and_the_truth_and_measures_the_seams(tmp_path):
     out = tmp_path / "seams"
     process = subprocess.run(
