@@ -67,10 +67,7 @@ class AtlasLayout:
         0 (a vertex-mode object's corners point into its own atlas, so the same region holds them)."""
         if not len(self.offsets):
             return np.zeros(0, bool)
-        if not len(flat):
-            return np.zeros(len(self.offsets), bool)
-        nonzero = np.any(flat != 0, axis=1) if flat.ndim == 2 else flat != 0
-        return np.logical_or.reduceat(nonzero, self.offsets)
+        return np.logical_or.reduceat(np.any(flat != 0, axis=1), self.offsets)
 
     def vertex_lookup(self, flat: np.ndarray, obj: np.ndarray, triangle: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Radiance where rays landed on vertex-mode objects: the hit triangle's samples mixed
