@@ -21,11 +21,15 @@ from ...core.sampling.atlas import UnwrapResult, loop_uvs, unwrap, uv_layout_pro
 # Kept importable from here for the tests that name the policy's limits through the adapter.
 from ...core.sampling.layout import TYPICAL_PACKED_UV_AREA
 from ...core.sampling.unwrap_child import ChildUnavailable, UnwrapHung, UnwrapWorker, unwrap_in_child
+from ...core.sampling.unwrap_memo import UnwrapMemo, unwrap_key
 from .extract import read_triangles
 
 UV_MAP_NAME = "VisiBake"
 INTERNAL_UV_MAP = "__visibake_internal__"
 OWNED_UV_KEY = "visibake_uv_map"
+# The in-memory unwraps of objects without outputs, kept for the session (they get no UV map
+# to keep them in): a re-bake of the same scene does not unwrap them again.
+IN_MEMORY_UNWRAPS = UnwrapMemo()
 
 
 @dataclass
@@ -41,6 +45,10 @@ class PendingUnwrap:
     resolution: int
     result: UnwrapResult | None = None
     error: str | None = None
+
+    def key(self) -> str:
+        """What identifies this unwrap in IN_MEMORY_UNWRAPS."""
+        return unwrap_key(self.positions, self.triangles, self.resolution)
 
     def run(self, in_child: bool = False, cancelled=None, worker: UnwrapWorker | None = None) -> None:
         """Unwrap in a child process: cancellable (``cancelled``, asked while it runs, with
@@ -217,8 +225,13 @@ def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output,
                           pending=PendingUnwrap(positions, triangles, loops, resolution[0]))
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
     # the evaluated mesh in memory and leave the user's mesh alone.
+    pending = PendingUnwrap(evaluated_positions, evaluated_triangles, None, resolution[0])
+    kept = IN_MEMORY_UNWRAPS.get(pending.key())
+    if kept is not None:
+        return LayoutPlan(INTERNAL_UV_MAP, resolution, "the in-memory unwrap of an earlier bake in this session, "
+                          f"no UV map written ({reason})", internal_uv=kept.corner_uv)
     return LayoutPlan(INTERNAL_UV_MAP, resolution, f"unwrapped in memory, no UV map written ({reason})",
-                      pending=PendingUnwrap(evaluated_positions, evaluated_triangles, None, resolution[0]))
+                      pending=pending)
 
 
 def complete_layout(obj, plan: LayoutPlan) -> LayoutPlan:
@@ -233,6 +246,7 @@ def complete_layout(obj, plan: LayoutPlan) -> LayoutPlan:
         raise UnwrapFailed(f"object {obj.name!r}: unwrapping failed at {pending.resolution}x{pending.resolution} "
                            f"({pending.error or 'it did not run'}); raise its resolution")
     if pending.loops is None:
+        IN_MEMORY_UNWRAPS.put(pending.key(), pending.result)
         plan.internal_uv = pending.result.corner_uv
     else:
         plan.created = write_uv_map(obj.data, pending.positions, pending.triangles, pending.loops,

@@ -95,6 +95,37 @@ def test_occlude_only_objects_shadow_but_get_no_results(visibake, clean_scene):
     assert "outputs of 1 objects that only occlude and reflect: Block" in report["skipped"]
 
 
+def test_a_re_bake_reuses_an_occluder_s_in_memory_unwrap_until_the_occluder_moves(visibake, clean_scene):
+    memo = visibake.operators.adapter.layout.IN_MEMORY_UNWRAPS
+    memo.clear()  # another test may have unwrapped the same block
+    black_world()
+    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
+    block = mesh_object("Block", cube(0.4), material("Red", (0.7, 0.2, 0.1)), location=(0.3, 0, 0.4))
+    point(80.0, (0.0, 0.0, 1.5), name="Lamp")
+    block.visibake.role = "OCCLUDE"
+    while block.data.uv_layers:  # an occluder without a UV map is unwrapped in memory
+        block.data.uv_layers.remove(block.data.uv_layers[0])
+    props = bpy.context.scene.visibake
+    props.bake_all, props.resolution, props.directions, props.use_cache = True, 32, 32, False
+
+    def bake():
+        assert bpy.ops.visibake.bake() == {"FINISHED"}
+        report = json.loads(bpy.context.scene["visibake_report"])
+        reason = {o["name"]: o["layout_reason"] for o in report["objects"]}["Block"]
+        return reason, image_pixels("VB_Ground_lighting").copy()
+
+    first_reason, first = bake()
+    assert first_reason.startswith("unwrapped in memory") and len(memo) == 1
+    again_reason, again = bake()
+    assert again_reason.startswith("the in-memory unwrap of an earlier bake in this session")
+    assert np.array_equal(again, first)  # the same unwrap, so the same light bounced off the block
+    assert len(block.data.uv_layers) == 0
+    block.location.x = -0.3
+    moved_reason, moved = bake()
+    assert moved_reason.startswith("unwrapped in memory") and len(memo) == 2
+    assert not np.array_equal(moved, first)
+
+
 def test_an_object_s_own_texel_density_sizes_its_atlas(visibake, clean_scene):
     black_world()
     mesh_object("Small", grid(0.5), material("White", (0.8, 0.8, 0.8)))
