@@ -1,7 +1,8 @@
 """Compiled (numba) kernels of the passes a preparation runs once over the whole table:
-the table entries that land close by, the texels' exposed shares and the texels owning
-landing points (core.transport.contacts: close_entries, exposed_share, _texel_owners), and the
-interleaving filter's candidate pairs (core.transport.interleave.filter_pairs).
+the table entries that land close by, the texels' exposed shares, the texels owning
+landing points and the landing points themselves (core.transport.contacts: close_entries,
+exposed_share, _texel_owners, _landings), and the interleaving filter's candidate pairs
+(core.transport.interleave.filter_pairs).
 
 Imported only through :mod:`core.kernels`. Each computes what the numpy code computes, in
 the same float32 and float64 operations and order, so their results are bitwise the numpy
@@ -17,6 +18,7 @@ import numpy as np
 from ..visibility.table import BACKFACE
 from . import KERNEL_OPTIONS, SERIAL_OPTIONS
 from .bits import trailing_zeros
+from .light_kernels import _dot, _origin_axis
 
 # Samples per task of exposed_share: its counts (slots x block, int32) stay in the core's cache
 # while every direction's row of the block is read. A multiple of 64: the blocks' words are their own.
@@ -135,6 +137,57 @@ def texel_owners(obj, uv, widths, heights, grid_offset, grid, shifts, owner):
             if found >= 0:
                 break
         owner[i] = found
+
+
+@nb.njit(**KERNEL_OPTIONS)
+def landings(sample, direction, owner, floor, position, footprint, rotations, group, directions, geometric, normal,
+             centre, centred, int_scale, float_scale, origin_limit, landed, landed_normal, landed_geometric,
+             landed_origins):
+    """Where each short entry's ray lands, lit from the side it came from
+    (core.transport.contacts._landings_numpy, bitwise). In parallel over entries.
+
+    sample, direction, owner : (m,) int64 the entry's sample, direction and the sample owning
+    the texel it landed in; floor : (m,) float64 its distance (the least its code allows).
+    position, geometric, normal : (K, 3) float64; footprint : (K, P, 3) float32 the points the
+    directions leave from (direction i from point i mod P), or (K, 0, 3): from the samples.
+    rotations : (G, 3, 3) float64 and group (K,) int64 each sample's rotation, or (0, 3, 3):
+    none; directions : (N, 3) float64. centre : (3,) float64 the ray scene's, ``centred``
+    where it is not the origin; int_scale, float_scale, origin_limit : float32, the
+    RAY_OFFSET_* tolerances (as light_kernels.shadow_ray_setup).
+
+    Outputs (m, 3): landed (float64) the point, landed_normal and landed_geometric (float64)
+    its owner's normals turned towards the ray's origin, landed_origins (float32, or float64
+    where centred) its shadow rays' origin.
+    """
+    points = footprint.shape[1]
+    rotated = rotations.shape[0] > 0
+    for r in nb.prange(sample.shape[0]):
+        s = sample[r]
+        w = direction[r]
+        d0, d1, d2 = directions[w, 0], directions[w, 1], directions[w, 2]
+        if rotated:
+            g = group[s]
+            # As numpy's einsum("nab,nb->na") sums each row.
+            u0 = _dot(rotations[g, 0, 0], rotations[g, 0, 1], rotations[g, 0, 2], d0, d1, d2)
+            u1 = _dot(rotations[g, 1, 0], rotations[g, 1, 1], rotations[g, 1, 2], d0, d1, d2)
+            u2 = _dot(rotations[g, 2, 0], rotations[g, 2, 1], rotations[g, 2, 2], d0, d1, d2)
+        else:
+            u0, u1, u2 = d0, d1, d2
+        o = owner[r]
+        facing = -1.0 if _dot(geometric[o, 0], geometric[o, 1], geometric[o, 2], u0, u1, u2) > 0.0 else 1.0
+        for axis in range(3):
+            start = position[s, axis]
+            if points > 0:
+                start = start + np.float64(footprint[s, w % points, axis])
+            origin = _origin_axis(start, geometric[s, axis], centre[axis], centred, int_scale, float_scale,
+                                  origin_limit)
+            unit = u0 if axis == 0 else (u1 if axis == 1 else u2)
+            landed[r, axis] = origin + unit * floor[r]
+            landed_geometric[r, axis] = geometric[o, axis] * facing
+            landed_normal[r, axis] = normal[o, axis] * facing
+        for axis in range(3):
+            landed_origins[r, axis] = _origin_axis(landed[r, axis], landed_geometric[r, axis], centre[axis], centred,
+                                                   int_scale, float_scale, origin_limit)
 
 
 @nb.njit(inline="always")

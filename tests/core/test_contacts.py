@@ -180,12 +180,37 @@ def test_compiled_contact_passes_are_bitwise_those_of_numpy(monkeypatch, scene):
     owners = contacts._texel_owners(p, obj.astype(np.int64), uv)
     _bitwise((owners,), (contacts._texel_owners_numpy(p, obj.astype(np.int64), uv),))
     assert np.all(owners >= -1) and np.any(owners >= 0)
+    _check_landings_bitwise(monkeypatch, p)
+
+
+def _check_landings_bitwise(monkeypatch, p):
+    """The short hits of ``p`` found through the kernels are bitwise numpy's, landing points included."""
+    from core.transport import contacts
     short = contacts.find_short_hits(p)
-    monkeypatch.setattr(kernels, "_module", None)
-    reference = contacts.find_short_hits(p)
-    _bitwise((short.sample, short.weight, short.obj, short.uv, short.points.position, short.points.normal),
-             (reference.sample, reference.weight, reference.obj, reference.uv, reference.points.position,
-              reference.points.normal))
+    with monkeypatch.context() as patch:
+        patch.setattr(kernels, "_module", None)
+        reference = contacts.find_short_hits(p)
+    fields = ("position", "normal", "geometric", "origins")
+    _bitwise((short.sample, short.weight, short.obj, short.uv, *(getattr(short.points, f) for f in fields)),
+             (reference.sample, reference.weight, reference.obj, reference.uv,
+              *(getattr(reference.points, f) for f in fields)))
+    return short
+
+
+@pytest.mark.parametrize("rotate", [False, True])
+def test_landing_points_far_from_the_origin_are_bitwise_those_of_numpy(monkeypatch, rotate):
+    """The landing kernel in a ray scene traced around a centre of its own (float64 origins),
+    with interleaved rotations and with one direction set."""
+    if kernels.compiled() is None:
+        pytest.skip(f"compiled kernels unavailable: {kernels.status().reason}")
+    from core.pipeline.prepare import prepare
+    built = _wall_on_floor(16)
+    for mesh in built.meshes:
+        mesh.positions = np.asarray(mesh.positions, np.float64) + np.array([4096.5, -1000.25, 300.0])
+    p = prepare(built, BakeSettings(directions=64, bounces=1, footprint_samples=16, interleave=4 if rotate else 1))
+    assert p.ray_scene.centre.any() and (p.rotations is not None) == rotate
+    short = _check_landings_bitwise(monkeypatch, p)
+    assert len(short.sample) > 100 and short.points.origins.dtype == np.float64
 
 
 def test_landing_points_found_by_chunks_are_bitwise_those_found_at_once(monkeypatch):
