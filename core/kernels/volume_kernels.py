@@ -1,5 +1,6 @@
 """Compiled (numba) kernels of the volume passes (core.volume): the direct light's slice
-sweep, the scattering tables' ray march and the 3D gather.
+sweep, the scattering tables' ray march, the 3D gather and the world's light through the
+tables.
 
 Imported only through :func:`core.kernels.volume`, the first time a volume is lit: a
 surface bake never compiles them.
@@ -490,6 +491,32 @@ def march_transmittance(density, points, directions, lengths, world_per_index, e
         out[q] = np.exp(-depth * extinction * world_per_index[q])
 
 
+@nb.njit(**KERNEL_OPTIONS)
+def world_light(radiance, escape, out):
+    """The world's radiance arriving at each table voxel: out[v] = the mean over the N
+    directions of radiance[n] * escape[n, v], summed in float64 in the directions' order, so
+    that a range of voxels gets bitwise the whole tables' values (a BLAS product's order
+    depends on the CPU's kernel and the matrix's width: on an AMD EPYC, ranges of a float32
+    sgemm differed in the last bit). In parallel over voxels.
+
+    radiance : (N, 3) float64; escape : (N, V) float32 (core.volume.tables.ScatteringTables.
+    world_escape); out : (V, 3) float64.
+    """
+    count = escape.shape[0]
+    for v in nb.prange(escape.shape[1]):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for n in range(count):
+            fraction = np.float64(escape[n, v])
+            s0 += radiance[n, 0] * fraction
+            s1 += radiance[n, 1] * fraction
+            s2 += radiance[n, 2] * fraction
+        out[v, 0] = s0 / count
+        out[v, 1] = s1 / count
+        out[v, 2] = s2 / count
+
+
 def warm_up() -> None:
     """Compile (or read from the cache) each kernel for the dtypes its callers pass, so that
     no call during a bake compiles (core.kernels.volume times this)."""
@@ -511,3 +538,4 @@ def warm_up() -> None:
                         np.zeros(1))
     gather_volume(np.zeros((4, 4, 4, 3), np.float32), active, directions, codes, escape, 1.0, BLOCK,
                   np.zeros((1, 3)))
+    world_light(np.zeros((1, 3)), np.zeros((1, 1), np.float32), np.zeros((1, 3)))

@@ -198,7 +198,11 @@ def world_light(tables, radiance: np.ndarray) -> np.ndarray:
 
     if isinstance(tables, SplitVolumeTables):
         return tables.world_light(radiance)
-    return (radiance.astype(np.float32).T @ tables.world_escape()).T.astype(np.float64) / len(tables.directions)
+    module = require_kernels()
+    result = np.empty((len(tables.voxels), 3))
+    kernels.run(module.world_light, 0, np.ascontiguousarray(radiance, np.float64),
+                np.ascontiguousarray(tables.world_escape(), np.float32), result)
+    return result
 
 
 def _to_grid(medium: Medium, voxels: np.ndarray, values: np.ndarray) -> np.ndarray:
