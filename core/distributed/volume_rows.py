@@ -78,7 +78,7 @@ def volume_task(setup: VolumeSetup, start: int, stop: int, task: str, *arguments
     if task == "gather":
         return gather_source(tables, *arguments, threads)
     if task == "world_light":
-        return world_light(tables, *arguments)
+        return world_light(tables, *arguments, threads=threads)
     if task == "reflected_light":
         return reflected_light(setup.medium, tables, occluders, *arguments, threads=threads, first_voxel=start)
     raise ValueError(f"no volume task {task!r}")

@@ -167,7 +167,7 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
                                  sweep_pass=sweep_pass)
         report(f"direct light: {light.name}")
     if world is not None and has_light(world):
-        direct += world_light(tables, world_radiance(world, tables.directions))
+        direct += world_light(tables, world_radiance(world, tables.directions), threads)
     report("world light")
     from_meshes = None
     if reflecting:
@@ -190,17 +190,18 @@ def light_medium(medium: Medium, tables: ScatteringTables, lights: list[Light] =
     return VolumeLight(_to_grid(medium, voxels, direct), _to_grid(medium, voxels, indirect), means, warnings)
 
 
-def world_light(tables, radiance: np.ndarray) -> np.ndarray:
+def world_light(tables, radiance: np.ndarray, threads: int = 0) -> np.ndarray:
     """(V, 3) float64 the world's radiance (N, 3) arriving at each table voxel through the
     fraction of each ray that leaves unscattered and meets no mesh (per range where the
-    tables are held by ranges of voxels)."""
+    tables are held by ranges of voxels). ``threads``: the kernel's (0: all cores); the
+    result does not depend on it."""
     from ..distributed.volume_rows import SplitVolumeTables
 
     if isinstance(tables, SplitVolumeTables):
         return tables.world_light(radiance)
     module = require_kernels()
     result = np.empty((len(tables.voxels), 3))
-    kernels.run(module.world_light, 0, np.ascontiguousarray(radiance, np.float64),
+    kernels.run(module.world_light, threads, np.ascontiguousarray(radiance, np.float64),
                 np.ascontiguousarray(tables.world_escape(), np.float32), result)
     return result
 
