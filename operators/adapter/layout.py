@@ -8,6 +8,7 @@ mesh, and only those are ever rewritten or removed.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import bpy
 
@@ -46,8 +47,10 @@ class PendingUnwrap:
     result: UnwrapResult | None = None
     error: str | None = None
 
+    @cached_property
     def key(self) -> str:
-        """What identifies this unwrap in IN_MEMORY_UNWRAPS."""
+        """What identifies this unwrap in IN_MEMORY_UNWRAPS (hashed once: looked up when planned,
+        stored when completed)."""
         return unwrap_key(self.positions, self.triangles, self.resolution)
 
     def run(self, in_child: bool = False, cancelled=None, worker: UnwrapWorker | None = None) -> None:
@@ -226,7 +229,7 @@ def _new_layout(obj, evaluated_positions, evaluated_triangles, settings, output,
     # Objects without outputs still reflect light, through an atlas nobody sees: unwrap
     # the evaluated mesh in memory and leave the user's mesh alone.
     pending = PendingUnwrap(evaluated_positions, evaluated_triangles, None, resolution[0])
-    kept = IN_MEMORY_UNWRAPS.get(pending.key())
+    kept = IN_MEMORY_UNWRAPS.get(pending.key)
     if kept is not None:
         return LayoutPlan(INTERNAL_UV_MAP, resolution, "the in-memory unwrap of an earlier bake in this session, "
                           f"no UV map written ({reason})", internal_uv=kept.corner_uv)
@@ -246,7 +249,7 @@ def complete_layout(obj, plan: LayoutPlan) -> LayoutPlan:
         raise UnwrapFailed(f"object {obj.name!r}: unwrapping failed at {pending.resolution}x{pending.resolution} "
                            f"({pending.error or 'it did not run'}); raise its resolution")
     if pending.loops is None:
-        IN_MEMORY_UNWRAPS.put(pending.key(), pending.result)
+        IN_MEMORY_UNWRAPS.put(pending.key, pending.result)
         plan.internal_uv = pending.result.corner_uv
     else:
         plan.created = write_uv_map(obj.data, pending.positions, pending.triangles, pending.loops,
