@@ -69,20 +69,6 @@ def numpy_gather_lookups_per_second(texels: int, directions: int, atlas_texels: 
     return texels / best
 
 
-def bare_lookup_seconds(kernels, table, geometry, radiance: np.ndarray, repeats: int = 3) -> float:
-    """The gather's ceiling on this machine: the best of ``repeats`` runs of
-    :func:`bare_lookup_call`; nan where the kernels cannot load."""
-    call = bare_lookup_call(kernels, table, geometry, radiance)
-    if call is None:
-        return float("nan")
-    best = np.inf
-    for _ in range(repeats):
-        started = time.perf_counter()
-        call()
-        best = min(best, time.perf_counter() - started)
-    return best
-
-
 def bare_lookup_call(kernels, table, geometry, radiance: np.ndarray, threads: int = 0):
     """A call of the same table walk as the compiled gather (same blocks, threads and table
     reads) with one nearest-texel read per hit entry and no weights, filter or bookkeeping

@@ -1,6 +1,6 @@
 """Run time against error: VisiBake and Cycles on procedural scenes (``make bench``).
 
-    .venv/bin/python benchmarks/run.py --profile quick            # ~5 min on 2 cores
+    .venv/bin/python benchmarks/run.py --profile quick            # ~7 min on 2 cores
     .venv/bin/python benchmarks/run.py --profile standard         # ~30 min: resolutions 64 and 128, N to 1024
     .venv/bin/python benchmarks/run.py --profile bounces          # ~10 min: 0, 1 and 4 bounces
     .venv/bin/python benchmarks/run.py --profile full             # hours: everything, 4096 spp references
@@ -11,7 +11,8 @@ of the profile: a converged Cycles reference (cached on disk by a hash of the sc
 settings, with its own noise estimated from two independent halves), then VisiBake over
 direction counts, shadow modes and direction-set rotation, and Cycles over sample
 counts, on the same UV layout. Every run records wall time per stage, peak memory,
-relative RMSE, bias and max error against the reference. Then the relighting case (K
+relative RMSE, bias and max error against the reference; a run under two seconds is timed
+as the fastest of three identical ones (``SHORT_RUNS``). Then the relighting case (K
 lighting setups from one visibility bake against K Cycles bakes at matched error), and
 the limits of the libraries underneath (embreex rays/s, numpy lookups/s) measured in
 the same run, so every stage is also reported as a fraction of what its library can do.
@@ -40,23 +41,32 @@ sys.path.insert(0, ROOT)
 
 import numpy as np  # noqa: E402
 
+# A run of a second or two moves by 20-40% from one run to the next on a shared 2-core machine
+# (docs/benchmarks.md, speed parts 19 and 20); such runs, of both methods, are timed as the
+# fastest of three identical runs (their images are the same: VisiBake is deterministic and
+# Cycles' seed is fixed). The smoke profile, which the tests run, times each run once.
+SHORT_RUNS = dict(short_run_seconds=2.0, short_run_repeats=3)
 PROFILES = {
     "smoke": dict(size="smoke", scenes=["sun_occluders"], resolutions=[32], bounces=[1], directions=[8, 16],
                   shadows=["exact"], rotate=[False], cycles_samples=[1, 4], reference_samples=16,
                   relight_setups=[1, 2]),
     "quick": dict(size="full", scenes=None, resolutions=[64], bounces=[2], directions=[32, 64, 128, 256],
                   shadows=["exact", "fractions"], rotate=[False, True], cycles_samples=[1, 4, 16, 64, 256],
-                  reference_samples=1024, relight_setups=[1, 4, 16]),
+                  reference_samples=1024, relight_setups=[1, 4, 16], **SHORT_RUNS),
     "standard": dict(size="full", scenes=None, resolutions=[64, 128], bounces=[2],
                      directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
-                     cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=2048, relight_setups=[1, 4, 16]),
+                     cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=2048, relight_setups=[1, 4, 16],
+                     **SHORT_RUNS),
     "bounces": dict(size="full", scenes=None, resolutions=[64], bounces=[0, 1, 4], directions=[64, 256],
                     shadows=["exact"], rotate=[False], cycles_samples=[4, 64], reference_samples=1024,
-                    relight_setups=[1]),
+                    relight_setups=[1], **SHORT_RUNS),
     "full": dict(size="full", scenes=None, resolutions=[64, 128, 256], bounces=[0, 1, 2, 4],
                  directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
-                 cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=4096, relight_setups=[1, 4, 16]),
+                 cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=4096, relight_setups=[1, 4, 16],
+                 **SHORT_RUNS),
 }
+# Alternated runs of the CPU gather and of its ceiling, the bare table walk (compare_gather_paths).
+GATHER_SHARE_ROUNDS = 7
 # The VisiBake setting whose error the relighting case matches Cycles against.
 RELIGHT_DIRECTIONS = 128
 
@@ -78,6 +88,20 @@ def write_results(path: str, fields: dict) -> None:
     with open(path, "w", encoding="utf-8") as handle:
         json.dump(result, handle, indent=2)
     print(f"wrote {path}")
+
+
+def fastest_of_short_runs(run, profile: dict):
+    """``run()`` -> (result, seconds, details), run once and, where that took under the profile's
+    ``short_run_seconds``, again up to ``short_run_repeats`` runs in all. Returns the first run's
+    result (its images and peak memory) with the fastest run's seconds and details: the runs are
+    identical, so only their timing differs."""
+    result, seconds, details = run()
+    if seconds < profile.get("short_run_seconds", 0.0):
+        for _ in range(profile.get("short_run_repeats", 1) - 1):
+            _, again, again_details = run()
+            if again < seconds:
+                seconds, details = again, again_details
+    return result, seconds, details
 
 
 def pareto(points):
@@ -228,9 +252,14 @@ def main(argv=None) -> int:
                     for shadows in profile["shadows"]:
                         for rotate in profile["rotate"]:
                             props.directions, props.shadows, props.rotate = directions, shadows, rotate
-                            limits.reset_peak_memory()
-                            outcome = job.run_bake(bpy.context, objects)
-                            peak = limits.peak_memory_bytes() or outcome.report["peak_memory_bytes"]
+
+                            def bake():
+                                limits.reset_peak_memory()
+                                outcome = job.run_bake(bpy.context, objects)
+                                peak = limits.peak_memory_bytes() or outcome.report["peak_memory_bytes"]
+                                return (outcome, peak), outcome.report["total_seconds"], outcome.report["stage_seconds"]
+
+                            (outcome, peak), seconds, stage_seconds = fastest_of_short_runs(bake, profile)
                             images = {r.name: r.images["lighting"] for r in outcome.result.objects}
                             report = outcome.report
                             errors = reference.relative_errors(images, ref.images)
@@ -238,29 +267,35 @@ def main(argv=None) -> int:
                             rows.append({
                                 "scene": name, "method": "visibake", "resolution": resolution, "bounces": bounces,
                                 "directions": directions, "shadows": shadows, "rotate": rotate, "samples": "",
-                                "seconds": report["total_seconds"], "stage_seconds": report["stage_seconds"],
+                                "seconds": seconds, "stage_seconds": stage_seconds,
                                 "peak_memory_bytes": peak, "reference_noise": ref.noise,
                                 "block_rmse": blocks["block_rmse"], "block_noise": blocks["block_noise"],
                                 "_rays": report["rays"]["visibility_cast"], "_gathers": report["gathers"],
                                 **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error",
                                                           "max_relative_error", "texels")}})
                             print(f"  VisiBake N={directions} {shadows}{' rotated' if rotate else ''}: "
-                                  f"{report['total_seconds']:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
+                                  f"{seconds:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
                 for samples in profile["cycles_samples"]:
-                    limits.reset_peak_memory()
-                    started = time.perf_counter()
-                    images = {}
-                    for uv_map in sorted(set(uv_maps.values())):
-                        group = [o for o in objects if uv_maps.get(o.name) == uv_map]
-                        images.update(bake_diffuse(group, uv_map, resolution, resolution, bounces, samples, seed=3))
-                    seconds = time.perf_counter() - started
+
+                    def cycles_bake():
+                        limits.reset_peak_memory()
+                        started = time.perf_counter()
+                        images = {}
+                        for uv_map in sorted(set(uv_maps.values())):
+                            group = [o for o in objects if uv_maps.get(o.name) == uv_map]
+                            images.update(bake_diffuse(group, uv_map, resolution, resolution, bounces, samples,
+                                                       seed=3))
+                        seconds = time.perf_counter() - started
+                        return (images, limits.peak_memory_bytes() or pipeline.peak_memory_bytes()), seconds, None
+
+                    (images, peak), seconds, _ = fastest_of_short_runs(cycles_bake, profile)
                     errors = reference.relative_errors(images, ref.images)
                     blocks = reference.block_errors(images, ref)
                     rows.append({
                         "scene": name, "method": "cycles", "resolution": resolution, "bounces": bounces,
                         "directions": "", "shadows": "", "rotate": False, "samples": samples, "seconds": seconds,
                         "stage_seconds": {"bake": round(seconds, 4)},
-                        "peak_memory_bytes": limits.peak_memory_bytes() or pipeline.peak_memory_bytes(),
+                        "peak_memory_bytes": peak,
                         "reference_noise": ref.noise,
                         "block_rmse": blocks["block_rmse"], "block_noise": blocks["block_noise"],
                         **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error", "max_relative_error",
@@ -391,7 +426,7 @@ def main(argv=None) -> int:
 
 def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather_source, package: str) -> dict:
     """One bounce gather on the same table: the compiled CPU kernel against its ceiling (the
-    bare table walk, :func:`limits.bare_lookup_seconds`), the numpy fallback, and the GPU:
+    bare table walk, :func:`limits.bare_lookup_call`), the numpy fallback, and the GPU:
     time, lookups/s, agreement.
 
     The radiance is the scene's albedo lit uniformly (any atlas will do: the cost of
@@ -408,14 +443,21 @@ def compare_gather_paths(prepared, gpu_runtime, cpu_backend, gpu_backend, gather
     source = gather_source(prepared.to_atlas(prepared.albedo, cpu_backend.dilate), np.zeros(3))
     lookups = int(table.rays_cast)
     cpu_backend.gather(geometry, source)  # the kernels' first load is not a gather's cost
-    # Best of three like the bare walk it is divided by: until part 6 the gather was timed
-    # once, which on this noisy VM understated its share of the walk.
-    numpy_seconds = np.inf
-    for _ in range(3):
+    # The gather and the bare walk it is divided by, alternated, the best of seven each: both
+    # take milliseconds, and three runs of one then three of the other put this share anywhere
+    # from 26% to 100% on a noisy 2-core VM (docs/benchmarks.md, speed part 20).
+    bare = limits.bare_lookup_call(kernels, table, geometry, source.radiance)
+    numpy_seconds = bare_seconds = np.inf
+    for _ in range(GATHER_SHARE_ROUNDS):
         started = time.perf_counter()
         numpy_result = cpu_backend.gather(geometry, source)
         numpy_seconds = min(numpy_seconds, time.perf_counter() - started)
-    bare_seconds = limits.bare_lookup_seconds(kernels, table, geometry, source.radiance)
+        if bare is not None:
+            started = time.perf_counter()
+            bare()
+            bare_seconds = min(bare_seconds, time.perf_counter() - started)
+    if bare is None:
+        bare_seconds = float("nan")
     started = time.perf_counter()
     fallback_result = cpu_gather.gather_numpy(geometry, source)
     fallback_seconds = time.perf_counter() - started
@@ -463,6 +505,13 @@ def _block_columns(row: dict, cycles_blocks: list) -> str:
     return f"{row['block_rmse']:.4f} | {at:.2f} | {at / row['seconds']:.1f} | {row.get('block_noise') or 0:.4f} |"
 
 
+def _short_runs_sentence(settings: dict) -> str:
+    if settings.get("short_run_repeats", 1) <= 1:
+        return ""
+    return (f" A run of either method under {settings['short_run_seconds']:g} s is timed as the fastest of "
+            f"{settings['short_run_repeats']} identical runs.")
+
+
 def write_markdown(path: str, summary: dict, out: str) -> None:
     """The figures that matter, per scene: VisiBake against Cycles at equal error,
     shadow fractions against exact shadows, the share of each library's ceiling,
@@ -472,7 +521,7 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
              "VisiBake (exact shadows, fixed direction set) against the time Cycles needs for the same error "
              "(log-log interpolation of its sample sweep; beyond the sweep, extrapolated as error ~ samples^-1/2), "
              "per texel and on the means of 4x4-texel blocks (the error a denoiser leaves: Cycles' noise "
-             "averages out there, VisiBake's structured error does not).",
+             "averages out there, VisiBake's structured error does not)." + _short_runs_sentence(summary["settings"]),
              "", "| scene | res | bounces | N | VisiBake s | rel. RMSE | Cycles s at that error | Cycles / VisiBake "
              "| reference noise | block RMSE | Cycles s at that block error | Cycles / VisiBake on blocks "
              "| reference block noise |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
