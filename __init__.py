@@ -8,6 +8,7 @@ import bpy
 from . import operators, panels
 from .core import kernels
 from .core.pipeline import resident
+from .core.visibility import rays
 from .operators import cli
 from .operators.adapter import cache_status, compat
 from .operators.adapter.settings import kernel_cache_folder
@@ -43,6 +44,8 @@ def unregister():
     preferences.unregister_handlers()
     # A kept preparation (core.pipeline.resident) is let go with the extension.
     resident.forget()
+    # And the helper threads the ray queries keep (core.visibility.rays.run_together).
+    rays.stop_helpers()
     properties.unregister_properties()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

@@ -8,6 +8,7 @@ epsilon does not.
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -218,15 +219,70 @@ def _triangle_mesh(triangle_mesh, scene, vertices: np.ndarray, indices: np.ndarr
 
 def run_in_spans(function, count: int, threads: int) -> None:
     """``function(a, b)`` on consecutive spans [a, b) covering [0, count), at most one per
-    thread of ``threads`` (0: all cores), each at least 4096 items long, on threads of
-    their own: for work that releases the GIL (embree's queries, the serial kernels)."""
+    thread of ``threads`` (0: all cores), each at least 4096 items long, at once
+    (:func:`run_together`): for work that releases the GIL (embree's queries, the serial kernels)."""
     threads = threads or default_threads()
     parts = min(threads, max(1, count // 4096))
     bounds = np.linspace(0, count, parts + 1).astype(np.int64)
     spans = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-    if len(spans) <= 1:
-        for a, b in spans:
-            function(a, b)
-        return
-    with ThreadPoolExecutor(len(spans)) as pool:
-        list(pool.map(lambda span: function(*span), spans))
+    run_together([lambda a=a, b=b: function(a, b) for a, b in spans])
+
+
+# The helper threads run_together keeps. A bake calls it about a hundred times (every shadow-ray
+# batch, every span of the trace), and a pool made and joined per call cost 0.2 ms of thread
+# starts each time (docs/benchmarks.md, speed part 20).
+_helpers_lock = threading.Lock()
+_helpers: ThreadPoolExecutor | None = None
+_helper_count = 0
+_this_thread = threading.local()
+
+
+def _mark_helper() -> None:
+    _this_thread.is_helper = True
+
+
+def run_together(calls: list) -> list:
+    """Each of ``calls`` (callables without arguments) at once: the first on the calling thread,
+    the others on kept helper threads. Returns their results in order; once every call has
+    ended, raises the first call's error, if any. A call made on a helper thread runs its
+    calls one after the other there, so a helper never waits for another helper."""
+    if len(calls) <= 1 or getattr(_this_thread, "is_helper", False):
+        return [call() for call in calls]
+    futures = _on_helpers(calls[1:])
+    first, error = None, None
+    try:
+        first = calls[0]()
+    except BaseException as raised:  # the helpers' calls read buffers the caller owns: let them end first
+        error = raised
+    results = [first]
+    for future in futures:
+        try:
+            results.append(future.result())
+        except BaseException as raised:
+            error = error or raised
+            results.append(None)
+    if error is not None:
+        raise error
+    return results
+
+
+def _on_helpers(calls: list) -> list:
+    """Futures of ``calls`` submitted to the kept helper threads, at least as many as calls.
+    Under the lock, so that no other thread lets the pool go between choosing and submitting."""
+    global _helpers, _helper_count
+    with _helpers_lock:
+        if _helpers is None or _helper_count < len(calls):
+            if _helpers is not None:
+                _helpers.shutdown(wait=False)  # its threads end once idle; what it was given still runs
+            _helpers = ThreadPoolExecutor(len(calls), thread_name_prefix="visibake-helper", initializer=_mark_helper)
+            _helper_count = len(calls)
+        return [_helpers.submit(call) for call in calls]
+
+
+def stop_helpers() -> None:
+    """End the kept helper threads (the extension unregistering); the next call starts new ones."""
+    global _helpers, _helper_count
+    with _helpers_lock:
+        if _helpers is not None:
+            _helpers.shutdown(wait=False)
+        _helpers, _helper_count = None, 0

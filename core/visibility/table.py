@@ -10,14 +10,13 @@ from __future__ import annotations
 import itertools
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .. import kernels
 from .. import tolerances as tol
-from .rays import RayScene, run_in_spans
+from .rays import RayScene, run_in_spans, run_together
 from .scratch import ScratchArrays, mapped_layout
 
 MISS = -1
@@ -900,8 +899,7 @@ class SpanTracer:
         if self.threads == 1 or count <= SPAN_RAYS:
             work(0)
             return
-        with ThreadPoolExecutor(self.threads) as pool:
-            list(pool.map(work, range(self.threads)))
+        run_together([lambda thread=thread: work(thread) for thread in range(self.threads)])
 
 
 def _record_numpy(entries: TableEntries, geometry: HitGeometry, ray_directions: np.ndarray, entry: np.ndarray,

@@ -1,9 +1,13 @@
+import threading
+import time
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from core.visibility.rays import RayScene, offset_ray_origins
+from core.visibility import rays
+from core.visibility.rays import RayScene, offset_ray_origins, run_in_spans, run_together
 
 
 def _plane(z, size, centre=(0.0, 0.0)):
@@ -155,3 +159,89 @@ def test_a_scene_whose_fields_do_not_prove_themselves_is_not_attached_to():
     found = scene.run(np.array([[0.2, 0.2, 0.2]], np.float32), np.full((1, 3), 1 / np.sqrt(3), np.float32),
                       output=1)
     assert found["geomID"][0] == 0 and found["primID"][0] == 0
+
+
+def test_calls_run_together_return_in_order_the_first_on_the_calling_thread():
+    seen = []
+
+    def call(i):
+        seen.append((i, threading.current_thread().name))
+        time.sleep(0.01)
+        return i * i
+
+    results = run_together([lambda i=i: call(i) for i in range(4)])
+    assert results == [0, 1, 4, 9]
+    names = dict(seen)
+    assert names[0] == threading.current_thread().name
+    assert all(names[i].startswith("visibake-helper") for i in (1, 2, 3))
+    # The helpers are kept: a second batch runs on threads of the same names, started once.
+    before = {t.ident for t in threading.enumerate() if t.name.startswith("visibake-helper")}
+    run_together([lambda i=i: call(i) for i in range(4)])
+    after = {t.ident for t in threading.enumerate() if t.name.startswith("visibake-helper")}
+    assert after == before
+
+
+def test_an_error_is_raised_once_every_call_has_ended():
+    finished = []
+
+    def slow(i):
+        time.sleep(0.05)
+        finished.append(i)
+
+    def fails():
+        raise ValueError("helper failed")
+
+    with pytest.raises(ValueError, match="helper failed"):
+        run_together([lambda: slow(0), fails, lambda: slow(2)])
+    assert sorted(finished) == [0, 2]
+    with pytest.raises(KeyError):
+        run_together([lambda: (_ for _ in ()).throw(KeyError("caller failed")), lambda: slow(1)])
+    assert 1 in finished
+
+
+def test_a_call_on_a_helper_runs_its_own_calls_there_without_waiting_for_another_helper():
+    def nested(i):
+        on_helper = threading.current_thread().name.startswith("visibake-helper")
+        inner = run_together([lambda j=j: (threading.current_thread().name, i * 10 + j) for j in range(3)])
+        if on_helper:
+            assert {name for name, _ in inner} == {threading.current_thread().name}
+        return [value for _, value in inner]
+
+    results = run_together([lambda i=i: nested(i) for i in range(3)])
+    assert results == [[0, 1, 2], [10, 11, 12], [20, 21, 22]]
+
+
+def test_threads_calling_at_once_with_growing_batches_each_get_their_own_results():
+    errors, outputs = [], {}
+
+    def caller(who):
+        try:
+            for round_ in range(60):
+                size = 2 + (who + round_) % 4  # the pool grows while others use it
+                outputs.setdefault(who, []).append(
+                    run_together([lambda k=k: (who, round_, k) for k in range(size)]) ==
+                    [(who, round_, k) for k in range(size)])
+        except BaseException as error:  # noqa: BLE001 - the test reports any failure
+            errors.append(error)
+
+    threads = [threading.Thread(target=caller, args=(who,)) for who in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert not errors
+    assert all(all(ok) and len(ok) == 60 for ok in outputs.values()) and len(outputs) == 4
+    rays.stop_helpers()
+    assert run_together([lambda: 1, lambda: 2]) == [1, 2]
+
+
+def test_spans_cover_every_item_once():
+    hits = np.zeros(20_000, np.int32)
+
+    def mark(a, b):
+        hits[a:b] += 1
+
+    run_in_spans(mark, len(hits), 4)
+    assert np.all(hits == 1)
+    run_in_spans(mark, 10, 4)  # one span: on the calling thread
+    assert np.all(hits[:10] == 2)
