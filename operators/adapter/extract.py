@@ -44,12 +44,21 @@ class MeshTriangles:
     triangles : (m, 3) int32 vertex indices of each loop triangle
     loops : (m, 3) int64 face-corner (loop) indices of each loop triangle
     material_index : (m,) int32 material slot of each loop triangle's face
+    corners_in_order : every face is a triangle, so ``loops`` is 0, 1, 2, ... in order
     """
 
     positions: np.ndarray
     triangles: np.ndarray
     loops: np.ndarray
     material_index: np.ndarray
+    corners_in_order: bool = False
+
+    def per_corner(self, values: np.ndarray) -> np.ndarray:
+        """(m, 3, ...) the per-face-corner ``values`` (c, ...) at each loop triangle's corners:
+        a reshaped view where the corners are in order, else gathered through ``loops``."""
+        if self.corners_in_order:
+            return values.reshape(len(self.loops), 3, *values.shape[1:])
+        return values[self.loops]
 
 
 def _attribute_values(mesh: bpy.types.Mesh, name: str, domain: str, field: str, count: int, width: int, dtype):
@@ -69,15 +78,23 @@ def read_triangles(mesh: bpy.types.Mesh) -> MeshTriangles:
 
     The triangles' vertex and material indices come from the corner and face attributes
     through the triangles' corners and faces, which is what Blender's own loop-triangle
-    properties return, in two array reads instead of per-triangle ones."""
+    properties return, in two array reads instead of per-triangle ones. Where every face is a
+    triangle, Blender's loop triangles are the faces themselves, corners in order (its
+    mesh_tessellate.cc), so the per-triangle read of their corners (18 ms of a 200k-triangle
+    mesh: docs/benchmarks.md, speed part 20) is not made."""
     count = len(mesh.loop_triangles)
     positions = _attribute_values(mesh, "position", "POINT", "vector", len(mesh.vertices), 3, np.float64)
     if positions is None:
         positions = read_values(mesh.vertices, "co", len(mesh.vertices), 3, np.float64)
-    loops = read_values(mesh.loop_triangles, "loops", count, 3, np.int64)
+    # Each face has at least three corners, so three per face means triangles only.
+    corners_in_order = len(mesh.loops) == 3 * len(mesh.polygons) == 3 * count
+    if corners_in_order:
+        loops = np.arange(3 * count, dtype=np.int64).reshape(count, 3)
+    else:
+        loops = read_values(mesh.loop_triangles, "loops", count, 3, np.int64)
     corner_vertex = _attribute_values(mesh, ".corner_vert", "CORNER", "value", len(mesh.loops), 1, np.int32)
     if corner_vertex is not None:
-        triangles = corner_vertex[loops]
+        triangles = corner_vertex.reshape(count, 3) if corners_in_order else corner_vertex[loops]
     else:
         triangles = read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
     if not hasattr(mesh, "loop_triangle_polygons"):
@@ -86,16 +103,13 @@ def read_triangles(mesh: bpy.types.Mesh) -> MeshTriangles:
         face_material = _attribute_values(mesh, "material_index", "FACE", "value", len(mesh.polygons), 1, np.int32)
         material_index = (np.zeros(count, np.int32) if face_material is None else
                           face_material[read_values(mesh.loop_triangle_polygons, "value", count, 1, np.int64)])
-    return MeshTriangles(positions, triangles, loops, material_index)
+    return MeshTriangles(positions, triangles, loops, material_index, corners_in_order)
 
 
-def mesh_corner_uv(mesh: bpy.types.Mesh, loops: np.ndarray) -> dict[str, np.ndarray]:
-    """UV maps of ``mesh`` per triangle corner: name -> (m, 3, 2) float32."""
-    maps = {}
-    for layer in mesh.uv_layers:
-        uv = read_values(layer.uv, "vector", len(mesh.loops), 2, np.float32)
-        maps[layer.name] = uv[loops]
-    return maps
+def mesh_corner_uv(mesh: bpy.types.Mesh, read: MeshTriangles) -> dict[str, np.ndarray]:
+    """UV maps of ``mesh`` per triangle corner of ``read`` (its read_triangles): name -> (m, 3, 2) float32."""
+    return {layer.name: read.per_corner(read_values(layer.uv, "vector", len(mesh.loops), 2, np.float32))
+            for layer in mesh.uv_layers}
 
 
 # Byte images in these colour spaces hold linear values already; Cycles reads them as stored.
@@ -208,7 +222,7 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
         read = read_triangles(mesh)
         positions, triangles, loops, material_index = read.positions, read.triangles, read.loops, read.material_index
         normals = read_values(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float64)
-        uv_maps = mesh_corner_uv(mesh, loops)
+        uv_maps = mesh_corner_uv(mesh, read)
         vertex_count, loop_count = len(mesh.vertices), len(mesh.loops)
         default_uv = next((layer.name for layer in mesh.uv_layers if layer.active_render), "")
         materials = [read_material(slot.material, default_uv, warnings) for slot in evaluated.material_slots]
@@ -224,7 +238,7 @@ def read_mesh(obj: bpy.types.Object, depsgraph, bake_uv_map: str, resolution: tu
         positions = positions @ linear.T + matrix[:3, 3]
     normal_matrix = np.linalg.inv(linear).T if abs(np.linalg.det(linear)) > 1e-30 else linear
     # One (3m, 3) product, not m stacked 3 x 3 ones: the same values, 4-9x sooner.
-    corner_normals = (normals[loops].reshape(-1, 3) @ normal_matrix.T).astype(np.float32).reshape(-1, 3, 3)
+    corner_normals = (read.per_corner(normals).reshape(-1, 3) @ normal_matrix.T).astype(np.float32).reshape(-1, 3, 3)
     if np.linalg.det(linear) < 0:
         # A mirroring transform turns the winding around; restore counter-clockwise
         # fronts so face normals still point where Blender shows them.
@@ -753,8 +767,8 @@ def _read_prototype(name: str, mesh: bpy.types.Mesh, material_slots, materials_r
             materials_read[key] = read_material(slot.material, default_uv, warnings)
         materials.append(materials_read[key])
     normals = read_values(mesh.corner_normals, "vector", len(mesh.corner_normals), 3, np.float32)
-    return _Prototype(name=name, positions=read.positions, triangles=read.triangles, normals=normals[read.loops],
-                      material_index=read.material_index, uv_maps=mesh_corner_uv(mesh, read.loops),
+    return _Prototype(name=name, positions=read.positions, triangles=read.triangles, normals=read.per_corner(normals),
+                      material_index=read.material_index, uv_maps=mesh_corner_uv(mesh, read),
                       materials=materials)
 
 

@@ -423,3 +423,49 @@ def test_triangles_read_from_attribute_arrays_are_blenders_loop_triangles(visiba
     assert read.triangles.dtype == np.int32 and read.loops.dtype == np.int64
     assert read.material_index.dtype == np.int32 and read.positions.dtype == np.float64
     assert read.material_index.any() == materials
+
+
+def test_a_mesh_of_triangles_only_reads_its_corners_in_order_as_blender_s_loop_triangles_give_them(visibake,
+                                                                                                  clean_scene):
+    """Where every face is a triangle, read_triangles and read_mesh make no per-triangle read:
+    the loop triangles are the faces, corners in order. The triangles, corners, per-corner UVs
+    and normals are bitwise those gathered through Blender's own loop triangles, also after
+    the faces were reordered and on a mirrored object; a mesh with one quad is read the
+    general way."""
+    import importlib
+    extract = importlib.import_module(visibake.__name__ + ".operators.adapter.extract")
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=7, location=(0.3, -0.2, 0.5))
+    sphere = bpy.context.active_object
+    bpy.ops.object.modifier_add(type="TRIANGULATE")
+    bpy.ops.object.modifier_apply(modifier=sphere.modifiers[-1].name)
+    bpy.ops.object.shade_smooth()
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.sort_elements(type="RANDOMIZE", elements={"FACE"}, seed=7)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    sphere.scale = (1.0, -1.5, 0.8)  # mirrored: the corners turn around
+    mesh = sphere.data
+    assert len(mesh.loops) == 3 * len(mesh.polygons)
+    mesh.calc_loop_triangles()
+    read = extract.read_triangles(mesh)
+    assert read.corners_in_order
+    blender_loops = np.array([list(t.loops) for t in mesh.loop_triangles], np.int64)
+    np.testing.assert_array_equal(read.loops, blender_loops)
+    np.testing.assert_array_equal(read.triangles, [list(t.vertices) for t in mesh.loop_triangles])
+    uv = np.array([list(d.uv) for d in mesh.uv_layers.active.data], np.float32)
+    np.testing.assert_array_equal(extract.mesh_corner_uv(mesh, read)[mesh.uv_layers.active.name], uv[blender_loops])
+
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    baked = extract.read_mesh(sphere, depsgraph, mesh.uv_layers.active.name, (16, 16), True, [])
+    normals = np.array([list(n.vector) for n in mesh.corner_normals], np.float64)
+    matrix = np.array(sphere.matrix_world, np.float64)[:3, :3]
+    expected = (normals[blender_loops].reshape(-1, 3) @ np.linalg.inv(matrix)).astype(np.float32).reshape(-1, 3, 3)
+    np.testing.assert_array_equal(baked.corner_normals, expected[:, [0, 2, 1]])
+    np.testing.assert_array_equal(baked.corner_loops, blender_loops[:, [0, 2, 1]])
+    np.testing.assert_array_equal(baked.uv_maps[mesh.uv_layers.active.name], uv[blender_loops][:, [0, 2, 1]])
+
+    bpy.ops.mesh.primitive_plane_add()
+    quad = bpy.context.active_object.data
+    quad.calc_loop_triangles()
+    general = extract.read_triangles(quad)
+    assert not general.corners_in_order
+    np.testing.assert_array_equal(general.loops, [list(t.loops) for t in quad.loop_triangles])
