@@ -204,6 +204,21 @@ def test_welding_by_one_key_groups_and_orders_vertices_as_rows_do():
     assert len(labels) == 50 and len(np.unique(labels)) == 50
 
 
+def test_ranks_through_a_stable_sort_are_np_unique_s_inverse():
+    """_ranks (the welding's labels) equals np.unique's inverse on keys in order, nearly in
+    order (a grid's rows), shuffled, all equal, one key and none repeated."""
+    from core.outputs.seams import _ranks
+    rng = np.random.default_rng(3)
+    grid = (np.arange(300)[:, None] << 21 | np.arange(300)[None, :]).reshape(-1).astype(np.int64)
+    cases = [grid, grid[::-1].copy(), rng.permutation(grid), rng.integers(0, 50, 5000).astype(np.int64),
+             np.full(10, 7, np.int64), np.array([1 << 62], np.int64), rng.integers(-(1 << 40), 1 << 40, 1000)]
+    for keys in cases:
+        _, expected = np.unique(keys, return_inverse=True)
+        ranks = _ranks(keys)
+        assert ranks.dtype == np.int64
+        np.testing.assert_array_equal(ranks, expected.reshape(-1))
+
+
 def test_edges_between_unsplit_vertices_are_left_out_without_changing_the_seams(monkeypatch):
     """find_seams pairs only edges with a split vertex at an end (_split_vertices): on a
     smooth grid cut into islands, with UVs jittered well under SPLIT_TEXELS, a NaN corner
