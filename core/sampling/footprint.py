@@ -60,7 +60,7 @@ def _scrambled_points(count: int, seeds: np.ndarray) -> np.ndarray:
 
 def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
                       corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray, count: int,
-                      threads: int = 0) -> np.ndarray:
+                      threads: int = 0, seed_triangle: np.ndarray | None = None) -> np.ndarray:
     """Offsets of each sample's footprint points from its position.
 
     Parameters
@@ -72,6 +72,9 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     position : (k, 3) float64 each sample's own position (on its triangle)
     count : points per sample (1: the sample itself, offset 0)
     threads : the compiled kernels' thread count (0: all cores); the result does not depend on it
+    seed_triangle : (k,) int32 the owning triangles where ``triangle`` only indexes ``corner_uv``
+        and ``corners`` given per sample (``triangle`` then 0..k-1): the draws are seeded by
+        the mesh's own triangle (None: ``triangle`` is it)
 
     Returns
     -------
@@ -97,7 +100,7 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         return np.stack([1.0 - w1 - w2, w1, w2], axis=2)
 
     module = kernels.compiled()
-    jitter = footprint_jitter(pixel, triangle, count, module, threads)
+    jitter = footprint_jitter(pixel, triangle if seed_triangle is None else seed_triangle, count, module, threads)
     tri_corners = np.asarray(corners, np.float64)[triangle]  # (k, 3, 3)
     # The first draw of every slot at once: most land inside at once, and only the rest
     # (border texels, triangles smaller than the box) loop over their redraws.

@@ -88,12 +88,16 @@ def _texel_raster(mesh: Mesh, threads: int):
     uv = np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64)
     uv_area = (uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1]) \
         - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0])
-    with_area = np.flatnonzero(uv_area != 0)  # NaN counts: the raster skips it
+    with_area = uv_area != 0  # NaN counts: the raster skips it
     all_normals, all_valid = mesh_face_normals(mesh, threads)
-    normals, valid = np.zeros((len(mesh.triangles), 3)), np.zeros(len(mesh.triangles), bool)
-    normals[with_area], valid[with_area] = all_normals[with_area], all_valid[with_area]
+    if with_area.all():
+        # The common case, without copies of every triangle's arrays (read-only, as kept).
+        normals, valid = all_normals, all_valid
+    else:
+        normals, valid = np.zeros((len(mesh.triangles), 3)), np.zeros(len(mesh.triangles), bool)
+        normals[with_area], valid[with_area] = all_normals[with_area], all_valid[with_area]
     # Degenerate or non-finite triangles get no samples: they have no normal to shade with.
-    raster_uv = np.where(valid[:, None, None], uv, 0.0)
+    raster_uv = uv if valid.all() else np.where(valid[:, None, None], uv, 0.0)
     return raster_uv, normals, rasterize(raster_uv, width, height, threads)
 
 
@@ -174,14 +178,17 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> O
     smooth = _on_smooth_faces(mesh, tri, geometric)
     footprint = box_corners = point_normals = None
     if footprint_samples > 1:
-        corners = mesh.positions[mesh.triangles].astype(np.float64)
-        footprint = footprint_offsets(raster.pixel, tri, width, height, raster_uv, corners, position,
-                                      footprint_samples, threads)
-        box_corners = footprint_corners(raster.pixel, tri, width, height, raster_uv, corners, position, footprint,
+        # Each sample's own triangle's corners: a dense mesh's few texels touch few of its
+        # triangles, and gathering every triangle's took 7 ms of 200k (docs/benchmarks.md, part 20).
+        own = np.arange(len(tri))
+        own_uv = raster_uv[tri]
+        footprint = footprint_offsets(raster.pixel, own, width, height, own_uv, corners, position,
+                                      footprint_samples, threads, seed_triangle=tri)
+        box_corners = footprint_corners(raster.pixel, own, width, height, own_uv, corners, position, footprint,
                                         threads)
         if _has_footprint_normals(footprint_samples, bool(np.any(smooth))):
-            point_normals = footprint_normals(footprint, position, tri, corners, mesh.corner_normals, shading, smooth,
-                                              threads)
+            point_normals = footprint_normals(footprint, position, own, corners, mesh.corner_normals[tri], shading,
+                                              smooth, threads)
     terminator = None
     if _has_terminator(mesh, bool(np.any(smooth))):
         terminator = np.zeros((len(tri), 3))
@@ -329,13 +336,15 @@ def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count:
     """
     width, height = samples.width, samples.height
     triangle = samples.triangle[rows]
-    corners = mesh.positions[mesh.triangles].astype(np.float64)
+    # Each row's own triangle's corners, as build_samples gives them.
+    own = np.arange(len(triangle))
+    corners = mesh.positions[mesh.triangles[triangle]].astype(np.float64)
     position = samples.position[rows]
-    offsets = footprint_offsets(samples.pixel[rows], triangle, width, height,
-                                np.asarray(mesh.uv_maps[mesh.bake_uv_map], np.float64), corners, position, count,
-                                threads)
+    offsets = footprint_offsets(samples.pixel[rows], own, width, height,
+                                np.asarray(mesh.uv_maps[mesh.bake_uv_map][triangle], np.float64), corners, position,
+                                count, threads, seed_triangle=triangle)
     smooth = _on_smooth_faces(mesh, triangle, samples.geometric_normal[rows])
     if not smooth.any():
         return offsets, None
-    return offsets, footprint_normals(offsets, position, triangle, corners, mesh.corner_normals,
+    return offsets, footprint_normals(offsets, position, own, corners, mesh.corner_normals[triangle],
                                       samples.normal[rows], smooth, threads)

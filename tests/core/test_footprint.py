@@ -3,6 +3,7 @@ triangle, and what the table and exact shadows do with it."""
 import dataclasses
 
 import numpy as np
+import pytest
 
 from core.pipeline.prepare import prepare
 from core.sampling.footprint import BOX_WIDTH, footprint_corners, footprint_offsets
@@ -331,3 +332,48 @@ def test_direct_light_by_chunks_of_samples_is_bitwise_the_whole_pass(monkeypatch
     # A second pass over the chunks reads back what the first kept, with the same light.
     again, _ = lamp_irradiance(chunked_set, p.shadowing(), lights)
     np.testing.assert_array_equal(again, whole)
+
+
+@pytest.mark.parametrize("compiled", [True, False], ids=["kernels", "numpy"])
+def test_corners_given_per_sample_with_their_seed_triangles_place_the_same_points(compiled, monkeypatch):
+    """build_samples hands the footprint each sample's own triangle's UVs and corners (the
+    triangles indexed 0..k-1) and seeds the draws with the mesh's triangles: the points, box
+    corners and point normals are bitwise those of the whole mesh's arrays indexed by triangle."""
+    from core import kernels
+    from core.sampling.footprint import footprint_normals
+    if not compiled:
+        monkeypatch.setattr(kernels, "compiled", lambda: None)
+    rng = np.random.default_rng(5)
+    width = height = 16
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 9)), -1).reshape(-1, 2)
+    positions = np.column_stack([grid, 0.1 * rng.random(len(grid))])
+    cells = [(y * 9 + x) for y in range(8) for x in range(8)]
+    triangles = np.array([t for c in cells for t in ((c, c + 1, c + 10), (c, c + 10, c + 9))], np.int64)
+    corner_uv = grid[triangles]
+    corners = positions[triangles]
+    normals = rng.normal(size=(len(triangles), 3, 3)).astype(np.float32) + np.float32([0, 0, 4])
+    pixel = np.arange(width * height, dtype=np.int64)
+    centre = np.stack([(pixel % width + 0.5) / width, (pixel // width + 0.5) / height], axis=1)
+    # Each texel's triangle: the grid cell's, then the side of its diagonal.
+    cell = np.minimum((centre * 8).astype(int), 7)
+    local = centre * 8 - cell
+    triangle = ((cell[:, 1] * 8 + cell[:, 0]) * 2 + (local[:, 1] > local[:, 0])).astype(np.int32)
+    a, b, c = (corners[triangle, i] for i in range(3))
+    position = (a + b + c) / 3
+    normal = np.tile([0.0, 0.0, 1.0], (len(pixel), 1))
+    smooth = np.ones(len(pixel), bool)
+
+    whole = footprint_offsets(pixel, triangle, width, height, corner_uv, corners, position, 16)
+    own = np.arange(len(pixel))
+    mine = footprint_offsets(pixel, own, width, height, corner_uv[triangle], corners[triangle], position, 16,
+                             seed_triangle=triangle)
+    np.testing.assert_array_equal(mine, whole)
+    np.testing.assert_array_equal(
+        footprint_corners(pixel, own, width, height, corner_uv[triangle], corners[triangle], position, mine),
+        footprint_corners(pixel, triangle, width, height, corner_uv, corners, position, whole))
+    np.testing.assert_array_equal(
+        footprint_normals(mine, position, own, corners[triangle], normals[triangle], normal, smooth),
+        footprint_normals(whole, position, triangle, corners, normals, normal, smooth))
+    # The seed matters: seeded by 0..k-1 instead, the points differ.
+    assert not np.array_equal(
+        footprint_offsets(pixel, own, width, height, corner_uv[triangle], corners[triangle], position, 16), whole)
