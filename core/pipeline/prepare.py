@@ -657,17 +657,17 @@ def trace_frame(meshes) -> tuple[np.ndarray, str | None]:
     warning : str or None, when the scene's own extent against its smallest output
         object leaves float32 too coarse (the frame cannot remove that)
     """
-    finite = [(m, m.positions[np.all(np.isfinite(m.positions), axis=1)]) for m in meshes]
-    finite = [(m, f) for m, f in finite if len(f)]
-    if not finite:
+    bounds = [(m, _finite_bounds(m.positions)) for m in meshes]
+    bounds = [(m, b) for m, b in bounds if b is not None]
+    if not bounds:
         return np.zeros(3), None
-    low = np.min([f.min(axis=0) for _, f in finite], axis=0)
-    high = np.max([f.max(axis=0) for _, f in finite], axis=0)
+    low = np.min([b[0] for _, b in bounds], axis=0)
+    high = np.max([b[1] for _, b in bounds], axis=0)
     extent = float(np.max(high - low))
     step = 2.0 ** np.ceil(np.log2(max(extent, 1e-30)))
     centre = np.round((low + high) / 2 / step) * step
     reach = float(np.max(np.maximum(np.abs(high - centre), np.abs(low - centre))))
-    sizes = [float(np.max(f.max(axis=0) - f.min(axis=0))) for m, f in finite if m.output]
+    sizes = [float(np.max(b[1] - b[0])) for m, b in bounds if m.output]
     smallest = min((s for s in sizes if s > 0), default=0.0)
     if smallest > 0 and reach / smallest > PRECISION_EXTENT_RATIO:
         return centre, (f"precision: the scene reaches {reach:.3g} units from its centre but the smallest baked object "
@@ -675,6 +675,20 @@ def trace_frame(meshes) -> tuple[np.ndarray, str | None]:
                         "rays are traced in float32, so its shadows and contacts may be off by about 1%; bake it "
                         "with fewer distant objects")
     return centre, None
+
+
+def _finite_bounds(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(low, high) (3,) each, the bounds of the rows of ``positions`` (n, 3) that are finite;
+    None where none is. Reduced column by column: numpy reduces an (n, 3) array along its first
+    axis about 20x slower (12 ms of a 100k-vertex mesh's four reductions; docs/benchmarks.md,
+    speed part 20)."""
+    positions = np.asarray(positions)
+    if not np.isfinite(positions).all():
+        positions = positions[np.all(np.isfinite(positions), axis=1)]
+    if not len(positions):
+        return None
+    columns = np.ascontiguousarray(positions.T)
+    return columns.min(axis=1), columns.max(axis=1)
 
 
 def table_request(meshes, settings: BakeSettings, directions, position, geometric, footprint, rotations,

@@ -90,3 +90,24 @@ def test_a_scene_float32_cannot_resolve_says_so():
     _, warning = trace_frame([far, tiny])
     assert warning is not None and warning.startswith("precision:")
     assert f"{PRECISION_EXTENT_RATIO:.0e}" in warning
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_bounds_column_by_column_are_the_finite_rows_bounds(dtype):
+    """trace_frame's bounds (prepare._finite_bounds, reduced column by column) are those of the
+    finite rows reduced along the first axis, in the positions' own dtype; None without any."""
+    from core.pipeline.prepare import _finite_bounds
+    rng = np.random.default_rng(9)
+    positions = (rng.normal(size=(5000, 3)) * [1.0, 30.0, 1e-3] + [1e4, -2.0, 0.5]).astype(dtype)
+    low, high = _finite_bounds(positions)
+    assert low.dtype == dtype and high.dtype == dtype
+    np.testing.assert_array_equal(low, positions.min(axis=0))
+    np.testing.assert_array_equal(high, positions.max(axis=0))
+    spoiled = positions.copy()
+    spoiled[[3, 70, 4000], [0, 2, 1]] = [np.nan, np.inf, -np.inf]
+    finite = spoiled[np.all(np.isfinite(spoiled), axis=1)]
+    low, high = _finite_bounds(spoiled)
+    np.testing.assert_array_equal(low, finite.min(axis=0))
+    np.testing.assert_array_equal(high, finite.max(axis=0))
+    assert _finite_bounds(np.full((4, 3), np.nan, dtype)) is None
+    assert _finite_bounds(np.zeros((0, 3), dtype)) is None
