@@ -1,6 +1,6 @@
 """Run time against error: VisiBake and Cycles on procedural scenes (``make bench``).
 
-    .venv/bin/python benchmarks/run.py --profile quick            # ~7 min on 2 cores
+    .venv/bin/python benchmarks/run.py --profile quick            # ~4-6 min on 2 cores
     .venv/bin/python benchmarks/run.py --profile standard         # ~30 min: resolutions 64 and 128, N to 1024
     .venv/bin/python benchmarks/run.py --profile bounces          # ~10 min: 0, 1 and 4 bounces
     .venv/bin/python benchmarks/run.py --profile full             # hours: everything, 4096 spp references

@@ -54,11 +54,14 @@ class MeshTriangles:
     corners_in_order: bool = False
 
     def per_corner(self, values: np.ndarray) -> np.ndarray:
-        """(m, 3, ...) the per-face-corner ``values`` (c, ...) at each loop triangle's corners:
-        a reshaped view where the corners are in order, else gathered through ``loops``."""
-        if self.corners_in_order:
-            return values.reshape(len(self.loops), 3, *values.shape[1:])
-        return values[self.loops]
+        """(m, 3, ...) the per-face-corner ``values`` (c, ...) at each loop triangle's corners."""
+        return _at_corners(values, self.loops, self.corners_in_order)
+
+
+def _at_corners(values: np.ndarray, loops: np.ndarray, in_order: bool) -> np.ndarray:
+    """``values`` (c, ...) at the corners ``loops`` (m, 3): a reshaped view where the corners are
+    0, 1, 2, ... in order (``in_order``), else gathered."""
+    return values.reshape(len(loops), 3, *values.shape[1:]) if in_order else values[loops]
 
 
 def _attribute_values(mesh: bpy.types.Mesh, name: str, domain: str, field: str, count: int, width: int, dtype):
@@ -94,7 +97,7 @@ def read_triangles(mesh: bpy.types.Mesh) -> MeshTriangles:
         loops = read_values(mesh.loop_triangles, "loops", count, 3, np.int64)
     corner_vertex = _attribute_values(mesh, ".corner_vert", "CORNER", "value", len(mesh.loops), 1, np.int32)
     if corner_vertex is not None:
-        triangles = corner_vertex.reshape(count, 3) if corners_in_order else corner_vertex[loops]
+        triangles = _at_corners(corner_vertex, loops, corners_in_order)
     else:
         triangles = read_values(mesh.loop_triangles, "vertices", count, 3, np.int32)
     if not hasattr(mesh, "loop_triangle_polygons"):
