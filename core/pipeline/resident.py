@@ -8,6 +8,7 @@ it fits the memory bound the user sets (the preference Resident Memory).
 """
 from __future__ import annotations
 
+import gc
 import threading
 from dataclasses import asdict, fields
 
@@ -110,7 +111,9 @@ def prepare_or_reuse(scene: Scene, settings: BakeSettings, progress=None, table_
     # Let the old one go before a new preparation needs the memory.
     with _lock:
         _kept = None
-    del kept
+    if kept is not None:
+        del kept
+        _collect_cycles()
     p = prepare(scene, settings, progress, table_needed=table_needed, cache=cache,
                 require_cached_table=require_cached_table)
     if keep_bytes > 0:
@@ -132,4 +135,15 @@ def forget() -> None:
     """Let the kept preparation go (unregistering, or a test that wants a cold bake)."""
     global _kept
     with _lock:
-        _kept = None
+        kept, _kept = _kept, None
+    if kept is not None:
+        del kept
+        _collect_cycles()
+
+
+def _collect_cycles() -> None:
+    """Free a preparation let go now, not at the garbage collector's next full pass: it refers
+    to itself (its sample set holds its bound dense_footprint), so dropping the last outside
+    reference frees nothing, and the next bake, which makes few Python objects, may run for
+    long before the collector does. A second Bake held both (docs/benchmarks.md, speed part 21)."""
+    gc.collect()

@@ -1,5 +1,7 @@
 """The preparation kept in memory between bakes of a session (core.pipeline.resident)."""
 import dataclasses
+import gc
+import weakref
 
 import numpy as np
 import pytest
@@ -84,6 +86,36 @@ def test_a_bake_that_keeps_nothing_hashes_nothing(monkeypatch):
     monkeypatch.setattr(resident, "preparation_key", lambda *args: keys.append(real_key(*args)) or keys[-1])
     assert resident.prepare_or_reuse(_scene(), SETTINGS, keep_bytes=0) is not kept and keys == []
     assert resident.prepare_or_reuse(_scene(), SETTINGS, keep_bytes=PLENTY) is not kept and len(keys) == 1
+
+
+@pytest.fixture
+def _no_automatic_collection():
+    """The cyclic garbage collector held off, as during a bake that makes few Python objects."""
+    gc.disable()
+    yield
+    gc.enable()
+
+
+def test_a_preparation_let_go_is_freed_before_the_next_is_prepared(monkeypatch, _no_automatic_collection):
+    """A kept preparation refers to itself once its sample set is made (its bound dense_footprint),
+    so dropping it frees nothing until a collection: a second Bake held both (speed part 21)."""
+    settings = dataclasses.replace(SETTINGS, footprint_samples=4)
+    first = resident.prepare_or_reuse(_scene(), settings, keep_bytes=PLENTY)
+    first.sample_set()
+    assert first in gc.get_referents(*gc.get_referents(first.sample_set()))  # the cycle this guards
+    old = weakref.ref(first)
+    del first
+    alive_when_preparing = []
+    real_prepare = resident.prepare
+    monkeypatch.setattr(resident, "prepare", lambda *a, **k: alive_when_preparing.append(old() is not None)
+                        or real_prepare(*a, **k))
+    second = resident.prepare_or_reuse(_scene(albedo=0.3), settings, keep_bytes=PLENTY)
+    assert alive_when_preparing == [False]
+    second.sample_set()
+    gone = weakref.ref(second)
+    del second
+    resident.forget()
+    assert gone() is None
 
 
 POINT = Light("Bulb", "POINT", np.array([1.0, 0.9, 0.8]), 40.0, position=np.array([0.2, -0.3, 0.8]), radius=0.1)
