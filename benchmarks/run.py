@@ -4,11 +4,12 @@
     .venv/bin/python benchmarks/run.py --profile standard         # ~30 min: resolutions 64 and 128, N to 1024
     .venv/bin/python benchmarks/run.py --profile bounces          # ~10 min: 0, 1 and 4 bounces
     .venv/bin/python benchmarks/run.py --profile full             # hours: everything, 4096 spp references
+    .venv/bin/python benchmarks/run.py --profile outside          # ~25 min: the atrium and the daylight exterior
     .venv/bin/python benchmarks/run.py --profile smoke --out DIR  # seconds: what the tests run
 
-For every scene of ``benchmarks/scenes.py``, at each atlas resolution and bounce count
-of the profile: a converged Cycles reference (cached on disk by a hash of the scene and
-settings, with its own noise estimated from two independent halves), then VisiBake over
+For every bench scene of ``benchmarks/scenes.py`` (the profile's, or ``--scenes``), at each
+atlas resolution and bounce count of the profile: a converged Cycles reference (cached on
+disk by a hash of the scene and settings, with its own noise estimated from two independent halves), then VisiBake over
 direction counts, shadow modes and direction-set rotation, and Cycles over sample
 counts, on the same UV layout. Every run records wall time per stage, peak memory,
 relative RMSE, bias and max error against the reference; a run under two seconds is timed
@@ -53,6 +54,12 @@ PROFILES = {
     "quick": dict(size="full", scenes=None, resolutions=[64], bounces=[2], directions=[32, 64, 128, 256],
                   shadows=["exact", "fractions"], rotate=[False, True], cycles_samples=[1, 4, 16, 64, 256],
                   reference_samples=1024, relight_setups=[1, 4, 16], **SHORT_RUNS),
+    # The quick profile on the scenes nothing was tuned on (benchmarks/scenes.py OUTSIDE_SCENE_NAMES),
+    # at the 96^2 and up to 512 directions.
+    "outside": dict(size="full", scenes=["atrium", "daylight_exterior"], resolutions=[96], bounces=[2],
+                    directions=[64, 128, 256, 512], shadows=["exact", "fractions"], rotate=[False, True],
+                    cycles_samples=[1, 4, 16, 64, 256], reference_samples=1024, relight_setups=[1, 4, 16],
+                    **SHORT_RUNS),
     "standard": dict(size="full", scenes=None, resolutions=[64, 128], bounces=[2],
                      directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
                      cycles_samples=[1, 4, 16, 64, 256, 1024], reference_samples=2048, relight_setups=[1, 4, 16],
@@ -217,7 +224,7 @@ def main(argv=None) -> int:
     names = args.scenes or profile["scenes"] or scenes.SCENE_NAMES
     unknown = [n for n in names if n not in scenes.SCENES]
     if unknown:
-        parser.error(f"unknown scenes: {', '.join(unknown)} (choose from {', '.join(scenes.SCENE_NAMES)})")
+        parser.error(f"unknown scenes: {', '.join(unknown)} (choose from {', '.join(scenes.SCENES)})")
 
     summary = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(),
                "blender": bpy.app.version_string, "profile": args.profile, "settings": profile, "scenes": {}}

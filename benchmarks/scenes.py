@@ -9,7 +9,7 @@ Shared conventions, so that VisiBake and Cycles see exactly the same thing:
 - Materials are pure Lambert: Principled BSDF with Roughness 1 and Specular IOR
   Level 0 (the default specular layer takes 1-4% off Cycles' diffuse lobe, see
   ``tools/cycles_bake.py``), albedo at most 0.8, no emission.
-- The world is black; every lamp has radius / angle 0.
+- The world is black (but in the two scenes outside the six, below); every lamp has radius / angle 0.
 - Baked meshes carry no UV map (VisiBake unwraps them), except the terrain of
   ``dense_mesh``, whose grid parameterisation is a valid "UVMap" (an unwrap of 200k
   triangles would dominate the bake time).
@@ -43,6 +43,21 @@ baked objects smoke / full):
                                                                  floor; sun 3 W/m^2, 150 W point
 =====================  ===============================  =======  ==================================
 
+Two more, outside the bench's default six (``OUTSIDE_SCENE_NAMES``, ``--profile outside``),
+built after issue 16's speed work to check it on scenes nothing was tuned on. They light by a
+uniform sky (the world) as well as a sun, the only scenes here whose world is not black:
+
+=====================  ===============================  =======  ==================================
+``atrium``             298 (with the shell)             13 / 13  6 x 5 x 6 m atrium, a 3 x 2.6 m
+                                                                 skylight, galleries on two floors,
+                                                                 columns, a planter; sky and sun
+                                                                 (3 W/m^2 at 62 deg) through the
+                                                                 skylight only
+``daylight_exterior``  74                                8 / 8   14 x 14 m ground, five buildings
+                                                                 up to 9 m, a wall, an awning; sky
+                                                                 and a low sun (3 W/m^2 at 28 deg)
+=====================  ===============================  =======  ==================================
+
 Measured on 2 cores (bpy 5.0.1), 128 x 128 per object, 2 bounces: VisiBake with 128
 directions 0.7-5 s per scene; Cycles at 1024 samples 119 s (closed_room_point) and
 172 s (many_objects), the others 10-100 s (extrapolated from 8 and 32 samples).
@@ -60,7 +75,7 @@ from mathutils import Matrix, Vector
 
 from tools.blender_compat import compat
 
-__all__ = ["SCENES", "SCENE_NAMES", "SIZES", "MAX_ALBEDO", "reset"]
+__all__ = ["SCENES", "SCENE_NAMES", "OUTSIDE_SCENE_NAMES", "SIZES", "MAX_ALBEDO", "reset"]
 
 SIZES = ("smoke", "full")
 MAX_ALBEDO = 0.8
@@ -134,6 +149,17 @@ def _black_world() -> None:
     compat.ensure_node_tree(world)
     world.color = (0.0, 0.0, 0.0)
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    bpy.context.scene.world = world
+
+
+def _sky_world(color: Sequence[float], strength: float) -> None:
+    """A uniform sky: the Background node's colour times ``strength`` from every direction."""
+    world = bpy.data.worlds.new("Sky")
+    compat.ensure_node_tree(world)
+    world.color = tuple(color)
+    background = world.node_tree.nodes["Background"]
+    background.inputs["Color"].default_value = (*color, 1.0)
+    background.inputs["Strength"].default_value = strength
     bpy.context.scene.world = world
 
 
@@ -226,6 +252,13 @@ def _standing_box(lo, hi) -> bmesh.types.BMesh:
     return bm
 
 
+def _solid_box(lo, hi) -> bmesh.types.BMesh:
+    """A closed box (a slab held above the floor: its underside is seen)."""
+    bm = bmesh.new()
+    _box(bm, lo, hi)
+    return bm
+
+
 def _ground(size: float) -> bmesh.types.BMesh:
     bm = bmesh.new()
     bmesh.ops.create_grid(bm, x_segments=1, y_segments=1, size=size / 2.0)
@@ -265,16 +298,39 @@ def _inside(point: Vector, boxes) -> bool:
     return any(all(lo[k] < point[k] < hi[k] for k in range(3)) for lo, hi in boxes)
 
 
+def _slab_with_hole(outer, hole, plane: Callable[[float, float, float], tuple], depths) -> bmesh.types.BMesh:
+    """A slab between the parallel planes ``depths`` = (d0, d1) with a rectangular hole: ``outer``
+    and ``hole`` are 4 in-plane (a, b) corners each, placed in space by ``plane(a, b, d)``."""
+    bm = bmesh.new()
+    ring = [[bm.verts.new(plane(a, b, d)) for a, b in list(outer) + list(hole)] for d in depths]
+    for i in range(4):
+        j = (i + 1) % 4
+        for side in ring:
+            bm.faces.new((side[i], side[j], side[4 + j], side[4 + i]))  # around the hole
+        bm.faces.new((ring[0][4 + i], ring[0][4 + j], ring[1][4 + j], ring[1][4 + i]))  # reveal
+        bm.faces.new((ring[0][i], ring[0][j], ring[1][j], ring[1][i]))  # rim
+    return bm
+
+
 def _room(collection, half_x: float, half_y: float, height: float, materials: dict,
-          window: tuple[tuple[float, float], tuple[float, float]] | None = None) -> list[bpy.types.Object]:
+          window: tuple[tuple[float, float], tuple[float, float]] | None = None,
+          skylight: tuple[tuple[float, float], tuple[float, float]] | None = None) -> list[bpy.types.Object]:
     """Six overlapping slabs around [-half_x, half_x] x [-half_y, half_y] x [0, height].
 
     ``materials`` maps Floor, Ceiling, WallWest (-x), WallEast, WallNorth (+y), WallSouth
-    to materials; ``window`` = ((x0, x1), (z0, z1)) cuts a hole through WallNorth. Returns
-    the six baked objects (faces seen from inside); the rest becomes "RoomShell".
+    to materials; ``window`` = ((x0, x1), (z0, z1)) cuts a hole through WallNorth, ``skylight``
+    = ((x0, x1), (y0, y1)) one through the Ceiling. Returns the six baked objects (faces seen
+    from inside); the rest becomes "RoomShell".
     """
     hx, hy, top, t = half_x, half_y, height, WALL
     slabs: dict[str, bmesh.types.BMesh] = {}
+    open_boxes = [((-hx, -hy, 0.0), (hx, hy, top))]
+    if skylight is not None:
+        (x0, x1), (y0, y1) = skylight
+        slabs["Ceiling"] = _slab_with_hole([(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)],
+                                           [(x0, y0), (x1, y0), (x1, y1), (x0, y1)],
+                                           lambda a, b, d: (a, b, d), (top, top + t))
+        open_boxes.append(((x0, y0, top), (x1, y1, top + t)))  # the skylight's shaft is seen from inside
     for name, lo, hi in (
         ("Floor", (-hx, -hy, -t), (hx, hy, 0.0)),
         ("Ceiling", (-hx, -hy, top), (hx, hy, top + t)),
@@ -283,24 +339,18 @@ def _room(collection, half_x: float, half_y: float, height: float, materials: di
         ("WallEast", (hx, -hy - t, -t), (hx + t, hy + t, top + t)),
         ("WallSouth", (-hx, -hy - t, -t), (hx, -hy, top + t)),
     ):
+        if name in slabs:
+            continue
         bm = bmesh.new()
         _box(bm, lo, hi)
         slabs[name] = bm
-    open_boxes = [((-hx, -hy, 0.0), (hx, hy, top))]
-    north = bmesh.new()
     if window is None:
+        north = bmesh.new()
         _box(north, (-hx, hy, -t), (hx, hy + t, top + t))
     else:
         (x0, x1), (z0, z1) = window
-        outer = [(-hx, -t), (hx, -t), (hx, top + t), (-hx, top + t)]
-        hole = [(x0, z0), (x1, z0), (x1, z1), (x0, z1)]
-        ring = [[north.verts.new((u, y, w)) for u, w in outer + hole] for y in (hy, hy + t)]
-        for i in range(4):
-            j = (i + 1) % 4
-            for side in ring:
-                north.faces.new((side[i], side[j], side[4 + j], side[4 + i]))  # around the hole
-            north.faces.new((ring[0][4 + i], ring[0][4 + j], ring[1][4 + j], ring[1][4 + i]))  # reveal
-            north.faces.new((ring[0][i], ring[0][j], ring[1][j], ring[1][i]))  # rim
+        north = _slab_with_hole([(-hx, -t), (hx, -t), (hx, top + t), (-hx, top + t)],
+                                [(x0, z0), (x1, z0), (x1, z1), (x0, z1)], lambda a, b, d: (a, d, b), (hy, hy + t))
         open_boxes.append(((x0, hy, z0), (x1, hy + t, z1)))  # the window tunnel is seen from inside
     slabs["WallNorth"] = north
 
@@ -510,6 +560,64 @@ def many_objects(size: str = "full") -> list[bpy.types.Object]:
     return objects
 
 
+# --------------------------------------------------------------------------- scenes outside the bench's six
+# Built after the speed work on the six above was done (issue 16), to check its figures on
+# scenes nothing was tuned on: the kinds the issue measured on scenes built outside the project.
+
+
+def atrium(size: str = "full") -> list[bpy.types.Object]:
+    """A 6 m tall atrium under a skylight: sun and sky come in through the roof only, galleries
+    on two floors along both long walls, two columns and a planter: mostly indirect light."""
+    _check_size(size)
+    col = _collection("atrium")
+    _sky_world((0.55, 0.7, 1.0), 1.0)
+    white, floor = _material("White", _WHITE), _material("Floor", _FLOOR)
+    mats = dict(Floor=floor, Ceiling=white, WallWest=_material("Ochre", (0.7, 0.55, 0.3)), WallEast=white,
+                WallNorth=_material("Brick", (0.6, 0.3, 0.2)), WallSouth=white)
+    hx, hy, top = 3.0, 2.5, 6.0
+    objects = _room(col, hx, hy, top, mats, skylight=((-1.8, 1.2), (-1.2, 1.4)))
+    gallery = _material("Gallery", (0.5, 0.5, 0.55))
+    depth = 0.9
+    # Each gallery slab reaches into its three walls (no coplanar faces).
+    for level, z in (("Low", 2.0), ("High", 4.0)):
+        objects.append(_object(col, f"Gallery{level}West", _solid_box((-hx - WALL / 2, -hy - WALL / 2, z),
+                                                                      (-hx + depth, hy + WALL / 2, z + 0.25)),
+                               gallery))
+        objects.append(_object(col, f"Gallery{level}East", _solid_box((hx - depth, -hy - WALL / 2, z),
+                                                                      (hx + WALL / 2, hy + WALL / 2, z + 0.25)),
+                               gallery))
+    column = _material("Column", (0.75, 0.72, 0.65))
+    for name, x in (("ColumnWest", -1.6), ("ColumnEast", 1.6)):
+        objects.append(_object(col, name, _standing_box((x - 0.15, -1.6, 0.0), (x + 0.15, -1.3, 1.95)), column))
+    objects.append(_object(col, "Planter", _standing_box((-0.6, 0.2, 0.0), (0.6, 1.0, 0.5)),
+                           _material("Planter", (0.3, 0.45, 0.25))))
+    _sun(col, 3.0, elevation=62.0, heading=160.0)
+    return objects
+
+
+def daylight_exterior(size: str = "full") -> list[bpy.types.Object]:
+    """A street corner in daylight: a sky and a low sun over a ground, five buildings, a wall
+    and an awning; most light is the sky's, seen past nearby walls."""
+    _check_size(size)
+    col = _collection("daylight_exterior")
+    _sky_world((0.5, 0.65, 1.0), 1.2)
+    objects = [_object(col, "Ground", _ground(14.0), _material("Ground", (0.45, 0.45, 0.42)))]
+    buildings = (("HouseA", (-5.5, 1.0), (-2.5, 5.5), 4.0, (0.75, 0.7, 0.6)),
+                 ("HouseB", (-2.0, 2.5), (1.5, 5.5), 6.5, (0.6, 0.35, 0.25)),
+                 ("HouseC", (2.0, 1.5), (5.5, 5.0), 3.0, (0.7, 0.7, 0.7)),
+                 ("Tower", (2.5, -5.5), (4.5, -2.5), 9.0, (0.5, 0.55, 0.6)),
+                 ("Shed", (-5.0, -5.0), (-3.0, -3.5), 2.2, (0.55, 0.45, 0.3)))
+    for name, (x0, y0), (x1, y1), height, colour in buildings:
+        objects.append(_object(col, name, _standing_box((x0, y0, 0.0), (x1, y1, height)), _material(name, colour)))
+    objects.append(_object(col, "Wall", _standing_box((-2.0, -1.5, 0.0), (1.0, -1.3, 1.2)),
+                           _material("Wall", (0.65, 0.6, 0.55))))
+    # An awning out from HouseB's front over the street, reaching into the house.
+    objects.append(_object(col, "Awning", _solid_box((-1.6, 1.4, 2.6), (1.1, 2.6, 2.7)),
+                           _material("Awning", (0.7, 0.3, 0.3))))
+    _sun(col, 3.0, elevation=28.0, heading=215.0)
+    return objects
+
+
 SCENES: dict[str, Callable[[str], list[bpy.types.Object]]] = {
     "sun_occluders": sun_occluders,
     "interior_opening": interior_opening,
@@ -517,5 +625,10 @@ SCENES: dict[str, Callable[[str], list[bpy.types.Object]]] = {
     "thin_geometry": thin_geometry,
     "dense_mesh": dense_mesh,
     "many_objects": many_objects,
+    "atrium": atrium,
+    "daylight_exterior": daylight_exterior,
 }
-SCENE_NAMES = list(SCENES)
+# The bench's scenes (a profile's default); the others are named with --scenes or by a profile.
+SCENE_NAMES = ["sun_occluders", "interior_opening", "closed_room_point", "thin_geometry", "dense_mesh",
+               "many_objects"]
+OUTSIDE_SCENE_NAMES = ["atrium", "daylight_exterior"]

@@ -44,7 +44,7 @@ def _in_box(centres, x_range, y_range) -> np.ndarray:
             & (centres[..., 1] > y_range[0]) & (centres[..., 1] < y_range[1]))
 
 
-@pytest.mark.parametrize("name", scenes.SCENE_NAMES)
+@pytest.mark.parametrize("name", list(scenes.SCENES))
 def test_smoke_scene_is_well_formed(clean_scene, name):
     objects = scenes.SCENES[name]("smoke")
 
@@ -63,8 +63,13 @@ def test_smoke_scene_is_well_formed(clean_scene, name):
     for light in lights:
         assert (light.angle if light.type == "SUN" else light.shadow_soft_size) == 0.0
 
-    background = clean_scene.world.node_tree.nodes["Background"].inputs["Color"].default_value
-    assert tuple(background[:3]) == (0.0, 0.0, 0.0)
+    background = clean_scene.world.node_tree.nodes["Background"].inputs
+    if name in scenes.OUTSIDE_SCENE_NAMES:
+        # A uniform sky: the colour the world's extraction reads, nothing Cycles alone would see.
+        assert min(background["Color"].default_value[:3]) > 0.0 and background["Strength"].default_value > 0.0
+        assert len(clean_scene.world.node_tree.nodes) == 2  # Background and World Output
+    else:
+        assert tuple(background["Color"].default_value[:3]) == (0.0, 0.0, 0.0)
 
     # Every surface, baked or only occluding, is pure Lambert with albedo <= 0.8.
     for obj in clean_scene.objects:
