@@ -4,14 +4,14 @@
     .venv/bin/python benchmarks/run.py --profile standard         # ~30 min: resolutions 64 and 128, N to 1024
     .venv/bin/python benchmarks/run.py --profile bounces          # ~10 min: 0, 1 and 4 bounces
     .venv/bin/python benchmarks/run.py --profile full             # hours: everything, 4096 spp references
-    .venv/bin/python benchmarks/run.py --profile outside          # ~25 min: the atrium and the daylight exterior
+    .venv/bin/python benchmarks/run.py --profile outside          # ~8 min: the atrium and the daylight exterior
     .venv/bin/python benchmarks/run.py --profile smoke --out DIR  # seconds: what the tests run
 
 For every bench scene of ``benchmarks/scenes.py`` (the profile's, or ``--scenes``), at each
 atlas resolution and bounce count of the profile: a converged Cycles reference (cached on
-disk by a hash of the scene and settings, with its own noise estimated from two independent halves), then VisiBake over
-direction counts, shadow modes and direction-set rotation, and Cycles over sample
-counts, on the same UV layout. Every run records wall time per stage, peak memory,
+disk by a hash of the scene and settings, with its own noise estimated from two independent
+halves), then VisiBake over direction counts, shadow modes and direction-set rotation, and
+Cycles over sample counts, on the same UV layout. Every run records wall time per stage, peak memory,
 relative RMSE, bias and max error against the reference; a run under two seconds is timed
 as the fastest of three identical ones (``SHORT_RUNS``). Then the relighting case (K
 lighting setups from one visibility bake against K Cycles bakes at matched error), and
