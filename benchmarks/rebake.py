@@ -59,7 +59,8 @@ def main(argv=None) -> int:
         objects = scenes.SCENES[args.scene]("full")
     props = bpy.context.scene.visibake
     props.passes = {"lighting"}
-    props.mode = "atlas"
+    if args.scene != "demo":
+        props.mode = "atlas"  # as make bench bakes them; the demo keeps its own (its dome in vertex mode)
     props.directions, props.resolution, props.bounces = args.directions, args.resolution, args.bounces
     props.use_cache = True
     sun = next(o for o in bpy.context.scene.objects if o.type == "LIGHT" and o.data.type == "SUN")
