@@ -18,7 +18,8 @@ visibility cache in a temporary folder:
 
 Each case runs twice (the second time with the sun turned once more): the first of a kind
 may load kernels no earlier step used. Each re-bake's speed-up is the cold bake's time over
-its own. Writes JSON with the machine, settings and date (``--out``) and prints it.
+its own; each bake's peak resident memory is its own (reset before it, as ``make bench``
+does). Writes JSON with the machine, settings and date (``--out``) and prints it.
 """
 import argparse
 import importlib
@@ -43,7 +44,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "rebake.json"))
     args = parser.parse_args(argv)
 
-    from benchmarks import scenes
+    from benchmarks import limits, scenes
     from benchmarks.run import machine
     from tools.visibake import load_extension
 
@@ -69,6 +70,7 @@ def main(argv=None) -> int:
                "resolution": args.resolution, "bounces": args.bounces, "changed": sun.name}
 
     def bake(label: str, **options) -> None:
+        limits.reset_peak_memory()  # each bake's own peak, not the process's so far
         started = time.perf_counter()
         outcome = job.run_bake(bpy.context, objects, **options)
         seconds = time.perf_counter() - started
@@ -76,7 +78,7 @@ def main(argv=None) -> int:
         results.setdefault(label, []).append({
             "seconds": round(seconds, 3), "cache": (report.get("cache") or {}).get("state"),
             "stage_seconds": {k: round(v, 3) for k, v in report.get("stage_seconds", {}).items()},
-            "peak_memory_bytes": report.get("peak_memory_bytes")})
+            "peak_memory_bytes": limits.peak_memory_bytes() or report.get("peak_memory_bytes")})
         print(f"{label}: {seconds:.2f} s, cache {results[label][-1]['cache']}", flush=True)
 
     def turned(label: str, **options) -> None:
