@@ -32,7 +32,8 @@ recorded in ``btf.json``.
 
 Every folder VisiBake writes holds a ``btf.json`` manifest (format ``visibake-btf``): the
 sampling, the image size and encoding, the tile's period, the light shift and the list of
-files written. The writer overwrites only files a previous manifest lists, unless told to.
+files written. The writer replaces only files a previous manifest lists (core.outputs.ownership):
+told to overwrite, it writes beside other files, and still refuses one of the same name.
 """
 from __future__ import annotations
 
@@ -46,9 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OutputRefused
-from ..outputs.atomic import atomic_file, remove_written
 from ..outputs.images import srgb_to_linear, write_exr
 from ..outputs.names import inside_folder
+from ..outputs.ownership import StagedWrites, refuse_foreign
 
 RING_THETAS_DEG = (0, 15, 30, 45, 60, 75)
 RING_COUNTS = (1, 6, 12, 18, 20, 24)
@@ -339,12 +340,6 @@ def _direction_list(thetas: np.ndarray, phis: np.ndarray) -> list[dict]:
     return [{"theta_deg": int(t), "phi_deg": int(p)} for t, p in zip(thetas, phis)]
 
 
-def _write_json_atomically(path: str, content: dict) -> None:
-    with atomic_file(path, "w", encoding="utf-8") as handle:
-        json.dump(content, handle, indent=1)
-        handle.write("\n")
-
-
 class BTFImages:
     """Writes BTF images into a folder by their UTIA names, and nothing else (no manifest, no
     claim on the folder): what a part of a BTF run split across workers writes into the folder
@@ -363,6 +358,8 @@ class BTFImages:
         self.light_thetas, self.light_phis = _angles(light_angles, "light")
         self.view_thetas, self.view_phis = _angles(view_angles, "view")
         self._written: set[str] = set()
+        # Each image goes to a temporary name, recorded before it is written, then into place.
+        self.staged = StagedWrites(self.folder)
 
     @property
     def written(self) -> list[str]:
@@ -393,15 +390,16 @@ class BTFImages:
         if not np.all(np.isfinite(image)):
             raise OutputRefused(f"refusing to write non-finite values to BTF image {relative}")
         path = inside_folder(self.folder, *relative.split("/"))
-        os.makedirs(os.path.dirname(path), exist_ok=True)
+        self.staged.make_folder(os.path.dirname(path))
         # Checked again now that the view's folder exists: a link made in its place would move it.
         inside_folder(self.folder, *relative.split("/"))
-        if self.image_format == "exr":
-            rgba = np.ones((self.height, self.width, 4), np.float32)
-            rgba[..., :3] = image
-            write_exr(path, rgba)
-        else:
-            write_png(path, image)
+        with self.staged.staged(path) as temporary:
+            if self.image_format == "exr":
+                rgba = np.ones((self.height, self.width, 4), np.float32)
+                rgba[..., :3] = image
+                write_exr(temporary, rgba)
+            else:
+                write_png(temporary, image)
         self._written.add(relative)
         return path
 
@@ -418,14 +416,16 @@ class BTFWriter(BTFImages):
     light_angles, view_angles : ``(thetas_deg (L,), phis_deg (L,))`` whole degrees, in the
         order images are indexed; default :func:`ubo_directions` for both
     light_shift_deg : see :func:`light_for` (0: light equal to view is lit as named)
-    overwrite : also write over files a previous VisiBake manifest does not list
+    overwrite : write into a folder that also holds files no VisiBake manifest lists (they are
+        kept; one with the name of a file this run writes is refused all the same)
     settings : JSON-serialisable dict of the simulation's settings, kept in the manifest
 
     Refuses (:class:`core.errors.OutputRefused`, a ValueError) a folder that holds files no
-    previous VisiBake manifest lists (unless ``overwrite``), a path that would resolve outside
-    the folder, and non-finite pixels. A manifest listing every file the run will write is
-    written at once, so an interrupted run's files stay VisiBake's; :meth:`finish` completes it
-    and removes the files of an earlier run that this one did not write again.
+    previous VisiBake manifest lists (unless ``overwrite``; never one named as a file it
+    writes), a path that would resolve outside the folder, and non-finite pixels. A manifest
+    listing every file the run will write is written at once, so an interrupted run's files
+    stay VisiBake's; :meth:`finish` completes it and removes the files of an earlier run that
+    this one did not write again.
     """
 
     def __init__(self, folder: str, image_format: str, width: int, height: int, period, light_angles=None,
@@ -442,21 +442,22 @@ class BTFWriter(BTFImages):
 
         if os.path.lexists(self.folder) and not os.path.isdir(self.folder):
             raise OutputRefused(f"BTF folder {self.folder} is a file, not a folder; nothing was written")
-        self._made_folder = not os.path.isdir(self.folder)
-        os.makedirs(self.folder, exist_ok=True)
-        previous = _previous_manifest(self.folder)
-        self._had_manifest = previous is not None
+        previous = _previous_manifest(self.folder) if os.path.isdir(self.folder) else None
         self._previous_files = set(previous["files"]) if previous else set()
         # The manifest's temporary name too: a run stopped while replacing the manifest leaves it.
         owned = self._previous_files | ({MANIFEST, MANIFEST + ".tmp"} if previous else set())
-        foreign = [f for f in _files_under(self.folder) if f not in owned]
+        foreign = [f for f in _files_under(self.folder) if f not in owned] if os.path.isdir(self.folder) else []
         if foreign and not overwrite:
             shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
             raise OutputRefused(f"BTF folder {self.folder} holds files VisiBake did not write ({shown}); "
-                                "choose an empty folder or allow overwriting; nothing was written")
+                                "choose an empty folder or allow overwriting (they are kept); nothing was written")
         if os.path.lexists(os.path.join(self.folder, MANIFEST)) and not os.path.isfile(
                 os.path.join(self.folder, MANIFEST)):
             raise OutputRefused(f"{os.path.join(self.folder, MANIFEST)} is not a file; nothing was written")
+        # Even with overwrite: a file of the user's never gives way to one of the same name.
+        refuse_foreign([os.path.join(self.folder, *name.split("/")) for name in [MANIFEST, *self.planned]],
+                       "overwriting writes beside your files, never over one; choose another folder")
+        self.staged.make_folder(self.folder)
         self._write_manifest(complete=False)
 
     def adopt(self, relative_paths) -> None:
@@ -466,6 +467,9 @@ class BTFWriter(BTFImages):
         for relative in relative_paths:
             if relative not in planned:
                 raise ValueError(f"BTF image {relative!r} is not one of this run's")
+            if relative not in self._previous_files:
+                # Planned, not an earlier run's: the refusal above says no file of that name was here.
+                self.staged.created.append(os.path.join(self.folder, *relative.split("/")))
             self._written.add(relative)
 
     def light_direction(self, light_index: int, view_index: int) -> np.ndarray:
@@ -498,17 +502,11 @@ class BTFWriter(BTFImages):
         return self._write_manifest(complete=True)
 
     def abort(self) -> None:
-        """Take back a run that did not finish. In a folder that held no earlier VisiBake BTF,
-        the images it wrote, its manifest and the folders it made go. Over an earlier BTF the
+        """Take back a run that did not finish: its temporaries, and the images, manifest and
+        folders it created (core.outputs.ownership.StagedWrites). Over an earlier BTF the
         provisional manifest (complete: false) stays, listing both runs' files, so the folder
-        stays VisiBake's to write again."""
-        if self._had_manifest:
-            return
-        images = [os.path.join(self.folder, *relative.split("/")) for relative in sorted(self._written)]
-        images = [path for path in images if not os.path.islink(path)]
-        subfolders = sorted({os.path.dirname(path) for path in images} - {self.folder})
-        remove_written(images + [os.path.join(self.folder, MANIFEST)],
-                       ([self.folder] if self._made_folder else []) + subfolders)
+        stays VisiBake's to write again; a file that was there before the run always stays."""
+        self.staged.rollback()
         self._written.clear()
 
     def _write_manifest(self, complete: bool) -> str:
@@ -539,7 +537,10 @@ class BTFWriter(BTFImages):
             "files": files,
         }
         path = os.path.join(self.folder, MANIFEST)
-        _write_json_atomically(path, manifest)
+        with self.staged.staged(path) as temporary:
+            with open(temporary, "w", encoding="utf-8") as handle:
+                json.dump(manifest, handle, indent=1)
+                handle.write("\n")
         return path
 
 

@@ -5,18 +5,23 @@ import contextlib
 import os
 import tempfile
 
+from .ownership import space_checked
+
 
 @contextlib.contextmanager
 def atomic_file(path: str, mode: str = "wb", encoding: str | None = None):
     """Yield a stream to a temporary file beside ``path``; when the block ends normally it is
-    flushed to disk and renamed over ``path``, otherwise removed (and ``path`` left as it was)."""
+    flushed to disk and renamed over ``path``, otherwise removed (and ``path`` left as it was). A full disk raises
+    core.errors.OutputRefused ("not enough space in FOLDER")."""
     folder = os.path.dirname(os.path.abspath(path))
-    handle, temporary = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+    with space_checked(folder):
+        handle, temporary = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
     try:
-        with os.fdopen(handle, mode, encoding=encoding) as stream:
-            yield stream
-            stream.flush()
-            os.fsync(stream.fileno())
+        with space_checked(folder):
+            with os.fdopen(handle, mode, encoding=encoding) as stream:
+                yield stream
+                stream.flush()
+                os.fsync(stream.fileno())
         os.replace(temporary, path)
     except BaseException:
         if os.path.exists(temporary):

@@ -293,6 +293,14 @@ def write_grids(vdb, path: str, grids: dict, index_to_local: np.ndarray) -> None
     vdb.write(path, grids=written)
 
 
+def check_grids(vdb, path: str) -> None:
+    """Raise unless ``path`` reads back as a whole .vdb (every grid's values): OpenVDB's
+    writer says nothing when the disk fills, and leaves an empty or cut file."""
+    grids, _ = vdb.readAll(path)
+    if not grids:
+        raise OSError(f"{path} holds no grid")
+
+
 def baked_object_name(source_name: str) -> str:
     return f"{source_name} (VisiBake)"
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from ...core import kernels
 from ...core.errors import VolumeRefused
-from ...core.outputs.atomic import remove_written
 from ...core.outputs.names import inside_folder, unique_components
+from ...core.outputs.ownership import StagedWrites, refuse_foreign, write_record
 from ...core.visibility.directions import direction_set
 from ...core.volume import cache as volume_cache
 from ...core.volume import tables as volume_tables
@@ -31,6 +31,11 @@ from .job import visibility_cache
 from .modal import SteppedJob
 
 COMBINED_FILE = "volume.vdb"
+# One file per grid (the names core.volume's light gives them), then COMBINED_FILE.
+GRID_FILES = ("scattered", "direct", "indirect", "emission", "density")
+# The folder record (core.outputs.ownership) that makes a volume's grids VisiBake's to replace.
+RECORD_FORMAT = "visibake-volume"
+RECORD_FILE = "visibake-volume.json"
 
 
 @dataclass
@@ -39,16 +44,14 @@ class VolumeOutcome:
 
     report: dict
     created: list = field(default_factory=list)
-    written: list = field(default_factory=list)
-    folders: list = field(default_factory=list)
+    files: StagedWrites = field(default_factory=StagedWrites)
 
     def rollback(self) -> None:
         for obj in self.created:
             if obj.name in bpy.data.objects:
                 volume_io.remove_baked_object(obj)
-        remove_written(self.written, self.folders)
+        self.files.rollback()
         self.created.clear()
-        self.written.clear()
 
 
 def preferred_threads() -> int:
@@ -107,6 +110,7 @@ class _Volume:
     medium: object = None
     index_to_local: np.ndarray | None = None
     light: object = None
+    folder: str = ""
 
 
 class VolumeJob(SteppedJob):
@@ -199,6 +203,20 @@ class VolumeJob(SteppedJob):
                                      "skipped")
                 continue
             self.volumes.append(_Volume(obj, entry, medium, index_to_local))
+        # Before any work: a file of the user's where a grid would go is refused, not replaced.
+        refuse_foreign(path for files in self._planned_files().values() for path in files)
+
+    def _planned_files(self) -> dict:
+        """{volume's folder: [the paths its bake writes, its record last]} (absolute)."""
+        components = unique_components([v.obj.name for v in self.volumes], reserved=("report.json",))
+        planned = {}
+        for volume in self.volumes:
+            component = components[volume.obj.name]
+            names = [f"{name}.vdb" for name in GRID_FILES] + [COMBINED_FILE, RECORD_FILE]
+            planned[inside_folder(self.out_dir, component)] = [inside_folder(self.out_dir, component, name)
+                                                               for name in names]
+            volume.folder = inside_folder(self.out_dir, component)
+        return planned
 
     def compute(self) -> None:
         """Any thread (no bpy): the tables and the light of each volume."""
@@ -255,10 +273,11 @@ class VolumeJob(SteppedJob):
 
     def finish(self) -> VolumeOutcome:
         """Main thread: the grids into the output folder, and the baked Volume objects."""
-        components = unique_components([v.obj.name for v in self.volumes], reserved=("report.json",))
+        planned = self._planned_files()
+        refuse_foreign(path for files in planned.values() for path in files)  # a file made while it computed
         for volume in self.volumes:
             started = time.perf_counter()
-            self._write(volume, components[volume.obj.name])
+            self._write(volume, planned[volume.folder])
             volume.entry["seconds"]["write"] = round(time.perf_counter() - started, 3)
         self.report["kernels"] = kernels.status().describe()
         self.report["volume_kernel_load_s"] = round(kernels.volume_load_seconds(), 3)
@@ -269,7 +288,7 @@ class VolumeJob(SteppedJob):
         """Take back what was written and created."""
         self.outcome.rollback()
 
-    def _write(self, volume: _Volume, component: str) -> None:
+    def _write(self, volume: _Volume, paths: list) -> None:
         medium, light, outcome = volume.medium, volume.light, self.outcome
         total = light.total
         emission = (medium.extinction * medium.density[..., None] * medium.albedo) * total
@@ -277,24 +296,24 @@ class VolumeJob(SteppedJob):
             emission = emission + medium.emission
         grids = {"scattered": total, "direct": light.direct, "indirect": light.indirect,
                  "emission": emission.astype(np.float32), "density": medium.density}
-        folder = inside_folder(self.out_dir, component)
-        if not os.path.isdir(folder):
-            missing = []
-            parent = folder
-            while not os.path.exists(parent):
-                missing.append(parent)
-                parent = os.path.dirname(parent)
-            os.makedirs(folder)
-            outcome.folders += reversed(missing)
-        for name, values in grids.items():
-            path = inside_folder(self.out_dir, component, f"{name}.vdb")
-            outcome.written.append(path)
-            volume_io.write_grids(self.vdb, path, {name: values}, volume.index_to_local)
+        staged = outcome.files
+        staged.make_folder(volume.folder)
+        *grid_paths, combined, record = paths
+        # The record first, listing every file: a run killed part way leaves files that stay VisiBake's.
+        with staged.staged(record) as temporary:
+            write_record(temporary, RECORD_FORMAT, [os.path.basename(p) for p in paths[:-1]],
+                         {"object": volume.obj.name})
+
+        def whole(path):
+            volume_io.check_grids(self.vdb, path)
+
+        for name, path in zip(GRID_FILES, grid_paths):
+            with staged.staged(path, whole) as temporary:
+                volume_io.write_grids(self.vdb, temporary, {name: grids[name]}, volume.index_to_local)
             self.report["files"].append(path)
-        combined = inside_folder(self.out_dir, component, COMBINED_FILE)
-        outcome.written.append(combined)
-        volume_io.write_grids(self.vdb, combined, {"density": medium.density, "emission": grids["emission"]},
-                              volume.index_to_local)
+        with staged.staged(combined, whole) as temporary:
+            volume_io.write_grids(self.vdb, temporary, {"density": medium.density, "emission": grids["emission"]},
+                                  volume.index_to_local)
         self.report["files"].append(combined)
         baked = volume_io.make_baked_object(volume.obj, combined, medium.extinction)
         outcome.created.append(baked)

@@ -1,0 +1,249 @@
+"""Which files are VisiBake's, and writing them so that a failure leaves the folder as it was.
+
+The one rule every command follows (volume, brdf, btf, lightfield):
+
+- A path that exists is VisiBake's only if a VisiBake record lists it: the sidecar
+  ``FILE.visibake.json`` beside it (brdf), or a folder record in its folder or the folder
+  above (``btf.json``, ``lightfield.json``, ``visibake-volume.json``). Any other existing
+  file is the user's: :func:`refuse_foreign` names it and nothing is written
+  (:class:`core.errors.OutputRefused`, exit 2). ``--overwrite`` never changes this for a
+  file of the same name; it only lets a run write *beside* the user's files.
+- :class:`StagedWrites` writes each output under a temporary name in its final folder
+  (recorded before it is written), checks it (not empty; a caller's check too, such as
+  reading a VDB's header back, since OpenVDB's writer does not report a full disk), and
+  only then renames it into place. :meth:`StagedWrites.rollback` removes the temporaries
+  and the files and folders this run created, never a file that existed before the run.
+- A full disk or quota (ENOSPC, EDQUOT, EFBIG) is the user's problem, not a bug:
+  "not enough space in DIR" (OutputRefused).
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import secrets
+
+from ..errors import OutputRefused
+
+SIDECAR_SUFFIX = ".visibake.json"
+# Folder records: file name -> the "format" that marks it VisiBake's. Each lists "files",
+# relative to its folder ("/"-separated).
+FOLDER_RECORDS = {"btf.json": "visibake-btf", "lightfield.json": "visibake-lightfield",
+                  "visibake-volume.json": "visibake-volume"}
+# How many folders above a file its record may lie (btf: tvXXX_pvXXX/image).
+RECORD_DEPTH = 2
+SPACE_ERRNOS = frozenset(code for code in (errno.ENOSPC, getattr(errno, "EDQUOT", None), errno.EFBIG) if code)
+_SPACE_TEXTS = tuple(os.strerror(code) for code in SPACE_ERRNOS)
+
+
+def record_files(folder: str, record: str) -> set[str] | None:
+    """The absolute paths the VisiBake record ``record`` (a FOLDER_RECORDS name) in ``folder``
+    lists, the record itself included; None if there is none or it is not VisiBake's."""
+    path = os.path.join(folder, record)
+    if not os.path.isfile(path) or os.path.islink(path):
+        return None
+    try:
+        with open(path, encoding="utf-8") as handle:
+            content = json.load(handle)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(content, dict) or content.get("format") != FOLDER_RECORDS[record]:
+        return None
+    files = content.get("files")
+    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+        return None
+    listed = {os.path.normpath(os.path.join(folder, *f.split("/"))) for f in files}
+    return listed | {os.path.normpath(path)}
+
+
+def _is_sidecar(path: str) -> bool:
+    """A brdf report beside its file: JSON naming the command that wrote it."""
+    if not path.endswith(SIDECAR_SUFFIX) or not os.path.isfile(path):
+        return False
+    try:
+        with open(path, encoding="utf-8") as handle:
+            content = json.load(handle)
+    except (OSError, ValueError):
+        return False
+    return isinstance(content, dict) and "command" in content
+
+
+def is_visibakes(path: str) -> bool:
+    """Whether the existing ``path`` is a file a VisiBake record lists (module docstring)."""
+    path = os.path.normpath(os.path.abspath(path))
+    if os.path.islink(path) or os.path.isdir(path):
+        return False  # a link or folder is never an output VisiBake wrote
+    if os.path.isfile(path + SIDECAR_SUFFIX) or _is_sidecar(path):
+        return True
+    folder = os.path.dirname(path)
+    for _ in range(RECORD_DEPTH):
+        for record in FOLDER_RECORDS:
+            listed = record_files(folder, record)
+            if listed is not None and path in listed:
+                return True
+        folder = os.path.dirname(folder)
+    return False
+
+
+def foreign_files(paths) -> list[str]:
+    """Those of ``paths`` that exist (as anything) and are not VisiBake's, in order."""
+    return [path for path in paths if os.path.lexists(path) and not is_visibakes(path)]
+
+
+def refuse_foreign(paths, hint: str = "remove or rename them, or choose another folder") -> None:
+    """Raise :class:`OutputRefused` naming the existing files among ``paths`` (the files a run
+    would write) that VisiBake did not write; nothing has been written then."""
+    foreign = foreign_files(paths)
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise OutputRefused(f"{shown} exist{'s' if len(foreign) == 1 else ''} and VisiBake did not write "
+                            f"{'it' if len(foreign) == 1 else 'them'}; VisiBake never replaces a file of yours "
+                            f"({hint}); nothing was written")
+
+
+def write_record(path: str, format_name: str, files, extra: dict | None = None) -> None:
+    """Write a folder record of ``format_name`` (a FOLDER_RECORDS value) listing ``files``
+    (paths relative to its folder) to ``path``: a :meth:`StagedWrites.staged` temporary, so
+    that it is checked and renamed into place as every output is."""
+    content = {"format": format_name, "version": 1, **(extra or {}),
+               "files": sorted(str(f).replace(os.sep, "/") for f in files)}
+    with open(path, "w", encoding="utf-8") as handle:
+        json.dump(content, handle, indent=1)
+        handle.write("\n")
+
+
+def is_space_error(error: BaseException) -> bool:
+    """Whether ``error`` says the disk or quota is full (or a file too large for its limit):
+    an OSError with that errno, or a library's error carrying its text."""
+    if isinstance(error, OSError) and error.errno in SPACE_ERRNOS:
+        return True
+    text = str(error)
+    return any(message in text for message in _SPACE_TEXTS)
+
+
+def space_refusal(folder: str, detail: str = "") -> OutputRefused:
+    return OutputRefused(f"not enough space in {folder}{': ' + detail if detail else ''}; free some space or "
+                         "choose another folder; nothing was written")
+
+
+@contextlib.contextmanager
+def space_checked(folder: str):
+    """Turn a full disk's error inside the block into :func:`space_refusal` for ``folder``."""
+    try:
+        yield
+    except OutputRefused:
+        raise
+    except Exception as error:
+        if is_space_error(error):
+            raise space_refusal(folder, str(getattr(error, "strerror", None) or error)) from error
+        raise
+
+
+def _not_empty(path: str) -> None:
+    if os.path.getsize(path) == 0:
+        raise OSError(errno.ENOSPC, "the file came out empty", path)
+
+
+def temporary_name(path: str) -> str:
+    """A hidden name beside ``path`` that keeps its extension (writers that pick the format by
+    it, or add one that is missing, still write the right file)."""
+    folder, base = os.path.split(path)
+    stem, ext = os.path.splitext(base)
+    return os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.partial{ext}")
+
+
+class StagedWrites:
+    """A run's outputs, written whole or not at all, and taken back on failure.
+
+    created : final paths this run made (they did not exist before it), in order
+    folders : folders this run made, parents before children
+    temporaries : temporary files not yet renamed into place
+    """
+
+    def __init__(self, root: str | None = None):
+        """root : the output folder a full disk's message names (default: each file's folder)."""
+        self.root = root
+        self.created: list[str] = []
+        self.folders: list[str] = []
+        self.temporaries: list[str] = []
+
+    def make_folder(self, folder: str) -> None:
+        """Create ``folder`` and its missing parents, recording each one made."""
+        missing = []
+        current = os.path.abspath(folder)
+        while not os.path.lexists(current):
+            missing.append(current)
+            current = os.path.dirname(current)
+        with space_checked(self.root or (os.path.dirname(missing[-1]) if missing else folder)):
+            for made in reversed(missing):
+                os.mkdir(made)
+                self.folders.append(made)
+
+    def claim(self, path: str) -> None:
+        """Record ``path`` before a writer that is itself atomic (core.outputs.atomic) writes it:
+        a file that did not exist is this run's to take back."""
+        path = os.path.abspath(path)
+        if not os.path.lexists(path) and path not in self.created:
+            self.created.append(path)
+
+    @contextlib.contextmanager
+    def staged(self, path: str, check=None):
+        """Yield a temporary path to write ``path``'s content to; when the block ends it is
+        checked (not empty, then ``check(temporary)``, which raises if the file is not whole)
+        and renamed to ``path``. On any error the temporary goes. A full disk raises
+        :func:`space_refusal`; a file that comes out empty or fails ``check`` is taken for one
+        (writers such as OpenVDB's do not report it)."""
+        path = os.path.abspath(path)
+        folder = os.path.dirname(path)
+        temporary = temporary_name(path)
+        self.temporaries.append(temporary)
+        self.claim(path)  # recorded before it is written: a cancel finds it
+        try:
+            with space_checked(self.root or folder):
+                yield temporary
+                _not_empty(temporary)
+                if check is not None:
+                    try:
+                        check(temporary)
+                    except Exception as error:  # noqa: BLE001 - any reader's complaint: the file is not whole
+                        reason = str(error)[:200]  # a reader may quote the garbage it found
+                        raise OSError(errno.ENOSPC, f"{os.path.basename(path)} came out incomplete ({reason})",
+                                      path) from error
+                _sync(temporary)
+            os.replace(temporary, path)
+        except BaseException:
+            _remove(temporary)
+            raise
+        finally:
+            self.temporaries.remove(temporary)
+
+    def rollback(self) -> None:
+        """Remove the temporaries, the files this run created and the folders it made (if
+        left empty); a file that existed before the run stays."""
+        for temporary in self.temporaries:
+            _remove(temporary)
+        for path in self.created:
+            if os.path.isfile(path) or os.path.islink(path):
+                _remove(path)
+        for folder in reversed(self.folders):
+            with contextlib.suppress(OSError):
+                if os.path.isdir(folder) and not os.listdir(folder):
+                    os.rmdir(folder)
+        self.temporaries.clear()
+        self.created.clear()
+        self.folders.clear()
+
+
+def _sync(path: str) -> None:
+    """Flush ``path`` to disk: a file system that allocates late reports a full disk here."""
+    handle = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(handle)
+    finally:
+        os.close(handle)
+
+
+def _remove(path: str) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        os.remove(path)
