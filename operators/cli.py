@@ -281,7 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
     brdf.add_argument("--material", metavar="NAME",
                       help="also make a Principled BSDF material NAME fitted to the BRDF (keep it with --save)")
     brdf.add_argument("--save", metavar="OUT.blend", help="save the scene (with the fitted material) as OUT.blend")
-    brdf.add_argument("--overwrite", action="store_true", help="replace FILE if it exists")
+    brdf.add_argument("--overwrite", action="store_true",
+                      help="replace FILE if it exists, even if VisiBake did not write it (never its report's name, "
+                           "FILE.visibake.json, unless VisiBake wrote that)")
     brdf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     brdf.add_argument("--no-progress", action="store_true", help="no progress bar")
     btf = commands.add_parser(
@@ -303,7 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
     _setting_option(btf, "--threads", PREFERENCE_SETTINGS["threads"], "N", note="default: the preference")
     _cluster_options(btf)
     btf.add_argument("--overwrite", action="store_true",
-                     help="write into DIR even if it holds files VisiBake did not write (they are not deleted)")
+                     help="write into DIR even if it holds files VisiBake did not write: they are kept, and one "
+                          "with the name of a file the BTF writes is refused, never replaced")
     btf.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     btf.add_argument("--no-progress", action="store_true", help="no progress bar")
     lightfield = commands.add_parser(
@@ -331,7 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
                                  "see it nearest, never above --resolution (or the texel density); objects with a "
                                  "resolution of their own keep it")
     lightfield.add_argument("--overwrite", action="store_true",
-                            help="write into DIR even if it holds files VisiBake did not write (they are kept)")
+                            help="write into DIR even if it holds files VisiBake did not write: they are kept, and "
+                                 "one with the name of a file the light field writes is refused, never replaced")
     lightfield.add_argument("--save", metavar="OUT.blend", help="save the scene (with what --bake-first baked)")
     lightfield.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON")
     _bake_setting_options(lightfield)

@@ -74,7 +74,7 @@ def is_visibakes(path: str) -> bool:
     path = os.path.normpath(os.path.abspath(path))
     if os.path.islink(path) or os.path.isdir(path):
         return False  # a link or folder is never an output VisiBake wrote
-    if os.path.isfile(path + SIDECAR_SUFFIX) or _is_sidecar(path):
+    if _is_sidecar(path + SIDECAR_SUFFIX) or _is_sidecar(path):
         return True
     folder = os.path.dirname(path)
     for _ in range(RECORD_DEPTH):

@@ -28,8 +28,9 @@ from ...core.errors import BakeRefused, OutputRefused
 from ...core.lightfield import coverage, hci
 from ...core.lightfield.cameras import CentreCamera, LightFieldGrid, grid_views
 from ...core.lightfield.scene import DrawMesh, DrawScene
-from ...core.outputs.atomic import atomic_file, remove_written
+from ...core.outputs.atomic import atomic_file
 from ...core.outputs.images import write_exr
+from ...core.outputs.ownership import StagedWrites, record_files, refuse_foreign
 from . import extract, layout, writeback
 from .modal import SteppedJob
 
@@ -343,7 +344,8 @@ class LightFieldJob(SteppedJob):
         self.progress = progress
         self.started = time.perf_counter()
         self.written: list[str] = []
-        self.folders: list[str] = []
+        # What this run made, and how to take it back (core.outputs.ownership).
+        self.staged = StagedWrites(self.out_dir)
         self.renderer = self.display = None
         self.warnings: list[str] = []
         self.times = {"render_s": 0.0, "write_s": 0.0}
@@ -358,7 +360,7 @@ class LightFieldJob(SteppedJob):
 
     def abort(self) -> None:
         self._close()
-        remove_written(self.written, self.folders)
+        self.staged.rollback()
         self.written.clear()
 
     def _close(self) -> None:
@@ -393,9 +395,17 @@ class LightFieldJob(SteppedJob):
             self.renderer, self.renderer_name = self._renderer(drawn)
         self.display = _DisplayImages(self.scene, self.width, self.height)
 
+    def planned_files(self) -> list[str]:
+        """The absolute paths this run writes: each view's .exr and .png, the ground truth, the
+        parameters and the manifest."""
+        names = [view_stem(view, self.output_format) + ext for view in self.views for ext in (".exr", ".png")]
+        names += [hci.DEPTH_FILE, hci.DISPARITY_FILE, hci.PARAMETERS_FILE, MANIFEST]
+        return [os.path.join(self.out_dir, name) for name in names]
+
     def _claim_folder(self) -> None:
         """The output folder: new, empty, or an earlier VisiBake light field (whose files this
-        run replaces); a folder holding anything else is refused, unless ``overwrite``."""
+        run replaces); a folder holding anything else is refused, unless ``overwrite`` (then
+        those files are kept, and one named as a file this run writes is refused all the same)."""
         folder = self.out_dir
         if os.path.lexists(folder) and not os.path.isdir(folder):
             raise OutputRefused(f"--out {folder}: not a folder")
@@ -403,25 +413,17 @@ class LightFieldJob(SteppedJob):
             parent = os.path.dirname(folder)
             if not os.path.isdir(parent):
                 raise OutputRefused(f"--out {folder}: its parent folder does not exist")
-            os.makedirs(folder)
-            self.folders.append(folder)
+            self.staged.make_folder(folder)
             return
         present = set(os.listdir(folder))
-        ours = set()
-        manifest = os.path.join(folder, MANIFEST)
-        if os.path.isfile(manifest):
-            try:
-                with open(manifest, encoding="utf-8") as handle:
-                    earlier = json.load(handle)
-                if earlier.get("format") == FORMAT_NAME:
-                    ours = set(earlier.get("files", [])) | {MANIFEST}
-            except (OSError, ValueError):
-                ours = set()
+        ours = {os.path.relpath(path, folder) for path in record_files(folder, MANIFEST) or ()}
         foreign = sorted(present - ours)
         if foreign and not self.overwrite:
             raise OutputRefused(f"--out {folder} holds files VisiBake did not write ({', '.join(foreign[:3])}"
                                 f"{' ...' if len(foreign) > 3 else ''}): choose an empty folder, or pass --overwrite "
                                 "to write beside them (they are kept)")
+        refuse_foreign(self.planned_files(), "--overwrite writes beside your files, never over one; rename it or "
+                                             "choose another folder")
         # The earlier light field's views go first: a view missing from this one must not stay.
         for name in sorted(ours - {MANIFEST}):
             path = os.path.join(folder, name)
@@ -481,10 +483,13 @@ class LightFieldJob(SteppedJob):
             stem = os.path.join(self.out_dir, view_stem(view, self.output_format))
             rgba = np.ones((self.height, self.width, 4), np.float32)
             rgba[:, :, :3] = radiance[::-1]
-            self.written.append(stem + ".exr")
-            write_exr(stem + ".exr", rgba)
-            self.written.append(stem + ".png")
-            self.display.write(stem + ".png", radiance)
+            for ext in (".exr", ".png"):
+                self.written.append(stem + ext)
+                with self.staged.staged(stem + ext) as temporary:
+                    if ext == ".exr":
+                        write_exr(temporary, rgba)
+                    else:
+                        self.display.write(temporary, radiance)
             if depth is not None:
                 self.centre_depth = _block_median(depth, self.supersampling)
             self.times["write_s"] += time.perf_counter() - mark
@@ -495,6 +500,7 @@ class LightFieldJob(SteppedJob):
         mark = time.perf_counter()
         for name in (hci.DEPTH_FILE, hci.DISPARITY_FILE, hci.PARAMETERS_FILE):
             self.written.append(os.path.join(self.out_dir, name))
+            self.staged.claim(os.path.join(self.out_dir, name))  # written whole by core.outputs.atomic
         disp_min, disp_max = hci.write_ground_truth(self.out_dir, self.centre_depth, self.camera, self.grid)
         hci.write_parameters(os.path.join(self.out_dir, hci.PARAMETERS_FILE), self.camera, self.grid,
                              disp_min=disp_min, disp_max=disp_max,
@@ -510,6 +516,7 @@ class LightFieldJob(SteppedJob):
             "render_s": round(self.times["render_s"], 3), "write_s": round(self.times["write_s"], 3),
             "seconds": round(time.perf_counter() - self.started, 3), "files": len(files)})
         self.written.append(os.path.join(self.out_dir, MANIFEST))
+        self.staged.claim(os.path.join(self.out_dir, MANIFEST))
         with atomic_file(os.path.join(self.out_dir, MANIFEST), "w", encoding="utf-8") as handle:
             json.dump({"format": FORMAT_NAME, "version": 1, "files": files, "report": self.report}, handle, indent=1,
                       default=float)

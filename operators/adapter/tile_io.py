@@ -14,7 +14,7 @@ import numpy as np
 from ...core.appearance import gonio
 from ...core.appearance.tile import Tile
 from ...core.errors import AppearanceRefused, OutputRefused
-from ...core.outputs.atomic import atomic_file, remove_written
+from ...core.outputs.ownership import SIDECAR_SUFFIX, StagedWrites, is_visibakes, refuse_foreign
 from . import compat
 from .extract import _linked_texture, _surface_node, world_matrix
 from .modal import SteppedJob
@@ -196,13 +196,19 @@ def directional_shares(result: gonio.BRDFSamples, sphere: bool) -> tuple[np.ndar
     same_side = (np.sign(result.light[:, None, 2]) == np.sign(result.view[None, :, 2]))[..., None]
     return (projected * same_side).sum(axis=1), (projected * ~same_side).sum(axis=1)
 # Beside each file VisiBake writes: its report, which also marks the file as VisiBake's to replace.
-SIDECAR = ".visibake.json"
+SIDECAR = SIDECAR_SUFFIX
 
 
 def _refuse_foreign_file(path: str, overwrite: bool) -> None:
-    if os.path.lexists(path) and not overwrite and not os.path.isfile(path + SIDECAR):
+    """The rule of core.outputs.ownership, and one exception: ``overwrite`` lets the file the
+    user named (``--out FILE``) be replaced. Its report beside it is never written over a file
+    VisiBake did not write, with or without ``overwrite``."""
+    if os.path.lexists(path) and not overwrite and not is_visibakes(path):
         raise OutputRefused(f"{path} exists and VisiBake did not write it; VisiBake does not overwrite it (remove "
                             "it, choose another path, or pass --overwrite)")
+    if os.path.lexists(path) and not os.path.isfile(path):
+        raise OutputRefused(f"{path} is not a regular file; VisiBake does not replace it")
+    refuse_foreign([path + SIDECAR], "its report goes there; remove or rename it, or choose another path")
     folder = os.path.dirname(path) or "."
     if not os.path.isdir(folder):
         raise OutputRefused(f"the folder {folder} does not exist")
@@ -213,13 +219,10 @@ class BRDFOutcome:
     """What a BRDF run wrote: the report (``report["files"]``), and how to take it back."""
 
     report: dict
-    written: list = field(default_factory=list)
-    folders: list = field(default_factory=list)
+    files: StagedWrites = field(default_factory=StagedWrites)
 
     def rollback(self) -> None:
-        remove_written(self.written, self.folders)
-        self.written.clear()
-        self.folders.clear()
+        self.files.rollback()
 
 
 class _TileJob(SteppedJob):
@@ -350,18 +353,26 @@ class BRDFJob(_TileJob):
                             "resolution": settings.resolution, "view_rays": settings.view_rays,
                             "seed": settings.seed, "lights": self.lights, "views": self.views}
         folder = os.path.dirname(self.out_path)
+        staged = self.outcome.files
+        staged.root = folder
         if self.make_folder and not os.path.isdir(folder):
-            os.makedirs(folder)
-            self.outcome.folders.append(folder)
-        if self.output_format == "merl":
-            merl.write_merl(self.out_path, self.table)
-        else:  # "table" and "bsdf"
-            bsdf = tabulated.TabulatedBSDF(result.light.astype(np.float32), result.view.astype(np.float32),
-                                           result.values.astype(np.float32),
-                                           np.repeat(result.transparency[:, None], 3, axis=1).astype(np.float32),
-                                           self.tile.period, "m", json.dumps(written_settings))
-            tabulated.save_tabulated(self.out_path, bsdf)
-        self.outcome.written.append(self.out_path)
+            staged.make_folder(folder)
+        # The file and its report are both written whole before either is renamed into place
+        # (the report's block inside the file's): a full disk leaves an earlier pair as it was.
+        with staged.staged(self.out_path) as temporary:
+            if self.output_format == "merl":
+                merl.write_merl(temporary, self.table)
+            else:  # "table" and "bsdf"
+                bsdf = tabulated.TabulatedBSDF(result.light.astype(np.float32), result.view.astype(np.float32),
+                                               result.values.astype(np.float32),
+                                               np.repeat(result.transparency[:, None], 3, axis=1).astype(np.float32),
+                                               self.tile.period, "m", json.dumps(written_settings))
+                tabulated.save_tabulated(temporary, bsdf)
+            self._write_report(result, written_settings)
+        return self.outcome
+
+    def _write_report(self, result, written_settings: dict) -> None:
+        """The report, beside the file as FILE.visibake.json (which marks the file as VisiBake's)."""
         reflected, transmitted = directional_shares(result, self.output_format == "bsdf")
         report = self.outcome.report
         report.update({"output": self.out_path, "format": self.output_format, "settings": written_settings,
@@ -395,10 +406,9 @@ class BRDFJob(_TileJob):
                 colour = transmitted[result.light[:, 2] > 0].mean(axis=0)
                 report["principled_fit"]["translucent_color"] = [float(x) for x in colour]
         report["files"] = [self.out_path, self.out_path + SIDECAR]
-        with atomic_file(self.out_path + SIDECAR, "w", encoding="utf-8") as handle:
-            json.dump(report, handle, indent=1, default=float)
-        self.outcome.written.append(self.out_path + SIDECAR)
-        return self.outcome
+        with self.outcome.files.staged(self.out_path + SIDECAR) as temporary:
+            with open(temporary, "w", encoding="utf-8") as handle:
+                json.dump(report, handle, indent=1, default=float)
 
 
 def run_brdf(tile: Tile, out_path: str, output_format: str, lights: int, views: int, settings: gonio.GonioSettings,
