@@ -457,8 +457,12 @@ class BTFWriter(BTFImages):
         # Even with overwrite: a file of the user's never gives way to one of the same name.
         refuse_foreign([os.path.join(self.folder, *name.split("/")) for name in [MANIFEST, *self.planned]],
                        "overwriting writes beside your files, never over one; choose another folder")
-        self.staged.make_folder(self.folder)
-        self._write_manifest(complete=False)
+        try:
+            self.staged.make_folder(self.folder)
+            self._write_manifest(complete=False)
+        except BaseException:
+            self.staged.rollback()  # no writer is returned to abort: take back the folder here
+            raise
 
     def adopt(self, relative_paths) -> None:
         """Count images written into the folder by parts of this run (:class:`BTFImages` on
