@@ -69,8 +69,10 @@ def _is_sidecar(path: str) -> bool:
     return isinstance(content, dict) and "command" in content
 
 
-def is_visibakes(path: str) -> bool:
-    """Whether the existing ``path`` is a file a VisiBake record lists (module docstring)."""
+def is_visibakes(path: str, _records: dict | None = None) -> bool:
+    """Whether the existing ``path`` is a file a VisiBake record lists (module docstring).
+    ``_records``: {(folder, record): its files}, shared across calls to read each record once."""
+    records = {} if _records is None else _records
     path = os.path.normpath(os.path.abspath(path))
     if os.path.islink(path) or os.path.isdir(path):
         return False  # a link or folder is never an output VisiBake wrote
@@ -79,8 +81,9 @@ def is_visibakes(path: str) -> bool:
     folder = os.path.dirname(path)
     for _ in range(RECORD_DEPTH):
         for record in FOLDER_RECORDS:
-            listed = record_files(folder, record)
-            if listed is not None and path in listed:
+            if (folder, record) not in records:
+                records[folder, record] = record_files(folder, record) or set()
+            if path in records[folder, record]:
                 return True
         folder = os.path.dirname(folder)
     return False
@@ -88,7 +91,8 @@ def is_visibakes(path: str) -> bool:
 
 def foreign_files(paths) -> list[str]:
     """Those of ``paths`` that exist (as anything) and are not VisiBake's, in order."""
-    return [path for path in paths if os.path.lexists(path) and not is_visibakes(path)]
+    records: dict = {}
+    return [path for path in paths if os.path.lexists(path) and not is_visibakes(path, records)]
 
 
 def refuse_foreign(paths, hint: str = "remove or rename them, or choose another folder") -> None:
