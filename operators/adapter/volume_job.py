@@ -139,7 +139,8 @@ class VolumeJob(SteppedJob):
         self.report = {"command": "volume", "directions": int(directions), "bounces": int(bounces),
                        "points_per_ray": int(points), "resolution": int(resolution), "volumes": [], "files": [],
                        "grids": dict(volume_io.OUTPUT_GRIDS), "warnings": self.warnings}
-        self.outcome = VolumeOutcome(self.report)
+        # A full disk's message names the output folder the user chose.
+        self.outcome = VolumeOutcome(self.report, files=StagedWrites(os.path.abspath(out_dir) if out_dir else None))
         self.volumes: list[_Volume] = []
         self.occluders = None
         self.meshes: list = []

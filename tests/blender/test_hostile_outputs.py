@@ -83,7 +83,7 @@ def test_volume_on_a_full_disk_exits_2_and_leaves_nothing(visibake, vdb, cloud_b
     status = visibake.cli.main(["volume", str(blend), "--out", str(full_disk / "out"), "--no-cache"] + VOLUME_FAST)
     err = capfd.readouterr().err
     assert status == 2, err
-    assert "not enough space in" in err
+    assert f"not enough space in {full_disk / 'out'}:" in err
     assert files_under(full_disk) == ["keep.txt"]
     assert (full_disk / "keep.txt").read_bytes() == USERS
     assert "Cloud (VisiBake)" not in bpy.data.objects
