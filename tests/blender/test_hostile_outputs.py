@@ -238,3 +238,34 @@ def test_a_space_error_reads_as_one(visibake):
     assert ownership.is_space_error(OSError(errno.EFBIG, os.strerror(errno.EFBIG)))
     assert ownership.is_space_error(RuntimeError(f"Failed to write pixel data. {os.strerror(errno.ENOSPC)}."))
     assert not ownership.is_space_error(OSError(errno.EACCES, os.strerror(errno.EACCES)))
+
+
+# --- the panel's operators ------------------------------------------------------------------
+
+def test_the_panel_s_simulate_btf_on_a_full_disk_says_so_and_leaves_nothing(visibake, tmp_path, full_disk):
+    blend = groove_scene(tmp_path / "tile.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    scene = bpy.context.scene
+    props = scene.visibake
+    props.output_dir = str(full_disk / "materials")
+    props.appearance_directions, props.appearance_resolution, props.appearance_bounces = 16, 4, 1
+    props.appearance_image_size, props.appearance_image_format = 8, "png"
+    bpy.context.view_layer.objects.active = scene.objects["Groove"]
+    (full_disk / "keep.txt").write_bytes(USERS)
+    with pytest.raises(RuntimeError, match="not enough space in"):
+        bpy.ops.visibake.simulate_btf()
+    assert files_under(full_disk) == ["keep.txt"]
+    assert "visibake_btf_report" not in scene
+
+
+def test_the_panel_s_light_field_on_a_full_disk_says_so_and_leaves_nothing(visibake, tmp_path, full_disk):
+    blend = plane_scene(tmp_path / "scene.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    props = bpy.context.scene.visibake
+    props.output_dir = str(full_disk)
+    props.lightfield_columns, props.lightfield_rows = 3, 3
+    props.lightfield_width, props.lightfield_height = 64, 48
+    (full_disk / "keep.txt").write_bytes(USERS)
+    with pytest.raises(RuntimeError, match="not enough space in"):
+        bpy.ops.visibake.render_lightfield()
+    assert files_under(full_disk) == ["keep.txt"]
