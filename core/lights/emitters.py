@@ -189,6 +189,8 @@ def emissive_triangles(meshes: list[Mesh]) -> EmissiveTriangles:
         if not mesh.materials or len(mesh.triangles) == 0:
             continue
         emission = np.array([np.clip(np.nan_to_num(m.emission[:3]), 0.0, None) for m in mesh.materials])
+        if not np.any(emission > 0):
+            continue
         material = np.clip(mesh.material_index, 0, len(mesh.materials) - 1)
         normals, valid = mesh_face_normals(mesh)
         chosen = np.nonzero(valid & np.any(emission[material] > 0, axis=1))[0]
@@ -211,9 +213,9 @@ def near_triangles(triangles: EmissiveTriangles, positions: np.ndarray, reach: n
     return near
 
 
-# (landing, triangle) pairs :func:`triangle_irradiance` works on at a time: 2^20 pairs keep its
-# (pairs, 6, 3) temporaries near 50 MB.
-TRIANGLE_PAIR_CHUNK = 1 << 20
+# (landing, triangle) pairs :func:`triangle_irradiance` works on at a time: 2^16 pairs keep its
+# (pairs, 6, 3) temporaries near 6 MB each, in the CPU's caches.
+TRIANGLE_PAIR_CHUNK = 1 << 16
 
 
 def triangle_irradiance(triangles: EmissiveTriangles, positions: np.ndarray, normals: np.ndarray,
@@ -235,28 +237,37 @@ def triangle_irradiance(triangles: EmissiveTriangles, positions: np.ndarray, nor
     per_chunk = max(1, TRIANGLE_PAIR_CHUNK // total)
     for first in range(0, count, per_chunk):
         rows = slice(first, min(count, first + per_chunk))
-        p = positions[rows, None, None, :]
-        n = normals[rows, None, :]
-        corner = triangles.corners[None] - p  # (k, T, 3, 3) from the receiver
-        front = np.einsum("ktd,td->kt", -corner[:, :, 0], triangles.normal) > 0  # receiver on the emitting side
+        corner = triangles.corners[None] - positions[rows, None, None, :]  # (k, T, 3, 3) from the receiver
         height = np.einsum("ktcd,kd->ktc", corner, normals[rows])
-        polygon, corners_kept = _clip_above(corner, height)
-        form = _polygon_form_factor(polygon, n) * front * (corners_kept >= 3)
-        pair_receiver, pair_triangle = np.nonzero(form > 0)
-        if not len(pair_receiver):
+        # Only triangles facing the receiver with a corner above its horizon light it.
+        front = np.einsum("ktd,td->kt", corner[:, :, 0], triangles.normal) < 0
+        receiver, triangle = np.nonzero(front & np.any(height > 0, axis=2))
+        if not len(receiver):
             continue
-        # The middle of the clipped polygon's distinct corners (slots past them repeat corner 0).
-        slots = np.arange(polygon.shape[2])[None, :] < corners_kept[pair_receiver, pair_triangle, None]
-        middle = (polygon[pair_receiver, pair_triangle] * slots[..., None]).sum(axis=1) / slots.sum(axis=1)[:, None]
-        target = middle + positions[rows][pair_receiver]
-        start = np.asarray(origins[rows][pair_receiver], np.float64)
-        offset = target - start
+        polygon, corners_kept = corner[receiver, triangle], np.full(len(receiver), 3)
+        # Most lie wholly above it; only those across it are clipped.
+        across = np.nonzero(~np.all(height[receiver, triangle] > 0, axis=1))[0]
+        if len(across):
+            clipped, corners_kept[across] = _clip_above(polygon[across], height[receiver[across], triangle[across]])
+            polygon = np.concatenate([polygon, np.repeat(polygon[:, :1], 3, axis=1)], axis=1)
+            polygon[across] = clipped
+        del corner, height
+        form = _polygon_form_factor(polygon, normals[rows][receiver])
+        lit = np.nonzero(form > 0)[0]
+        receiver, triangle, polygon, corners_kept, form = (a[lit] for a in (receiver, triangle, polygon,
+                                                                            corners_kept, form))
+        # The middle of the polygon's distinct corners (slots past them repeat corner 0).
+        slots = np.arange(polygon.shape[1])[None, :] < corners_kept[:, None]
+        middle = (polygon * slots[..., None]).sum(axis=1) / slots.sum(axis=1)[:, None]
+        start = np.asarray(origins[rows][receiver])
+        offset = middle + positions[rows][receiver] - start
         distance = np.linalg.norm(offset, axis=1)
         direction = offset / np.maximum(distance, 1e-12)[:, None]
-        seen = ~np.asarray(ray_scene.occluded(np.asarray(origins[rows][pair_receiver]), direction,
+        seen = ~np.asarray(ray_scene.occluded(start, direction,
                                               (distance * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)), bool)
-        light = form[pair_receiver, pair_triangle, None] * triangles.radiance[pair_triangle] * seen[:, None]
-        np.add.at(irradiance, first + pair_receiver, light)
+        light = form[:, None] * triangles.radiance[triangle] * seen[:, None]
+        for channel in range(3):
+            irradiance[rows, channel] += np.bincount(receiver, weights=light[:, channel], minlength=rows.stop - first)
     return irradiance
 
 

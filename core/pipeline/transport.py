@@ -288,11 +288,12 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
     come back without their landing points."""
     if not p.settings.sharp_contacts or p.bounces_needed() == 0 or p.table is None:
         return None
-    triangles = emissive_triangles(p.meshes)
     emitting_any = np.zeros(len(p.meshes), bool)
     for group in groups:
         emitting_any |= group.emitting
-    triangles = triangles.of_objects(emitting_any)
+    triangles = emissive_triangles([mesh for mesh, emitting in zip(p.meshes, emitting_any) if emitting])
+    # Back to the bake's mesh indices.
+    triangles.object_index = np.nonzero(emitting_any)[0][triangles.object_index]
     if not any(group.lights for group in groups) and not len(triangles):
         return None
     if p.settings.shadows != "exact":
@@ -325,7 +326,9 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
 
 # Short hits within this many of their target's texels of an emissive mesh's bounding box take
 # that mesh's exact light at their landing point (beyond, its light changes slowly over a texel).
-EMITTER_CONTACT_TEXELS = 4.0
+EMITTER_CONTACT_TEXELS = 1.0
+# Cells across a texel in which the landings near an emitter share one evaluation of its light.
+EMITTER_CONTACT_CELLS = 8
 
 
 @dataclass
@@ -359,15 +362,33 @@ def _emitter_contact_light(p, short: ShortHits, groups: list[LightGroup], triang
     if not len(triangles):
         return None
     reach = EMITTER_CONTACT_TEXELS * texel_sizes(p.meshes, p.object_samples)[short.obj]
-    near = np.nonzero(near_triangles(triangles, short.points.position, reach))[0]
+    # A landing on an emitter keeps the lookup: an emitter does not light itself, and rays from
+    # all around a glowing object land on it (most of the demo's landings near its ball).
+    on_emitter = np.zeros(len(p.meshes), bool)
+    on_emitter[triangles.object_index] = True
+    near = np.nonzero(~on_emitter[short.obj] & near_triangles(triangles, short.points.position, reach))[0]
     if not len(near):
         return None
-    at_hits = np.zeros((len(near), 3 * len(groups)))
+    # One landing per cell of EMITTER_CONTACT_CELLS^2 per texel (and side) is evaluated, and every
+    # landing in the cell takes its light: hundreds of rays of a texel land in each texel nearby
+    # (195,000 landings by the demo's glowing ball, 12 s per 20,000 of them one by one).
+    across = EMITTER_CONTACT_CELLS * np.array([[s.width, s.height] for s in p.object_samples], np.int64)
+    cells = across[:, 0] * across[:, 1] * 8  # 8: the sides a landing's normal faces, one bit an axis
+    base = np.cumsum(cells) - cells
+    obj = short.obj[near]
+    cell = np.clip(np.floor(short.uv[near] * across[obj]).astype(np.int64), 0, across[obj] - 1)
+    side = (short.points.normal[near] > 0) @ np.array([1, 2, 4])
+    key = base[obj] + (cell[:, 1] * across[obj, 0] + cell[:, 0]) * 8 + side
+    _, first, cell_of = np.unique(key, return_index=True, return_inverse=True)
+    evaluated = near[first]
+    at_hits = np.zeros((len(evaluated), 3 * len(groups)))
     for index, group in enumerate(groups):
         own = triangles.of_objects(group.emitting)
         if len(own) and not np.any(np.asarray(group.world) > 0):
             at_hits[:, 3 * index:3 * index + 3] = triangle_irradiance(
-                own, short.points.position[near], short.points.normal[near], short.points.origins[near], p.ray_scene)
+                own, short.points.position[evaluated], short.points.normal[evaluated],
+                short.points.origins[evaluated], p.ray_scene)
+    at_hits = at_hits[cell_of.ravel()]
     chosen = ShortHits(short.sample[near], short.weight[near], short.obj[near], short.uv[near], None)
     return EmitterContacts(chosen, at_hits)
 
