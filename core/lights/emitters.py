@@ -157,3 +157,150 @@ def _emitter_irradiance_compiled(module, emitter: Emitter, positions, normals, g
         kernels.run(module.emitter_add, threads, index, occluded, transfer, float(area),
                     np.ascontiguousarray(radiance, np.float64), irradiance)
     return irradiance, rays
+
+
+@dataclass
+class EmissiveTriangles:
+    """Every emissive triangle of a bake, for the exact light of emitters close by.
+
+    corners : (T, 3, 3) float64 world space; normal : (T, 3) float64 unit (front side emits);
+    radiance : (T, 3) float64 emitted radiance; object_index : (T,) int64 the mesh it belongs to
+    """
+
+    corners: np.ndarray
+    normal: np.ndarray
+    radiance: np.ndarray
+    object_index: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.corners)
+
+    def of_objects(self, emitting: np.ndarray) -> "EmissiveTriangles":
+        """The triangles of the meshes where ``emitting`` (O,) bool is set."""
+        keep = np.asarray(emitting, bool)[self.object_index]
+        return EmissiveTriangles(self.corners[keep], self.normal[keep], self.radiance[keep], self.object_index[keep])
+
+
+def emissive_triangles(meshes: list[Mesh]) -> EmissiveTriangles:
+    """The emissive, non-degenerate triangles of ``meshes`` (as :func:`find_emitters` finds them)."""
+    corners, normal, radiance = [np.zeros((0, 3, 3))], [np.zeros((0, 3))], [np.zeros((0, 3))]
+    owner = [np.zeros(0, np.int64)]
+    for index, mesh in enumerate(meshes):
+        if not mesh.materials or len(mesh.triangles) == 0:
+            continue
+        emission = np.array([np.clip(np.nan_to_num(m.emission[:3]), 0.0, None) for m in mesh.materials])
+        if not np.any(emission > 0):
+            continue
+        material = np.clip(mesh.material_index, 0, len(mesh.materials) - 1)
+        normals, valid = mesh_face_normals(mesh)
+        chosen = np.nonzero(valid & np.any(emission[material] > 0, axis=1))[0]
+        corners.append(mesh.positions[mesh.triangles[chosen]].astype(np.float64))
+        normal.append(np.asarray(normals[chosen], np.float64))
+        radiance.append(emission[material[chosen]])
+        owner.append(np.full(len(chosen), index, np.int64))
+    return EmissiveTriangles(np.concatenate(corners), np.concatenate(normal), np.concatenate(radiance),
+                             np.concatenate(owner))
+
+
+def near_triangles(triangles: EmissiveTriangles, positions: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(k,) bool: which ``positions`` (k, 3) lie within ``reach`` (k,) of the bounding box of some
+    emissive mesh among ``triangles``."""
+    near = np.zeros(len(positions), bool)
+    for index in np.unique(triangles.object_index):
+        corners = triangles.corners[triangles.object_index == index].reshape(-1, 3)
+        outside = np.maximum(np.maximum(corners.min(axis=0) - positions, positions - corners.max(axis=0)), 0.0)
+        near |= np.linalg.norm(outside, axis=1) < reach
+    return near
+
+
+# (landing, triangle) pairs :func:`triangle_irradiance` works on at a time: 2^16 pairs keep its
+# (pairs, 6, 3) temporaries near 6 MB each, in the CPU's caches.
+TRIANGLE_PAIR_CHUNK = 1 << 16
+
+
+def triangle_irradiance(triangles: EmissiveTriangles, positions: np.ndarray, normals: np.ndarray,
+                        origins: np.ndarray, ray_scene) -> np.ndarray:
+    """(k, 3) float64 irradiance from ``triangles`` at ``positions`` (k, 3) with unit ``normals``
+    (k, 3), each triangle's shadow tested by one exact ray from ``origins`` (k, 3; offset off the
+    surface, RayScene.ray_origins) to the middle of its part above the receiver's horizon.
+
+    Each triangle's light is integrated in closed form (Lambert's polygon formula: E = L / 2 *
+    |sum over edges of angle * n . edge-plane normal|) over its part above the horizon, so a
+    receiver a centimetre from an emitter gets its light exactly, where points spread over the
+    emitter (:func:`emitter_irradiance`) would be centimetres apart and their 1 / d^2 would
+    blow up. Shadows are per triangle: a triangle is wholly seen or wholly hidden.
+    """
+    count, total = len(positions), len(triangles)
+    irradiance = np.zeros((count, 3))
+    if count == 0 or total == 0:
+        return irradiance
+    per_chunk = max(1, TRIANGLE_PAIR_CHUNK // total)
+    for first in range(0, count, per_chunk):
+        rows = slice(first, min(count, first + per_chunk))
+        corner = triangles.corners[None] - positions[rows, None, None, :]  # (k, T, 3, 3) from the receiver
+        height = np.einsum("ktcd,kd->ktc", corner, normals[rows])
+        # Only triangles facing the receiver with a corner above its horizon light it.
+        front = np.einsum("ktd,td->kt", corner[:, :, 0], triangles.normal) < 0
+        receiver, triangle = np.nonzero(front & np.any(height > 0, axis=2))
+        if not len(receiver):
+            continue
+        polygon, corners_kept = corner[receiver, triangle], np.full(len(receiver), 3)
+        # Most lie wholly above it; only those across it are clipped.
+        across = np.nonzero(~np.all(height[receiver, triangle] > 0, axis=1))[0]
+        if len(across):
+            clipped, corners_kept[across] = _clip_above(polygon[across], height[receiver[across], triangle[across]])
+            polygon = np.concatenate([polygon, np.repeat(polygon[:, :1], 3, axis=1)], axis=1)
+            polygon[across] = clipped
+        del corner, height
+        form = _polygon_form_factor(polygon, normals[rows][receiver])
+        lit = np.nonzero(form > 0)[0]
+        receiver, triangle, polygon, corners_kept, form = (a[lit] for a in (receiver, triangle, polygon,
+                                                                            corners_kept, form))
+        # The middle of the polygon's distinct corners (slots past them repeat corner 0).
+        slots = np.arange(polygon.shape[1])[None, :] < corners_kept[:, None]
+        middle = (polygon * slots[..., None]).sum(axis=1) / slots.sum(axis=1)[:, None]
+        start = np.asarray(origins[rows][receiver])
+        offset = middle + positions[rows][receiver] - start
+        distance = np.linalg.norm(offset, axis=1)
+        direction = offset / np.maximum(distance, 1e-12)[:, None]
+        seen = ~np.asarray(ray_scene.occluded(start, direction,
+                                              (distance * (1.0 - tol.SHADOW_RAY_SHORTEN)).astype(np.float32)), bool)
+        light = form[:, None] * triangles.radiance[triangle] * seen[:, None]
+        for channel in range(3):
+            irradiance[rows, channel] += np.bincount(receiver, weights=light[:, channel], minlength=rows.stop - first)
+    return irradiance
+
+
+def _clip_above(corner: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles ``corner`` (..., 3, 3) clipped to where ``height`` (..., 3) is positive (one
+    plane: at most 4 corners): (..., 6, 3) polygons whose kept corners come first in order and
+    whose other slots repeat corner 0 (their edges have no length and add nothing), and the
+    number of kept corners (...,) int."""
+    inside = height > 0
+    slots, keep = [], []
+    for a in range(3):
+        b = (a + 1) % 3
+        slots.append(corner[..., a, :])
+        keep.append(inside[..., a])
+        share = height[..., a] / np.where(inside[..., a] != inside[..., b], height[..., a] - height[..., b], 1.0)
+        slots.append(corner[..., a, :] + share[..., None] * (corner[..., b, :] - corner[..., a, :]))
+        keep.append(inside[..., a] != inside[..., b])
+    slots, keep = np.stack(slots, axis=-2), np.stack(keep, axis=-1)
+    order = np.argsort(~keep, axis=-1, kind="stable")
+    polygon = np.take_along_axis(slots, order[..., None], axis=-2)
+    kept = keep.sum(axis=-1)
+    unused = np.arange(6) >= kept[..., None]
+    polygon = np.where(unused[..., None], polygon[..., :1, :], polygon)
+    return polygon, kept
+
+
+def _polygon_form_factor(polygon: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(...,) irradiance per unit radiance, E / L, of polygons (..., V, 3) (corners relative to
+    the receiver, above its horizon) at a receiver of unit ``normal`` (broadcast to (..., 3))."""
+    unit = polygon / np.maximum(np.linalg.norm(polygon, axis=-1, keepdims=True), 1e-300)
+    following = np.roll(unit, -1, axis=-2)
+    cross = np.cross(unit, following)
+    sine = np.linalg.norm(cross, axis=-1)
+    angle = np.arctan2(sine, np.einsum("...vd,...vd->...v", unit, following))
+    towards = np.einsum("...vd,...d->...v", cross, normal) / np.maximum(sine, 1e-300)
+    return 0.5 * np.abs(np.sum(angle * towards, axis=-1))
