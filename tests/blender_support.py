@@ -98,6 +98,20 @@ def extension_site_packages() -> Path:
     return Path(bpy.utils.user_resource("EXTENSIONS")) / ".local" / "lib" / python / "site-packages"
 
 
+def gpu_runtime_or_skip(visibake):
+    """The installed extension's gpu_shaders.runtime with a GPU context, and its device info.
+    Without a context the test skips and says why, except under CI (CI set), where
+    llvmpipe gives one: there a missing context fails, so the GPU tests cannot go green
+    by skipping."""
+    runtime = importlib.import_module(f"{visibake.__name__}.gpu_shaders.runtime")
+    try:
+        return runtime, runtime.device_info()
+    except runtime.GPUUnavailable as error:
+        if os.environ.get("CI"):
+            pytest.fail(f"no GPU context under CI (llvmpipe's EGL should give one): {error}")
+        pytest.skip(f"no GPU context on this machine: {error}")
+
+
 def _raise(ex: BaseException) -> None:
     raise ex
 

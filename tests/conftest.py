@@ -25,6 +25,9 @@ for _p in (str(REPO_ROOT), str(TESTS_DIR), str(TESTS_DIR / "core"), str(TESTS_DI
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
+# --skip-report=PATH: every skip of the run as JSON, for tools/check_skips.py (CI).
+pytest_plugins = ("skip_report",)
+
 # Blender reads BLENDER_USER_RESOURCES once, when bpy is first imported. This root
 # conftest is imported before any other conftest or test module, so setting it here
 # guarantees nothing is written to (or read from) the real user profile.

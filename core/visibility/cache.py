@@ -34,6 +34,7 @@ import json
 import os
 import re
 import struct
+import sys
 import tempfile
 import time
 import zipfile
@@ -413,6 +414,21 @@ def _save_npz(stream, arrays: dict, meta: dict, release=None) -> None:
                                       allow_pickle=False)
 
 
+# Test hook (tests/blender/test_hostile_cache.py): with this variable naming a FIFO, a write
+# stops once its half-written file exists and is locked, says so on stderr, and waits for the
+# FIFO to be opened and closed, so that a signal sent then lands inside the write for certain.
+HOLD_WRITE_VARIABLE = "VISIBAKE_TEST_HOLD_CACHE_WRITE"
+
+
+def _hold_for_test(temporary: str) -> None:
+    fifo = os.environ.get(HOLD_WRITE_VARIABLE)
+    if fifo:
+        print(f"visibake: test hook: holding the write of {os.path.basename(temporary)}", file=sys.stderr,
+              flush=True)
+        with open(fifo, "rb") as stream:
+            stream.read()
+
+
 def _write(path: str, meta: dict, arrays: dict, release=None) -> int:
     """Write atomically (a reader never sees half a file); returns the size in bytes.
     ``arrays``: name -> array, or a callable making it; ``release``: see :func:`_save_npz`."""
@@ -422,6 +438,7 @@ def _write(path: str, meta: dict, arrays: dict, release=None) -> int:
     try:
         with os.fdopen(handle, "wb") as stream:
             _lock(stream)
+            _hold_for_test(temporary)
             _save_npz(stream, arrays, meta, release)
         os.replace(temporary, path)
     except BaseException:

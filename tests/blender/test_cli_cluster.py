@@ -6,13 +6,13 @@ import json
 
 import bpy
 
+# Pinned in requirements.txt: a broken install fails here rather than skipping the module.
+import distributed  # noqa: F401
 import numpy as np
 import pytest
 
 from blender_support import extension_module_name
 from bpy_scenes import black_world, cube, grid, material, mesh_object, point, sun
-
-pytest.importorskip("distributed", reason="the Dask engine (requirements.txt) is not installed")
 
 
 @pytest.fixture
@@ -102,7 +102,6 @@ def test_a_brdf_run_on_two_local_workers_equals_the_one_process_run(visibake, tm
 def test_the_flamenco_job_run_task_by_task_equals_the_one_process_bake(visibake, room_blend, tmp_path, capfd):
     """The task list the job type compiles (tests/flamenco_support.py), run in its order here
     as a farm's workers would run it (each task's command, minus Blender's own arguments)."""
-    pytest.importorskip("dukpy", reason="dukpy (requirements.txt) compiles the job type")
     from flamenco_support import compile_job
 
     options = "--resolution 32 --directions 48 --bounces 2 --passes lighting,indirect,ao --no-progress --no-cache"
@@ -128,7 +127,6 @@ def test_the_flamenco_job_run_task_by_task_equals_the_one_process_bake(visibake,
 
 
 def test_a_farm_job_with_too_few_steps_fails_its_check(visibake, room_blend, tmp_path, capfd):
-    pytest.importorskip("dukpy", reason="dukpy (requirements.txt) compiles the job type")
     from flamenco_support import compile_job
 
     compiled = compile_job({"blendfile": str(room_blend), "job_folder": str(tmp_path / "job"),

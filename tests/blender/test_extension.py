@@ -20,7 +20,10 @@ from blender_support import (
 
 DEV_DIRS = ("tests/", "benchmarks/", "tools/")
 NEVER_SHIPPED = DEV_DIRS + ("docs/", ".ci/", ".venv/", "dist/", "out/", ".git", "Makefile", "requirements")
-BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR", "tqdm", "numba", "llvmlite")
+# What the extension's code imports from its wheels; tests/blender/test_extension.py's last
+# test imports every top-level module of every installed wheel, these included.
+BUNDLED_MODULES = ("xatlas", "embreex", "OpenEXR", "tqdm", "threadpoolctl", "numba", "llvmlite", "dask",
+                   "distributed")
 
 
 def _wheel_names(manifest):
@@ -140,3 +143,51 @@ def test_bundled_wheels_installed_by_blender(visibake, tmp_path):
         assert Path(path).is_relative_to(site), f"{name} imported from {path}, not from {site}"
     assert result["uvs"] == [3, 2] and result["hit"] == 0 and result["exr"] == [2, 2, 3]
     assert result["numba"] == [0.0, 2.0, 4.0]
+
+
+def test_every_bundled_wheel_imports_from_the_installed_extension_alone(visibake):
+    """Each top-level module of each wheel Blender installed for the extension (dask,
+    distributed and their dependencies included) imports in a fresh bpy process that cannot
+    see the venv's site-packages, and a Dask client runs a task: a wheel missing from the
+    manifest, or one that needs a package nobody bundled, fails here, not on a user's
+    Blender. Blender's own modules (bpy, numpy, which Blender ships) are imported first."""
+    site = extension_site_packages()
+    script = textwrap.dedent(
+        """
+        import importlib, importlib.metadata, json, os, sys, sysconfig
+        import bpy, numpy  # Blender ships these; their folder then leaves sys.path
+        site = sys.argv[1]
+        venv = {os.path.realpath(sysconfig.get_paths()[key]) for key in ("purelib", "platlib")}
+        sys.path[:] = [site] + [p for p in sys.path if os.path.realpath(p) not in venv and p != site]
+        shipped = {name.split(".")[0] for name in sys.modules}  # bpy, numpy and what they loaded
+        names = set()
+        for dist in importlib.metadata.distributions(path=[site]):
+            for file in dist.files or ():
+                top = file.parts[0]
+                if top.endswith((".dist-info", ".data")) or top.startswith("__") or top == "bin":
+                    continue
+                if len(file.parts) == 1 and file.suffix in (".py", ".so", ".pyd"):
+                    names.add(top.split(".")[0])
+                elif len(file.parts) == 2 and file.name == "__init__.py":
+                    names.add(top)
+        for name in sorted(names):
+            importlib.import_module(name)
+        import dask
+        from distributed import Client
+        with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+            doubled = client.submit(lambda x: 2 * x, 21).result(timeout=60)
+        files = {m: getattr(sys.modules[m], "__file__", None) for m in sys.modules if m.split(".")[0] not in shipped}
+        print(json.dumps({"names": sorted(names), "files": files, "doubled": doubled,
+                          "dask": dask.__file__}))
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script, str(site)], capture_output=True, text=True,
+                          timeout=300, env=os.environ.copy())
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    print(f"\nimported from {site}: {', '.join(result['names'])} ({len(result['files'])} modules)")
+    assert set(BUNDLED_MODULES) <= set(result["names"]), set(BUNDLED_MODULES) - set(result["names"])
+    venv_site = Path(importlib.import_module("numpy").__file__).resolve().parents[1]
+    from_venv = {m: f for m, f in result["files"].items() if f and Path(f).resolve().is_relative_to(venv_site)}
+    assert not from_venv, f"imported from the venv, not from {site}: {sorted(from_venv)}"
+    assert Path(result["dask"]).resolve().is_relative_to(site.resolve()) and result["doubled"] == 42

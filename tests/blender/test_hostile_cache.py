@@ -15,6 +15,7 @@ import pytest
 
 from blender_support import REPO_ROOT
 from bpy_scenes import black_world, cube, grid, material, mesh_object, point
+from core.visibility.cache import HOLD_WRITE_VARIABLE
 
 SMALL = ["--directions", "16", "--resolution", "32", "--bounces", "1", "--no-progress"]
 
@@ -99,28 +100,39 @@ def test_half_written_files_of_a_killed_bake_are_removed_by_the_next_and_counted
     assert not os.path.exists(left)
 
 
-def _command(*arguments):
+def _command(*arguments, env=None):
     # SIGINT back to its default in the child: a test run started in the background of a
     # shell without job control inherits it ignored, and Python then never sees a Ctrl+C.
     return subprocess.Popen([sys.executable, str(REPO_ROOT / "tools" / "visibake.py"), *arguments],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=str(REPO_ROOT),
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            env=env, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
-def _signal_during_cache_write(process, signal_number, delay=0.05) -> str:
-    """Send ``signal_number`` just after the bake announces the table it is about to pack and
-    write (the cache stage's 'writing about N MiB'); returns everything the process printed on
-    stderr. The table of BAKE is packed and written in a few tenths of a second."""
+HELD = "visibake: test hook: holding the write of .writing-"
+
+
+def _held_command(tmp_path, *arguments):
+    """The command with its first cache write held open (core.visibility.cache's test hook):
+    its half-written, locked file exists until the process is signalled."""
+    fifo = tmp_path / "hold"
+    os.mkfifo(fifo)
+    return _command(*arguments, env={**os.environ, HOLD_WRITE_VARIABLE: str(fifo)})
+
+
+def _signal_inside_the_cache_write(process, signal_number) -> str:
+    """Send ``signal_number`` once the process holds its first cache write (the hook's line
+    on stderr); returns everything the process printed on stderr."""
     lines = []
     for line in process.stderr:
         lines.append(line)
-        if "visibake: cache: writing about" in line:
-            time.sleep(delay)
+        if line.startswith(HELD):
             process.send_signal(signal_number)
             break
     rest = process.stderr.read()
     process.wait(timeout=300)
-    return "".join(lines) + rest
+    printed = "".join(lines) + rest
+    assert HELD in printed, printed  # the signal landed inside the write, not before or after it
+    return printed
 
 
 BAKE = ["bake", "--directions", "128", "--resolution", "128", "--bounces", "1"]
@@ -128,8 +140,8 @@ BAKE = ["bake", "--directions", "128", "--resolution", "128", "--bounces", "1"]
 
 def test_ctrl_c_during_a_bake_prints_no_stray_exception_and_leaves_no_half_file(tmp_path):
     cache = tmp_path / "cache"
-    process = _command(*BAKE, "--cache-dir", str(cache), "--out", str(tmp_path / "out"))
-    err = _signal_during_cache_write(process, signal.SIGINT)
+    process = _held_command(tmp_path, *BAKE, "--cache-dir", str(cache), "--out", str(tmp_path / "out"))
+    err = _signal_inside_the_cache_write(process, signal.SIGINT)
     assert process.returncode == 1, err
     assert "visibake: cancelled" in err
     assert "Exception ignored" not in err and "Traceback" not in err, err
@@ -138,8 +150,8 @@ def test_ctrl_c_during_a_bake_prints_no_stray_exception_and_leaves_no_half_file(
 
 def test_a_bake_killed_while_writing_its_table_leaves_nothing_the_next_bake_keeps(tmp_path):
     cache = tmp_path / "cache"
-    process = _command(*BAKE, "--cache-dir", str(cache))
-    _signal_during_cache_write(process, signal.SIGKILL)
+    process = _held_command(tmp_path, *BAKE, "--cache-dir", str(cache))
+    _signal_inside_the_cache_write(process, signal.SIGKILL)
     assert process.returncode == -signal.SIGKILL
     report = tmp_path / "report.json"
     after = _command(*BAKE, "--cache-dir", str(cache), "--report", str(report))
@@ -147,5 +159,4 @@ def test_a_bake_killed_while_writing_its_table_leaves_nothing_the_next_bake_keep
     assert after.wait(timeout=300) == 0, err
     left = [name for _, _, files in os.walk(cache) for name in files if name.startswith(".writing-")]
     assert left == []
-    counted = json.loads(report.read_text())["cache"]["abandoned_writes_removed"]
-    assert counted in (0, 1)  # 1 when the kill landed inside the write, as it usually does
+    assert json.loads(report.read_text())["cache"]["abandoned_writes_removed"] == 1

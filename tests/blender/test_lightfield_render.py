@@ -18,14 +18,12 @@ import importlib
 import numpy as np
 import pytest
 
+from blender_support import gpu_runtime_or_skip
+
 
 @pytest.fixture(scope="module")
 def lf(visibake):
-    runtime = importlib.import_module(f"{visibake.__name__}.gpu_shaders.runtime")
-    try:
-        info = runtime.device_info()
-    except runtime.GPUUnavailable as error:
-        pytest.skip(f"no GPU context on this machine: {error}")
+    _, info = gpu_runtime_or_skip(visibake)
     print(f"\nGPU: {info.backend}, {info.renderer}")
 
     class Modules:

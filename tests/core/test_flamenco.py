@@ -3,10 +3,7 @@
 step, each step after the parts before it, and a last check. The same list is executed end to
 end in tests/blender/test_cli_cluster.py."""
 import pytest
-
-pytest.importorskip("dukpy", reason="dukpy (requirements.txt) compiles the job type")
-
-from flamenco_support import compile_job  # noqa: E402
+from flamenco_support import compile_job
 
 SETTINGS = {"blendfile": "/farm/shots/room.blend", "job_folder": "/farm/jobs/visibake/room-1",
             "output_folder": "/farm/out/room", "parts": 3, "steps": 4, "bake_args": " --directions 256  --bounces 3 "}
