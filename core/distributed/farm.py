@@ -91,14 +91,14 @@ def _write_pending(folder: str, state: dict) -> None:
 
 def read_pending(folder: str) -> dict:
     """The job folder's state: {"call": n} (parts to run), {"done": true}, or {} (not started)."""
+    path = os.path.join(folder, PENDING_NAME)
     try:
-        with open(os.path.join(folder, PENDING_NAME), encoding="utf-8") as stream:
+        with open(path, encoding="utf-8") as stream:
             state = json.load(stream)
     except FileNotFoundError:
         return {}
     except (OSError, ValueError) as error:
-        raise BakeRefused(f"the farm job folder {folder} cannot be read ({error})") from None
-    path = os.path.join(folder, PENDING_NAME)
+        raise BakeRefused(f"the farm job's {path} cannot be read ({error})") from None
     if type(state) is not dict:
         raise BakeRefused(f"the farm job is damaged: {path} is not an object")
     # What the steps wrote: {"call": n} or {"done": true}; anything else is a damaged file.
