@@ -197,6 +197,11 @@ def read_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium, np.n
     if not isinstance(grid, vdb.FloatGrid):
         raise VolumeRefused(f"volume {obj.name!r}: its {density_name!r} grid holds {type(grid).__name__} values, "
                             "not floats")
+    expected_voxels = info.get("file_voxel_count")
+    if isinstance(expected_voxels, int) and grid.activeVoxelCount() != expected_voxels:
+        # A file cut after its grid's header reads as a grid with fewer voxels, or none.
+        raise damaged(RuntimeError(f"{grid.activeVoxelCount():,} voxels read of the {expected_voxels:,} it "
+                                   "says it holds"))
     dense = np.zeros(shape, np.float32)
     try:
         grid.copyToArray(dense, ijk=tuple(int(v) for v in low))
