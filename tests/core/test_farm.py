@@ -22,8 +22,11 @@ def run_farm(folder, scene, settings, parts):
             result = bake(scene, settings, split=farm.FarmRows(folder, parts))
         except farm.PartsPending as pending:
             assert farm.read_pending(str(folder)) == {"call": pending.call}
-            for index in range(parts + 1):  # one part more than the ranges: it has nothing to do
+            for index in range(parts):
                 farm.run_part(str(folder), index)
+            # A part the job does not have (a job type submitted with other --parts) is refused.
+            with pytest.raises(BakeRefused, match=f"--part {parts}: the farm job in .* has parts 0 to {parts - 1}"):
+                farm.run_part(str(folder), parts)
             continue
         farm.mark_done(str(folder))
         return result, steps
