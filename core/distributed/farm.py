@@ -26,6 +26,7 @@ written by another VisiBake.
 """
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import tempfile
@@ -43,9 +44,6 @@ PACKAGE_NAME = "package.vbpkg"
 PENDING_NAME = "pending.json"
 TABLE_FIELDS = ("directions", "vertex_cells", "rays_cast", "rays_below_horizon", "backface_hits",
                 "backface_per_sample", "traced_per_sample")
-# The tasks a call file may name (core.distributed.row_tasks).
-TASKS = frozenset(("table_stats", "table", "gather_rows", "normalisation", "exposed_share", "ambient_occlusion",
-                   "close_entries", "shadow_fractions", "direct_light"))
 ENTRY_FIELDS = ("samples", "above_words", "word_base", "hit_object", "hit_uv_code", "hit_distance_code")
 
 
@@ -168,17 +166,18 @@ def _read_call(path: str) -> dict:
     from . import row_tasks
 
     asked = _read_job_file(path, ("task", "parts", "ranges", "per_range", "shared"))
-    task, ranges, per_range = asked["task"], asked["ranges"], asked["per_range"]
-    if type(asked["parts"]) is not int or not 1 <= len(ranges) <= asked["parts"]:
-        raise BakeRefused(f"the farm job is damaged: {path} has {len(ranges)} ranges for {asked['parts']!r} parts")
-    if type(task) is not str or task not in TASKS or not callable(getattr(row_tasks, task, None)):
+    task, parts, ranges, per_range = asked["task"], asked["parts"], asked["ranges"], asked["per_range"]
+    function = getattr(row_tasks, task, None) if type(task) is str else None
+    # Only a function of row_tasks itself, not a name it imported.
+    if not (inspect.isfunction(function) and function.__module__ == row_tasks.__name__):
         raise BakeRefused(f"the farm job is damaged: {path} asks for an unknown task {task!r}")
-    if (type(ranges) is not list or type(per_range) is not list or len(per_range) != len(ranges)
-            or type(asked["shared"]) is not list
+    if (type(parts) is not int or type(ranges) is not list or type(per_range) is not list
+            or type(asked["shared"]) is not list or not 1 <= len(ranges) <= parts or len(per_range) != len(ranges)
             or not all(type(r) is list and len(r) == 2 and all(type(n) is int for n in r) and 0 <= r[0] <= r[1]
                        for r in ranges)
             or not all(type(own) is list for own in per_range)):
-        raise BakeRefused(f"the farm job is damaged: {path} does not hold ranges of rows and their arguments")
+        raise BakeRefused(f"the farm job is damaged: {path} does not hold {parts!r} parts' ranges of rows and "
+                          "their arguments")
     return asked
 
 

@@ -73,3 +73,22 @@ def test_a_part_run_again_and_a_folder_of_another_bake(tmp_path):
     part.write_bytes(bytes(data))
     with pytest.raises(BakeRefused, match="damaged|changed"):
         bake(scene, settings, split=farm.FarmRows(tmp_path, 2))
+
+
+@pytest.mark.parametrize("call, said", [
+    ({"task": "np", "parts": 2, "ranges": [[0, 4], [4, 8]], "per_range": [[], []], "shared": []}, "unknown task 'np'"),
+    ({"task": "table_stats", "parts": 1, "ranges": [[0, 4], [4, 8]], "per_range": [[], []], "shared": []},
+     "does not hold 1 parts' ranges"),
+    ({"task": "table_stats", "parts": 2, "ranges": 7, "per_range": [[], []], "shared": []}, "ranges of rows"),
+    ({"task": "table_stats", "parts": 2, "ranges": [[0, 4], [4, 8]], "per_range": [[]], "shared": []},
+     "ranges of rows"),
+    ({"task": "table_stats", "ranges": [[0, 4]], "per_range": [[]], "shared": []}, "lacks parts"),
+])
+def test_a_call_file_of_another_shape_is_refused_naming_it(tmp_path, call, said):
+    from core.distributed.package import write_values
+
+    (tmp_path / "calls" / "0000").mkdir(parents=True)
+    write_values(tmp_path / "calls" / "0000" / "call.vbv", call)
+    (tmp_path / "pending.json").write_text(json.dumps({"call": 0}))
+    with pytest.raises(BakeRefused, match=f"{tmp_path / 'calls' / '0000' / 'call.vbv'}.*{said}"):
+        farm.run_part(str(tmp_path), 0)
