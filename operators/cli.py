@@ -140,7 +140,8 @@ def _cluster_options(sub) -> None:
     """Where the bake's table is traced and read, by ranges of sample rows (docs/scaleout.md)."""
     group = sub.add_argument_group("on a Dask cluster (the images are the same bits as in one process)")
     group.add_argument("--workers", type=int, metavar="N",
-                       help="start a local cluster of N worker processes (all cores without the GIL)")
+                       help="start a local cluster of N worker processes (all cores without the GIL; at most 2 "
+                            "per core)")
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="join the Dask scheduler at tcp://HOST:PORT (this machine only) or tls://HOST:PORT")
     group.add_argument("--parts", type=int, metavar="P", help="parts to split the work into: ranges of texels "

@@ -80,6 +80,26 @@ def check_scheduler_address(address: str, tls: TLSFiles | None = None, insecure:
     return address
 
 
+# A local worker is one process of one thread: past one per core they only contend for the
+# cores, each with its own copy of numpy, embree and its ranges' tables (--workers 1000 on two
+# cores started 760 processes and a load of 390). Twice the cores leaves room for a worker
+# waiting on its scheduler or disk.
+WORKERS_PER_CORE = 2
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity where the system tells it)."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def max_local_workers() -> int:
+    """The most worker processes ``workers=N`` starts on this machine."""
+    return WORKERS_PER_CORE * usable_cores()
+
+
 @dataclass(frozen=True)
 class ClusterOptions:
     """Where a split bake runs: a new local cluster of ``workers`` processes, or the existing
@@ -98,6 +118,11 @@ class ClusterOptions:
             raise ClusterRefused("give either --workers N (a local cluster) or --scheduler ADDRESS, not both")
         if self.workers is not None and self.workers < 1:
             raise ClusterRefused(f"--workers {self.workers}: give at least 1 worker process")
+        if self.workers is not None and self.workers > max_local_workers():
+            raise ClusterRefused(
+                f"--workers {self.workers}: at most {max_local_workers()} on this machine ({usable_cores()} cores, "
+                f"{WORKERS_PER_CORE} worker processes per core); more only share the same cores, each with its "
+                "own memory")
         if self.parts is not None and self.parts < 1:
             raise ClusterRefused(f"--parts {self.parts}: give at least 1 row range")
         if self.scheduler is not None:
@@ -140,6 +165,8 @@ def worker_environment() -> dict:
 
 
 PRELOAD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "worker_preload.py")
+# Each process of a local cluster is started through this, so that it dies with this process.
+DIE_WITH_PARENT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "die_with_parent.py")
 # How long a local cluster may take to start (a worker imports numpy, embree and the kernels).
 START_SECONDS = 120
 
@@ -173,8 +200,8 @@ class LocalProcesses:
     def _start(self, name: str, arguments: list[str]) -> None:
         log = open(os.path.join(self.folder, f"{name}.log"), "wb")  # noqa: SIM115 (closed in close())
         self.logs.append(log)
-        self.processes.append(subprocess.Popen([sys.executable, "-m", *arguments], stdout=log,
-                                               stderr=subprocess.STDOUT, env=self.environment))
+        self.processes.append(subprocess.Popen([sys.executable, DIE_WITH_PARENT, str(os.getpid()), *arguments],
+                                               stdout=log, stderr=subprocess.STDOUT, env=self.environment))
 
     def log_tail(self, lines: int = 20) -> str:
         """The last lines each process wrote (what to show when the cluster fails to start)."""

@@ -26,6 +26,7 @@ written by another VisiBake.
 """
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import tempfile
@@ -88,15 +89,21 @@ def _write_pending(folder: str, state: dict) -> None:
 
 def read_pending(folder: str) -> dict:
     """The job folder's state: {"call": n} (parts to run), {"done": true}, or {} (not started)."""
+    path = os.path.join(folder, PENDING_NAME)
     try:
-        with open(os.path.join(folder, PENDING_NAME), encoding="utf-8") as stream:
+        with open(path, encoding="utf-8") as stream:
             state = json.load(stream)
     except FileNotFoundError:
         return {}
     except (OSError, ValueError) as error:
-        raise BakeRefused(f"the farm job folder {folder} cannot be read ({error})") from None
+        raise BakeRefused(f"the farm job's {path} cannot be read ({error})") from None
     if type(state) is not dict:
-        raise BakeRefused(f"the farm job folder {folder} is damaged: {PENDING_NAME} is not an object")
+        raise BakeRefused(f"the farm job is damaged: {path} is not an object")
+    # What the steps wrote: {"call": n} or {"done": true}; anything else is a damaged file.
+    call = state.get("call")
+    if not (state == {"done": True} or (state.keys() == {"call"} and type(call) is int and call >= 0)):
+        raise BakeRefused(f"the farm job is damaged: {path} holds {json.dumps(state)[:200]}, not "
+                          '{"call": N} (N >= 0) or {"done": true}; submit the job again with a new job folder')
     return state
 
 
@@ -131,16 +138,47 @@ class FarmRows:
         if all(os.path.exists(path) for path in paths):
             results = []
             for number, path in enumerate(paths):
-                results.append(read_values(path)["result"])
+                results.append(_read_job_file(path, ("result",))["result"])
                 if progress is not None:
                     progress((number + 1) / len(paths))
             return results
         os.makedirs(_call_folder(self.folder, call), exist_ok=True)
         write_values(os.path.join(_call_folder(self.folder, call), "call.vbv"),
-                     {"task": task, "ranges": [[r.start, r.stop] for r in self.ranges],
+                     {"task": task, "parts": self.parts, "ranges": [[r.start, r.stop] for r in self.ranges],
                       "per_range": [list(own) for own in per_range], "shared": list(shared)})
         _write_pending(self.folder, {"call": call})
         raise PartsPending(call, self.folder)
+
+
+def _read_job_file(path: str, keys: tuple[str, ...]) -> dict:
+    """The values of the job folder's file ``path``, which must hold ``keys``; BakeRefused
+    (core.distributed.package.PackageRefused) naming the file where it is damaged."""
+    values = read_values(path)
+    missing = [key for key in keys if key not in values]
+    if missing:
+        raise BakeRefused(f"the farm job is damaged: {path} lacks {', '.join(missing)}")
+    return values
+
+
+def _read_call(path: str) -> dict:
+    """The call file ``path`` (its task, ranges and arguments), its shape checked: a task of
+    core.distributed.row_tasks, ranges of row numbers and one argument tuple per range."""
+    from . import row_tasks
+
+    asked = _read_job_file(path, ("task", "parts", "ranges", "per_range", "shared"))
+    task, parts, ranges, per_range = asked["task"], asked["parts"], asked["ranges"], asked["per_range"]
+    function = getattr(row_tasks, task, None) if type(task) is str else None
+    # Only a function of row_tasks itself, not a name it imported.
+    if not (inspect.isfunction(function) and function.__module__ == row_tasks.__name__):
+        raise BakeRefused(f"the farm job is damaged: {path} asks for an unknown task {task!r}")
+    if (type(parts) is not int or type(ranges) is not list or type(per_range) is not list
+            or type(asked["shared"]) is not list or not 1 <= len(ranges) <= parts or len(per_range) != len(ranges)
+            or not all(type(r) is list and len(r) == 2 and all(type(n) is int for n in r) and 0 <= r[0] <= r[1]
+                       for r in ranges)
+            or not all(type(own) is list for own in per_range)):
+        raise BakeRefused(f"the farm job is damaged: {path} does not hold {parts!r} parts' ranges of rows and "
+                          "their arguments")
+    return asked
 
 
 def _save_rows(path: str, checksum: str, kept: KeptRows) -> None:
@@ -154,7 +192,7 @@ def _save_rows(path: str, checksum: str, kept: KeptRows) -> None:
 def _load_rows(path: str, checksum: str, start: int, stop: int) -> KeptRows | None:
     if not os.path.exists(path):
         return None
-    values = read_values(path)
+    values = _read_job_file(path, ("package", "start", "stop", "samples", "table", "scale", "frame_normal", "group"))
     if values["package"] != checksum or (values["start"], values["stop"]) != (start, stop):
         return None  # another bake's rows: traced again
     table = dict(values["table"])
@@ -167,7 +205,8 @@ def run_part(folder: str, index: int, threads: int = 0) -> str:
     """Answer range ``index`` of the job folder's pending call (a part command's work): trace
     and keep the range's table the first time, then run the call's task on it. Returns what
     was done, in words; nothing when the bake is done, the range does not exist (fewer
-    samples than parts) or its result is already there (a task run again)."""
+    samples than parts) or its result is already there (a task run again). BakeRefused for a
+    part beyond the job's parts, or a damaged file of the job folder (naming it)."""
     from . import row_tasks
     from .rows import packaged_bake
 
@@ -177,13 +216,16 @@ def run_part(folder: str, index: int, threads: int = 0) -> str:
         return "nothing to do: the bake is finished"
     if "call" not in state:
         return "nothing to do: the driver has not asked for anything yet"
-    call = int(state["call"])
+    call = state["call"]
     result_path = _part_path(folder, call, index)
+    asked = _read_call(os.path.join(_call_folder(folder, call), "call.vbv"))
+    if index >= asked["parts"]:
+        raise BakeRefused(f"--part {index}: the farm job in {folder} has parts 0 to {asked['parts'] - 1}")
+    if index >= len(asked["ranges"]):
+        # Fewer sample rows than parts: this part's task has nothing to do.
+        return f"call {call}: part {index} has no rows (the bake has {len(asked['ranges'])} ranges)"
     if os.path.exists(result_path):
         return f"call {call}, part {index}: already answered"
-    asked = read_values(os.path.join(_call_folder(folder, call), "call.vbv"))
-    if index >= len(asked["ranges"]):
-        return f"call {call}: part {index} has no rows (the bake has {len(asked['ranges'])} ranges)"
     start, stop = asked["ranges"][index]
     package_path = os.path.join(folder, PACKAGE_NAME)
     with blas_on_one_thread():

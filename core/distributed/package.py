@@ -77,6 +77,7 @@ import math
 import os
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, fields
 from datetime import datetime, timezone
 
@@ -114,6 +115,14 @@ _DIGEST_BYTES = 32
 _READ_CHUNK = 1 << 20
 # Room for a .npy header: an entry that may pass 2 GiB with it needs ZIP64 from its start.
 _NPY_HEADER_ROOM = 1 << 16
+
+
+# What zipfile raises for a damaged archive besides BadZipFile: a flipped byte in a header
+# names an unknown compression method, version or flag (NotImplementedError), or the
+# encryption flag (RuntimeError: a password is needed); in deflated data it breaks the stream
+# (zlib.error); a cut file ends early (EOFError).
+DAMAGED_ARCHIVE_ERRORS = (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, zlib.error, NotImplementedError,
+                    RuntimeError)
 
 
 class PackageRefused(BakeRefused):
@@ -326,6 +335,8 @@ def _read(path) -> tuple:
         raise PackageRefused(f"{where} is not a VisiBake scene package (not a ZIP archive)") from None
     except OSError as error:
         raise PackageRefused(f"cannot read the scene package {where}: {error.strerror or error}") from None
+    except (*DAMAGED_ARCHIVE_ERRORS, ValueError) as error:
+        raise PackageRefused(f"{where} is damaged: its ZIP directory cannot be read ({error})") from None
     with archive:
         manifest = _read_manifest(archive, where)
         arrays = _read_arrays(archive, manifest["arrays"], where)
@@ -347,7 +358,7 @@ def _read_manifest(archive: zipfile.ZipFile, where: str) -> dict:
         text = archive.read(MANIFEST_NAME)
     except KeyError:
         raise PackageRefused(f"{where} is not a VisiBake scene package (no {MANIFEST_NAME} in it)") from None
-    except (zipfile.BadZipFile, OSError, EOFError) as error:
+    except DAMAGED_ARCHIVE_ERRORS as error:
         raise PackageRefused(f"{where} is damaged: its {MANIFEST_NAME} cannot be read ({error})") from None
     try:
         manifest = json.loads(text.decode("ascii"), parse_constant=_refuse_constant)
@@ -419,8 +430,8 @@ def _read_array(archive: zipfile.ZipFile, index: int, entry: dict, where: str) -
             raise PackageRefused(f"{where} is damaged or was changed: {name} does not match its blake2b digest")
         with archive.open(name) as stream:
             array = np.load(stream, allow_pickle=False)
-    except (zipfile.BadZipFile, OSError, EOFError) as error:
-        # The archive's own CRC-32 check, or a truncated file.
+    except DAMAGED_ARCHIVE_ERRORS as error:
+        # The archive's own CRC-32 check, a truncated file, a damaged header or stream.
         raise PackageRefused(f"{where} is damaged: {name} cannot be read ({error})") from None
     except ValueError as error:
         raise PackageRefused(f"{where} is damaged: {name} is not an array numpy reads without pickle ({error})") \

@@ -47,7 +47,7 @@ from ..transport.gather import AtlasLayout, gather_normalisation, open_hemispher
 from ..visibility.directions import direction_set
 from ..visibility.rays import RayScene
 from ..visibility.table import TraceRequest, VisibilityTable, frame_vectors, trace_table
-from .package import MANIFEST_NAME, read_package
+from .package import DAMAGED_ARCHIVE_ERRORS, MANIFEST_NAME, read_package
 
 # checksum -> PackagedBake: one entry per bake this worker process takes part in.
 _bakes: dict[str, PackagedBake] = {}
@@ -274,9 +274,10 @@ def _claimed_checksum(package: str | bytes) -> str | None:
     only finds a preparation this process made from a package it verified in full."""
     try:
         with zipfile.ZipFile(io.BytesIO(package) if isinstance(package, bytes) else package) as archive:
-            return json.loads(archive.read(MANIFEST_NAME)).get("checksum")
-    except (OSError, zipfile.BadZipFile, KeyError, ValueError):
-        return None
+            manifest = json.loads(archive.read(MANIFEST_NAME))
+    except (*DAMAGED_ARCHIVE_ERRORS, KeyError, ValueError):
+        return None  # read_package says what is wrong with it
+    return manifest.get("checksum") if type(manifest) is dict else None
 
 
 def packaged_bake(package: str | bytes, threads: int = 0) -> tuple[str, PackagedBake]:

@@ -20,7 +20,11 @@ toolkit's ``toolkit/utils/file_io.py`` and ``scenes/base_scene.py``, the Blender
   truth's size over the views' (10 in the dataset).
 - ``gt_disp_lowres.pfm``, ``gt_depth_lowres.pfm``: the centre view's disparity (pixels) and depth
   (metres along the optical axis) at the views' resolution. HCI renders them ``depth_map_scale``
-  times larger (the ``*_highres.pfm`` files) and takes each tile's median for ``lowres``.
+  times larger (the ``*_highres.pfm`` files) and takes each tile's median for ``lowres``. Where
+  the view sees no surface (the world), the depth is the camera's far clip distance and the
+  disparity the one of that depth: HCI's scenes have a surface in every pixel and its tools
+  expect finite maps, so neither file holds an infinity (nothing nearer than the far clip is
+  there, as a depth buffer says).
 - PFM: ``Pf`` (1 channel) or ``PF`` (3), ``width height``, a scale whose sign is the byte order
   (negative: little-endian; the tools write ``-1``), then float32 rows from the bottom row up. Their
   ``read_pfm`` flips the rows back (``np.flipud``) and multiplies by ``abs(scale)``, as ours does.
@@ -250,14 +254,23 @@ def read_pfm(path: str) -> np.ndarray:
     return data
 
 
-def write_ground_truth(folder: str, depth_m, camera: CentreCamera, grid: LightFieldGrid) -> tuple[float, float]:
+def write_ground_truth(folder: str, depth_m, camera: CentreCamera, grid: LightFieldGrid, *,
+                       far_m: float) -> tuple[float, float]:
     """Write the centre view's ``gt_depth_lowres.pfm`` (depth ``(res_y, res_x)`` metres along the optical
     axis, top row first; inf where no surface) and the ``gt_disp_lowres.pfm`` computed from it. Returns
-    :func:`disparity_range` of the disparity, for ``parameters.cfg``."""
+    :func:`disparity_range` of the disparity, for ``parameters.cfg``.
+
+    far_m : the camera's far clip distance (metres), written where no surface is seen (the sky):
+        both files hold finite values only, as HCI's tools expect (its scenes have no sky)."""
     depth = np.asarray(depth_m, dtype=np.float64)
     expected = (camera.resolution_y_px, camera.resolution_x_px)
     if depth.shape != expected:
         raise ValueError(f"depth_m must have the views' shape {expected} (rows, columns), got {depth.shape}")
+    if not (math.isfinite(far_m) and far_m > 0):
+        raise ValueError(f"far_m must be a positive finite distance, got {far_m}")
+    depth = np.where(depth == np.inf, far_m, depth)
+    if not np.all(np.isfinite(depth)):
+        raise ValueError("depth_m holds NaN or -inf (a renderer's bug)")
     disparity = depth_to_disparity(depth, camera, grid)
     write_pfm(os.path.join(folder, DEPTH_FILE), depth)
     write_pfm(os.path.join(folder, DISPARITY_FILE), disparity)

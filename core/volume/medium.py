@@ -80,6 +80,22 @@ def check_grid_shape(name: str, shape) -> tuple[int, int, int]:
     return sides
 
 
+def check_density_values(name: str, density: np.ndarray) -> None:
+    """VolumeRefused where the density grid ``density`` (any shape, real) of volume ``name``
+    holds NaN, infinite or negative voxels, with how many.
+
+    A reader checks the grid as the file holds it, before any resampling: averaged with its
+    neighbours, a negative voxel would vanish at one resolution and be refused at another."""
+    bad = ~np.isfinite(density)
+    if bad.any():
+        raise VolumeRefused(f"volume {name!r}: {int(bad.sum()):,} of its density voxels are NaN or infinite; "
+                            "fix the grid (or its simulation cache) and bake again")
+    negative = density < 0
+    if negative.any():
+        raise VolumeRefused(f"volume {name!r}: {int(negative.sum()):,} of its density voxels are negative "
+                            f"(lowest {float(density.min()):g}); densities must be >= 0")
+
+
 def make_medium(name: str, density, index_to_world, extinction: float = 1.0, albedo=(1.0, 1.0, 1.0),
                 emission=None) -> Medium:
     """Check a medium's grids and settings and return it as a :class:`Medium`.
@@ -96,14 +112,7 @@ def make_medium(name: str, density, index_to_world, extinction: float = 1.0, alb
         raise VolumeRefused(f"volume {name!r}: its density grid has {density.ndim} dimensions, not 3")
     check_grid_shape(name, density.shape)
     density = np.ascontiguousarray(density, np.float32)
-    bad = ~np.isfinite(density)
-    if bad.any():
-        raise VolumeRefused(f"volume {name!r}: {int(bad.sum()):,} of its density voxels are NaN or infinite; "
-                            "fix the grid (or its simulation cache) and bake again")
-    negative = density < 0
-    if negative.any():
-        raise VolumeRefused(f"volume {name!r}: {int(negative.sum()):,} of its density voxels are negative "
-                            f"(lowest {float(density.min()):g}); densities must be >= 0")
+    check_density_values(name, density)
     matrix = np.asarray(index_to_world, np.float64)
     if matrix.shape == (3, 4):
         matrix = np.vstack([matrix, [0.0, 0.0, 0.0, 1.0]])

@@ -419,6 +419,7 @@ def read_world(scene: bpy.types.Scene, warnings: list[str]) -> World:
     if all(note in _EXACT_WORLD_NOTES for note in notes):
         warnings.extend(notes)
         return _with_sun_lamp(result)
+    warn_non_finite_world_images(world.node_tree, warnings)
     try:
         image = world_capture.capture_world(scene)
     except world_capture.CaptureFailed as error:
@@ -496,6 +497,37 @@ def _read_world_nodes(world: bpy.types.World, warnings: list[str]) -> World:
     return _environment_world(source, strength, warnings)
 
 
+def _non_finite_texel_note(image: bpy.types.Image, pixels: np.ndarray) -> str | None:
+    """The warning for an image whose texels (pixels (h, w, 3)) include NaN or infinite
+    ones, or None: the world's light leaves them out (core.lights.environment sets them to 0)."""
+    bad = int(np.count_nonzero(~np.all(np.isfinite(pixels), axis=-1)))
+    if not bad:
+        return None
+    return (f"world: image {image.name!r} has {bad:,} texel{'s' if bad > 1 else ''} that {'are' if bad > 1 else 'is'} "
+            "infinite or NaN; they light nothing (replace them with finite values to keep their light)")
+
+
+def warn_non_finite_world_images(tree, warnings: list[str], seen: set | None = None) -> None:
+    """A warning for each image of the world ``tree`` (or a node group in it) with NaN or
+    infinite texels: the capture through Cycles leaves out the pixels they reach."""
+    seen = set() if seen is None else seen
+    if tree is None or ("tree", tree.name_full) in seen:
+        return
+    seen.add(("tree", tree.name_full))
+    for node in tree.nodes:
+        if getattr(node, "node_tree", None) is not None:
+            warn_non_finite_world_images(node.node_tree, warnings, seen)
+        image = getattr(node, "image", None) if node.bl_idname in ("ShaderNodeTexEnvironment",
+                                                                   "ShaderNodeTexImage") else None
+        if image is None or ("image", image.name_full) in seen or not image.is_float:
+            continue  # a byte image holds finite values only
+        seen.add(("image", image.name_full))
+        pixels = _image_pixels(image)
+        note = _non_finite_texel_note(image, pixels) if pixels is not None else None
+        if note:
+            warnings.append(note)
+
+
 def _environment_world(node, strength: float, warnings: list[str]) -> World:
     """World from an Environment Texture node feeding the Background colour."""
     image = node.image
@@ -504,6 +536,9 @@ def _environment_world(node, strength: float, warnings: list[str]) -> World:
         # Cycles shows a missing image as magenta; lighting a bake with that helps nobody.
         warnings.append(_NO_IMAGE_NOTE)
         return World()
+    note = _non_finite_texel_note(image, pixels)
+    if note:
+        warnings.append(note)
     pixels = pixels * np.float32(strength)
     if node.projection != "EQUIRECTANGULAR":
         warnings.append(f"world: {node.projection.replace('_', ' ').lower()} environment images are not "

@@ -31,7 +31,7 @@ from ...core.lightfield.scene import DrawMesh, DrawScene
 from ...core.outputs.atomic import atomic_file
 from ...core.outputs.images import write_exr
 from ...core.outputs.ownership import StagedWrites, record_files, refuse_foreign
-from . import extract, layout, writeback
+from . import compat, extract, layout, writeback
 from .modal import SteppedJob
 
 MANIFEST = "lightfield.json"
@@ -222,6 +222,8 @@ def _world(scene, warnings: list[str]) -> np.ndarray:
         return np.zeros((1, 1, 3), np.float32)
     from . import world_capture
 
+    if compat.uses_nodes(scene.world):
+        extract.warn_non_finite_world_images(scene.world.node_tree, warnings)
     try:
         return np.asarray(world_capture.capture_world(scene), np.float32)
     except world_capture.CaptureFailed as error:
@@ -501,7 +503,8 @@ class LightFieldJob(SteppedJob):
         for name in (hci.DEPTH_FILE, hci.DISPARITY_FILE, hci.PARAMETERS_FILE):
             self.written.append(os.path.join(self.out_dir, name))
             self.staged.claim(os.path.join(self.out_dir, name))  # written whole by core.outputs.atomic
-        disp_min, disp_max = hci.write_ground_truth(self.out_dir, self.centre_depth, self.camera, self.grid)
+        disp_min, disp_max = hci.write_ground_truth(self.out_dir, self.centre_depth, self.camera, self.grid,
+                                                    far_m=self.clip[1])
         hci.write_parameters(os.path.join(self.out_dir, hci.PARAMETERS_FILE), self.camera, self.grid,
                              disp_min=disp_min, disp_max=disp_max,
                              scene=bpy.path.clean_name(self.scene.name), category="visibake")

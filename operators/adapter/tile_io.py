@@ -99,6 +99,19 @@ def micro_material(material, warnings: list[str]) -> tuple[np.ndarray, float, fl
     return albedo, specular, roughness, transmission
 
 
+def _refuse_non_finite(object_name: str, material_name: str, albedo: np.ndarray, specular: float, roughness: float,
+                       transmission: float) -> None:
+    """AppearanceRefused naming the object and material whose micro-BRDF (micro_material's
+    values) is not finite: a NaN would run through the whole simulation to its end."""
+    values = {"base colour": albedo, "specular (from IOR and Specular IOR Level)": specular,
+              "roughness": roughness, "transmission weight": transmission}
+    bad = [name for name, value in values.items() if not np.all(np.isfinite(value))]
+    if bad:
+        raise AppearanceRefused(f"tile object {object_name!r}, material {material_name or '(none)'!r}: its "
+                                f"{', '.join(bad)} {'is' if len(bad) == 1 else 'are'} not a finite number "
+                                "(NaN or infinite); set a number and simulate again")
+
+
 def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Tile:
     """The tile ``name`` (an object or a collection) in world space as a core Tile.
 
@@ -146,6 +159,7 @@ def read_tile(scene: bpy.types.Scene, name: str, period=None, phong=None) -> Til
                 key = chosen.name if chosen is not None else ""
                 if key not in materials:
                     materials[key] = (len(materials), *micro_material(chosen, warnings))
+                    _refuse_non_finite(obj.name, key, *materials[key][1:])
                 index, rgb, weight, rough, passed = materials[key]
                 rows = slots == slot
                 albedo.append(np.tile(rgb, (int(rows.sum()), 1)))

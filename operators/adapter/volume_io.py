@@ -16,7 +16,7 @@ import bpy
 import numpy as np
 
 from ...core.errors import VolumeRefused
-from ...core.volume.medium import Medium, check_grid_shape, make_medium
+from ...core.volume.medium import Medium, check_density_values, check_grid_shape, make_medium
 from ...core.volume.voxelise import fitted_grid, inside_fraction
 from . import compat, extract
 
@@ -184,12 +184,31 @@ def read_medium(obj, resolution: int, warnings: list[str]) -> tuple[Medium, np.n
         raise VolumeRefused(f"volume {obj.name!r}: its {density_name!r} grid is empty; there is nothing to light")
     low = np.array(info["file_bbox_min"], np.int64)
     shape = check_grid_shape(obj.name, np.array(info["file_bbox_max"], np.int64) - low + 1)
-    grid = vdb.read(path, density_name)
+    def damaged(error: Exception) -> VolumeRefused:
+        # A truncated or damaged file: its metadata read, its voxels do not ("Stream failure
+        # reading the size of a blosc chunk").
+        return VolumeRefused(f"volume {obj.name!r}: the {density_name!r} grid of {path} cannot be read; the file "
+                             f"is damaged or cut short ({str(error).strip() or type(error).__name__})")
+
+    try:
+        grid = vdb.read(path, density_name)
+    except (RuntimeError, OSError, ValueError) as error:
+        raise damaged(error) from None
     if not isinstance(grid, vdb.FloatGrid):
         raise VolumeRefused(f"volume {obj.name!r}: its {density_name!r} grid holds {type(grid).__name__} values, "
                             "not floats")
+    expected_voxels = info.get("file_voxel_count")
+    if isinstance(expected_voxels, int) and grid.activeVoxelCount() != expected_voxels:
+        # A file cut after its grid's header reads as a grid with fewer voxels, or none.
+        raise damaged(RuntimeError(f"{grid.activeVoxelCount():,} voxels read of the {expected_voxels:,} it "
+                                   "says it holds"))
     dense = np.zeros(shape, np.float32)
-    grid.copyToArray(dense, ijk=tuple(int(v) for v in low))
+    try:
+        grid.copyToArray(dense, ijk=tuple(int(v) for v in low))
+    except (RuntimeError, OSError, ValueError) as error:
+        raise damaged(error) from None
+    # The grid as the file holds it: the box average below would hide a negative voxel.
+    check_density_values(obj.name, dense)
     factor = max(1, -(-max(shape) // max(int(resolution), 1)))
     dense = _downsample(dense, factor)
     # Index t of the bake's grid is native index factor t + (factor - 1) / 2 + low.

@@ -126,14 +126,19 @@ def test_the_world_is_seen_where_no_surface_is(visibake, lf, tmp_path):
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     camera = bpy.data.objects["Camera"]
     camera.rotation_euler = (math.radians(90.0), 0.0, 0.0)  # looking along +Y, over the ground: half sky
+    far = camera.data.clip_end
     bpy.ops.wm.save_mainfile()
     out = tmp_path / "sky"
     assert visibake.cli.main(["lightfield", str(blend), "--out", str(out), "--views", "1x1", "--image-size", "32x32",
                               "--no-progress"]) == 0
     image = btf.read_exr_rgb(str(out / "input_Cam000.exr"))[::-1]
     assert np.allclose(image[2:12], 0.25, rtol=0.02)  # the upper half: the uniform world
-    depth = hci.read_light_field(str(out))["depth"]
-    assert np.all(np.isinf(depth[2:12]))
+    field = hci.read_light_field(str(out))
+    # Where no surface is seen, the far clip distance: finite, as HCI's tools expect (issue 51).
+    assert np.all(field["depth"][2:12] == np.float32(far))
+    assert np.all(np.isfinite(field["depth"])) and np.all(np.isfinite(field["disparity"]))
+    np.testing.assert_allclose(field["disparity"][2:12], hci.depth_to_disparity(
+        far, *hci.camera_and_grid(field["parameters"])), rtol=1e-5)
 
 
 def test_stanford_names_and_refusals(visibake, lf, tmp_path, capfd):

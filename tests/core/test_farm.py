@@ -22,8 +22,11 @@ def run_farm(folder, scene, settings, parts):
             result = bake(scene, settings, split=farm.FarmRows(folder, parts))
         except farm.PartsPending as pending:
             assert farm.read_pending(str(folder)) == {"call": pending.call}
-            for index in range(parts + 1):  # one part more than the ranges: it has nothing to do
+            for index in range(parts):
                 farm.run_part(str(folder), index)
+            # A part the job does not have (a job type submitted with other --parts) is refused.
+            with pytest.raises(BakeRefused, match=f"--part {parts}: the farm job in .* has parts 0 to {parts - 1}"):
+                farm.run_part(str(folder), parts)
             continue
         farm.mark_done(str(folder))
         return result, steps
@@ -70,3 +73,22 @@ def test_a_part_run_again_and_a_folder_of_another_bake(tmp_path):
     part.write_bytes(bytes(data))
     with pytest.raises(BakeRefused, match="damaged|changed"):
         bake(scene, settings, split=farm.FarmRows(tmp_path, 2))
+
+
+@pytest.mark.parametrize("call, said", [
+    ({"task": "np", "parts": 2, "ranges": [[0, 4], [4, 8]], "per_range": [[], []], "shared": []}, "unknown task 'np'"),
+    ({"task": "table_stats", "parts": 1, "ranges": [[0, 4], [4, 8]], "per_range": [[], []], "shared": []},
+     "does not hold 1 parts' ranges"),
+    ({"task": "table_stats", "parts": 2, "ranges": 7, "per_range": [[], []], "shared": []}, "ranges of rows"),
+    ({"task": "table_stats", "parts": 2, "ranges": [[0, 4], [4, 8]], "per_range": [[]], "shared": []},
+     "ranges of rows"),
+    ({"task": "table_stats", "ranges": [[0, 4]], "per_range": [[]], "shared": []}, "lacks parts"),
+])
+def test_a_call_file_of_another_shape_is_refused_naming_it(tmp_path, call, said):
+    from core.distributed.package import write_values
+
+    (tmp_path / "calls" / "0000").mkdir(parents=True)
+    write_values(tmp_path / "calls" / "0000" / "call.vbv", call)
+    (tmp_path / "pending.json").write_text(json.dumps({"call": 0}))
+    with pytest.raises(BakeRefused, match=f"{tmp_path / 'calls' / '0000' / 'call.vbv'}.*{said}"):
+        farm.run_part(str(tmp_path), 0)

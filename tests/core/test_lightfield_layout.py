@@ -289,7 +289,7 @@ def make_folder(folder, camera, grid, extensions=(".png", ".exr")):
             (folder / view_file_name(index, extension)).write_bytes(b"")
     depth = np.full((camera.resolution_y_px, camera.resolution_x_px), 4.0)
     depth[0, :] = 2.0  # a nearer top row: the disparity map keeps its orientation
-    disp_min, disp_max = write_ground_truth(str(folder), depth, camera, grid)
+    disp_min, disp_max = write_ground_truth(str(folder), depth, camera, grid, far_m=100.0)
     write_parameters(str(folder / PARAMETERS_FILE), camera, grid, disp_min=disp_min, disp_max=disp_max)
     return depth
 
@@ -306,6 +306,21 @@ def test_folder_round_trip(tmp_path):
     assert light_field["disparity"][0, 0] > light_field["disparity"][-1, 0]
     params = light_field["parameters"]
     assert disparity_range(light_field["disparity"]) == (params["disp_min"], params["disp_max"])
+
+
+def test_where_the_view_sees_the_sky_the_maps_hold_the_far_clip_not_infinity(tmp_path):
+    camera, grid = dino_camera((7, 5)), dino_grid(3, 3)
+    depth = np.full((5, 7), 4.0)
+    depth[:2, 3:] = np.inf  # the sky above the horizon
+    disp_min, _ = write_ground_truth(str(tmp_path), depth, camera, grid, far_m=50.0)
+    written = read_pfm(str(tmp_path / DEPTH_FILE))
+    disparity = read_pfm(str(tmp_path / DISPARITY_FILE))
+    assert np.all(np.isfinite(written)) and np.all(np.isfinite(disparity))
+    assert np.all(written[:2, 3:] == 50.0) and np.all(written[2:] == 4.0)
+    np.testing.assert_allclose(disparity[0, 3], depth_to_disparity(50.0, camera, grid), rtol=1e-6)
+    assert disp_min <= disparity.min()
+    with pytest.raises(ValueError, match="NaN"):
+        write_ground_truth(str(tmp_path), np.full((5, 7), np.nan), camera, grid, far_m=50.0)
 
 
 def test_folder_reader_refuses_missing_extra_and_misnamed_views(tmp_path):
@@ -378,6 +393,6 @@ def test_clip_and_ground_truth_validation(tmp_path):
     with pytest.raises(ValueError, match="clip_end_m .* must be greater than clip_start_m"):
         grid_views(camera, grid, clip_start_m=1.0, clip_end_m=1.0)
     with pytest.raises(ValueError, match=r"views' shape \(6, 8\)"):
-        write_ground_truth(str(tmp_path), np.ones((8, 6)), camera, grid)
+        write_ground_truth(str(tmp_path), np.ones((8, 6)), camera, grid, far_m=100.0)
     with pytest.raises(ValueError, match="extension"):
         view_file_name(0, ".jpg")
