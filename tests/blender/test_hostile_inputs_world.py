@@ -5,11 +5,10 @@ import json
 import bpy
 
 import numpy as np
+import OpenEXR  # pinned (requirements.txt): writes the test's HDR image
 import pytest
 
 from bpy_scenes import grid, material, mesh_object
-
-OpenEXR = pytest.importorskip("OpenEXR", reason="OpenEXR (requirements.txt) writes the test's HDR image")
 
 
 def sky_blend(tmp_path, bad_texels: int):

@@ -10,13 +10,12 @@ import time
 
 import bpy
 
+import distributed  # noqa: F401 - pinned (requirements.txt): a broken install fails, not skips
+import psutil  # a dependency of distributed: lists the processes
 import pytest
 
 from blender_support import REPO_ROOT, extension_module_name
 from bpy_scenes import black_world, cube, grid, material, mesh_object, sun
-
-pytest.importorskip("distributed", reason="the Dask engine (requirements.txt) is not installed")
-psutil = pytest.importorskip("psutil", reason="psutil (a dependency of distributed) lists the processes")
 
 
 @pytest.fixture
