@@ -65,8 +65,10 @@ class SkipRecorder:
         # Written here, not at unconfigure: tests/conftest.py ends a bpy session with
         # os._exit in its last pytest_unconfigure.
         bpy = sys.modules.get("bpy")
+        # The version as numbers: version_string adds " LTS" on the long-term releases (4.2.23 LTS).
+        version = getattr(getattr(bpy, "app", None), "version", None)
         report = {
-            "bpy": getattr(getattr(bpy, "app", None), "version_string", None),
+            "bpy": ".".join(map(str, version)) if version else None,
             "python": platform.python_version(),
             "ci": bool(os.environ.get("CI")),
             "exitstatus": int(exitstatus),
