@@ -23,6 +23,7 @@ from ..core.lights import setups as lighting_setups
 from ..core.outputs import summary as report_texts
 from ..core.outputs.atomic import remove_written
 from ..core.outputs.destinations import FILE, FOLDER, check_destinations
+from ..core.outputs.ownership import refuse_foreign
 from ..core.settings import (
     APPEARANCE_SETTINGS,
     LIGHTFIELD_SETTINGS,
@@ -498,6 +499,9 @@ def _check_destinations(args, out_dir: str | None) -> None:
         report_path = report_path or os.path.join(out_dir, "report.json")
     check_destinations([(out_dir, FOLDER, "--out"), (getattr(args, "save", None), FILE, "--save"),
                         (report_path, FILE, "--report")])
+    if args.command == "demo":
+        # Not named by the user: the one rule of core.outputs.ownership (an earlier demo's report lists both).
+        refuse_foreign([os.path.join(out_dir, "preview_render.png")] + ([] if args.report else [report_path]))
 
 
 def run_preview(args) -> int:
@@ -851,11 +855,13 @@ def run(args) -> int:
         props.cache_dir = os.path.join(out_dir, "visibake_cache")
     progress = _Progress(not args.no_progress)
     setups = _setups(args)
-    existed = {os.path.abspath(p) for p in (args.save, args.report) if p and os.path.exists(p)}
+    implicit = [os.path.join(out_dir, name) for name in ("report.json", "preview_render.png")] \
+        if args.command == "demo" else []
+    existed = {os.path.abspath(p) for p in (args.save, args.report, *implicit) if p and os.path.exists(p)}
     try:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
                                relight_only=args.command == "relight", setups=setups, device_name=args.device,
-                               threads=args.threads, cluster=cluster)
+                               threads=args.threads, cluster=cluster, hold_replaced=True)
     except Exception as error:
         from ..core.distributed.farm import PartsPending
 
@@ -879,6 +885,7 @@ def run(args) -> int:
             raise BakeRefused(f"could not write {error.filename or 'the results'}: {error.strerror or error}; "
                               "nothing was kept") from error
         raise
+    outcome.keep()
     if args.command == "farm-step":
         from ..core.distributed.farm import mark_done
 

@@ -49,7 +49,7 @@ import numpy as np
 from ..errors import OutputRefused
 from ..outputs.images import srgb_to_linear, write_exr
 from ..outputs.names import inside_folder
-from ..outputs.ownership import StagedWrites, refuse_foreign
+from ..outputs.ownership import StagedWrites, is_leftover, refuse_foreign, remove_leftovers
 
 RING_THETAS_DEG = (0, 15, 30, 45, 60, 75)
 RING_COUNTS = (1, 6, 12, 18, 20, 24)
@@ -446,7 +446,9 @@ class BTFWriter(BTFImages):
         self._previous_files = set(previous["files"]) if previous else set()
         # The manifest's temporary name too: a run stopped while replacing the manifest leaves it.
         owned = self._previous_files | ({MANIFEST, MANIFEST + ".tmp"} if previous else set())
-        foreign = [f for f in _files_under(self.folder) if f not in owned] if os.path.isdir(self.folder) else []
+        # A killed run's temporaries are VisiBake's: neither a refusal nor kept (removed below).
+        foreign = [f for f in _files_under(self.folder) if f not in owned
+                   and not is_leftover(os.path.join(self.folder, *f.split("/")))] if os.path.isdir(self.folder) else []
         if foreign and not overwrite:
             shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
             raise OutputRefused(f"BTF folder {self.folder} holds files VisiBake did not write ({shown}); "
@@ -457,6 +459,7 @@ class BTFWriter(BTFImages):
         # Even with overwrite: a file of the user's never gives way to one of the same name.
         refuse_foreign([os.path.join(self.folder, *name.split("/")) for name in [MANIFEST, *self.planned]],
                        "overwriting writes beside your files, never over one; choose another folder")
+        remove_leftovers(self.folder)
         try:
             self.staged.make_folder(self.folder)
             self._write_manifest(complete=False)

@@ -4,7 +4,9 @@ The one rule every command follows (volume, brdf, btf, lightfield):
 
 - A path that exists is VisiBake's only if a VisiBake record lists it: the sidecar
   ``FILE.visibake.json`` beside it (brdf), or a folder record in its folder or the folder
-  above (``btf.json``, ``lightfield.json``, ``visibake-volume.json``). Any other existing
+  above (``btf.json``, ``lightfield.json``, ``visibake-volume.json``, ``visibake-bake.json``),
+  or, for outputs of versions before the records, a bake's ``report.json`` there whose
+  ``files`` name it (the demo's report, a ``--report`` into the output folder). Any other existing
   file is the user's: :func:`refuse_foreign` names it and nothing is written
   (:class:`core.errors.OutputRefused`, exit 2). ``--overwrite`` never changes this for a
   file of the same name; it only lets a run write *beside* the user's files.
@@ -13,6 +15,8 @@ The one rule every command follows (volume, brdf, btf, lightfield):
   reading a VDB's header back, since OpenVDB's writer does not report a full disk), and
   only then renames it into place. :meth:`StagedWrites.rollback` removes the temporaries
   and the files and folders this run created, never a file that existed before the run.
+- A leftover temporary (:func:`temporary_name`'s pattern exactly: a run killed before its
+  rename) is VisiBake's: :func:`remove_leftovers` removes those of a folder a run claims.
 - A full disk or quota (ENOSPC, EDQUOT, EFBIG) is the user's problem, not a bug:
   "not enough space in DIR" (OutputRefused).
 """
@@ -22,6 +26,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import secrets
 
 from ..errors import OutputRefused
@@ -30,7 +35,13 @@ SIDECAR_SUFFIX = ".visibake.json"
 # Folder records: file name -> the "format" that marks it VisiBake's. Each lists "files",
 # relative to its folder ("/"-separated).
 FOLDER_RECORDS = {"btf.json": "visibake-btf", "lightfield.json": "visibake-lightfield",
-                  "visibake-volume.json": "visibake-volume"}
+                  "visibake-volume.json": "visibake-volume", "visibake-bake.json": "visibake-bake"}
+# A bake's report (operators.cli: the demo's, or --report): before the folder records it was the
+# only list of a bake's files; its "files" are absolute paths.
+REPORT_RECORD = "report.json"
+_REPORT_KEYS = frozenset({"files", "objects", "stage_seconds"})
+# temporary_name's pattern, and nothing looser: a user's file is never taken for one.
+_TEMPORARY = re.compile(r"\.(?P<stem>.+)\.[0-9a-f]{8}\.partial(?P<ext>\.[^.]*)?")
 # How many folders above a file its record may lie (btf: tvXXX_pvXXX/image).
 RECORD_DEPTH = 2
 SPACE_ERRNOS = frozenset(code for code in (errno.ENOSPC, getattr(errno, "EDQUOT", None), errno.EFBIG) if code)
@@ -55,6 +66,25 @@ def record_files(folder: str, record: str) -> set[str] | None:
         return None
     listed = {os.path.normpath(os.path.join(folder, *f.split("/"))) for f in files}
     return listed | {os.path.normpath(path)}
+
+
+def report_files(folder: str) -> set[str]:
+    """The absolute paths a bake's ``report.json`` in ``folder`` lists, itself included; empty
+    if there is none or it is not a VisiBake bake's report."""
+    path = os.path.join(folder, REPORT_RECORD)
+    if not os.path.isfile(path) or os.path.islink(path):
+        return set()
+    try:
+        with open(path, encoding="utf-8") as handle:
+            content = json.load(handle)
+    except (OSError, ValueError):
+        return set()
+    if not isinstance(content, dict) or not _REPORT_KEYS <= content.keys():
+        return set()
+    files = content["files"]
+    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+        return set()
+    return {os.path.normpath(os.path.join(folder, f)) for f in files} | {os.path.normpath(path)}
 
 
 def _is_sidecar(path: str) -> bool:
@@ -85,6 +115,10 @@ def is_visibakes(path: str, _records: dict | None = None) -> bool:
                 records[folder, record] = record_files(folder, record) or set()
             if path in records[folder, record]:
                 return True
+        if (folder, REPORT_RECORD) not in records:
+            records[folder, REPORT_RECORD] = report_files(folder)
+        if path in records[folder, REPORT_RECORD]:
+            return True
         folder = os.path.dirname(folder)
     return False
 
@@ -157,6 +191,30 @@ def temporary_name(path: str) -> str:
     return os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.partial{ext}")
 
 
+def is_leftover(path: str) -> bool:
+    """Whether ``path`` is a regular file named as :func:`temporary_name` names one."""
+    return bool(_TEMPORARY.fullmatch(os.path.basename(path))) and os.path.isfile(path) \
+        and not os.path.islink(path)
+
+
+def remove_leftovers(folder: str, depth: int = RECORD_DEPTH) -> list[str]:
+    """Remove the temporaries a killed run left in ``folder`` and its subfolders ``depth`` - 1
+    deep (the files its records may list); returns their paths. Only for a folder a run is
+    claiming: a run writing there at the same moment would lose its temporaries."""
+    removed = []
+    if not os.path.isdir(folder) or os.path.islink(folder):
+        return removed
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            if entry.is_dir(follow_symlinks=False):
+                if depth > 1:
+                    removed += remove_leftovers(entry.path, depth - 1)
+            elif is_leftover(entry.path):
+                _remove(entry.path)
+                removed.append(entry.path)
+    return removed
+
+
 class StagedWrites:
     """A run's outputs, written whole or not at all, and taken back on failure.
 
@@ -165,12 +223,17 @@ class StagedWrites:
     temporaries : temporary files not yet renamed into place
     """
 
-    def __init__(self, root: str | None = None):
-        """root : the output folder a full disk's message names (default: each file's folder)."""
+    def __init__(self, root: str | None = None, keep_replaced: bool = False):
+        """root : the output folder a full disk's message names (default: each file's folder).
+        keep_replaced : keep each file a staged write replaces (a hard link under a hidden
+        temporary name: no copy of its bytes) until :meth:`keep`, so that :meth:`rollback` puts
+        it back; where the file system has no hard links it is replaced as without."""
         self.root = root
+        self.keep_replaced = keep_replaced
         self.created: list[str] = []
         self.folders: list[str] = []
         self.temporaries: list[str] = []
+        self.replaced: list[tuple[str, str]] = []  # (path, the hidden link to its earlier content)
 
     def make_folder(self, folder: str) -> None:
         """Create ``folder`` and its missing parents, recording each one made."""
@@ -215,6 +278,8 @@ class StagedWrites:
                         raise OSError(errno.ENOSPC, f"{os.path.basename(path)} came out incomplete ({reason})",
                                       path) from error
                 _sync(temporary)
+            if self.keep_replaced and os.path.isfile(path) and not os.path.islink(path):
+                self._keep_earlier(path)
             os.replace(temporary, path)
         except BaseException:
             _remove(temporary)
@@ -222,9 +287,27 @@ class StagedWrites:
         finally:
             self.temporaries.remove(temporary)
 
+    def _keep_earlier(self, path: str) -> None:
+        earlier = temporary_name(path)
+        try:
+            os.link(path, earlier)
+        except OSError:
+            return  # no hard links here: the earlier file is replaced, not kept
+        self.replaced.append((path, earlier))
+
+    def keep(self) -> None:
+        """The run is done: drop the earlier files :meth:`rollback` would have put back."""
+        for _, earlier in self.replaced:
+            _remove(earlier)
+        self.replaced.clear()
+
     def rollback(self) -> None:
         """Remove the temporaries, the files this run created and the folders it made (if
-        left empty); a file that existed before the run stays."""
+        left empty); a file that existed before the run stays (with ``keep_replaced``, as it was)."""
+        for path, earlier in reversed(self.replaced):
+            with contextlib.suppress(OSError):
+                os.replace(earlier, path)
+        self.replaced.clear()
         for temporary in self.temporaries:
             _remove(temporary)
         for path in self.created:

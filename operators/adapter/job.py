@@ -14,6 +14,7 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import bpy
 
@@ -23,6 +24,7 @@ from ...core import kernels
 from ...core.errors import BakeRefused, OutputRefused
 from ...core.outputs import names
 from ...core.outputs.destinations import FOLDER, check_destinations, destination_problem
+from ...core.outputs.ownership import StagedWrites, remove_leftovers
 from ...core.outputs.report import DeviceReport, RefinedReport, Report, SetupReport
 from ...core.pipeline.budget import peak_memory_bytes
 from ...core.pipeline.prepare import prepare
@@ -46,6 +48,8 @@ class JobResult:
     report: dict
     files: list[str] = field(default_factory=list)
     rollback: Callable[[], None] = lambda: None
+    # With run_bake's hold_replaced: drops the earlier files rollback() would have put back.
+    keep: Callable[[], None] = lambda: None
 
 
 class _WrittenResults:
@@ -54,14 +58,15 @@ class _WrittenResults:
     Taken before the write: for every image and colour attribute the results go to, whether it
     existed (it can only be VisiBake's own: writeback refuses any other) and, if so, a copy of
     its values. Restoring removes what the write created and puts the old values back into what
-    it overwrote, so a failed re-bake leaves the previous bake's results, not a mix.
+    it overwrote, so a failed re-bake leaves the previous bake's results, not a mix. The files
+    go through :attr:`files` (core.outputs.ownership.StagedWrites): restoring removes only the
+    files and folders this bake created and puts back the earlier bake's files it replaced
+    (kept as hard links, no copy), never touching a file of the user's.
     """
 
     def __init__(self, results, out_dir: str | None):
         self.images, self.attributes = {}, {}
-        self.out_dir = out_dir
-        self.folders, self.files = _folder_state(out_dir)
-        self.missing = _missing_folders(out_dir)
+        self.files = StagedWrites(out_dir, keep_replaced=True)
         for result in results:
             if result.domain is None:
                 for pass_name in result.images:
@@ -79,15 +84,7 @@ class _WrittenResults:
                 self.attributes.setdefault((mesh.name, None), list(mesh.get(writeback.OWNED_ATTRIBUTES_KEY, [])))
 
     def restore(self) -> None:
-        # Every file the write made or replaced goes (a replaced one held the previous bake's
-        # result, which no copy was kept of: result files can be large), and the folders it made.
-        folders, files = _folder_state(self.out_dir)
-        for path, stamp in files.items():
-            if self.files.get(path) != stamp:
-                os.remove(path)
-        for folder in sorted(set(folders) - set(self.folders), key=len, reverse=True) + self.missing:
-            if os.path.isdir(folder) and not os.listdir(folder):
-                os.rmdir(folder)
+        self.files.rollback()
         for name, old in self.images.items():
             image = bpy.data.images.get(name)
             if image is None:
@@ -115,32 +112,6 @@ class _WrittenResults:
                 attribute.data.foreach_set("color", old[1])
             mesh[writeback.OWNED_ATTRIBUTES_KEY] = self.attributes[(mesh_name, None)]
             mesh.update()
-
-
-def _folder_state(folder: str | None) -> tuple[list[str], dict[str, tuple[int, int]]]:
-    """The folders under ``folder`` (itself included, if it exists) and {file: (mtime_ns, size)}."""
-    folders, files = [], {}
-    if folder and os.path.isdir(folder):
-        for root, _, file_names in os.walk(folder):
-            folders.append(root)
-            for name in file_names:
-                path = os.path.join(root, name)
-                try:
-                    info = os.stat(path)
-                except OSError:
-                    continue
-                files[path] = (info.st_mtime_ns, info.st_size)
-    return folders, files
-
-
-def _missing_folders(folder: str | None) -> list[str]:
-    """``folder`` and its ancestors that do not exist yet, deepest first (a write would make them)."""
-    missing = []
-    current = os.path.abspath(folder) if folder else None
-    while current and not os.path.exists(current) and os.path.dirname(current) != current:
-        missing.append(current)
-        current = os.path.dirname(current)
-    return missing
 
 
 def _values(collection, count: int, attribute: str | None = None) -> np.ndarray:
@@ -192,7 +163,7 @@ def output_objects(context, props) -> list[bpy.types.Object]:
     return [o for o in meshes if o.select_get()]
 
 
-def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name) -> JobResult:
+def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_name, hold_replaced) -> JobResult:
     """Bake again with refined copies of the ``coarse`` [(object, triangles)] in their place.
 
     If that bake fails or is cancelled the copies are removed and the originals shown
@@ -206,7 +177,8 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
         for obj, triangles in coarse:
             copies[obj.name] = refine.refined_copy(obj, triangles)
         replaced = [copies.get(obj.name, obj) for obj in objects]
-        outcome = run_bake(context, replaced, out_dir, previews, progress, device_name=device_name, refine=False)
+        outcome = run_bake(context, replaced, out_dir, previews, progress, device_name=device_name, refine=False,
+                           hold_replaced=hold_replaced)
     except BaseException:
         for copy in copies.values():
             refine.undo_refinement(copy)
@@ -236,7 +208,7 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
              progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
              refine: bool | None = None, threads: int | None = None, keep_preparation: bool = False,
-             view_densities: dict | None = None, cluster=None) -> JobResult:
+             view_densities: dict | None = None, cluster=None, hold_replaced: bool = False) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -262,9 +234,12 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     cluster : core.distributed.engine.ClusterOptions (a Dask cluster) or
         core.distributed.farm.FarmOptions (one step of a farm job), or None: trace and read the
         table by ranges of sample rows there (the images are the same bits; no cache)
+    hold_replaced : keep the earlier bake's files this one replaced (hidden hard links) until
+        the outcome's ``keep()``, so that its ``rollback()`` puts them back (a caller with steps
+        of its own after the bake); else they go when the bake has written all of its files
     """
     return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
-                   threads, keep_preparation, view_densities, cluster).run()
+                   threads, keep_preparation, view_densities, cluster, hold_replaced).run()
 
 
 class BakeJob:
@@ -280,13 +255,14 @@ class BakeJob:
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
                  setups=None, device_name=None, refine=None, threads=None, keep_preparation=False,
-                 view_densities=None, cluster=None):
+                 view_densities=None, cluster=None, hold_replaced=False):
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine, self.threads = device_name, refine, threads
         self.keep_preparation = keep_preparation
         self.view_densities = view_densities
         self.cluster = cluster
+        self.hold_replaced = hold_replaced
         self.extracted = None
         self.results = None
 
@@ -349,6 +325,20 @@ class BakeJob:
         self.shadow_rays_per_sample = sum(shadow_rays_per_sample(extract.read_light(lamp), settings)
                                           for lamp in extract.scene_lights(context.scene))
         self.planned = plan_extraction(context, objects, self.progress, self.view_densities)
+        if self.out_dir:
+            self._claim_output_folder()
+
+    def _claim_output_folder(self) -> None:
+        """Before any work, the one rule (core.outputs.ownership): refuse if a file the bake
+        would write exists and no VisiBake record lists it (the files of the passes it knows
+        now; a light group's, a refined copy's and a setup's are checked again before writing),
+        then remove the temporaries a killed run left there."""
+        if self.setups is None:
+            planned = [SimpleNamespace(name=o.name, images=dict.fromkeys(self.settings.passes),
+                                       domain="vertex" if self.planned.plans[o.name].mode == "vertex" else None)
+                       for o in self.objects if o.name in self.planned.plans]
+            writeback.refuse_foreign_outputs(planned, self.out_dir, self.previews)
+        remove_leftovers(self.out_dir, depth=2 if self.setups is None else 3)
 
     def unwrap(self, in_child: bool = False) -> None:
         """The unwraps the layouts need (no bpy: any thread). ``in_child``: in child
@@ -481,14 +471,14 @@ class BakeJob:
                           if r.domain is not None and r.coarse_triangles is not None and len(r.coarse_triangles)]
                 if coarse:
                     return _bake_refined(self.context, self.objects, coarse, self.out_dir, self.previews,
-                                         self.progress, self.device_name)
+                                         self.progress, self.device_name, self.hold_replaced)
         except BaseException:
             self.abort()
             raise
         written = _WrittenResults([o for name, r in results if name is None for o in r.objects], self.out_dir)
         extracted = self.extracted
         try:
-            outcome = self._write_and_report()
+            outcome = self._write_and_report(written.files)
         except BaseException as error:
             written.restore()
             self.abort()
@@ -503,9 +493,13 @@ class BakeJob:
             extracted.undo()
 
         outcome.rollback = rollback
+        if self.hold_replaced:
+            outcome.keep = written.files.keep
+        else:
+            written.files.keep()
         return outcome
 
-    def _write_and_report(self) -> JobResult:
+    def _write_and_report(self, staged: StagedWrites) -> JobResult:
         extracted, results, lightings, setups = self.extracted, self.results, self.lightings, self.setups
         times, warnings, plans = extracted.seconds, extracted.warnings, extracted.plans
         t = time.perf_counter()
@@ -515,16 +509,20 @@ class BakeJob:
         for name, result in results:
             # Every destination of every setup before the first file is written.
             if name is not None:
-                writeback.check_output_paths(result.objects, names.inside_folder(self.out_dir, setup_folders[name]))
+                writeback.refuse_foreign_outputs(result.objects, names.inside_folder(self.out_dir, setup_folders[name]),
+                                                 self.previews)
+            elif self.out_dir:
+                writeback.refuse_foreign_outputs(result.objects, self.out_dir, self.previews)
         for name, result in results:
             if name is None:
-                files += writeback.write_outputs(result.objects, self.out_dir, self.previews, renamed=renamed)
+                files += writeback.write_outputs(result.objects, self.out_dir, self.previews, renamed=renamed,
+                                                 staged=staged)
             else:
                 folder = names.inside_folder(self.out_dir, setup_folders[name])
                 if setup_folders[name] != name:
                     renamed.append({"name": name, "kind": "setup", "path": folder})
                 files += writeback.write_outputs(result.objects, folder, self.previews, store_images=False,
-                                                 renamed=renamed)
+                                                 renamed=renamed, staged=staged)
         times["write"] = time.perf_counter() - t
 
         result = results[-1][1]

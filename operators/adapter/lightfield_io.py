@@ -30,7 +30,7 @@ from ...core.lightfield.cameras import CentreCamera, LightFieldGrid, grid_views
 from ...core.lightfield.scene import DrawMesh, DrawScene
 from ...core.outputs.atomic import atomic_file
 from ...core.outputs.images import write_exr
-from ...core.outputs.ownership import StagedWrites, record_files, refuse_foreign
+from ...core.outputs.ownership import StagedWrites, is_leftover, record_files, refuse_foreign, remove_leftovers
 from . import compat, extract, layout, writeback
 from .modal import SteppedJob
 
@@ -417,7 +417,8 @@ class LightFieldJob(SteppedJob):
                 raise OutputRefused(f"--out {folder}: its parent folder does not exist")
             self.staged.make_folder(folder)
             return
-        present = set(os.listdir(folder))
+        # A killed run's temporaries are VisiBake's: neither a refusal nor kept (removed below).
+        present = {name for name in os.listdir(folder) if not is_leftover(os.path.join(folder, name))}
         ours = {os.path.relpath(path, folder) for path in record_files(folder, MANIFEST) or ()}
         foreign = sorted(present - ours)
         if foreign and not self.overwrite:
@@ -426,6 +427,7 @@ class LightFieldJob(SteppedJob):
                                 "to write beside them (they are kept)")
         refuse_foreign(self.planned_files(), "--overwrite writes beside your files, never over one; rename it or "
                                              "choose another folder")
+        remove_leftovers(folder, depth=1)
         # The earlier light field's views go first: a view missing from this one must not stay.
         for name in sorted(ours - {MANIFEST}):
             path = os.path.join(folder, name)

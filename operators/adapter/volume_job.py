@@ -304,6 +304,7 @@ class VolumeJob(SteppedJob):
         with staged.staged(record) as temporary:
             write_record(temporary, RECORD_FORMAT, [os.path.basename(p) for p in paths[:-1]],
                          {"object": volume.obj.name})
+        self.report["files"].append(record)  # a file it wrote, as the CLI's count says
 
         def whole(path):
             volume_io.check_grids(self.vdb, path)

@@ -11,6 +11,7 @@ import numpy as np
 from ...core.errors import OutputRefused
 from ...core.outputs import names
 from ...core.outputs.images import tonemap, write_exr
+from ...core.outputs.ownership import StagedWrites, record_files, refuse_foreign, report_files, write_record
 from ...core.outputs.vertex_files import element_geometry, write_ply
 from . import compat
 from .extract import read_values
@@ -19,7 +20,9 @@ OWNED_IMAGE_KEY = "visibake_image"
 # On every image VisiBake writes: the (object, pass) it holds, so readers need not re-derive its name.
 IMAGE_OBJECT_KEY, IMAGE_PASS_KEY = "visibake_object", "visibake_pass"
 # What the command line itself writes into the output folder, beside the object or setup folders.
-OUT_FOLDER_RESERVED = ("visibake_cache", "report.json", "preview_render.png")
+OUT_FOLDER_RESERVED = ("visibake_cache", "report.json", "preview_render.png", "visibake-bake.json")
+# The folder record (core.outputs.ownership) of a bake's files in its output (or setup) folder.
+RECORD, RECORD_FORMAT = "visibake-bake.json", "visibake-bake"
 
 
 def image_name(object_name: str, pass_name: str) -> str:
@@ -176,63 +179,117 @@ def vertex_geometry(obj: bpy.types.Object, domain: str) -> tuple[np.ndarray, np.
 
 
 def write_vertex_files(obj: bpy.types.Object, result, folder: str, previews: bool,
-                       renamed: list | None = None) -> list[str]:
+                       renamed: list | None = None, staged: StagedWrites | None = None) -> list[str]:
     """Write a vertex-mode result's passes as ``<pass>.ply`` in ``folder`` (with ``previews``, also
     tone-mapped ``<pass>.preview.ply``: a PNG cannot hold per-vertex data); returns the paths written.
 
     Format: core.outputs.vertex_files. File names as in :func:`write_outputs`; a preview's name
-    never takes a pass's (a light group may be named ``x.preview``).
+    never takes a pass's (a light group may be named ``x.preview``). ``staged``: writes each
+    file through it (core.outputs.ownership), else a new StagedWrites.
     """
+    staged = StagedWrites(folder) if staged is None else staged
     positions, faces = vertex_geometry(obj, result.domain)
-    stems = names.unique_components(result.images, suffix=".ply")
-    preview_stems = names.unique_components([f"{p}.preview" for p in result.images] if previews else [],
-                                            reserved=[stem + ".ply" for stem in stems.values()], suffix=".ply")
     files = []
-    for pass_name, colors in result.images.items():
-        path = names.inside_folder(folder, stems[pass_name] + ".ply")
-        if stems[pass_name] != pass_name and renamed is not None:
+    for pass_name, (path, preview) in _vertex_paths(result, folder, previews).items():
+        colors = result.images[pass_name]
+        if os.path.basename(path) != pass_name + ".ply" and renamed is not None:
             renamed.append({"name": f"{result.name}: {pass_name}", "kind": "pass", "path": path})
-        write_ply(path, positions, faces, colors,
-                  comment=f"VisiBake {pass_name} of {obj.name}: linear RGB in Cycles' units, {result.domain} domain")
+        with staged.staged(path) as temporary:
+            write_ply(temporary, positions, faces, colors, comment=f"VisiBake {pass_name} of {obj.name}: linear "
+                      f"RGB in Cycles' units, {result.domain} domain")
         files.append(path)
-        if previews:
-            preview = names.inside_folder(folder, preview_stems[f"{pass_name}.preview"] + ".ply")
-            write_ply(preview, positions, faces, tonemap(colors), display=True,
-                      comment=f"VisiBake {pass_name} of {obj.name}: tone-mapped sRGB display colours")
+        if preview is not None:
+            with staged.staged(preview) as temporary:
+                write_ply(temporary, positions, faces, tonemap(colors), display=True,
+                          comment=f"VisiBake {pass_name} of {obj.name}: tone-mapped sRGB display colours")
             files.append(preview)
     return files
 
 
-def check_output_paths(results, out_dir: str) -> None:
-    """Refuse (OutputRefused) before anything is written if a result's folder or image file under
-    ``out_dir`` would resolve outside it (a link there pointing elsewhere)."""
+def _vertex_paths(result, folder: str, previews: bool) -> dict:
+    """{pass: (its .ply, its preview .ply or None)} of a vertex-mode result in ``folder``."""
+    stems = names.unique_components(result.images, suffix=".ply")
+    preview_stems = names.unique_components([f"{p}.preview" for p in result.images] if previews else [],
+                                            reserved=[stem + ".ply" for stem in stems.values()], suffix=".ply")
+    return {pass_name: (names.inside_folder(folder, stems[pass_name] + ".ply"),
+                        names.inside_folder(folder, preview_stems[f"{pass_name}.preview"] + ".ply")
+                        if previews else None)
+            for pass_name in result.images}
+
+
+def _image_paths(result, folder: str, previews: bool) -> dict:
+    """{pass: (its .exr, its .png preview or None)} of an atlas-mode result in ``folder``."""
+    stems = names.unique_components(result.images)
+    return {pass_name: (names.inside_folder(folder, stems[pass_name] + ".exr"),
+                        names.inside_folder(folder, stems[pass_name] + ".png") if previews else None)
+            for pass_name in result.images}
+
+
+def output_paths(results, out_dir: str, previews: bool) -> list[str]:
+    """Every file :func:`write_outputs` writes for ``results`` in ``out_dir``, its record first
+    (absolute paths). ``results``: objects with ``name``, ``domain`` (None: atlas mode) and
+    ``images`` (its keys, the pass names, are all that is read). OutputRefused if one would
+    resolve outside ``out_dir``."""
     folders = names.unique_components([r.name for r in results], reserved=OUT_FOLDER_RESERVED)
+    paths = [names.inside_folder(out_dir, RECORD)]
     for result in results:
         folder = names.inside_folder(out_dir, folders[result.name])
-        if result.domain is None:
-            for stem in names.unique_components(result.images).values():
-                names.inside_folder(folder, stem + ".exr")
-                names.inside_folder(folder, stem + ".png")
+        pairs = _image_paths(result, folder, previews) if result.domain is None else \
+            _vertex_paths(result, folder, previews)
+        paths += [path for pair in pairs.values() for path in pair if path is not None]
+    return paths
+
+
+def refuse_foreign_outputs(results, out_dir: str, previews: bool) -> None:
+    """The one rule (core.outputs.ownership): OutputRefused, naming them, if files the bake
+    would write in ``out_dir`` exist and no VisiBake record lists them."""
+    refuse_foreign(output_paths(results, out_dir, previews),
+                   "remove or rename them, or choose another output folder; an earlier VisiBake's files count "
+                   "as VisiBake's only where its visibake-bake.json or report.json lists them")
+
+
+def check_output_paths(results, out_dir: str) -> None:
+    """Refuse (OutputRefused) before anything is written if a result's folder or file under
+    ``out_dir`` would resolve outside it (a link there pointing elsewhere)."""
+    output_paths(results, out_dir, previews=True)
 
 
 def write_outputs(results, out_dir: str | None, previews: bool, store_images: bool = True,
-                  renamed: list | None = None) -> list[str]:
+                  renamed: list | None = None, staged: StagedWrites | None = None) -> list[str]:
     """Store every pass as an image datablock (unless not ``store_images``) and, with ``out_dir``, as files
     ``out_dir/<object>/<pass>.exr`` (vertex mode: colour attributes, and ``<pass>.ply``).
 
     Object and pass names become distinct safe file names (core.outputs.names); every path is
-    checked to be inside ``out_dir`` before it is written (OutputRefused otherwise).
-    ``renamed``: extended with {"name", "kind", "path"} for every output whose file or image
-    name is not its object's or pass's own name. Returns the paths of the files written.
+    checked to be inside ``out_dir``, and to be new or VisiBake's (:func:`refuse_foreign_outputs`),
+    before the first is written (OutputRefused otherwise). The files go through ``staged``
+    (core.outputs.ownership.StagedWrites; a new one if None), after the folder's record
+    ``visibake-bake.json``, which lists them and the files its earlier version listed that are
+    still there. ``renamed``: extended with {"name", "kind", "path"} for every output whose file
+    or image name is not its object's or pass's own name. Returns the paths of the files
+    written, the record first.
     """
     files = []
     if out_dir:
-        check_output_paths(results, out_dir)
+        planned = output_paths(results, out_dir, previews)
+        refuse_foreign_outputs(results, out_dir, previews)
+        staged = StagedWrites(out_dir) if staged is None else staged
+        staged.make_folder(out_dir)
+        record = planned[0]
+        # An earlier version's report.json lists its files too: they become the record's.
+        earlier = {path for path in (record_files(out_dir, RECORD) or set()) | report_files(out_dir)
+                   if os.path.isfile(path) and os.path.dirname(path) != out_dir} - {record}
+        # The record first, listing every file: a run killed part way leaves files that stay VisiBake's.
+        with staged.staged(record) as temporary:
+            write_record(temporary, RECORD_FORMAT, sorted({os.path.relpath(path, out_dir)
+                                                           for path in set(planned[1:]) | earlier}))
+        files.append(record)
     folders = names.unique_components([r.name for r in results], reserved=OUT_FOLDER_RESERVED) if out_dir else {}
     for result in results:
         folder = names.inside_folder(out_dir, folders[result.name]) if out_dir else None
         if folder is not None and folders[result.name] != result.name and renamed is not None:
             renamed.append({"name": result.name, "kind": "object", "path": folder})
+        if folder is not None:
+            staged.make_folder(folder)
         if result.domain is not None:
             # Vertex mode: colour attributes on the mesh and, with out_dir, PLY files (else an
             # --out bake without --save would keep nothing of them).
@@ -240,9 +297,10 @@ def write_outputs(results, out_dir: str | None, previews: bool, store_images: bo
                 for pass_name, colors in result.images.items():
                     store_colors(bpy.data.objects[result.name], pass_name, colors, result.domain)
             if folder is not None:
-                files += write_vertex_files(bpy.data.objects[result.name], result, folder, previews, renamed)
+                files += write_vertex_files(bpy.data.objects[result.name], result, folder, previews, renamed,
+                                            staged)
             continue
-        stems = names.unique_components(result.images)
+        paths = _image_paths(result, folder, previews) if folder is not None else {}
         for pass_name, pixels in result.images.items():
             if store_images:
                 image = store_image(result.name, pass_name, pixels)
@@ -250,16 +308,16 @@ def write_outputs(results, out_dir: str | None, previews: bool, store_images: bo
                     renamed.append({"name": f"{result.name}: {pass_name}", "kind": "image", "path": image.name})
             if folder is None:
                 continue
-            os.makedirs(folder, exist_ok=True)
-            path = names.inside_folder(folder, stems[pass_name] + ".exr")
-            if stems[pass_name] != pass_name and renamed is not None:
+            path, png = paths[pass_name]
+            if os.path.basename(path) != pass_name + ".exr" and renamed is not None:
                 renamed.append({"name": f"{result.name}: {pass_name}", "kind": "pass", "path": path})
-            write_exr(path, pixels)
+            with staged.staged(path) as temporary:
+                write_exr(temporary, pixels)
             files.append(path)
-            if previews:
+            if png is not None:
                 display = tonemap(pixels)
                 display[..., 3] = 1.0
-                png = names.inside_folder(folder, stems[pass_name] + ".png")
-                save_png(png, display)
+                with staged.staged(png) as temporary:
+                    save_png(temporary, display)
                 files.append(png)
     return files

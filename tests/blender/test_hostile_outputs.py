@@ -4,6 +4,7 @@ same name), turns a full disk into exit 2 "not enough space" leaving nothing beh
 cancel while images are written leaves nothing either (core.outputs.ownership)."""
 import errno
 import importlib
+import json
 import os
 import subprocess
 
@@ -69,8 +70,11 @@ def test_volume_replaces_its_own_grids_and_a_users_file_beside_them_stays(visiba
                                                                           tmp_path):
     blend, _ = cloud_blend
     out = tmp_path / "out"
-    assert visibake.cli.main(["volume", str(blend), "--out", str(out)] + VOLUME_FAST) == 0
+    report = tmp_path / "report.json"
+    assert visibake.cli.main(["volume", str(blend), "--out", str(out), "--report", str(report)] + VOLUME_FAST) == 0
     assert (out / "Cloud" / "visibake-volume.json").is_file()
+    # The record is a file the run wrote: the report (and the count printed) include it.
+    assert str(out / "Cloud" / "visibake-volume.json") in json.loads(report.read_text())["files"]
     (out / "Cloud" / "notes.txt").write_bytes(USERS)
     assert visibake.cli.main(["volume", str(blend), "--out", str(out)] + VOLUME_FAST) == 0
     assert (out / "Cloud" / "notes.txt").read_bytes() == USERS

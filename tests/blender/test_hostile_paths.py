@@ -87,6 +87,8 @@ def test_cli_bake_with_light_groups_writes_every_file_inside_out_and_apart(visib
     report = json.loads(report_path.read_text())
     files = [p for p in report["files"] if os.path.realpath(p) != os.path.realpath(saved)]
     _assert_all_inside_and_distinct(tmp_path, out, files)
+    assert str(out / "visibake-bake.json") in files  # the folder's record (core.outputs.ownership)
+    files.remove(str(out / "visibake-bake.json"))
     names = HOSTILE_OBJECTS + _long_names(visibake)
     # One folder per object, each its own; every object has all its passes.
     folders = {os.path.dirname(p) for p in files}
@@ -140,7 +142,7 @@ def test_cli_setups_get_distinct_folders_inside_out(visibake, hostile_blend, tmp
     _assert_all_inside_and_distinct(tmp_path, out, report["files"])
     top = {os.path.relpath(p, out).split(os.sep)[0] for p in report["files"]}
     assert len(top) == len(HOSTILE_SETUPS)
-    assert len(report["files"]) == len(HOSTILE_SETUPS) * 3
+    assert len(report["files"]) == len(HOSTILE_SETUPS) * 4  # 3 objects' lighting and the setup's record
     renamed = {r["name"] for r in report["renamed_outputs"] if r["kind"] == "setup"}
     assert renamed == {"a/b", "a:b", "..", "CON", "x/../../../../ESCAPED", "trailing."}
 

@@ -85,8 +85,10 @@ def test_auto_mode_writes_vertex_results_under_out(visibake, clean_scene, tmp_pa
             assert display.max() <= 255 and display.max() > 0
     # No PNG for vertex data; the summary counts what was written.
     assert not list(out.rglob("*.png"))
-    assert sorted(report["files"]) == sorted([str(p) for p in out.rglob("*.ply")] + [str(saved)])
-    assert len(report["files"]) == 9 and "files: 9 written" in capsys.readouterr().out
+    # ... and the folder's record of them (core.outputs.ownership).
+    assert sorted(report["files"]) == sorted([str(p) for p in out.rglob("*.ply")]
+                                             + [str(out / "visibake-bake.json"), str(saved)])
+    assert len(report["files"]) == 10 and "files: 10 written" in capsys.readouterr().out
 
 
 def test_vertex_files_without_save_are_the_only_copy(visibake, clean_scene, tmp_path):

@@ -12,7 +12,17 @@ import textwrap
 import pytest
 
 from core.errors import OutputRefused
-from core.outputs.ownership import StagedWrites, foreign_files, is_space_error, is_visibakes, refuse_foreign
+from core.outputs.ownership import (
+    StagedWrites,
+    foreign_files,
+    is_leftover,
+    is_space_error,
+    is_visibakes,
+    refuse_foreign,
+    remove_leftovers,
+    report_files,
+    temporary_name,
+)
 
 USERS = b"the user's own bytes"
 
@@ -114,3 +124,55 @@ def test_a_file_size_limit_gives_not_enough_space_and_leaves_nothing(tmp_path):
     lines = done.stdout.strip().splitlines()
     assert len(lines) == 2 and all(f"not enough space in {tmp_path}" in line for line in lines), lines
     assert os.listdir(tmp_path) == []
+
+
+def test_a_bake_record_and_an_earlier_version_s_report_list_files_as_visibakes(tmp_path):
+    (tmp_path / "Ground").mkdir()
+    (tmp_path / "Ground" / "lighting.exr").write_bytes(b"exr")
+    (tmp_path / "Ground" / "mine.exr").write_bytes(USERS)
+    (tmp_path / "visibake-bake.json").write_text(json.dumps({"format": "visibake-bake",
+                                                             "files": ["Ground/lighting.exr"]}))
+    assert is_visibakes(tmp_path / "Ground" / "lighting.exr") and not is_visibakes(tmp_path / "Ground" / "mine.exr")
+    # Before the records: the demo's report.json (absolute paths) is the only list of a bake's files.
+    (tmp_path / "visibake-bake.json").unlink()
+    (tmp_path / "preview_render.png").write_bytes(b"png")
+    listed = [str(tmp_path / "Ground" / "lighting.exr"), str(tmp_path / "preview_render.png")]
+    (tmp_path / "report.json").write_text(json.dumps({"files": listed, "objects": [], "stage_seconds": {}}))
+    assert report_files(str(tmp_path)) == {*listed, str(tmp_path / "report.json")}
+    assert foreign_files(listed + [str(tmp_path / "report.json"), str(tmp_path / "Ground" / "mine.exr")]) == [
+        str(tmp_path / "Ground" / "mine.exr")]
+    # A user's report.json (not a bake's report) lists nothing, and is itself the user's.
+    (tmp_path / "report.json").write_text(json.dumps({"files": listed}))
+    assert foreign_files(listed + [str(tmp_path / "report.json")]) == listed + [str(tmp_path / "report.json")]
+
+
+def test_only_temporary_name_s_exact_pattern_is_a_leftover(tmp_path):
+    (tmp_path / "Ground").mkdir()
+    left = [temporary_name(str(tmp_path / "Ground" / "lighting.exr")), temporary_name(str(tmp_path / "record"))]
+    for path in left:
+        open(path, "wb").write(b"half")
+    users = [".lighting.0123abcd.partial.exr.bak", ".lighting.0123ABCD.partial.exr", "lighting.0123abcd.partial.exr",
+             ".lighting.0123abc.partial.exr", ".lighting.partial.exr"]
+    for name in users:
+        (tmp_path / "Ground" / name).write_bytes(USERS)
+    assert all(is_leftover(path) for path in left)
+    assert sorted(remove_leftovers(str(tmp_path))) == sorted(left)
+    assert sorted(os.listdir(tmp_path / "Ground")) == sorted(users) and os.listdir(tmp_path) == ["Ground"]
+
+
+def test_keep_replaced_puts_an_earlier_file_back_on_rollback_and_keep_drops_the_link(tmp_path):
+    earlier = tmp_path / "lighting.exr"
+    earlier.write_bytes(b"an earlier bake's")
+    for finish in ("rollback", "keep"):
+        staged = StagedWrites(str(tmp_path), keep_replaced=True)
+        with staged.staged(str(earlier)) as temporary:
+            open(temporary, "wb").write(b"this bake's")
+        with staged.staged(str(tmp_path / "new.exr")) as temporary:
+            open(temporary, "wb").write(b"new")
+        assert earlier.read_bytes() == b"this bake's" and len(os.listdir(tmp_path)) == 3  # and the hidden link
+        getattr(staged, finish)()
+        if finish == "rollback":
+            assert os.listdir(tmp_path) == ["lighting.exr"] and earlier.read_bytes() == b"an earlier bake's"
+        else:
+            assert sorted(os.listdir(tmp_path)) == ["lighting.exr", "new.exr"]
+            assert earlier.read_bytes() == b"this bake's"
