@@ -209,6 +209,9 @@ def test_a_late_write_failure_rolls_back_a_first_bake(visibake, clean_scene, tmp
 
 
 def test_a_late_write_failure_of_a_rebake_restores_the_previous_results(visibake, clean_scene, tmp_path):
+    """The re-bake adds a light group whose file's name (``Block/lighting_Key.exr``) is a file
+    of the user's: a pass known only once the lights are read, so it is refused at the write,
+    after the re-bake's compute. Everything the first bake made must be as it was."""
     ground, block, lamp = _panel_scene(tmp_path, mode="vertex")
     props = bpy.context.scene.visibake
     out = tmp_path / "out"
@@ -217,25 +220,25 @@ def test_a_late_write_failure_of_a_rebake_restores_the_previous_results(visibake
     report = json.loads(bpy.context.scene["visibake_report"])
     assert {e["name"]: e["mode"] for e in report["objects"]} == {"Ground": "vertex", "Block": "atlas"}
     first_image, first_colours = image_pixels("VB_Block_lighting"), _attribute(ground.data, "VB_lighting")
-    first_files = {path: os.path.getmtime(path) for path in report["files"]}
+    first_files = {path: open(path, "rb").read() for path in report["files"]}
     uv_maps = [layer.name for layer in block.data.uv_layers]
     lamp.data.energy = 400.0  # the re-bake's results differ from the first
-    # Block's file is in the way of a folder of its own now: it can no longer be replaced.
-    block_exr = next(p for p in report["files"] if p.endswith(os.path.join("Block", "lighting.exr")))
-    os.remove(block_exr)
-    os.mkdir(block_exr)
-    with pytest.raises(RuntimeError, match="could not be written"):
+    lamp.lightgroup, props.light_groups = "Key", True
+    users = out / "Block" / "lighting_Key.exr"
+    users.write_bytes(b"the user's own image")
+    with pytest.raises(RuntimeError, match="VisiBake did not write"):
         bpy.ops.visibake.bake()
     np.testing.assert_array_equal(image_pixels("VB_Block_lighting"), first_image)
     np.testing.assert_array_equal(_attribute(ground.data, "VB_lighting"), first_colours)
     assert [layer.name for layer in block.data.uv_layers] == uv_maps  # the first bake's map stays
     assert not [i.name for i in bpy.data.images if i.name.startswith("VB_") and i.name != "VB_Block_lighting"]
-    # The second bake's files went; the first's that it replaced cannot come back (no copy kept).
-    for path in first_files:
-        assert not os.path.isfile(path) or os.path.getmtime(path) == first_files[path]
-    assert os.path.isdir(block_exr)
-    # And with the obstacle gone the same bake goes through, with the brighter lamp.
-    os.rmdir(block_exr)
+    # The first bake's files are as they were, byte for byte, and the user's file too.
+    for path, content in first_files.items():
+        assert open(path, "rb").read() == content, path
+    assert users.read_bytes() == b"the user's own image"
+    assert not [name for name in os.listdir(out / "Block") if ".partial" in name]
+    # And with the user's file gone the same bake goes through, with the brighter lamp.
+    users.unlink()
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     assert image_pixels("VB_Block_lighting")[..., :3].sum() > first_image[..., :3].sum()
 
