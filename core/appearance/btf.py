@@ -49,7 +49,7 @@ import numpy as np
 from ..errors import OutputRefused
 from ..outputs.images import srgb_to_linear, write_exr
 from ..outputs.names import inside_folder
-from ..outputs.ownership import StagedWrites, is_leftover, refuse_foreign, remove_leftovers
+from ..outputs.ownership import StagedWrites, is_leftover, read_record, refuse_foreign, remove_leftovers
 
 RING_THETAS_DEG = (0, 15, 30, 45, 60, 75)
 RING_COUNTS = (1, 6, 12, 18, 20, 24)
@@ -320,20 +320,7 @@ def _files_under(folder: str) -> list[str]:
 
 def _previous_manifest(folder: str) -> dict | None:
     """The folder's VisiBake manifest, or None if there is none or it is not VisiBake's."""
-    path = os.path.join(folder, MANIFEST)
-    if not os.path.isfile(path):
-        return None
-    try:
-        with open(path, encoding="utf-8") as handle:
-            manifest = json.load(handle)
-    except (OSError, ValueError):
-        return None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
-        return None
-    files = manifest.get("files")
-    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
-        return None
-    return manifest
+    return read_record(os.path.join(folder, MANIFEST), FORMAT_NAME)
 
 
 def _direction_list(thetas: np.ndarray, phis: np.ndarray) -> list[dict]:

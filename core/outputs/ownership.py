@@ -48,10 +48,14 @@ SPACE_ERRNOS = frozenset(code for code in (errno.ENOSPC, getattr(errno, "EDQUOT"
 _SPACE_TEXTS = tuple(os.strerror(code) for code in SPACE_ERRNOS)
 
 
-def record_files(folder: str, record: str) -> set[str] | None:
-    """The absolute paths the VisiBake record ``record`` (a FOLDER_RECORDS name) in ``folder``
-    lists, the record itself included; None if there is none or it is not VisiBake's."""
-    path = os.path.join(folder, record)
+def _is_file_list(files) -> bool:
+    return isinstance(files, list) and all(isinstance(f, str) for f in files)
+
+
+def read_record(path: str, format_name: str | None = None) -> dict | None:
+    """The JSON object in the regular file ``path`` (a link is never a record); with
+    ``format_name``, only a record of that ``"format"`` whose ``"files"`` is a list of
+    strings. None for anything else (missing, unreadable, not JSON, another format)."""
     if not os.path.isfile(path) or os.path.islink(path):
         return None
     try:
@@ -59,12 +63,21 @@ def record_files(folder: str, record: str) -> set[str] | None:
             content = json.load(handle)
     except (OSError, ValueError):
         return None
-    if not isinstance(content, dict) or content.get("format") != FOLDER_RECORDS[record]:
+    if not isinstance(content, dict):
         return None
-    files = content.get("files")
-    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+    if format_name is not None and (content.get("format") != format_name or not _is_file_list(content.get("files"))):
         return None
-    listed = {os.path.normpath(os.path.join(folder, *f.split("/"))) for f in files}
+    return content
+
+
+def record_files(folder: str, record: str) -> set[str] | None:
+    """The absolute paths the VisiBake record ``record`` (a FOLDER_RECORDS name) in ``folder``
+    lists, the record itself included; None if there is none or it is not VisiBake's."""
+    path = os.path.join(folder, record)
+    content = read_record(path, FOLDER_RECORDS[record])
+    if content is None:
+        return None
+    listed = {os.path.normpath(os.path.join(folder, *f.split("/"))) for f in content["files"]}
     return listed | {os.path.normpath(path)}
 
 
@@ -72,31 +85,18 @@ def report_files(folder: str) -> set[str]:
     """The absolute paths a bake's ``report.json`` in ``folder`` lists, itself included; empty
     if there is none or it is not a VisiBake bake's report."""
     path = os.path.join(folder, REPORT_RECORD)
-    if not os.path.isfile(path) or os.path.islink(path):
+    content = read_record(path)
+    if content is None or not _REPORT_KEYS <= content.keys() or not _is_file_list(content["files"]):
         return set()
-    try:
-        with open(path, encoding="utf-8") as handle:
-            content = json.load(handle)
-    except (OSError, ValueError):
-        return set()
-    if not isinstance(content, dict) or not _REPORT_KEYS <= content.keys():
-        return set()
-    files = content["files"]
-    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
-        return set()
-    return {os.path.normpath(os.path.join(folder, f)) for f in files} | {os.path.normpath(path)}
+    return {os.path.normpath(os.path.join(folder, f)) for f in content["files"]} | {os.path.normpath(path)}
 
 
 def _is_sidecar(path: str) -> bool:
     """A brdf report beside its file: JSON naming the command that wrote it."""
-    if not path.endswith(SIDECAR_SUFFIX) or not os.path.isfile(path):
+    if not path.endswith(SIDECAR_SUFFIX):
         return False
-    try:
-        with open(path, encoding="utf-8") as handle:
-            content = json.load(handle)
-    except (OSError, ValueError):
-        return False
-    return isinstance(content, dict) and "command" in content
+    content = read_record(path)
+    return content is not None and "command" in content
 
 
 def is_visibakes(path: str, _records: dict | None = None) -> bool:
