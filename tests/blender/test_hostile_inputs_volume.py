@@ -8,6 +8,7 @@ import bpy
 
 import numpy as np
 import pytest
+from test_volume_bake import vdb  # noqa: F401 - fixture
 
 from blender_support import extension_module_name
 from bpy_scenes import black_world, sun
@@ -15,16 +16,7 @@ from bpy_scenes import black_world, sun
 SIDE = 16
 
 
-@pytest.fixture
-def vdb(visibake):
-    compat = importlib.import_module(extension_module_name() + ".operators.adapter.compat")
-    try:
-        return compat.openvdb()
-    except compat.FeatureMissing as missing:
-        pytest.skip(f"volumes need Blender's openvdb module: {missing}")
-
-
-def write_vdb(vdb, path, density):
+def write_vdb(vdb, path, density):  # noqa: F811 - fixture
     grid = vdb.FloatGrid()
     grid.copyFromArray(np.ascontiguousarray(density, np.float32), ijk=(0, 0, 0))
     grid.name = "density"
@@ -72,7 +64,7 @@ def _damage(data: bytes, how: str) -> bytes:
 
 
 @pytest.mark.parametrize("how", ["cut 0.3", "cut 0.6", "cut 0.99", "flip 0.5", "flip 0.8"])
-def test_a_damaged_vdb_exits_2_naming_the_volume_and_the_file(visibake, vdb, clean_scene, tmp_path, capfd, how):
+def test_a_damaged_vdb_exits_2_naming_the_volume_and_the_file(visibake, vdb, clean_scene, tmp_path, capfd, how):  # noqa: F811 - fixture
     path = tmp_path / "cloud.vdb"
     write_vdb(vdb, path, np.ones((SIDE, SIDE, SIDE)))
     path.write_bytes(_damage(path.read_bytes(), how))
@@ -87,7 +79,7 @@ def test_a_damaged_vdb_exits_2_naming_the_volume_and_the_file(visibake, vdb, cle
     assert path.read_bytes() == damaged  # the user's file as it was
 
 
-def test_the_panel_s_bake_volume_refuses_a_cut_vdb(visibake, vdb, clean_scene, tmp_path):
+def test_the_panel_s_bake_volume_refuses_a_cut_vdb(visibake, vdb, clean_scene, tmp_path):  # noqa: F811 - fixture
     path = tmp_path / "cloud.vdb"
     write_vdb(vdb, path, np.ones((SIDE, SIDE, SIDE)))
     path.write_bytes(_damage(path.read_bytes(), "cut 0.6"))
@@ -103,7 +95,7 @@ def test_the_panel_s_bake_volume_refuses_a_cut_vdb(visibake, vdb, clean_scene, t
     assert not (tmp_path / "panel").exists() or not list((tmp_path / "panel").rglob("*.vdb"))
 
 
-def test_a_negative_voxel_is_refused_even_where_the_resolution_averages_it_away(visibake, vdb, clean_scene, tmp_path,
+def test_a_negative_voxel_is_refused_even_where_the_resolution_averages_it_away(visibake, vdb, clean_scene, tmp_path,  # noqa: F811 - fixture
                                                                              capfd):
     density = np.ones((SIDE, SIDE, SIDE))
     density[3, 4, 5] = -0.5  # its 2 x 2 x 2 block's mean is 0.8: positive

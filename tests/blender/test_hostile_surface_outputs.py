@@ -10,23 +10,11 @@ import bpy
 
 import pytest
 from test_brdf_command import groove_scene
+from test_cli import small_blend  # noqa: F401 - fixture
 from test_hostile_outputs import BTF_FAST, USERS, files_under, full_disk  # noqa: F401 - fixture
 from test_lightfield_command import grid_options, plane_scene
 
-from bpy_scenes import black_world, cube, grid, material, mesh_object, sun
-
 FAST = ["--resolution", "8", "--directions", "8", "--bounces", "0", "--no-cache", "--no-progress"]
-
-
-@pytest.fixture
-def two_objects(clean_scene, tmp_path):
-    black_world()
-    mesh_object("Ground", grid(1.0), material("White", (0.8, 0.8, 0.8)))
-    mesh_object("Block", cube(0.5), material("Grey", (0.5, 0.5, 0.5)), location=(0, 0, 0.5), uv_map=None)
-    sun(3.0, tilt_degrees=20.0)
-    path = tmp_path / "small.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
-    return path
 
 
 def contents(folder) -> dict:
@@ -35,42 +23,42 @@ def contents(folder) -> dict:
 
 
 @pytest.mark.parametrize("mode, name", [("atlas", "lighting.exr"), ("vertex", "lighting.ply")])
-def test_a_users_file_of_a_result_s_name_is_kept_and_the_bake_exits_2_naming_it(visibake, two_objects, tmp_path,
+def test_a_users_file_of_a_result_s_name_is_kept_and_the_bake_exits_2_naming_it(visibake, small_blend, tmp_path,  # noqa: F811 - fixture
                                                                                 capfd, mode, name):
     out = tmp_path / "out"
     (out / "Ground").mkdir(parents=True)
     (out / "Ground" / name).write_bytes(USERS)
-    status = visibake.cli.main(["bake", str(two_objects), "--out", str(out), "--mode", mode] + FAST)
+    status = visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--mode", mode] + FAST)
     err = capfd.readouterr().err
     assert status == 2, err
     assert "VisiBake did not write" in err and str(out / "Ground" / name) in err and "bug" not in err
     assert files_under(out) == ["Ground", f"Ground/{name}"] and (out / "Ground" / name).read_bytes() == USERS
 
 
-def test_a_rebake_replaces_its_own_files_and_keeps_a_users_file_beside_them(visibake, two_objects, tmp_path):
+def test_a_rebake_replaces_its_own_files_and_keeps_a_users_file_beside_them(visibake, small_blend, tmp_path):  # noqa: F811 - fixture
     out = tmp_path / "out"
-    assert visibake.cli.main(["bake", str(two_objects), "--out", str(out), "--previews"] + FAST) == 0
+    assert visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--previews"] + FAST) == 0
     record = json.loads((out / "visibake-bake.json").read_text())
     assert record["format"] == "visibake-bake" and "Ground/lighting.exr" in record["files"]
     (out / "Ground" / "notes.txt").write_bytes(USERS)
     # A run killed before its rename left a temporary: not a refusal, and gone after the next run.
     leftover = out / "Ground" / ".lighting.0123abcd.partial.exr"
     leftover.write_bytes(b"half")
-    assert visibake.cli.main(["bake", str(two_objects), "--out", str(out), "--previews"] + FAST) == 0
+    assert visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--previews"] + FAST) == 0
     assert (out / "Ground" / "notes.txt").read_bytes() == USERS and not leftover.exists()
     assert not [name for name in files_under(out) if ".partial" in name]
     assert "Ground/notes.txt" not in json.loads((out / "visibake-bake.json").read_text())["files"]
 
 
-def test_a_failure_after_the_bake_puts_the_earlier_bake_back_and_keeps_the_users_files(visibake, two_objects,
+def test_a_failure_after_the_bake_puts_the_earlier_bake_back_and_keeps_the_users_files(visibake, small_blend,  # noqa: F811 - fixture
                                                                                        tmp_path, capfd):
     out = tmp_path / "out"
-    assert visibake.cli.main(["bake", str(two_objects), "--out", str(out), "--objects", "Ground"] + FAST) == 0
+    assert visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--objects", "Ground"] + FAST) == 0
     (out / "Ground" / "notes.txt").write_bytes(USERS)
     (out / "mine.txt").write_bytes(USERS)
     before = contents(out)
     # --report names a folder the bake itself creates (Block's): only known once the bake wrote it.
-    status = visibake.cli.main(["bake", str(two_objects), "--out", str(out), "--report", str(out / "Block"),
+    status = visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--report", str(out / "Block"),
                                 "--save", str(tmp_path / "saved.blend")] + FAST)
     err = capfd.readouterr().err
     assert status == 2, err
@@ -78,10 +66,10 @@ def test_a_failure_after_the_bake_puts_the_earlier_bake_back_and_keeps_the_users
     assert not (tmp_path / "saved.blend").exists()
 
 
-def test_a_report_on_a_full_disk_exits_2_and_the_earlier_bake_stays(visibake, two_objects, tmp_path,
+def test_a_report_on_a_full_disk_exits_2_and_the_earlier_bake_stays(visibake, small_blend, tmp_path,  # noqa: F811 - fixture
                                                                     full_disk, capfd):  # noqa: F811
     out = tmp_path / "out"
-    assert visibake.cli.main(["bake", str(two_objects), "--out", str(out)] + FAST) == 0
+    assert visibake.cli.main(["bake", str(small_blend), "--out", str(out)] + FAST) == 0
     (out / "Ground" / "notes.txt").write_bytes(USERS)
     before = contents(out)
     (full_disk / "keep.txt").write_bytes(USERS)
@@ -93,7 +81,7 @@ def test_a_report_on_a_full_disk_exits_2_and_the_earlier_bake_stays(visibake, tw
     except OSError:
         pass
     left = sorted(os.listdir(full_disk))
-    status = visibake.cli.main(["bake", str(two_objects), "--out", str(out), "--report",
+    status = visibake.cli.main(["bake", str(small_blend), "--out", str(out), "--report",
                                 str(full_disk / "report.json")] + FAST)
     err = capfd.readouterr().err
     assert status == 2, err
@@ -122,8 +110,8 @@ def test_the_demo_twice_into_one_folder_and_over_an_earlier_version_s_demo(visib
     assert (out / "preview_render.png").read_bytes() == USERS
 
 
-def test_the_panel_s_bake_refuses_a_users_file_with_a_report(visibake, two_objects, tmp_path):
-    bpy.ops.wm.open_mainfile(filepath=str(two_objects))
+def test_the_panel_s_bake_refuses_a_users_file_with_a_report(visibake, small_blend, tmp_path):  # noqa: F811 - fixture
+    bpy.ops.wm.open_mainfile(filepath=str(small_blend))
     props = bpy.context.scene.visibake
     props.resolution, props.directions, props.bounces, props.use_cache, props.bake_all = 8, 8, 0, False, True
     props.output_dir = str(tmp_path / "panel")
