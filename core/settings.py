@@ -165,9 +165,13 @@ SETTINGS = _table(
                  "radius) is integrated with this many squared stratified points per texel"),
     Setting("footprint_samples", int, 16, "Texel Footprint Samples", minimum=1, maximum=256, soft_max=64,
             help="Points per texel spread over its footprint on the surface, as Cycles' bake spreads its samples "
-                 "(half a texel wide, on the texel's own face): the table's rays start from them and exact "
+                 "(over the texel's area on its own face): the table's rays start from them and exact "
                  "shadows are averaged over them, so shadow edges and contacts are anti-aliased (1: texel "
                  "centres only)"),
+    # Not the scene's: the Blender adapter gives the running Cycles' width (operators.adapter.compat).
+    Setting("footprint_width", float, 1.0, "Texel Footprint Width", minimum=0.0, maximum=4.0, on_scene=False,
+            help="Width of the box, in texels, each texel's footprint points are spread over (Cycles' bake: "
+                 "1 since Blender 5.2.1, 0.5 in Blender 4.2 to 5.2.0; 0 puts them all at the centre)"),
     Setting("sharp_contacts", bool, True, "Sharp Contacts",
             help="Where a ray of the table lands within two texels of its target (objects resting on others, "
                  "corners), light it at the landing point with exact shadow rays instead of reading the target's "
@@ -319,6 +323,7 @@ class BakeSettings(_Validated):
     margin: int = _default("margin")
     area_light_samples: int = _default("area_light_samples")
     footprint_samples: int = _default("footprint_samples")
+    footprint_width: float = _default("footprint_width")
     sharp_contacts: bool = _default("sharp_contacts")
     stitch_seams: bool = _default("stitch_seams")
     emitter_samples: int = _default("emitter_samples")

@@ -52,15 +52,19 @@ baked surface (0 = direct only). Floor rho 0.5 under a sun S = pi, a 400 m ceili
 1 m above it, invisible to shadow rays: centre values 0.5000, 0.5000, 0.6998, 0.6998,
 0.7771 for N = 0..4 (infinite planes: 0.5, 0.5, 0.7, 0.7, 0.78).
 
-Sampling inside a texel: Cycles jitters the texel-centre position uniformly over a box
-of HALF a texel (Blender's bake differentials are half the true ones), retrying until the
-sample lies in the texel-centre's triangle. A point light 0.3 m above a plane fits a box
-of width 0.50 texel best (RMS 0.25%, against 0.42% for 0.55 and 6% for a full texel).
-Texel-centre lookups (VisiBake) therefore match Cycles to second order, except where
-the half-texel box straddles a triangle edge or a shadow edge.
+Sampling inside a texel: Cycles jitters the texel-centre position uniformly over a box,
+retrying until the sample lies in the texel-centre's triangle. The box depends on the
+Blender: HALF a texel in 4.2 to 5.2.0 (Blender's bake differentials were half the true
+ones; a point light 0.3 m above a plane fits a width of 0.50 best: RMS 0.25%, against 0.42%
+for 0.55 and 6% for a full texel), the whole texel from 5.2.1 (a sharp shadow edge: RMS 0.022
+against 0.146 for half; tests/blender/test_cycles_bake.py). VisiBake's footprint follows the
+running Blender's (operators.adapter.compat.CYCLES_BAKE_FOOTPRINT_WIDTH).
 
-Coverage: the image is cleared to (0, 0, 0, 0); with margin = 0 texels whose centre no
-triangle covers stay (0, 0, 0, 0), so alpha > 0 is the coverage mask. Margins use
+Coverage: the image is cleared to (0, 0, 0, 0); with margin = 0 texels no triangle covers
+stay (0, 0, 0, 0), so alpha > 0 is the coverage mask. Up to 5.2, a texel is covered where a
+triangle covers its centre; 5.3 also bakes every texel a triangle only touches (a triangle
+of 304 centre texels at 32^2 gets 354), which VisiBake fills by its margin instead: compare
+the texels both cover. Margins use
 margin_type EXTEND (copies, alpha 1); the default ADJACENT_FACES fades the margin of an
 island without UV neighbours to half value and half alpha.
 

@@ -154,7 +154,8 @@ class PackagedBake:
         """Object ``index``'s samples, as core.pipeline.prepare.prepare builds them."""
         if index in self.vertex_samples:
             return self.vertex_samples[index]
-        built = build_samples(self.meshes[index], self.settings.footprint_samples, self.settings.threads)
+        built = build_samples(self.meshes[index], self.settings.footprint_samples, self.settings.threads,
+                              self.settings.footprint_width)
         expected = int(self.sample_offset[index + 1] - self.sample_offset[index])
         if len(built) != expected:
             raise RuntimeError(f"object {self.meshes[index].name!r} made {len(built)} samples where its raster "
@@ -212,7 +213,7 @@ class PackagedBake:
         def dense(rows, count):
             return dense_footprint_of(self.meshes, covered.__getitem__, self.sample_offset,
                                       lambda chosen: normal[np.asarray(chosen) - start], rows, count,
-                                      self.settings.threads)
+                                      self.settings.threads, self.settings.footprint_width)
 
         built = SampleSet(position, normal, geometric, self.ray_scene.ray_origins(position, geometric), owner,
                           points, corners, lifts, cutoffs, footprint_normals=point_normals,

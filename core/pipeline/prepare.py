@@ -186,7 +186,8 @@ class Prepared:
         normals (r, count, 3) float32 or None (:func:`dense_footprint_of`)."""
         self._check_direct_inputs("footprint points", shading=True)
         return dense_footprint_of(self.meshes, self.object_samples.__getitem__, self.sample_offset,
-                                  lambda chosen: self.normal[chosen], rows, count, self.settings.threads)
+                                  lambda chosen: self.normal[chosen], rows, count, self.settings.threads,
+                                  self.settings.footprint_width)
 
     def lookup_atlas(self, values: np.ndarray, dilate) -> np.ndarray:
         """Per-sample reflected light (K, C) as the atlas rays look it up in: each texel's
@@ -399,7 +400,8 @@ def prepare(scene: Scene, settings: BakeSettings, progress=None, table_needed: b
     object_samples: list[ObjectSamples] = []
     for index, mesh in enumerate(meshes):
         object_samples.append(build_vertex_samples(mesh, centre) if mesh.mode == "vertex"
-                              else build_samples(mesh, settings.footprint_samples, settings.threads))
+                              else build_samples(mesh, settings.footprint_samples, settings.threads,
+                                                  settings.footprint_width))
         stages.report((index + 1) / len(meshes))
     for mesh, samples in zip(meshes, object_samples):
         if len(samples) == 0 and mesh.output:
@@ -539,13 +541,14 @@ def shadowing_of(bake, table, group: np.ndarray | None) -> Shadowing:
 
 
 def dense_footprint_of(meshes, object_samples, sample_offset: np.ndarray, normal_of, rows: np.ndarray, count: int,
-                       threads: int) -> tuple[np.ndarray, np.ndarray | None]:
+                       threads: int, footprint_width: float) -> tuple[np.ndarray, np.ndarray | None]:
     """``count`` footprint points (r, count, 3) float32 of the bake's samples ``rows`` (r,) int64,
     and their normals (r, count, 3) float32 or None (core.sampling.samples.dense_footprint);
     vertex samples stand for their position (zero offsets).
 
     object_samples : callable(object index) -> its ObjectSamples; sample_offset : (objects + 1,)
-    where each object's samples start; normal_of : callable(rows) -> their (r, 3) shading normals.
+    where each object's samples start; normal_of : callable(rows) -> their (r, 3) shading normals;
+    footprint_width : the texels' box width (BakeSettings.footprint_width).
     """
     rows = np.asarray(rows, np.int64)
     offsets = np.zeros((len(rows), count, 3), np.float32)
@@ -557,7 +560,7 @@ def dense_footprint_of(meshes, object_samples, sample_offset: np.ndarray, normal
         if mesh.mode == "vertex":  # its samples stand for their position
             continue
         local = rows[chosen] - sample_offset[index]
-        offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count, threads)
+        offsets[chosen], point_normals = dense_footprint(mesh, samples, local, count, threads, footprint_width)
         if point_normals is not None:
             if normals is None:
                 normals = np.broadcast_to(normal_of(rows).astype(np.float32)[:, None, :], offsets.shape).copy()

@@ -2,7 +2,8 @@
 
 A texel of a baked image stands for an area of surface, not its centre. Cycles' bake
 (``init_from_bake.h`` with Blender's ``bake_differentials``) averages every texel over a box
-half a texel wide in x and y around the centre (the differentials carry a factor 1/2),
+around the centre, one texel wide in x and y since Blender 5.2.1 and half a texel before
+(the differentials carried a factor 1/2; measured in tests/blender/test_bake_footprint.py),
 keeping only the points that lie inside the texel's own triangle: a point outside is drawn
 again, up to ten times, and otherwise the centre stands in. That is a box filter clipped
 to the triangle, so a border texel is the mean of the part of its box on its own face and
@@ -27,9 +28,11 @@ from .. import kernels
 from .. import tolerances as tol
 from ..lights.sampler import hash32, owen_scramble, sobol_point
 
-# Width of the box each texel is averaged over, in texels: Cycles' bake jitters by half the
-# texel's UV differentials either way (Blender's bake_differentials halves them).
-BOX_WIDTH = 0.5
+# Width of the box each texel is averaged over, in texels, unless the caller names another:
+# the area the texel stands for, as Cycles' bake averages it since Blender 5.2.1 (Blender
+# 4.2 to 5.2.0 jitter over half of it; the Blender adapter passes the running Cycles' width,
+# BakeSettings.footprint_width).
+BOX_WIDTH = 1.0
 # A point is drawn this many times before its slot gives up and takes the centre (Cycles'
 # bake_jitter_barycentric tries ten jitters).
 REDRAWS = 10
@@ -60,7 +63,8 @@ def _scrambled_points(count: int, seeds: np.ndarray) -> np.ndarray:
 
 def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
                       corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray, count: int,
-                      threads: int = 0, seed_triangle: np.ndarray | None = None) -> np.ndarray:
+                      threads: int = 0, seed_triangle: np.ndarray | None = None,
+                      box_width: float = BOX_WIDTH) -> np.ndarray:
     """Offsets of each sample's footprint points from its position.
 
     Parameters
@@ -75,11 +79,12 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     seed_triangle : (k,) int32 the owning triangles where ``triangle`` only indexes ``corner_uv``
         and ``corners`` given per sample (``triangle`` then 0..k-1): the draws are seeded by
         the mesh's own triangle (None: ``triangle`` is it)
+    box_width : the width of each texel's box, in texels
 
     Returns
     -------
     offsets : (k, count, 3) float32 world-space offsets; ``position + offsets[:, j]`` lies
-        on the sample's triangle, within half a texel's box (BOX_WIDTH) of its centre
+        on the sample's triangle, within the texel's box (``box_width`` wide) around its centre
     """
     samples = len(pixel)
     if count <= 1 or samples == 0:
@@ -108,9 +113,9 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
         chosen = np.empty((samples, count, 3))
         inside = np.empty((samples, count), bool)
         kernels.run(module.footprint_first_draw, threads, np.ascontiguousarray(uv), centre, inverse, usable,
-                    jitter, np.ascontiguousarray(tri_corners), BOX_WIDTH, tol.SAMPLE_BARYCENTRIC_INSET, chosen, inside)
+                    jitter, np.ascontiguousarray(tri_corners), box_width, tol.SAMPLE_BARYCENTRIC_INSET, chosen, inside)
     else:
-        first = barycentric_of_slots(centre[:, None, :] + (jitter - 0.5) * BOX_WIDTH)  # (k, count, 3)
+        first = barycentric_of_slots(centre[:, None, :] + (jitter - 0.5) * box_width)  # (k, count, 3)
         inside = np.all(first >= tol.SAMPLE_BARYCENTRIC_INSET, axis=2) & usable[:, None]
         chosen = (first[..., 0:1] * tri_corners[:, None, 0] + first[..., 1:2] * tri_corners[:, None, 1]
                   + first[..., 2:3] * tri_corners[:, None, 2])
@@ -119,10 +124,10 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     # Cycles redraws from a hash of the rejected point; so does this, per texel and slot.
     if module is not None:
         kernels.run(module.footprint_redraws, threads, np.ascontiguousarray(uv), centre, inverse, usable, jitter,
-                    np.ascontiguousarray(tri_corners), BOX_WIDTH, tol.SAMPLE_BARYCENTRIC_INSET, REDRAWS, chosen,
+                    np.ascontiguousarray(tri_corners), box_width, tol.SAMPLE_BARYCENTRIC_INSET, REDRAWS, chosen,
                     inside)
     else:
-        _redraw(uv, centre, inverse, usable, jitter, tri_corners, chosen, inside)
+        _redraw(uv, centre, inverse, usable, jitter, tri_corners, chosen, inside, box_width)
     # A slot that found no place inside takes the centre, as Cycles' sample does.
     if module is not None:
         offsets = np.empty((samples, count, 3), np.float32)
@@ -133,12 +138,13 @@ def footprint_offsets(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
 
 
 def _redraw(uv: np.ndarray, centre: np.ndarray, inverse: np.ndarray, usable: np.ndarray, jitter: np.ndarray,
-            tri_corners: np.ndarray, chosen: np.ndarray, inside: np.ndarray) -> None:
+            tri_corners: np.ndarray, chosen: np.ndarray, inside: np.ndarray, box_width: float) -> None:
     """The redraws of every slot whose first draw fell outside its triangle, in numpy (the
     compiled twin is core.kernels.sample_kernels.footprint_redraws): each draws again from a
     hash of its last draw, up to REDRAWS - 1 times; a slot that lands inside gets its point in
     ``chosen`` (k, P, 3) float64, the others keep NaN. uv (k, 3, 2), centre (k, 2), inverse
-    (k,), tri_corners (k, 3, 3) float64; usable (k,) and inside (k, P) bool; jitter (k, P, 2)."""
+    (k,), tri_corners (k, 3, 3) float64; usable (k,) and inside (k, P) bool; jitter (k, P, 2);
+    box_width in texels."""
     rows, slots = np.nonzero(~inside & usable[:, None])
     u = jitter[rows, slots]
     for attempt in range(1, REDRAWS):
@@ -149,7 +155,7 @@ def _redraw(uv: np.ndarray, centre: np.ndarray, inverse: np.ndarray, usable: np.
         u = np.stack([hash32(bits[:, 0] ^ hash32(bits[:, 1] + np.uint32(attempt))),
                       hash32(bits[:, 1] ^ hash32(bits[:, 0] + salt))], axis=1)
         u = (u >> np.uint32(8)) * 2.0 ** -24
-        point = centre[rows] + (u - 0.5) * BOX_WIDTH
+        point = centre[rows] + (u - 0.5) * box_width
         pa, pb, pc, scale = uv[rows, 0], uv[rows, 1], uv[rows, 2], inverse[rows]
         x, y = point[:, 0] - pa[:, 0], point[:, 1] - pa[:, 1]
         w1 = (x * (pc[:, 1] - pa[:, 1]) - (pc[:, 0] - pa[:, 0]) * y) * scale
@@ -184,9 +190,9 @@ def footprint_jitter(pixel: np.ndarray, triangle: np.ndarray, count: int, module
 
 def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, height: int,
                       corner_uv: np.ndarray, corners: np.ndarray, position: np.ndarray,
-                      offsets: np.ndarray, threads: int = 0) -> np.ndarray:
+                      offsets: np.ndarray, threads: int = 0, box_width: float = BOX_WIDTH) -> np.ndarray:
     """(k, 4, 3) float32 offsets from each sample's position to the four corners of its box
-    (BOX_WIDTH texels wide), or where a corner lies beyond the texel's own triangle, to the
+    (``box_width`` texels wide), or where a corner lies beyond the texel's own triangle, to the
     texel's footprint point (``offsets`` (k, P, 3), :func:`footprint_offsets`) nearest to it.
 
     A straight shadow edge that crosses the box separates at least one corner from the
@@ -205,7 +211,7 @@ def footprint_corners(pixel: np.ndarray, triangle: np.ndarray, width: int, heigh
     inverse = np.divide(1.0, doubled, out=np.zeros_like(doubled), where=np.abs(doubled) > 0)
     tri_corners = np.asarray(corners, np.float64)[triangle]
     result = np.empty((len(pixel), 4, 3), np.float32)
-    half = BOX_WIDTH / 2
+    half = box_width / 2
     module = kernels.compiled()
     if module is not None:
         kernels.run(module.footprint_corners, threads, np.ascontiguousarray(uv), centre, inverse, tri_corners,

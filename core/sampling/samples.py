@@ -9,7 +9,7 @@ from .. import tolerances as tol
 from ..geometry import mesh_face_normals
 from ..outputs.images import bilinear_wrap
 from ..scene import Mesh
-from .footprint import footprint_corners, footprint_normals, footprint_offsets
+from .footprint import BOX_WIDTH, footprint_corners, footprint_normals, footprint_offsets
 from .raster import rasterize
 from .terminator import smooth_surface_offsets
 
@@ -129,9 +129,11 @@ def _has_terminator(mesh: Mesh, smooth: bool) -> bool:
     return mesh.terminator_offset > 0 and smooth
 
 
-def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> ObjectSamples:
+def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0,
+                  footprint_width: float = BOX_WIDTH) -> ObjectSamples:
     """Rasterise the mesh's bake UV map and evaluate geometry and materials per texel, with
-    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples).
+    ``footprint_samples`` points over each texel's footprint (above 1; see ObjectSamples), a
+    box ``footprint_width`` texels wide (core.sampling.footprint).
     ``threads``: the compiled kernels' thread count (0: all cores); the samples do not depend on it."""
     width, height = mesh.resolution
     raster_uv, normals, raster = _texel_raster(mesh, threads)
@@ -183,9 +185,9 @@ def build_samples(mesh: Mesh, footprint_samples: int = 1, threads: int = 0) -> O
         own = np.arange(len(tri))
         own_uv = raster_uv[tri]
         footprint = footprint_offsets(raster.pixel, own, width, height, own_uv, corners, position,
-                                      footprint_samples, threads, seed_triangle=tri)
+                                      footprint_samples, threads, seed_triangle=tri, box_width=footprint_width)
         box_corners = footprint_corners(raster.pixel, own, width, height, own_uv, corners, position, footprint,
-                                        threads)
+                                        threads, box_width=footprint_width)
         if _has_footprint_normals(footprint_samples, bool(np.any(smooth))):
             point_normals = footprint_normals(footprint, position, own, corners, mesh.corner_normals[tri], shading,
                                               smooth, threads)
@@ -326,10 +328,12 @@ def build_vertex_samples(mesh: Mesh, centre: np.ndarray | None = None) -> Vertex
         element_sample=element_sample)
 
 
-def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count: int, threads: int = 0):
+def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count: int, threads: int = 0,
+                    footprint_width: float = BOX_WIDTH):
     """``count`` footprint points of samples ``rows`` (r,) of ``samples`` (built from ``mesh``),
-    drawn as build_samples draws them, so that the first footprint_samples of them are the
-    samples' own (the same scrambled Sobol sequence, longer). ``threads``: the kernels' (0: all cores).
+    drawn as build_samples draws them (the same ``footprint_width``), so that the first
+    footprint_samples of them are the samples' own (the same scrambled Sobol sequence, longer).
+    ``threads``: the kernels' (0: all cores).
 
     Returns (offsets (r, count, 3) float32, normals (r, count, 3) float32 or None where no
     face of ``rows`` is smooth).
@@ -342,7 +346,7 @@ def dense_footprint(mesh: Mesh, samples: ObjectSamples, rows: np.ndarray, count:
     position = samples.position[rows]
     offsets = footprint_offsets(samples.pixel[rows], own, width, height,
                                 np.asarray(mesh.uv_maps[mesh.bake_uv_map][triangle], np.float64), corners, position,
-                                count, threads, seed_triangle=triangle)
+                                count, threads, seed_triangle=triangle, box_width=footprint_width)
     smooth = _on_smooth_faces(mesh, triangle, samples.geometric_normal[rows])
     if not smooth.any():
         return offsets, None

@@ -249,6 +249,7 @@ def settings_key(settings: BakeSettings) -> str:
     text = json.dumps({"format": FORMAT_VERSION, "directions": settings.directions, "rotate": settings.rotate,
                        "seed": settings.seed if settings.rotate else 0,
                        "footprint_samples": settings.footprint_samples,
+                       "footprint_width": settings.footprint_width,
                        "interleave": settings.interleave,
                        "tolerances": constants}, sort_keys=True)
     return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()

@@ -16,6 +16,7 @@ import bpy
 from ...core.errors import BakeRefused
 from ...core.settings import PASSES, PREFERENCE_SETTINGS, SETTINGS, BakeSettings, LayoutSettings
 from . import EXTENSION_PACKAGE
+from .compat import CYCLES_BAKE_FOOTPRINT_WIDTH
 from .device import preferences
 
 CACHE_FOLDER_NAME = "visibake_cache"
@@ -39,7 +40,8 @@ def bake_settings(props, threads: int = SETTINGS["threads"].default) -> BakeSett
     """The BakeSettings of ``props`` (scene.visibake), not validated yet."""
     values = {name: getattr(props, name) for name in _SCENE_BAKE_FIELDS}
     values["passes"] = tuple(p for p in PASSES if p in values["passes"])
-    return BakeSettings(**values, threads=threads)
+    # Texels average what this Blender's Cycles bake averages, so that they compare with it.
+    return BakeSettings(**values, threads=threads, footprint_width=CYCLES_BAKE_FOOTPRINT_WIDTH)
 
 
 def layout_settings(props) -> LayoutSettings:

@@ -25,15 +25,10 @@ RESOLUTION = 32
 CYCLES_SAMPLES = 64
 TOLERANCE = 0.08
 
-# Cycles 5.1 and later (checked: 5.3.0) bake these rooms differently from Cycles 4.2 to 5.0: on
-# the same texels of the shelf scene its shelf is 9% brighter and its floor 8% brighter, while
-# VisiBake's images are bit-identical under 5.0.1 and 5.3.0 (benchmarks/cove_vs_cycles.py
-# --dump under both; docs/reliability.md). Until that difference is understood, the comparison
-# runs on the Cycles it was validated against.
-pytestmark = pytest.mark.skipif(
-    bpy.app.version >= (5, 1, 0),
-    reason="Cycles 5.1+ bakes the emitter rooms differently from 5.0 (shelf +9%, floor +8% on the same texels), "
-           "not yet understood; validated against Cycles 4.2-5.0")
+# Both sides average each texel over the same box (operators.adapter.compat's
+# CYCLES_BAKE_FOOTPRINT_WIDTH): Cycles 5.2.1 and later average a whole texel, 4.2 to 5.2.0 half
+# of one. Before VisiBake followed that, Cycles 5.3.0's shelf read 9% brighter than 5.0.1's on
+# the same texels and VisiBake's was 0.695 of it (docs/reliability.md).
 
 
 def _ratios(objects, compared: list[str]) -> dict:

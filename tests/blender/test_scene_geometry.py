@@ -33,7 +33,8 @@ RESOLUTION = 24
 LIT = RHO * SUN_STRENGTH * math.cos(math.radians(TILT)) / math.pi
 # Cycles at 64 samples per texel under a zero-angle sun: direct light has no noise, the
 # one bounce off the feature a few percent of a small term. What separates the bakes is
-# texel-centre sampling along the shadow's edge (Cycles jitters over half a texel): the
+# texel-centre sampling along the shadow's edge (Cycles jitters over half a texel, or a whole one
+# from Blender 5.2.1): the
 # edge texels (about 4 per row of 24 for these shadows) differ by up to half the lit
 # value, an RMSE of about 0.5 * sqrt(4/24) ~ 0.2 of the mean at worst. 0.15 bounds it for
 # shadows of this size; a missing shadow (the bug) is an RMSE of 0.3 or more.

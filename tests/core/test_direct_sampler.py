@@ -178,14 +178,16 @@ def test_linking_use_shadow_and_shadow_visibility():
     np.testing.assert_array_equal(_ground_irradiance([ground, blocker], here)[0], shaded)
 
 
-def test_direct_light_over_a_footprint_traces_its_points_from_each_position():
+@pytest.mark.parametrize("box_width", [0.5, 1.0])
+def test_direct_light_over_a_footprint_traces_its_points_from_each_position(box_width):
     meshes = _blocked_plane()
     sun = Light("Sun", "SUN", np.ones(3), 1.0)
     centres = prepare(Scene(list(meshes), []), BakeSettings(directions=16, bounces=0, shadows="exact",
                                                             footprint_samples=1), table_needed=False)
     point_sampled, rays = lamp_irradiance(centres.sample_set(), centres.shadowing(), [sun])
     p = prepare(Scene(list(meshes), []), BakeSettings(directions=16, bounces=0, shadows="exact",
-                                                      footprint_samples=16), table_needed=False)
+                                                      footprint_samples=16, footprint_width=box_width),
+                table_needed=False)
     averaged, footprint_rays = lamp_irradiance(p.sample_set(), p.shadowing(), [sun])
     ground = slice(p.sample_offset[0], p.sample_offset[1])
     # Lit and shadowed texels stay so; texels the shadow edge crosses get fractions.
@@ -197,9 +199,9 @@ def test_direct_light_over_a_footprint_traces_its_points_from_each_position():
     assert footprint_rays <= 4 * rays + EDGE_FOOTPRINT_POINTS * 1.5 * np.count_nonzero(partial)
     hard = point_sampled[ground, 0]
     assert np.count_nonzero(partial) >= 20 and not np.any((hard > 0) & (hard < 1))
-    # Each texel is the lit share of its box, half a texel (2 m / 24 / 2) wide as in Cycles'
-    # bake, under the overhead sun's shadow of the 0.6 m square: texel centres alias it.
-    half = 0.25 * 2.0 / 24
+    # Each texel is the lit share of its box (box_width x 2 m / 24 wide) as in Cycles' bake,
+    # under the overhead sun's shadow of the 0.6 m square: texel centres alias it.
+    half = box_width / 2 * 2.0 / 24
     centre = p.position[ground]
     covered = np.prod([np.clip(np.minimum(centre[:, a] + half, 0.3) - np.maximum(centre[:, a] - half, -0.3), 0, None)
                        for a in (0, 1)], axis=0) / (2 * half) ** 2

@@ -52,7 +52,7 @@ def test_the_report_s_settings_keep_their_keys():
     # asdict(BakeSettings) is the report's "settings": its keys are part of the JSON.
     assert list(dataclasses.asdict(BakeSettings())) == [
         "directions", "bounces", "shadows", "shadow_regions", "rotate", "seed", "interleave", "passes", "margin",
-        "area_light_samples", "footprint_samples", "sharp_contacts", "stitch_seams",
+        "area_light_samples", "footprint_samples", "footprint_width", "sharp_contacts", "stitch_seams",
         "emitter_samples", "threads", "chunk_rays", "light_groups", "vertex_lookup"]
 
 
