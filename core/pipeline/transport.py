@@ -18,7 +18,7 @@ from ..lights.emitters import (
     triangle_irradiance,
 )
 from ..lights.lamps import lamp_scale, lamp_shape_key, unit_lamp
-from ..transport.contacts import ShortHits, contact_correction, texel_sizes
+from ..transport.contacts import CONTACT_AREA_LIGHT_SAMPLES, ShortHits, contact_correction, texel_sizes
 from ..transport.contract import GatherSource, TransportBackend
 from ..transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
 from ..transport.groups import MAX_GROUPS_PER_GATHER, LightGroup, Transported
@@ -265,7 +265,8 @@ def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, ligh
                 # A table held by row ranges: the samples' direct light runs where they are.
                 irradiance, traced = p.table.lamp_irradiance([unit_lamp(light)], part)
             else:
-                irradiance, traced = backend.lamp_irradiance(samples, p.shadowing(), [unit_lamp(light)], part)
+                irradiance, traced = backend.lamp_irradiance(samples, _shadowing_at(p, where), [unit_lamp(light)],
+                                                             part)
             unit = np.ascontiguousarray(irradiance[:, 0], dtype=np.float64)
             del irradiance  # (K, 3): not held while the next lamp's is made
             rays += traced
@@ -276,6 +277,16 @@ def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, ligh
         if report is not None:
             report((number + 1) / len(lights))
     return total, rays
+
+
+def _shadowing_at(p: Prepared, where: str):
+    """The preparation's Shadowing for the samples (``where`` "samples"), or for the short hits:
+    lamps with an extent integrated with CONTACT_AREA_LIGHT_SAMPLES per side at most."""
+    shadowing = p.shadowing()
+    if where == "short hits" and shadowing.area_light_samples > CONTACT_AREA_LIGHT_SAMPLES:
+        # A copy that shares the preparation's blocker scenes and fractions.
+        return replace(shadowing, area_light_samples=CONTACT_AREA_LIGHT_SAMPLES)
+    return shadowing
 
 
 def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGroup], results: list[Transported],

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from bpy_scenes import black_world, cube, grid, image_pixels, material, mesh_object, point, select_only, spot, sun
+from tools.blender_compat import compat
 from tools.cycles_bake import bake_diffuse
 
 SAMPLES = 256
@@ -101,8 +102,12 @@ def test_sun_with_an_angle_has_cycles_penumbra(clean_scene):
 
     before, after = _soft_case(setter, "sun, angle 10 deg", noise=True)
     assert after[2] > 40  # a real penumbra: dozens of texels
-    assert after[0] < 0.05 and after[1] < 0.10
-    assert after[1] < 0.5 * before[1]
+    # Measured on the penumbra: 0.067 of 0.287 against Cycles 5.0 (boxes half a texel wide);
+    # 0.121 of 0.227 against 5.3, whose whole-texel boxes reach further into the penumbra than
+    # the probes from each texel's centre see (with half-texel boxes 0.099: issue 52, open).
+    wide = compat.CYCLES_BAKE_FOOTPRINT_WIDTH > 0.5
+    assert after[0] < 0.05 and after[1] < (0.13 if wide else 0.10)
+    assert after[1] < (0.55 if wide else 0.5) * before[1]
 
 
 def test_sun_with_an_angle_in_shadow_fractions(clean_scene):

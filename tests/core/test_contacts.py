@@ -8,7 +8,7 @@ from core import kernels
 from core.pipeline.relight import bake
 from core.scene import Light, Material, Scene
 from core.settings import BakeSettings
-from core.transport.contacts import SHORT_HIT_TEXELS, texel_sizes
+from core.transport.contacts import CONTACT_AREA_LIGHT_SAMPLES, SHORT_HIT_TEXELS, texel_sizes
 from core_scenes import quad_mesh
 
 
@@ -46,6 +46,50 @@ def test_short_hits_are_lit_where_they_land_so_a_coarse_floor_does_not_blur_the_
           f"with sharp contacts {error(sharp):.3f}")
     assert error(sharp) < 0.5 * error(coarse)
     assert any("short hits" in entry["pass"] for entry in report["passes"])
+
+
+def test_a_soft_lamp_lights_the_landing_points_with_a_few_points_each(monkeypatch):
+    # The wall on the floor under a 1 m area lamp instead of the sun: near the wall's foot the
+    # lamp is partly hidden, every landing is in a penumbra, and at the bake's 8 x 8 points a
+    # landing that pass traced most of a room's bake (issue 52). Each landing weighs one
+    # direction of its sample, so a few points each keep the contact as sharp.
+    from core.pipeline import transport
+
+    def soft_lit(floor_resolution):
+        scene = _wall_on_floor(floor_resolution)
+        scene.lights[:] = [Light("Panel", "AREA", np.ones(3), 300.0, position=np.array([0.4, -0.8, 1.5]),
+                                 size_x=1.0, size_y=1.0)]
+        return scene
+
+    def wall_indirect(floor_resolution, contacts):
+        settings = BakeSettings(directions=256, bounces=1, passes=("indirect",), sharp_contacts=contacts)
+        result = bake(soft_lit(floor_resolution), settings)
+        image = result.objects[1].images["indirect"]
+        landings = [int(entry["pass"].split()[3]) for entry in result.report["passes"]
+                    if entry["pass"].endswith("short hits")]
+        return image[..., 0], image[..., 3] > 0, result.report["rays"]["shadow_rays"], sum(landings)
+
+    fine, covered, _, _ = wall_indirect(256, contacts=False)
+    coarse, _, own_rays, _ = wall_indirect(16, contacts=False)  # the texels' own direct light only
+    few, _, few_rays, landings = wall_indirect(16, contacts=True)
+    monkeypatch.setattr(transport, "CONTACT_AREA_LIGHT_SAMPLES", 8)
+    every, _, every_rays, _ = wall_indirect(16, contacts=True)
+    lowest = np.nonzero(covered.any(axis=1))[0][:2]
+    rows = covered[lowest]
+
+    def error(image):
+        return float(np.sqrt(np.mean((image[lowest][rows] - fine[lowest][rows]) ** 2)) / fine[lowest][rows].mean())
+
+    few_rays, every_rays = few_rays - own_rays, every_rays - own_rays  # the landings' rays
+    print(f"\nsoft lamp, wall's lowest rows: coarse floor {error(coarse):.3f}, contacts at "
+          f"{CONTACT_AREA_LIGHT_SAMPLES}^2 points {error(few):.3f} ({few_rays} shadow rays at {landings} landings), "
+          f"at 8^2 {error(every):.3f} "
+          f"({every_rays})")
+    assert error(few) < 0.5 * error(coarse)
+    assert error(few) < error(every) + 0.02
+    # At most that many rays a landing, where a penumbra traced 64 (the test's landings are
+    # mostly decided by the probes, which cost about as much).
+    assert landings > 1000 and few_rays <= CONTACT_AREA_LIGHT_SAMPLES ** 2 * landings
 
 
 def test_only_atlas_objects_have_a_texel_size():

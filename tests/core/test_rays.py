@@ -174,11 +174,13 @@ def test_calls_run_together_return_in_order_the_first_on_the_calling_thread():
     names = dict(seen)
     assert names[0] == threading.current_thread().name
     assert all(names[i].startswith("visibake-helper") for i in (1, 2, 3))
-    # The helpers are kept: a second batch runs on threads of the same names, started once.
-    before = {t.ident for t in threading.enumerate() if t.name.startswith("visibake-helper")}
+    # The helpers are kept: a second batch runs on the same threads. (The pool may still start
+    # the one it did not need the first time: a helper that has just set its result is not idle
+    # yet, and a loaded machine reaches the second batch in that window. Never more than three.)
+    pool = rays._helpers
     run_together([lambda i=i: call(i) for i in range(4)])
-    after = {t.ident for t in threading.enumerate() if t.name.startswith("visibake-helper")}
-    assert after == before
+    assert rays._helpers is pool
+    assert len({t.ident for t in threading.enumerate() if t.name.startswith("visibake-helper")}) <= 3
 
 
 def test_an_error_is_raised_once_every_call_has_ended():
