@@ -3,7 +3,7 @@
 A texel of a baked image stands for an area of surface, not its centre. Cycles' bake
 (``init_from_bake.h`` with Blender's ``bake_differentials``) averages every texel over a box
 around the centre, one texel wide in x and y since Blender 5.2.1 and half a texel before
-(the differentials carried a factor 1/2; measured in tests/blender/test_bake_footprint.py),
+(the differentials carried a factor 1/2; measured in tests/blender/test_cycles_bake.py),
 keeping only the points that lie inside the texel's own triangle: a point outside is drawn
 again, up to ten times, and otherwise the centre stands in. That is a box filter clipped
 to the triangle, so a border texel is the mean of the part of its box on its own face and

@@ -40,8 +40,9 @@ MODULE_EXIT_IS_SAFE = VERSION >= (5, 0, 0)
 # 5.0 honour it, 5.3 renders a lamp's node tree whatever it says (Cycles bakes, 2026-12).
 LAMP_NODES_ALWAYS = VERSION >= (5, 1, 0)
 # The box, in texels, Cycles' bake averages each texel over (core.sampling.footprint): the
-# texel's whole area from 5.2.1, half of it in 4.2 to 5.2.0 (measured against a closed form
-# in tests/blender/test_bake_footprint.py, on 4.2.23, 4.5.15, 5.0.1, 5.1.0, 5.1.2, 5.2.0-5.2.4, 5.3.0).
+# texel's whole area from 5.2.1, half of it in 4.2 to 5.2.0 (measured against a closed form on
+# 4.2.23, 4.5.15, 5.0.1, 5.1.0, 5.1.2, 5.2.0-5.2.4 and 5.3.0, docs/reliability.md;
+# tests/blender/test_cycles_bake.py checks it on each Blender CI runs).
 CYCLES_BAKE_FOOTPRINT_WIDTH = 1.0 if VERSION >= (5, 2, 1) else 0.5
 
 
