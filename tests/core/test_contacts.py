@@ -50,8 +50,8 @@ def test_short_hits_are_lit_where_they_land_so_a_coarse_floor_does_not_blur_the_
 
 def test_a_soft_lamp_lights_the_landing_points_with_a_few_points_each(monkeypatch):
     # The wall on the floor under a 1 m area lamp instead of the sun: near the wall's foot the
-    # lamp is partly hidden, every landing is in a penumbra, and at the bake's 8 x 8 points a
-    # landing that pass traced most of a room's bake (issue 52). Each landing weighs one
+    # lamp is partly hidden, so landings there lie in a penumbra, and at the bake's 8 x 8 points
+    # a landing that pass traced most of a room's bake (issue 52). Each landing weighs one
     # direction of its sample, so a few points each keep the contact as sharp.
     from core.pipeline import transport
 
