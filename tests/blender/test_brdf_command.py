@@ -208,19 +208,25 @@ def test_the_panel_operator_simulates_the_active_object(visibake, appearance, tm
     assert "Groove (VisiBake).001" in bpy.data.materials
 
 
-def test_the_panel_operator_simulates_a_btf(visibake, tmp_path):
+def open_groove_for_the_panel(tmp_path, output_dir) -> None:
+    """Open a saved groove tile with the panel's small BTF settings, writing to ``output_dir``,
+    and the tile active (what the panel's Simulate BTF and BRDF operators read)."""
     blend = groove_scene(tmp_path / "tile.blend")
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     scene = bpy.context.scene
     props = scene.visibake
-    props.output_dir = str(tmp_path / "materials")
+    props.output_dir = str(output_dir)
     props.appearance_directions, props.appearance_resolution, props.appearance_bounces = 16, 4, 1
     props.appearance_image_size, props.appearance_image_format = 8, "png"
     bpy.context.view_layer.objects.active = scene.objects["Groove"]
+
+
+def test_the_panel_operator_simulates_a_btf(visibake, tmp_path):
+    open_groove_for_the_panel(tmp_path, tmp_path / "materials")
     assert bpy.ops.visibake.simulate_btf() == {"FINISHED"}
     out = tmp_path / "materials" / "Groove_btf"
     assert len(list(out.rglob("*.png"))) == 81 * 81 and (out / "btf.json").exists()
-    assert "visibake_btf_report" in scene
+    assert "visibake_btf_report" in bpy.context.scene
     # The folder is VisiBake's: a second click writes it again; a stranger's file in it refuses.
     assert bpy.ops.visibake.simulate_btf() == {"FINISHED"}
     (out / "notes.txt").write_text("mine")

@@ -11,7 +11,7 @@ import subprocess
 import bpy
 
 import pytest
-from test_brdf_command import FAST, groove_scene
+from test_brdf_command import FAST, groove_scene, open_groove_for_the_panel
 from test_lightfield_command import grid_options, plane_scene
 from test_volume_bake import cloud_blend, vdb  # noqa: F401 - fixtures
 
@@ -247,19 +247,12 @@ def test_a_space_error_reads_as_one(visibake):
 # --- the panel's operators ------------------------------------------------------------------
 
 def test_the_panel_s_simulate_btf_on_a_full_disk_says_so_and_leaves_nothing(visibake, tmp_path, full_disk):
-    blend = groove_scene(tmp_path / "tile.blend")
-    bpy.ops.wm.open_mainfile(filepath=str(blend))
-    scene = bpy.context.scene
-    props = scene.visibake
-    props.output_dir = str(full_disk / "materials")
-    props.appearance_directions, props.appearance_resolution, props.appearance_bounces = 16, 4, 1
-    props.appearance_image_size, props.appearance_image_format = 8, "png"
-    bpy.context.view_layer.objects.active = scene.objects["Groove"]
+    open_groove_for_the_panel(tmp_path, full_disk / "materials")
     (full_disk / "keep.txt").write_bytes(USERS)
     with pytest.raises(RuntimeError, match="not enough space in"):
         bpy.ops.visibake.simulate_btf()
     assert files_under(full_disk) == ["keep.txt"]
-    assert "visibake_btf_report" not in scene
+    assert "visibake_btf_report" not in bpy.context.scene
 
 
 def test_the_panel_s_light_field_on_a_full_disk_says_so_and_leaves_nothing(visibake, tmp_path, full_disk):
