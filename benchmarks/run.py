@@ -47,13 +47,16 @@ import numpy as np  # noqa: E402
 # fastest of three identical runs (their images are the same: VisiBake is deterministic and
 # Cycles' seed is fixed). The smoke profile, which the tests run, times each run once.
 SHORT_RUNS = dict(short_run_seconds=2.0, short_run_repeats=3)
+# The Target Errors baked beside the fixed direction counts (issue 52): each bake chooses its own
+# directions from a pilot (core.pipeline.target), starting afresh (no remembered choice).
+TARGETS = [0.05, 0.03, 0.02]
 PROFILES = {
     "smoke": dict(size="smoke", scenes=["sun_occluders"], resolutions=[32], bounces=[1], directions=[8, 16],
                   shadows=["exact"], rotate=[False], cycles_samples=[1, 4], reference_samples=16,
-                  relight_setups=[1, 2]),
+                  relight_setups=[1, 2], targets=[0.5]),
     "quick": dict(size="full", scenes=None, resolutions=[64], bounces=[2], directions=[32, 64, 128, 256],
                   shadows=["exact", "fractions"], rotate=[False, True], cycles_samples=[1, 4, 16, 64, 256],
-                  reference_samples=1024, relight_setups=[1, 4, 16], **SHORT_RUNS),
+                  reference_samples=1024, relight_setups=[1, 4, 16], targets=TARGETS, **SHORT_RUNS),
     # The quick profile on the scenes nothing was tuned on (benchmarks/scenes.py OUTSIDE_SCENE_NAMES),
     # at the issue's 96^2 and up to 512 directions.
     "outside": dict(size="full", scenes=["atrium", "daylight_exterior"], resolutions=[96], bounces=[2],
@@ -77,7 +80,8 @@ GATHER_SHARE_ROUNDS = 7
 # The VisiBake setting whose error the relighting case matches Cycles against.
 RELIGHT_DIRECTIONS = 128
 
-FIELDS = ["scene", "method", "resolution", "bounces", "directions", "shadows", "rotate", "samples", "seconds",
+FIELDS = ["scene", "method", "resolution", "bounces", "directions", "target_error", "estimated_error", "shadows",
+          "rotate", "samples", "seconds",
           "stage_seconds", "peak_memory_bytes", "relative_rmse", "bias", "max_abs_error", "max_relative_error",
           "texels", "reference_noise", "block_rmse", "block_noise", "visibility_fraction_of_embree",
           "gather_fraction_of_numpy"]
@@ -282,6 +286,34 @@ def main(argv=None) -> int:
                                                           "max_relative_error", "texels")}})
                             print(f"  VisiBake N={directions} {shadows}{' rotated' if rotate else ''}: "
                                   f"{seconds:.2f} s, RMSE {errors['relative_rmse']:.4f}", flush=True)
+                for target in profile.get("targets", []):
+                    props.shadows, props.rotate, props.target_error = "exact", False, target
+                    props.chosen_directions = 0  # each run chooses from the pilot afresh
+
+                    def bake_to_target():
+                        props.chosen_directions = 0
+                        outcome = job.run_bake(bpy.context, objects)
+                        return outcome, outcome.report["total_seconds"], outcome.report["stage_seconds"]
+
+                    outcome, seconds, stage_seconds = fastest_of_short_runs(bake_to_target, profile)
+                    report = outcome.report
+                    images = {r.name: r.images["lighting"] for r in outcome.result.objects}
+                    errors = reference.relative_errors(images, ref.images)
+                    blocks = reference.block_errors(images, ref)
+                    rows.append({
+                        "scene": name, "method": "visibake", "resolution": resolution, "bounces": bounces,
+                        "directions": report["target"]["directions"], "target_error": target,
+                        "estimated_error": (report.get("estimated_error") or {}).get("total"),
+                        "shadows": "exact", "rotate": False, "samples": "", "seconds": seconds,
+                        "stage_seconds": stage_seconds, "peak_memory_bytes": report.get("peak_memory_bytes"),
+                        "reference_noise": ref.noise, "block_rmse": blocks["block_rmse"],
+                        "block_noise": blocks["block_noise"], "_rays": report["rays"]["visibility_cast"],
+                        "_gathers": report["gathers"],
+                        **{k: errors[k] for k in ("relative_rmse", "bias", "max_abs_error", "max_relative_error",
+                                                  "texels")}})
+                    print(f"  VisiBake target {target}: N={report['target']['directions']} {seconds:.2f} s, RMSE "
+                          f"{errors['relative_rmse']:.4f}, estimated {rows[-1]['estimated_error']}", flush=True)
+                props.target_error, props.chosen_directions = 0.0, 0
                 for samples in profile["cycles_samples"]:
 
                     def cycles_bake():
@@ -529,6 +561,8 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
              "(log-log interpolation of its sample sweep; beyond the sweep, extrapolated as error ~ samples^-1/2), "
              "per texel and on the means of 4x4-texel blocks (the error a denoiser leaves: Cycles' noise "
              "averages out there, VisiBake's structured error does not)." + _short_runs_sentence(summary["settings"]),
+             "A row whose N reads 'target E: N' is a bake at that Target Error, which chose N directions from a "
+             "pilot; its estimate of its own error follows its RMSE.",
              "", "| scene | res | bounces | N | VisiBake s | rel. RMSE | Cycles s at that error | Cycles / VisiBake "
              "| reference noise | block RMSE | Cycles s at that block error | Cycles / VisiBake on blocks "
              "| reference block noise |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -556,9 +590,15 @@ def write_markdown(path: str, summary: dict, out: str) -> None:
                 if r["shadows"] != "exact" or r["rotate"] == "True":
                     continue
                 at = interpolate_time_at_error(cycles, r["relative_rmse"])
-                lines.append(f"| {name} | {resolution} | {bounces} | {r['directions']} | {r['seconds']:.2f} | "
-                             f"{r['relative_rmse']:.4f} | {at:.2f} | {at / r['seconds']:.1f} | "
+                targeted = _number(r.get("target_error"))
+                estimated = _number(r.get("estimated_error"))
+                label = r["directions"] if targeted is None else f"target {targeted:g}: {r['directions']}"
+                error = f"{r['relative_rmse']:.4f}" + ("" if estimated is None else f" (est. {estimated:.4f})")
+                lines.append(f"| {name} | {resolution} | {bounces} | {label} | {r['seconds']:.2f} | "
+                             f"{error} | {at:.2f} | {at / r['seconds']:.1f} | "
                              f"{r['reference_noise'] or 0:.4f} | " + _block_columns(r, cycles_blocks))
+                if targeted is not None:
+                    continue
                 twin = next((f for f in ours if f["directions"] == r["directions"] and f["shadows"] == "fractions"
                              and f["rotate"] != "True"), None)
                 rotated = next((f for f in ours if f["directions"] == r["directions"] and f["shadows"] == "exact"

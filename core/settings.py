@@ -139,6 +139,14 @@ SETTINGS = _table(
     # What changes the result: BakeSettings.
     Setting("directions", int, 128, "Directions", minimum=1, soft_min=16, soft_max=1024,
             help="Size of the global direction set: rays per texel for visibility (more: less noise, slower)"),
+    Setting("target_error", float, 0.0, "Target Error", minimum=0.0, maximum=1.0, soft_max=0.2,
+            help="If above zero, the relative RMS error per texel to aim at (0.03: 3 percent, against a converged "
+                 "Cycles bake): VisiBake bakes a pilot at few directions, estimates its own error from it, and "
+                 "chooses the direction count that meets the target (Directions is then ignored); the report "
+                 "gives the estimate. 0: the Directions as set"),
+    Setting("chosen_directions", int, 0, "Chosen Directions", minimum=0,
+            help="The direction count the last bake at a Target Error chose (0: none yet): the next bake starts "
+                 "its pilot there and keeps it where the estimate meets the target, and Relight reuses it"),
     Setting("bounces", int, 2, "Bounces", minimum=0, maximum=MAX_BOUNCES, soft_max=8,
             over_maximum=" (Cycles' limit)",
             help="Diffuse bounces of indirect light (as Cycles' Diffuse bounces)"),
@@ -331,6 +339,7 @@ class BakeSettings(_Validated):
     chunk_rays: int = _default("chunk_rays")
     light_groups: bool = _default("light_groups")
     vertex_lookup: str = _default("vertex_lookup")
+    target_error: float = _default("target_error")
 
 
 

@@ -20,8 +20,10 @@ class GPUBackend:
     def __init__(self, budget_bytes: int):
         self.budget_bytes = int(budget_bytes)
 
-    def lamp_irradiance(self, samples, shadowing, lights, report=None) -> tuple[np.ndarray, int]:
-        return gpu_direct.lamp_irradiance(samples, shadowing, lights, report, budget_bytes=self.budget_bytes)
+    def lamp_irradiance(self, samples, shadowing, lights, report=None, spread: list | None = None
+                        ) -> tuple[np.ndarray, int]:
+        return gpu_direct.lamp_irradiance(samples, shadowing, lights, report, budget_bytes=self.budget_bytes,
+                                          spread=spread)
 
     def gather(self, geometry, source, progress=None, samples: np.ndarray | None = None,
                directions: range | None = None) -> np.ndarray:

@@ -139,11 +139,13 @@ def chunk_samples(samples: int, per_sample_bytes: int, fixed_bytes: int, budget_
 
 
 def lamp_irradiance(sample_set, shadowing, lights, report=None,
-                    budget_bytes: int = DEFAULT_BUDGET_BYTES) -> tuple[np.ndarray, int]:
+                    budget_bytes: int = DEFAULT_BUDGET_BYTES, spread: list | None = None) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` and the shadow rays traced (int).
 
     Same contract as :func:`core.transport.direct.lamp_irradiance`: ``sample_set`` a
-    SampleSet, shadows as ``shadowing`` (a Shadowing) says, ``report(fraction)`` after each lamp.
+    SampleSet, shadows as ``shadowing`` (a Shadowing) says, ``report(fraction)`` after each lamp,
+    the standard error appended to ``spread``. The lamps lit here, one point a sample, have none:
+    only the lamps the numpy pass integrates over points do.
     """
     samples = len(sample_set.position)
     # Over texel footprints (exact shadows) every lamp is several points a texel: numpy's.
@@ -158,13 +160,15 @@ def lamp_irradiance(sample_set, shadowing, lights, report=None,
         sampled_cost = sum(cpu_direct.shadow_rays_per_sample(light, shadowing) for light in sampled)
         share = sampled_cost / (sampled_cost + len(hard))  # a hard lamp traces one ray a sample
         irradiance, rays = cpu_direct.lamp_irradiance(sample_set, shadowing, sampled,
-                                                      None if report is None else lambda f: report(share * f))
+                                                      None if report is None else lambda f: report(share * f), spread)
         if hard:
             more, more_rays = lamp_irradiance(sample_set, shadowing, hard, None if report is None else
                                               lambda f: report(share + (1.0 - share) * f), budget_bytes)
             irradiance, rays = irradiance + more, rays + more_rays
         return irradiance, rays
     irradiance = np.zeros((samples, 3))
+    if spread is not None:
+        spread.append(np.zeros((samples, 3)))
     if not lights:
         return irradiance, 0
     # Positions relative to the samples' centre: float32 then keeps its digits for the

@@ -42,6 +42,8 @@ EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 # settings travel in the .blend as well, so options only override them.
 SCENE_SETTING_OPTIONS = {
     "preset": "--preset", "directions": "--directions", "bounces": "--bounces", "shadows": "--shadows",
+    "target_error": "--target-error",
+    "chosen_directions": None,  # what the last Target Error bake chose: state the bake keeps, not a setting
     "passes": "--passes", "resolution": "--resolution", "texel_density": "--texel-density", "mode": "--mode",
     "rotate": "--rotate", "seed": "--seed", "margin": "--margin", "use_cache": "--no-cache",
     "footprint_samples": "--footprint-samples", "interleave": "--interleave", "sharp_contacts": "--no-sharp-contacts",
@@ -110,6 +112,8 @@ def _bake_setting_options(sub) -> None:
     sub.add_argument("--preset", choices=tuple(name.lower() for name in PRESETS),
                      help=_help(SETTINGS["preset"], note="options below override it"))
     _setting_option(sub, "--directions", SETTINGS["directions"], "N", default=True)
+    _setting_option(sub, "--target-error", SETTINGS["target_error"], "E",
+                    note="with --directions as well, those directions are kept and the estimate reported")
     _setting_option(sub, "--bounces", SETTINGS["bounces"], "K", default=True)
     _setting_option(sub, "--resolution", SETTINGS["resolution"], "PX", default=True)
     _setting_option(sub, "--texel-density", SETTINGS["texel_density"], "T")
@@ -362,7 +366,7 @@ def _apply_settings(args, props) -> None:
     given = {"directions": args.directions, "bounces": args.bounces, "resolution": args.resolution,
              "margin": args.margin, "threads": args.threads, "seed": args.seed,
              "texel_density": args.texel_density, "passes": passes, "footprint_samples": args.footprint_samples,
-             "interleave": args.interleave}
+             "interleave": args.interleave, "target_error": args.target_error}
     for name, value in given.items():
         reason = None if value is None else SETTINGS[name].check(
             value, SCENE_SETTING_OPTIONS.get(name) or PREFERENCE_OPTIONS[name])
@@ -371,7 +375,7 @@ def _apply_settings(args, props) -> None:
     if args.preset is not None:
         props.preset = args.preset.upper()
     for name in ("directions", "bounces", "resolution", "mode", "shadows", "seed", "margin", "rotate",
-                 "light_groups", "vertex_lookup", "footprint_samples", "interleave"):
+                 "light_groups", "vertex_lookup", "footprint_samples", "interleave", "target_error"):
         value = getattr(args, name)
         if value is not None:
             setattr(props, name, value)
@@ -861,7 +865,8 @@ def run(args) -> int:
     try:
         outcome = job.run_bake(bpy.context, objects, out_dir, previews, progress,
                                relight_only=args.command == "relight", setups=setups, device_name=args.device,
-                               threads=args.threads, cluster=cluster, hold_replaced=True)
+                               threads=args.threads, cluster=cluster, hold_replaced=True,
+                               fixed_directions=getattr(args, "directions", None) is not None)
     except Exception as error:
         from ..core.distributed.farm import PartsPending
 

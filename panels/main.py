@@ -29,7 +29,15 @@ class VIEW3D_PT_visibake(bpy.types.Panel):
         layout.use_property_decorate = False
         column = layout.column()
         column.prop(props, "preset")
-        column.prop(props, "directions")
+        column.prop(props, "target_error")
+        # With a target, the bake chooses the directions: the count it chose is where the next
+        # pilot starts (0 starts afresh), and Directions rests.
+        chosen = column.row()
+        chosen.active = props.target_error > 0
+        chosen.prop(props, "chosen_directions")
+        directions = column.row()
+        directions.active = props.target_error <= 0
+        directions.prop(props, "directions")
         column.prop(props, "bounces")
         column.prop(props, "shadows")
         column.prop(props, "rotate")

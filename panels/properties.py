@@ -85,6 +85,8 @@ def apply_default_preset(scene, preset: str) -> bool:
 class VisiBakeSceneSettings(bpy.types.PropertyGroup):
     preset: setting_property(SETTINGS["preset"], update=_apply_preset)
     directions: setting_property(SETTINGS["directions"], update=_mark_custom)
+    target_error: setting_property(SETTINGS["target_error"], subtype="FACTOR")
+    chosen_directions: setting_property(SETTINGS["chosen_directions"])
     bounces: setting_property(SETTINGS["bounces"], update=_mark_custom)
     shadows: setting_property(SETTINGS["shadows"], update=_mark_custom)
     passes: setting_property(SETTINGS["passes"])

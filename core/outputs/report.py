@@ -21,6 +21,7 @@ import numpy as np
 from .. import kernels
 from ..distributed.split import SplitTable
 from ..transport.contract import Shadowing
+from ..transport.estimate import lighting_error
 from ..visibility.cache import CacheStatus
 from .diagnostics import check_vertex_objects
 
@@ -70,6 +71,9 @@ class ObjectReport:
     # mean light, before and after (core.outputs.seams).
     seam_edges: int | None = None
     seam_disagreement: list | None = None  # [before, after]
+    # The bake's estimate of its own error on the lighting pass (core.transport.estimate):
+    # {"total", "direct", "indirect"}, relative RMS per texel; output objects only.
+    estimated_error: dict | None = None
     # Set by the Blender job from its layout plan.
     mode: str | None = None  # 'atlas' | 'vertex'
     layout_reason: str | None = None
@@ -81,7 +85,8 @@ class ObjectReport:
         return {**always, **_without_none({
             "buried_texels": self.buried_texels, "under_tessellated_triangles": self.under_tessellated_triangles,
             "under_tessellated_area_share": self.under_tessellated_area_share,
-            "seam_edges": self.seam_edges, "seam_disagreement": self.seam_disagreement, "mode": self.mode,
+            "seam_edges": self.seam_edges, "seam_disagreement": self.seam_disagreement,
+            "estimated_error": self.estimated_error, "mode": self.mode,
             "layout_reason": self.layout_reason, "uv_map_created": self.uv_map_created})}
 
     @classmethod
@@ -232,6 +237,13 @@ class Report:
     # Outputs whose file or image is not named after their object, pass or setup (unsafe or
     # colliding names, core.outputs.names): [{"name", "kind" (object|pass|setup|image), "path"}].
     renamed_outputs: list | None = None
+    # The bake's estimate of its own error on the lighting pass over the output objects
+    # (core.transport.estimate.lighting_error: total, direct, indirect, unestimated_share);
+    # None where it has none (light read back from a cache, or no lighting pass).
+    estimated_error: dict | None = None
+    # Set by the Blender job at a Target Error (core.pipeline.target.DirectionChoice.as_dict, plus
+    # estimated_error and met); None otherwise, and left out of the JSON.
+    target: dict | None = None
 
     def to_dict(self) -> dict:
         """The JSON form (the keys and nesting of ``report.json``)."""
@@ -252,6 +264,7 @@ class Report:
             "cache": cache,
             "skipped": self.skipped,
             "warnings": self.warnings,
+            "estimated_error": self.estimated_error,
             "kernels": self.kernels,
             "passes": [p.to_dict() for p in self.passes],
             **_without_none({
@@ -261,7 +274,7 @@ class Report:
                 "device": self.device.to_dict() if self.device is not None else None,
                 "setups": [s.to_dict() for s in self.setups] if self.setups is not None else None,
                 "refined": [r.to_dict() for r in self.refined] if self.refined is not None else None,
-                "renamed_outputs": self.renamed_outputs}),
+                "renamed_outputs": self.renamed_outputs, "target": self.target}),
         }
 
     @classmethod
@@ -292,6 +305,11 @@ class Report:
     @property
     def cache_state(self) -> str:
         return self.cache.state if self.cache is not None else "off"
+
+
+def _rounded(value: float | None) -> float | None:
+    """A relative error as the report keeps it: four significant digits."""
+    return None if value is None else float(f"{value:.4g}")
 
 
 def lighting_report(p: "Prepared", plan: dict, parts: dict, times: dict, passes: list, gathers: int,
@@ -348,6 +366,12 @@ def lighting_report(p: "Prepared", plan: dict, parts: dict, times: dict, passes:
         kernels=kernels.status().as_dict(),
         split=table.describe() if isinstance(table, SplitTable) else None,
     )
+    outputs = np.array([i for i, m in enumerate(p.meshes) if m.output], np.int64)
+    estimate = lighting_error(p.albedo, parts, p.sample_offset, outputs) if parts else None
+    if estimate is not None:
+        for index, entry in estimate.pop("objects").items():
+            report.objects[index].estimated_error = {k: _rounded(v) for k, v in entry.items()}
+        report.estimated_error = {k: _rounded(v) for k, v in estimate.items()}
     if table is not None and table.backface_hits:
         buried = table.buried()
         for entry, a, b in zip(report.objects, p.sample_offset[:-1], p.sample_offset[1:]):

@@ -50,6 +50,29 @@ def _cache_phrase(cache: CacheStatus) -> str:
     return f"cache: {cache.state}" + (f" ({cache.message})" if cache.message else "")
 
 
+def _estimate_phrase(estimate: dict) -> str:
+    """The bake's estimate of its own error (core.transport.estimate), e.g. "estimated error 2.1%
+    per texel (direct light 0.4%, gathered 2.0%)"."""
+    def percent(value):
+        return "-" if value is None else f"{100 * value:.1f}%"
+
+    phrase = (f"estimated error {percent(estimate.get('total'))} per texel (direct light "
+              f"{percent(estimate.get('direct'))}, gathered {percent(estimate.get('indirect'))})")
+    unestimated = estimate.get("unestimated_share")
+    if unestimated:
+        phrase += f", {100 * unestimated:.0f}% of texels without an estimate"
+    return phrase
+
+
+def _target_phrase(target: dict) -> str:
+    """A Target Error bake's choice: "target error 3.0%: 256 directions (why); estimated 2.4%"."""
+    estimated = target.get("estimated_error")
+    verdict = "" if estimated is None else (f"; estimated {100 * estimated:.1f}%, "
+                                            + ("within the target" if target.get("met") else "above the target"))
+    return (f"target error {100 * target['target_error']:.1f}%: {target['directions']} directions "
+            f"({target['reason']}){verdict}")
+
+
 def _skipped_phrase(item: str) -> str:
     return f"skipped: {item}"
 
@@ -78,6 +101,12 @@ def summary_lines(report: Report | dict) -> list[str]:
             lines.append(f"  {entry.name:<16} {role:<8} {entry.resolution[0]}x{entry.resolution[1]} "
                          f"{entry.texels:>8} texels  UV map {entry.uv_map}")
     lines.append("  " + _rays_phrase(report.rays))
+    if report.target is not None:
+        lines.append("  " + _target_phrase(report.target))
+    if report.estimated_error is not None:
+        lines.append("  " + _estimate_phrase(report.estimated_error) + "; per object: " + ", ".join(
+            f"{o.name} {100 * o.estimated_error['total']:.1f}%" for o in report.output_objects
+            if o.estimated_error and o.estimated_error.get("total") is not None))
     if report.device is not None:
         lines.append("  " + _device_phrase(report.device))
     if report.split is not None and "ranges" in report.split:
@@ -122,6 +151,10 @@ def panel_lines(report: Report | dict) -> list[tuple[str, str]]:
     for stage, seconds in report.stage_seconds.items():
         lines.append((f"{stage}: {seconds:.2f} s", "BLANK1"))
     lines.append((_rays_phrase(report.rays), "LIGHT_SUN"))
+    if report.target is not None:
+        lines.append((_target_phrase(report.target), "INFO"))
+    if report.estimated_error is not None:
+        lines.append((_estimate_phrase(report.estimated_error), "INFO"))
     if report.cache_state != "off":
         lines.append((_cache_phrase(report.cache), "FILE_CACHE"))
     if report.device is not None:

@@ -48,8 +48,10 @@ from .progress import Stages
 
 # Part of every lighting key: raised whenever the same table and lights give other light (a
 # change of the transport's formulas), so that lighting cached by an older VisiBake is not
-# reused. 2: the gathers' weights sum to pi (1 + n . n_g) / 2, not pi (speed part 18).
-TRANSPORT_REVISION = 2
+# reused. 2: the gathers' weights sum to pi (1 + n . n_g) / 2, not pi (speed part 18). 3: a soft
+# lamp's points over a footprint are dimensions 2 and 3 of the sampler (issue 52), and cached
+# lighting carries the bake's error estimate.
+TRANSPORT_REVISION = 3
 
 
 @dataclass

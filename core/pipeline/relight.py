@@ -155,7 +155,9 @@ def relight_many(prepared: Prepared, lightings, progress=None,
             key = p.lighting_key(group) if p.cache is not None else None
             cached = p.cache.load_lighting(settings, key) if key else None
             if cached is not None:
-                transported[index, group.name] = Transported(cached["direct"], cached["gathered"])
+                transported[index, group.name] = Transported(cached["direct"], cached["gathered"],
+                                                             direct_variance=cached.get("direct_variance"),
+                                                             gathered_variance=cached.get("gathered_variance"))
                 plan["reused"].append(group.name)
             else:
                 pending.append((index, group, key))
@@ -172,7 +174,10 @@ def relight_many(prepared: Prepared, lightings, progress=None,
         # does, and would fill the cache with results nobody reads again.
         if key and len(lightings) == 1:
             try:
-                p.cache.save_lighting(settings, key, {"direct": result.direct, "gathered": result.gathered})
+                arrays = {"direct": result.direct, "gathered": result.gathered}
+                if result.direct_variance is not None and result.gathered_variance is not None:
+                    arrays.update(direct_variance=result.direct_variance, gathered_variance=result.gathered_variance)
+                p.cache.save_lighting(settings, key, arrays)
             except OSError as error:
                 plans[index]["warnings"].append(f"lighting cache in {p.cache.folder} could not be written "
                                                 f"({error.strerror or error}); nothing else is affected")

@@ -93,10 +93,11 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     results = []
     reused = set()  # names of lamps and emitters whose light was kept from an earlier relight
     for index, group in enumerate(groups):
+        variance = np.zeros((len(p.position), 3))
         irradiance, rays = lamp_light(p, backend, "samples", p.sample_set(), group.lights, reused,
-                                      lambda f, i=index: report(lamp_share * (i + f) / count))
+                                      lambda f, i=index: report(lamp_share * (i + f) / count), variance)
         # The gathered light is set once the gathers are done (a (K, 3) array kept until then).
-        results.append(Transported(irradiance, None, shadow_rays=rays))
+        results.append(Transported(irradiance, None, shadow_rays=rays, direct_variance=variance))
     contacts = _contact_light(p, backend, groups, results, stages, skipped, reused, last_direct)
     # (K, 3 * count) float64: what each sample reflects of a unit of light, per group.
     reflectance = np.tile(p.albedo, count) / np.pi
@@ -141,6 +142,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     if not (bounces > 0 or gathers_emission):
         for result in results:
             result.gathered = np.zeros_like(result.direct)
+            result.gathered_variance = np.zeros_like(result.direct)
         return results, 0
     geometry = p.gather_geometry()
     # Only objects with outputs need the last gather's result; the others' radiance
@@ -168,24 +170,28 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         # Emission is fixed with the preparation's materials: only the groups' emitters and worlds vary.
         key = ("emitted", backend.name, arrays_key(np.stack([g.emitting for g in groups]),
                                                    *[np.asarray(w, np.float64) for w in worlds]))
-        emitted = p.light_memo.get(key)
-        if emitted is None:
+        kept = p.light_memo.get(key)
+        if kept is None:
             emitting_atlas = p.to_atlas(wide(emissions), dilate)
             emitted = _gather_emission(p, timed_gather, emitting_atlas, np.concatenate(worlds, axis=-1), exclude,
                                        step_progress(0), outputs if bounces == 0 else None)
+            spread = []
             emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude),
-                                              scratch=True)
+                                              scratch=True, spread=spread)
             del emitting_atlas
             np.maximum(emitted, 0.0, out=emitted)  # the filter's subtraction may leave -1e-10
+            emitted_variance = np.square(spread[0])
             if not last_direct:
-                p.light_memo.put(key, emitted)
+                p.light_memo.put(key, (emitted, emitted_variance))
             gathers += 1
         else:
+            emitted, emitted_variance = kept
             skipped.append("gather of emitted and world light: emitters and world unchanged since an earlier "
                            "relight of this preparation; its result was kept")
-        for result, part in zip(results, narrow(emitted)):
+        for result, part, part_variance in zip(results, narrow(emitted), narrow(emitted_variance)):
             result.direct += part
-        del emitted
+            result.direct_variance += part_variance
+        del emitted, emitted_variance
     del emissions
     if emitter_contacts is not None:
         # The emitters' light is known now (sampled directly and gathered): correct the short hits
@@ -212,18 +218,24 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         if correction is not None:
             gathered += correction
     del direct, reflectance
+    gathered_variance = np.zeros_like(gathered)
     if bounces and p.rotations is not None and np.any(gathered):
         # The last gather's near part (its near entries' lookups, and the contacts' correction) stays sharp.
         near = near_light(p, p.near_hits(), reflected_atlas)
         if correction is not None:
             near += correction
         del correction
-        gathered = reconstruct_interleaved(p, gathered, near, scratch=True)
+        spread = []
+        gathered = reconstruct_interleaved(p, gathered, near, scratch=True, spread=spread)
+        gathered_variance = np.square(spread[0])
+    elif bounces and p.rotations is None:
+        gathered_variance[:] = np.nan  # without interleaving, the gathered light's error has no estimate
     # A contact correction takes light away where a lookup overestimated it; rounding there
     # (and in the filter's subtraction) must never leave negative light.
     np.maximum(gathered, 0.0, out=gathered)
-    for result, part in zip(results, narrow(gathered)):
+    for result, part, part_variance in zip(results, narrow(gathered), narrow(gathered_variance)):
         result.gathered = part
+        result.gathered_variance = part_variance
     return results, gathers
 
 
@@ -245,9 +257,11 @@ def _gather_emission(p: Prepared, timed_gather, atlas: np.ndarray, world: np.nda
 
 
 def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, lights, reused: set,
-               report=None) -> tuple[np.ndarray, int]:
+               report=None, variance: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """(K, 3) float64 direct light of ``lights`` at ``samples`` (a SampleSet, ``where`` naming
     which of the preparation's: "samples" or "short hits"), and the shadow rays traced.
+    ``variance`` (K, 3) float64: the light's squared standard error is added to it (NaN where
+    the lamps' pass has none: a table held by sample rows).
 
     Each lamp's light is its unit lamp's (core.lights.lamps.unit_lamp) times its power and
     colour. The unit light is kept in the preparation's memo, so a later relight in which a
@@ -258,22 +272,33 @@ def lamp_light(p: Prepared, backend: TransportBackend, where: str, samples, ligh
     rays = 0
     for number, light in enumerate(lights):
         key = ("lamp", backend.name, where, lamp_shape_key(light))
-        unit = p.light_memo.get(key)
-        if unit is None:
+        kept = p.light_memo.get(key)
+        if kept is None:
             part = None if report is None else (lambda f, n=number: report((n + f) / len(lights)))
+            spread = [] if variance is not None else None
             if where == "samples" and isinstance(p.table, SplitTable):
                 # A table held by row ranges: the samples' direct light runs where they are.
                 irradiance, traced = p.table.lamp_irradiance([unit_lamp(light)], part)
+                if spread is not None:
+                    spread.append(np.full((len(samples.position), 3), np.nan))
             else:
                 irradiance, traced = backend.lamp_irradiance(samples, _shadowing_at(p, where), [unit_lamp(light)],
-                                                             part)
+                                                             part, spread)
             unit = np.ascontiguousarray(irradiance[:, 0], dtype=np.float64)
             del irradiance  # (K, 3): not held while the next lamp's is made
+            # The unit lamp is white: one channel's spread is each one's.
+            unit_spread = None if spread is None else np.ascontiguousarray(spread[0][:, 0], dtype=np.float64)
             rays += traced
-            p.light_memo.put(key, unit)
+            p.light_memo.put(key, (unit, unit_spread))
         else:
+            unit, unit_spread = kept
             reused.add(light.name)
         total += unit[:, None] * lamp_scale(light)
+        if variance is not None:
+            if unit_spread is None:  # kept by a relight that asked for no estimate
+                variance[:] = np.nan
+            else:
+                variance += np.square(unit_spread)[:, None] * np.square(lamp_scale(light))
         if report is not None:
             report((number + 1) / len(lights))
     return total, rays
@@ -477,7 +502,8 @@ def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[Li
         results, gathers = transport_groups(p, backend, [parts[key][1] for key in missing], stages, skipped, dilate,
                                             share)
         for key, result in zip(missing, results):
-            kept = (result.direct, result.gathered, result.emitters_sampled)
+            kept = (result.direct, result.gathered, result.emitters_sampled, result.direct_variance,
+                    result.gathered_variance)
             p.light_memo.put(key, kept)
             available[key] = kept
             rays[key] = (result.shadow_rays, result.emitter_rays)
@@ -485,12 +511,16 @@ def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[Li
     for recipe in recipes:
         direct = np.zeros((len(p.position), 3))
         gathered = np.zeros((len(p.position), 3))
-        result = Transported(direct, gathered)
+        # The parts' errors summed as independent ones (each lamp's light is its own bright patches).
+        result = Transported(direct, gathered, direct_variance=np.zeros_like(direct),
+                             gathered_variance=np.zeros_like(gathered))
         for key, scale in recipe:
-            part_direct, part_gathered, emitters = available[key]
+            part_direct, part_gathered, emitters, direct_variance, gathered_variance = available[key]
             weight = np.ones(3) if scale is None else scale
             direct += part_direct * weight
             gathered += part_gathered * weight
+            result.direct_variance += direct_variance * np.square(weight)
+            result.gathered_variance += gathered_variance * np.square(weight)
             shadow, emitter = rays.pop(key, (0, 0))  # a part shared by two groups was traced once
             result.shadow_rays += shadow
             result.emitter_rays += emitter

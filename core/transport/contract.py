@@ -231,10 +231,11 @@ class TransportBackend(Protocol):
 
     name: str
 
-    def lamp_irradiance(self, samples: SampleSet, shadowing: Shadowing, lights, report=None
-                        ) -> tuple[np.ndarray, int]:
+    def lamp_irradiance(self, samples: SampleSet, shadowing: Shadowing, lights, report=None,
+                        spread: list | None = None) -> tuple[np.ndarray, int]:
         """(K, 3) float64 irradiance of ``lights`` (core.scene.Light) and the shadow rays traced;
-        ``report(fraction)`` after each lamp."""
+        ``report(fraction)`` after each lamp; ``spread``: a list, to which the light's standard
+        error (K, 3) float64 is appended (core.transport.direct.lamp_irradiance)."""
 
     def gather(self, geometry: GatherGeometry, source: GatherSource, progress=None,
                samples: np.ndarray | None = None, directions: range | None = None) -> np.ndarray:

@@ -18,9 +18,9 @@ class NumpyBackend:
 
     name = "cpu"
 
-    def lamp_irradiance(self, samples: SampleSet, shadowing: Shadowing, lights, report=None
-                        ) -> tuple[np.ndarray, int]:
-        return lamp_irradiance(samples, shadowing, lights, report)
+    def lamp_irradiance(self, samples: SampleSet, shadowing: Shadowing, lights, report=None,
+                        spread: list | None = None) -> tuple[np.ndarray, int]:
+        return lamp_irradiance(samples, shadowing, lights, report, spread)
 
     def gather(self, geometry: GatherGeometry, source: GatherSource, progress=None,
                samples: np.ndarray | None = None, directions: range | None = None) -> np.ndarray:

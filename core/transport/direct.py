@@ -27,15 +27,19 @@ from .contract import SampleSet, Shadowing
 DIRECT_LIGHT_CHUNK = 1 << 18
 
 
-def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None) -> tuple[np.ndarray, int]:
+def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None, spread: list | None = None
+                    ) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` at ``samples``, and the shadow rays traced
     (:func:`_lamp_irradiance`), by chunks of DIRECT_LIGHT_CHUNK samples where shadows are exact.
     A sample's light depends on its own id alone (SampleSet.rows), so the chunks' light is
-    bitwise the whole set's; the fractions' lookups read the whole table's rows, so they run whole."""
+    bitwise the whole set's; the fractions' lookups read the whole table's rows, so they run whole.
+    ``spread``: a list, to which the light's standard error (K, 3) float64 is appended
+    (:func:`_lamp_irradiance`)."""
     count = len(samples.position)
     if shadowing.mode == "fractions" or count <= DIRECT_LIGHT_CHUNK:
-        return _lamp_irradiance(samples, shadowing, lights, report)
+        return _lamp_irradiance(samples, shadowing, lights, report, spread)
     irradiance = np.empty((count, 3))
+    error = np.empty((count, 3)) if spread is not None else None
     shadow_rays = 0
     curved = samples.derived.get("curved_footprints")
     curved_parts = []
@@ -45,16 +49,22 @@ def lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=Non
         if curved is not None:
             chunk.derived["curved_footprints"] = curved[start:stop]
         part_report = None if report is None else (lambda f, a=start, b=stop: report((a + f * (b - a)) / count))
-        irradiance[start:stop], rays = _lamp_irradiance(chunk, shadowing, lights, part_report)
+        part_spread = [] if spread is not None else None
+        irradiance[start:stop], rays = _lamp_irradiance(chunk, shadowing, lights, part_report, part_spread)
+        if error is not None:
+            error[start:stop] = part_spread[0]
         shadow_rays += rays
         curved_parts.append(chunk.derived.get("curved_footprints"))
     if curved is None and all(part is not None for part in curved_parts):
         # What the chunks derived is kept with the whole set, for the next relight.
         samples.derived["curved_footprints"] = np.concatenate(curved_parts)
+    if spread is not None:
+        spread.append(error)
     return irradiance, shadow_rays
 
 
-def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None) -> tuple[np.ndarray, int]:
+def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=None, spread: list | None = None
+                     ) -> tuple[np.ndarray, int]:
     """(K, 3) float64 irradiance of ``lights`` at ``samples``, and the shadow rays traced.
 
     Each lamp is integrated over its extent with the direct-light sampler
@@ -69,10 +79,18 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
     fractions are per texel, so they ignore the footprint). Light linking: a lamp lights
     only its receivers. ``report(fraction)`` is called after each lamp. The CPU backend's
     direct-light pass.
+
+    ``spread``: a list, to which the standard error (K, 3) float64 of the returned light is
+    appended. Only the samples whose every point is traced (a penumbra, a shadow edge across the
+    footprint) have one: half the difference between the light of the first and of the second
+    half of their points (each half of a scrambled Sobol set is itself stratified, so the two
+    are two estimates of the same light), summed over the lamps in quadrature. It is 0 where the
+    probes decided a sample wholly lit or wholly shadowed (core.transport.estimate).
     """
     fractions_mode = bool(lights) and shadowing.mode == "fractions"
     footprint = None if fractions_mode else samples.footprint
     irradiance = np.zeros((len(samples.position), 3))
+    variance = np.zeros(len(samples.position)) if spread is not None else None
     shadow_rays = 0
     # Each sample's index in the whole bake, not in this set: a set of some rows of the bake
     # (SampleSet.rows) then draws the same points and gets bitwise the same light.
@@ -104,7 +122,7 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
         adaptive = blockers is not None and lamp.count >= ADAPTIVE_MIN_POINTS
         decided = np.zeros(len(sample_ids), bool)
         shadowed = np.zeros(len(sample_ids), bool)
-        edge_light = edges = None
+        edge_light = edges = edge_half = None
         if adaptive:
             decided, shadowed, mixed, probe_rays = _penumbra_probes(light, lamp, samples, blockers, receives)
             shadow_rays += probe_rays
@@ -112,11 +130,15 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
                 # A shadow edge crossing a texel is where 16 points leave visible noise: such
                 # texels take EDGE_FOOTPRINT_POINTS, and the loop below leaves them alone.
                 edges = np.nonzero(mixed)[0]
-                edge_light, edge_rays = _edge_irradiance(light, samples, edges, shadowing, blockers, receives,
-                                                         points[light_index])
+                edge_light, edge_rays, edge_half = _edge_irradiance(light, samples, edges, shadowing, blockers,
+                                                                    receives, points[light_index])
                 shadow_rays += edge_rays
                 decided[edges] = shadowed[edges] = True
         lamp_light = np.zeros_like(irradiance)
+        # The light of the first half of the points, where every point is traced (the spread).
+        traced_everywhere = ~decided
+        first_half = np.zeros_like(irradiance) if variance is not None else None
+        slots = footprint.shape[1] if footprint is not None else lamp.count
         rows = None  # every sample; after the first points only those still needing more
         small = _small_lamp_samples(light, lamp, samples, decided, _threads(shadowing)) if adaptive else None
         pending = None
@@ -160,12 +182,49 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
                 lamp_light += part.irradiance * visibility[:, None]
             else:
                 lamp_light[rows] += part.irradiance * visibility[:, None]
+            if first_half is not None and _in_first_half(index, slots):
+                if rows is None:
+                    first_half += part.irradiance * visibility[:, None]
+                else:
+                    first_half[rows] += part.irradiance * visibility[:, None]
         if edges is not None:
             lamp_light[edges] = edge_light
+        if variance is not None and lamp.count > 1:
+            variance += _half_difference_variance(lamp_light, first_half, traced_everywhere)
+            if edges is not None:
+                variance[edges] += _half_difference_variance(edge_light, edge_half)
         irradiance += lamp_light
         if report is not None:
             report(costs[light_index] / costs[-1])
+    if spread is not None:
+        # Per unit of light in each channel: the lamps' spread, as their light, shared by the channels.
+        brightness = irradiance.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(brightness[:, None] > 0, 3.0 * irradiance / brightness[:, None], 1.0)
+        spread.append(np.sqrt(variance)[:, None] * share)
     return irradiance, shadow_rays
+
+
+def _half_difference_variance(light: np.ndarray, first_half: np.ndarray, where: np.ndarray | None = None
+                              ) -> np.ndarray:
+    """(k,) float64: the squared standard error of ``light`` (k, 3), the sum of a set of points'
+    light whose first half summed to ``first_half`` (k, 3): the two halves' means are 2 * first
+    and 2 * (light - first), and half their difference, squared, is the variance of the whole
+    set's mean (were the halves independent; a stratified set's complementary halves make it an
+    overestimate by about 2^(1/2) for a shadow edge's step). Summed over the channels' light;
+    0 outside ``where`` (k,) bool."""
+    difference = (2.0 * first_half - light).sum(axis=1)
+    squared = difference * difference / 9.0  # per channel of a white light, as the channels share it
+    return squared if where is None else np.where(where, squared, 0.0)
+
+
+def _in_first_half(point: int, slots: int) -> bool:
+    """Whether lamp point ``point``, seen from footprint slot ``point % slots``, belongs to the
+    first half of the spread's split: the half whose footprint slots are the first half of the
+    footprint's Sobol set. Split by slot, not by point: a soft lamp's P x 4 points see each slot
+    four times, and halves of the points that held every slot would agree however few the
+    slots are (a texel's footprint, not its lamp, is most of a small lamp's penumbra noise)."""
+    return point % slots < slots // 2 if slots > 1 else point < 1
 
 
 def _small_lamp_samples(light, lamp: LampPoints, samples: SampleSet, decided: np.ndarray, threads: int = 0
@@ -201,7 +260,7 @@ def _lit(part: LightContribution, shading: np.ndarray) -> np.ndarray:
 def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, blockers, receives, points: int):
     """(len(edges), 3) the lamp's irradiance at samples ``edges`` (rows of ``samples``) over their
     dense footprints (SampleSet.dense_footprint, EDGE_FOOTPRINT_POINTS each), every point traced;
-    and the rays."""
+    the rays; and (len(edges), 3) the light of the first half of the points."""
     # The dense footprint and the scramble belong to the samples' indices in the whole bake.
     ids = samples.sample_ids()[edges]
     offsets, normals = samples.dense_footprint(ids, EDGE_FOOTPRINT_POINTS)
@@ -211,6 +270,7 @@ def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, bl
     if module is not None and lamp.point_lamp:
         return _hard_edge_irradiance(module, lamp, samples, edges, blockers, receives)
     light_sum = np.zeros((len(edges), 3))
+    first_half = np.zeros((len(edges), 3))
     rays = 0
     # Several points' rays in one query; their light still added point by point, in order.
     points_at_once = max(1, EDGE_BATCH_ROWS // max(len(edges), 1))
@@ -224,12 +284,14 @@ def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, bl
             evaluated.append((part, lit, np.nonzero(lit)[0]))
         answers = iter(trace_shadow_rays_together(
             blockers, samples, [(part, local, edges[local]) for part, _, local in evaluated if len(local)]))
-        for part, lit, local in evaluated:
+        for offset, (part, lit, local) in enumerate(evaluated):
             if len(local):
                 lit[local[next(answers)]] = False
                 rays += len(local)
             light_sum += part.irradiance * lit[:, None]
-    return light_sum, rays
+            if _in_first_half(first + offset, EDGE_FOOTPRINT_POINTS):
+                first_half += part.irradiance * lit[:, None]
+    return light_sum, rays, first_half
 
 
 def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: np.ndarray, blockers, receives
@@ -251,6 +313,7 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
     origin_type = samples.origins.dtype
     geometric = np.ascontiguousarray(samples.geometric[edges], np.float64)
     light_sum = np.zeros((count, 3))
+    first_half = np.zeros((count, 3))
     rays = 0
     points_at_once = max(1, EDGE_BATCH_ROWS // max(count, 1))
     for first in range(0, lamp.count, points_at_once):
@@ -274,7 +337,10 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
             flat[traced[blocked]] = False
             rays += len(traced)
         kernels.run(module.edge_light_add, lamp.threads, irradiance, lit, light_sum)
-    return light_sum, rays
+        halves = np.array([_in_first_half(first + offset, EDGE_FOOTPRINT_POINTS) for offset in range(batch)])
+        if halves.any():
+            first_half += np.einsum("bkc,bk->kc", irradiance[halves], lit[halves])
+    return light_sum, rays, first_half
 
 
 def _ray_constants(blockers) -> tuple:

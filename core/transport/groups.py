@@ -34,13 +34,17 @@ class LightGroup:
 
 @dataclass
 class Transported:
-    """Per-sample irradiance of one group: direct (lamps, emitters, world) and gathered bounces."""
+    """Per-sample irradiance of one group: direct (lamps, emitters, world) and gathered bounces,
+    and the squared standard errors of both that the bake estimated (core.transport.estimate):
+    (K, 3) float64, NaN where it has no estimate; None: none at all (read back from a cache)."""
 
     direct: np.ndarray  # (K, 3) float64
     gathered: np.ndarray  # (K, 3) float64
     shadow_rays: int = 0
     emitter_rays: int = 0
     emitters_sampled: tuple = ()
+    direct_variance: np.ndarray | None = None
+    gathered_variance: np.ndarray | None = None
 
 
 def light_groups(meshes, emission: np.ndarray, sample_offset: np.ndarray, lights, world: np.ndarray,

@@ -219,14 +219,23 @@ def _pair_dtype(p):
     return np.int32 if len(p.position) < 2 ** 31 else np.int64
 
 
-def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None, scratch: bool = False
-                            ) -> np.ndarray:
+def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None, scratch: bool = False,
+                            spread: list | None = None) -> np.ndarray:
     """(K, C) ``values`` (gathered light) with its far part averaged over each atlas texel's
     neighbours (:func:`filter_pairs`) and its ``near`` part (K, C) kept; unchanged without
     interleaving (``p.rotations`` None) and for texels without pairs (vertex samples, buried
     texels). ``p`` is a core.pipeline.prepare.Prepared. ``scratch``: ``values`` (float64) may be
-    overwritten (the caller lets it go): its far part is then worked out in its array, not a new one."""
+    overwritten (the caller lets it go): its far part is then worked out in its array, not a new one.
+
+    ``spread``: a list, to which the average's standard error (K, C) float64 is appended (NaN
+    where a texel has fewer than two usable pairs, or without interleaving). The neighbours of a
+    window hold other rotations of the set, so their far radiance scatters by the fixed set's
+    error (and by the light's own change across the window, which makes it an overestimate
+    where the far light changes fast): the scatter over the square root of the pairs is the
+    error of their mean (core.transport.estimate)."""
     if p.rotations is None:
+        if spread is not None:
+            spread.append(np.full(values.shape, np.nan))
         return values
     near = np.zeros_like(values) if near is None else near
     far = np.subtract(values, near, out=values if scratch and values.dtype == np.float64 else None)
@@ -239,23 +248,39 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     far_weight = np.where(p.gather_scale() > 0, p.open_weight(), 0.0) - near_weight
     usable = far_weight > 1e-6 * np.pi
     channels = far.shape[1]
-    # Each texel's far radiance (0 where unusable) and, in the last column, whether it is usable.
-    # Written in place here and below: at the demo's 403k texels each (K, C) array is 9 MiB,
-    # and numpy's expressions made seven of them at once.
-    radiance = np.empty((len(far), channels + 1))
+    # Each texel's far radiance (0 where unusable), its square where the spread is asked for, and,
+    # in the last column, whether it is usable. Written in place here and below: at the demo's
+    # 403k texels each (K, C) array is 9 MiB, and numpy's expressions made seven of them at once.
+    squares = channels if spread is not None else 0
+    radiance = np.empty((len(far), channels + squares + 1))
     np.divide(far, np.where(usable, far_weight, 1.0)[:, None], out=radiance[:, :channels])
     radiance[~usable, :channels] = 0.0
-    radiance[:, channels] = usable
+    if squares:
+        np.square(radiance[:, :channels], out=radiance[:, channels:channels + squares])
+    radiance[:, -1] = usable
     texels, neighbours = p.filter_pairs()
     # Only pairs of two usable texels count. An unusable neighbour's radiance is 0 and its last
     # column (the count) 0, so summing every pair adds exactly what the usable pairs add, and an
     # unusable texel's count is zeroed below: no copy of the pairs (200 MB at Production settings).
     summed = sum_by_sample(texels, radiance, len(far), rows=neighbours)
     del radiance
-    total, count = summed[:, :channels], np.where(usable, summed[:, channels], 0.0)
+    total, count = summed[:, :channels], np.where(usable, summed[:, -1], 0.0)
+    if spread is not None:
+        spread.append(mean_standard_error(total, summed[:, channels:channels + squares], count) * far_weight[:, None])
     # Where a texel has pairs, their mean radiance at its own far weight; else its own far light.
     np.divide(total, np.maximum(count, 1.0)[:, None], out=total)
     np.multiply(total, far_weight[:, None], out=total)
     np.copyto(total, far, where=~(count > 0)[:, None])
     # Into the far light's array where it is float64 (numpy's sum is float64 whatever the inputs).
     return np.add(total, near, out=far if far.dtype == np.float64 else None)
+
+
+def mean_standard_error(total: np.ndarray, squares: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(K, C) float64 standard error of the mean of ``count`` (K,) values per row, from their sum
+    ``total`` and sum of squares ``squares`` (K, C) each: the sample standard deviation over the
+    square root of the count; NaN where the count is below 2."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        counted = np.maximum(count, 1.0)[:, None]
+        mean = total / counted
+        variance = np.maximum(squares / counted - mean * mean, 0.0) / np.maximum(count - 1.0, 1.0)[:, None]
+        return np.where((count >= 2)[:, None], np.sqrt(variance), np.nan)

@@ -13,7 +13,7 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 
 import bpy
@@ -30,6 +30,7 @@ from ...core.pipeline.budget import peak_memory_bytes
 from ...core.pipeline.prepare import prepare
 from ...core.pipeline.relight import BakeResult, relight_many
 from ...core.pipeline.resident import prepare_or_reuse
+from ...core.pipeline.target import PILOT_DIRECTIONS, DirectionChoice, choose_directions
 from ...core.sampling import layout as layout_policy
 from ...core.transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
 from ...core.visibility.cache import VisibilityCache
@@ -208,7 +209,8 @@ def _bake_refined(context, objects, coarse, out_dir, previews, progress, device_
 def run_bake(context, objects, out_dir: str | None = None, previews: bool = False,
              progress=None, relight_only: bool = False, setups=None, device_name: str | None = None,
              refine: bool | None = None, threads: int | None = None, keep_preparation: bool = False,
-             view_densities: dict | None = None, cluster=None, hold_replaced: bool = False) -> JobResult:
+             view_densities: dict | None = None, cluster=None, hold_replaced: bool = False,
+             fixed_directions: bool = False) -> JobResult:
     """Bake ``objects`` (mesh objects) with the settings in ``context.scene.visibake``.
 
     Every other visible mesh of the scene occludes and reflects light but gets no
@@ -237,9 +239,11 @@ def run_bake(context, objects, out_dir: str | None = None, previews: bool = Fals
     hold_replaced : keep the earlier bake's files this one replaced (hidden hard links) until
         the outcome's ``keep()``, so that its ``rollback()`` puts them back (a caller with steps
         of its own after the bake); else they go when the bake has written all of its files
+    fixed_directions : with a Target Error, keep the scene's Directions (the command line's
+        --directions) instead of choosing them; the report still gives the estimate
     """
     return BakeJob(context, objects, out_dir, previews, progress, relight_only, setups, device_name, refine,
-                   threads, keep_preparation, view_densities, cluster, hold_replaced).run()
+                   threads, keep_preparation, view_densities, cluster, hold_replaced, fixed_directions).run()
 
 
 class BakeJob:
@@ -255,7 +259,7 @@ class BakeJob:
 
     def __init__(self, context, objects, out_dir=None, previews=False, progress=None, relight_only=False,
                  setups=None, device_name=None, refine=None, threads=None, keep_preparation=False,
-                 view_densities=None, cluster=None, hold_replaced=False):
+                 view_densities=None, cluster=None, hold_replaced=False, fixed_directions=False):
         self.context, self.objects, self.out_dir, self.previews = context, objects, out_dir, previews
         self.progress, self.relight_only, self.setups = progress, relight_only, setups
         self.device_name, self.refine, self.threads = device_name, refine, threads
@@ -263,8 +267,13 @@ class BakeJob:
         self.view_densities = view_densities
         self.cluster = cluster
         self.hold_replaced = hold_replaced
+        self.fixed_directions = fixed_directions
         self.extracted = None
         self.results = None
+        # A bake at a Target Error that chooses its directions: the pilot's (DirectionChoice) once made.
+        self.choosing = False
+        self.choice: DirectionChoice | None = None
+        self.pilot_seconds = 0.0
 
     def run(self) -> JobResult:
         """Every step on this thread: the blocking bake."""
@@ -308,7 +317,7 @@ class BakeJob:
         # Before any work: a bake that cannot write its results would lose them at the end.
         check_destinations([(self.out_dir, FOLDER, "output folder")])
         self.resolved = resolve(context, self.threads, self.device_name, self.refine)
-        self.settings = settings = self.resolved.bake
+        self.settings = settings = self._directions_for_target(self.resolved.bake)
         if setups is None:
             writeback.check_image_names(writeback.image_name(o.name, p) for o in objects for p in settings.passes)
         if self.cluster is not None:
@@ -327,6 +336,19 @@ class BakeJob:
         self.planned = plan_extraction(context, objects, self.progress, self.view_densities)
         if self.out_dir:
             self._claim_output_folder()
+
+    def _directions_for_target(self, settings):
+        """``settings`` with the directions a Target Error bake starts from: the count the scene's
+        last such bake chose, else PILOT_DIRECTIONS; a bake (not a relight) of one lighting in this
+        process then chooses again from that pilot (:meth:`compute_chosen_visibility`)."""
+        if settings.target_error <= 0 or self.fixed_directions:
+            return settings
+        if self.cluster is not None or self.setups is not None:
+            # One lighting in this process only: the pilot's estimate is of that lighting.
+            return settings
+        remembered = int(self.context.scene.visibake.chosen_directions)
+        self.choosing = not self.relight_only
+        return replace(settings, directions=remembered if remembered > 0 else PILOT_DIRECTIONS)
 
     def _claim_output_folder(self) -> None:
         """Before any work, the one rule (core.outputs.ownership): refuse if a file the bake
@@ -410,6 +432,8 @@ class BakeJob:
         if self.cluster is None:
             self.compute_visibility()
             self.compute_lighting()
+            self.compute_chosen_visibility()
+            self.compute_chosen_lighting()
             return
         from ...core.distributed.engine import cluster_rows
         from ...core.distributed.farm import FarmOptions, FarmRows, write_job_package
@@ -440,6 +464,27 @@ class BakeJob:
             # Not kept (a command's bake, or beyond Resident Memory): nothing relights it again,
             # so its footprints go before the gathers need their memory.
             self.prepared.relit_once = True
+
+    def compute_chosen_visibility(self) -> None:
+        """At a Target Error: choose the directions from the pilot's estimate (the bake so far), and
+        where they are more, the table at the chosen count (no bpy: any thread); nothing otherwise."""
+        if not self.choosing or self.choice is not None:
+            return
+        pilot = self.settings.directions
+        estimate = self.results[0][1].report.get("estimated_error")
+        self.choice = choose_directions(estimate, pilot, self.settings.target_error)
+        if self.choice.directions == pilot:
+            return
+        self.pilot_seconds = time.perf_counter() - self.started
+        # The pilot's preparation goes before the chosen one is made (its table is the bake's largest array).
+        self.prepared = self.results = None
+        self.settings = replace(self.settings, directions=self.choice.directions)
+        self.compute_visibility()
+
+    def compute_chosen_lighting(self) -> None:
+        """The light at the chosen directions, where :meth:`compute_chosen_visibility` chose more."""
+        if self.choice is not None and self.results is None:
+            self.compute_lighting()
 
     def compute_lighting(self) -> None:
         """Direct and indirect light from the table (any thread for numpy; the main
@@ -543,6 +588,8 @@ class BakeJob:
         report.lights = [light.name for light in lightings[-1][1]]
         report.relight_only = self.relight_only
         report.device = DeviceReport.from_dict(self.chosen_device.report)
+        if self.settings.target_error > 0:
+            report.target = self._target_record(report)
         if self.cluster is not None:
             report.split = {**(report.split or {}), "cluster": self.cluster.describe()}
         if setups is not None:
@@ -553,7 +600,26 @@ class BakeJob:
                                          lighting_reused=r.cache.lighting_reused if r.cache is not None else [])
                              for (name, lights, _), r in zip(lightings, reports)]
         result.report = report.to_dict()
+        if self.choice is not None:
+            # The next bake at this target starts from this count, and a relight reuses it.
+            self.context.scene.visibake.chosen_directions = self.choice.directions
         return JobResult(result=result, report=result.report, files=files)
+
+    def _target_record(self, report: Report) -> dict:
+        """The report's ``target``: the target, what was chosen and why, and whether the bake's
+        own estimate meets it."""
+        target = self.settings.target_error
+        if self.choice is not None:
+            record = {**self.choice.as_dict(), "pilot_seconds": round(self.pilot_seconds, 4)}
+        else:
+            why = ("--directions was given" if self.fixed_directions else
+                   "a relight reuses the directions the last bake chose" if self.relight_only else
+                   "a bake of several lightings, or on a cluster, keeps its directions")
+            record = {"target_error": target, "directions": self.settings.directions, "reason": why}
+        estimated = (report.estimated_error or {}).get("total")
+        record["estimated_error"] = estimated
+        record["met"] = None if estimated is None else bool(estimated <= target)
+        return record
 
 
 def write_report(path: str, report: dict) -> None:

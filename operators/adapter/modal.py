@@ -41,8 +41,11 @@ class ModalBake:
             # The cluster holds the table's rows from the trace to the last gather: one step (CPU only).
             compute = [("visibility and lighting", bake_job.compute, True)]
         else:
+            # None: a worker unless the GPU needs main. The chosen steps do nothing without a Target Error.
             compute = [("visibility", bake_job.compute_visibility, True),
-                       ("lighting", bake_job.compute_lighting, None)]  # None: a worker unless the GPU needs main
+                       ("lighting", bake_job.compute_lighting, None),
+                       ("visibility at the chosen directions", bake_job.compute_chosen_visibility, True),
+                       ("lighting at the chosen directions", bake_job.compute_chosen_lighting, None)]
         return [("plan", bake_job.plan, False),
                 ("unwrap", lambda: bake_job.unwrap(in_child=True), True),
                 ("extract", bake_job.extract, False),

@@ -64,7 +64,7 @@ def test_smoke_scene_is_well_formed(clean_scene, name):
         assert (light.angle if light.type == "SUN" else light.shadow_soft_size) == 0.0
 
     background = clean_scene.world.node_tree.nodes["Background"].inputs
-    if name in scenes.OUTSIDE_SCENE_NAMES:
+    if name in scenes.OUTSIDE_SCENE_NAMES + scenes.ISSUE_52_SCENE_NAMES:
         # A uniform sky: the colour the world's extraction reads, nothing Cycles alone would see.
         assert min(background["Color"].default_value[:3]) > 0.0 and background["Strength"].default_value > 0.0
         assert len(clean_scene.world.node_tree.nodes) == 2  # Background and World Output

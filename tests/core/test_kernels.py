@@ -1084,12 +1084,15 @@ def test_compiled_shadow_edges_of_a_hard_lamp_are_bitwise_the_point_by_point_loo
     compiled_calls = []
     compiled_pass = direct._hard_edge_irradiance
     monkeypatch.setattr(direct, "_hard_edge_irradiance", lambda *a: compiled_calls.append(1) or compiled_pass(*a))
-    ours, our_rays = direct._edge_irradiance(light, samples, edges, shadowing, scene, receives, 16)
+    ours, our_rays, our_half = direct._edge_irradiance(light, samples, edges, shadowing, scene, receives, 16)
     monkeypatch.setattr(kernels, "_module", None)
-    theirs, their_rays = direct._edge_irradiance(light, samples, edges, shadowing, scene, receives, 16)
+    theirs, their_rays, their_half = direct._edge_irradiance(light, samples, edges, shadowing, scene, receives, 16)
     assert compiled_calls == [1]  # the kernels' pass, then the loop
     assert our_rays == their_rays > 0
     np.testing.assert_array_equal(ours, theirs)
+    # The first half of the points (the error estimate's) is the same light in both passes.
+    np.testing.assert_allclose(our_half, their_half, rtol=1e-12, atol=1e-15)
+    assert np.all(our_half <= ours + 1e-12) and np.any((our_half > 0) & (our_half < ours))
     lit_share = np.mean(ours[:, 0] > 0)
     assert 0.3 < lit_share < 0.95  # some edge samples shadowed wholly, some not
     assert np.any((ours[:, 0] > 0) & (ours[:, 0] < np.max(ours[:, 0]) * 0.5))  # and some in part

@@ -84,7 +84,9 @@ def _job_report() -> dict:
         "settings": {"directions": 64, "bounces": 2, "shadows": "exact", "passes": ["lighting", "ao"]},
         "objects": [
             {"name": "Ground", "output": True, "uv_map": "UVMap", "resolution": [32, 16], "texels": 500,
-             "triangles": 2, "buried_texels": 3, "mode": "atlas", "layout_reason": "its UV map",
+             "triangles": 2, "buried_texels": 3,
+             "estimated_error": {"total": 0.023, "direct": 0.004, "indirect": 0.0227},
+             "mode": "atlas", "layout_reason": "its UV map",
              "uv_map_created": False},
             {"name": "Leaf", "output": True, "uv_map": "", "resolution": [12, 1], "texels": 12, "triangles": 4,
              "under_tessellated_triangles": 1, "under_tessellated_area_share": 0.25, "mode": "vertex",
@@ -102,6 +104,7 @@ def _job_report() -> dict:
                   "lighting_reused": ["Key"], "abandoned_writes_removed": 0, "estimated_bytes": 3 * 2**20 - 4096,
                   "not_cached": "", "evicted": [{"slot": "/c/old-0123456789ab", "bytes": 2**20}]},
         "skipped": ["bounce gathers: bounces = 0"], "warnings": ["object 'Leaf': coarse"],
+        "estimated_error": {"total": 0.021, "direct": 0.004, "indirect": 0.0206, "unestimated_share": 0.0},
         "kernels": {"backend": "numba", "version": "0.68.1", "load_seconds": 9.2, "compiled": True,
                     "cache_dir": "/k", "reason": None},
         "passes": [{"pass": "gather 1", "device": "cpu", "seconds": 0.25}],
@@ -138,6 +141,7 @@ def test_the_terminal_summary():
         "  Leaf             baked    vertex         12 samples (vertex mode was asked for)",
         "  Wall             occluder 8x8       40 texels  UV map UVMap",
         "  rays: 12345 traced, 678 skipped below the horizon, 90 shadow rays",
+        "  estimated error 2.1% per texel (direct light 0.4%, gathered 2.1%); per object: Ground 2.3%",
         "  device: gpu (a GPU was found); OPENGL, NVIDIA",
         "  CPU lookups: numba 0.68.1 kernels, compiled on first use in 9.2 s",
         "  pass: gather 1 on cpu: 0.250 s",
@@ -174,6 +178,7 @@ def test_the_panel_lines_share_the_terminal_s_phrases():
         ("2.3 s in total", "TIME"),
         ("layout: 0.01 s", "BLANK1"), ("visibility: 1.23 s", "BLANK1"), ("write: 0.50 s", "BLANK1"),
         ("rays: 12345 traced, 678 skipped below the horizon, 90 shadow rays", "LIGHT_SUN"),
+        ("estimated error 2.1% per texel (direct light 0.4%, gathered 2.1%)", "INFO"),
         ("cache: miss (no cached visibility)", "FILE_CACHE"),
         ("device: gpu (a GPU was found); OPENGL, NVIDIA", "MEMORY"),
         ("CPU lookups: numba 0.68.1 kernels, compiled on first use in 9.2 s", "MEMORY"),
@@ -184,7 +189,8 @@ def test_the_panel_lines_share_the_terminal_s_phrases():
     for text, icon in lines:
         if icon in ("LIGHT_SUN", "MEMORY", "FORWARD"):
             assert "  " + text in terminal
-    assert terminal[9].startswith("  " + lines[5][0])  # the terminal adds the size and place
+    assert terminal[10].startswith("  " + lines[6][0])  # the terminal adds the size and place
+    assert terminal[6].startswith("  " + lines[5][0])  # and the objects' estimates
 
 
 def test_the_panel_reads_a_report_of_another_version_and_shows_what_it_knows():

@@ -53,7 +53,7 @@ def test_the_report_s_settings_keep_their_keys():
     assert list(dataclasses.asdict(BakeSettings())) == [
         "directions", "bounces", "shadows", "shadow_regions", "rotate", "seed", "interleave", "passes", "margin",
         "area_light_samples", "footprint_samples", "footprint_width", "sharp_contacts", "stitch_seams",
-        "emitter_samples", "threads", "chunk_rays", "light_groups", "vertex_lookup"]
+        "emitter_samples", "threads", "chunk_rays", "light_groups", "vertex_lookup", "target_error"]
 
 
 def test_the_choices_are_core_s_constants():
@@ -141,4 +141,5 @@ def test_the_scene_holds_exactly_the_settings_marked_so():
     assert on_scene == {"preset", "directions", "bounces", "shadows", "passes", "resolution", "texel_density", "mode",
                         "bake_all", "rotate", "seed", "margin", "footprint_samples",
                         "sharp_contacts", "stitch_seams", "interleave", "use_cache", "cache_dir", "light_groups",
-                        "vertex_lookup", "refine_vertex_objects", "output_dir"}
+                        "vertex_lookup", "refine_vertex_objects", "output_dir", "target_error",
+                        "chosen_directions"}
