@@ -76,8 +76,8 @@ def measure(name: str, args, job) -> list[dict]:
                                              measured=reference.relative_errors(one, theirs)["relative_rmse"])
         rows.append(dict(scene=name, description=description, directions=directions, seconds=seconds,
                          measured=texel["relative_rmse"], noise=blocks["texel_noise"], measured_denoised=measured,
-                         bias=texel["bias"], estimated=estimate.get("total"), estimated_direct=estimate.get("direct"),
-                         estimated_indirect=estimate.get("indirect"),
+                         bias=texel["bias"], estimated=estimate.get("total"), estimated_lamps=estimate.get("lamps"),
+                         estimated_gathered=estimate.get("gathered"),
                          unestimated_share=estimate.get("unestimated_share"),
                          ratio=(estimate["total"] / measured) if estimate.get("total") and measured else None,
                          objects=per_object, blender=bpy.app.version_string, samples=args.samples,
@@ -93,7 +93,7 @@ def show(row: dict) -> None:
     ratio = "-" if row["ratio"] is None else f"{row['ratio']:.2f}"
     print(f"| {row['scene']} | {row['directions']} | {row['seconds']:.1f} s | {percent(row['measured'])} "
           f"| {percent(row['noise'])} | {percent(row['measured_denoised'])} | {percent(row['estimated'])} "
-          f"({percent(row['estimated_direct'])} + {percent(row['estimated_indirect'])}) | {ratio} |", flush=True)
+          f"({percent(row['estimated_lamps'])} + {percent(row['estimated_gathered'])}) | {ratio} |", flush=True)
 
 
 def main(argv=None) -> int:
@@ -117,7 +117,7 @@ def main(argv=None) -> int:
 
     names = args.scenes or list(scenes.SCENES)
     print("| scene | directions | VisiBake | measured per texel | Cycles' noise | measured without it "
-          "| estimated (direct + gathered) | estimated / measured |")
+          "| estimated (lamps + gathered) | estimated / measured |")
     print("|---|---|---|---|---|---|---|---|")
     for name in names:
         for row in measure(name, args, job):

@@ -52,12 +52,12 @@ def _cache_phrase(cache: CacheStatus) -> str:
 
 def _estimate_phrase(estimate: dict) -> str:
     """The bake's estimate of its own error (core.transport.estimate), e.g. "estimated error 2.1%
-    per texel (direct light 0.4%, gathered 2.0%)"."""
+    per texel (lamps 0.4%, gathered 2.0%)"."""
     def percent(value):
         return "-" if value is None else f"{100 * value:.1f}%"
 
-    phrase = (f"estimated error {percent(estimate.get('total'))} per texel (direct light "
-              f"{percent(estimate.get('direct'))}, gathered {percent(estimate.get('indirect'))})")
+    phrase = (f"estimated error {percent(estimate.get('total'))} per texel (lamps "
+              f"{percent(estimate.get('lamps'))}, gathered {percent(estimate.get('gathered'))})")
     unestimated = estimate.get("unestimated_share")
     if unestimated:
         phrase += f", {100 * unestimated:.0f}% of texels without an estimate"

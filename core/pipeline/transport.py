@@ -190,7 +190,9 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
                            "relight of this preparation; its result was kept")
         for result, part, part_variance in zip(results, narrow(emitted), narrow(emitted_variance)):
             result.direct += part
-            result.direct_variance += part_variance
+            # The world's and emitters' light comes through the table: its error is the gathers' kind
+            # (it falls with more directions), not the lamps'.
+            result.gathered_variance = part_variance
         del emitted, emitted_variance
     del emissions
     if emitter_contacts is not None:
@@ -235,7 +237,8 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     np.maximum(gathered, 0.0, out=gathered)
     for result, part, part_variance in zip(results, narrow(gathered), narrow(gathered_variance)):
         result.gathered = part
-        result.gathered_variance = part_variance
+        result.gathered_variance = (part_variance if result.gathered_variance is None
+                                    else result.gathered_variance + part_variance)
     return results, gathers
 
 

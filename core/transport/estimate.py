@@ -42,9 +42,10 @@ def lighting_error(albedo: np.ndarray, parts: dict, sample_offset: np.ndarray, o
     objects : indices of the objects the estimate covers (the outputs)
 
     Returns None when a part has no estimate at all (read back from a cache); else a dict:
-    ``total``, ``direct``, ``indirect`` (relative RMS over the objects' samples; None where no
-    sample has an estimate), ``unestimated_share`` (of the samples, those without one) and
-    ``objects`` {index: {total, direct, indirect}}. Light groups' errors add as independent.
+    ``total``, ``lamps`` (the lamps' direct light) and ``gathered`` (all light through the table:
+    the world's, the emitters' and the bounces'), relative RMS over the objects' samples (None
+    where no sample has an estimate), ``unestimated_share`` (of the samples, those without one)
+    and ``objects`` {index: {total, lamps, gathered}}. Light groups' errors add as independent.
     """
     if not parts or any(t.direct_variance is None or t.gathered_variance is None for t in parts.values()):
         return None
@@ -54,29 +55,29 @@ def lighting_error(albedo: np.ndarray, parts: dict, sample_offset: np.ndarray, o
     # The lighting pass is albedo / pi times the irradiance: so are its errors.
     scale = np.square(albedo / np.pi)
     value = albedo / np.pi * light
-    direct = scale * direct_variance
-    indirect = scale * gathered_variance
+    lamps = scale * direct_variance
+    gathered = scale * gathered_variance
     rows = np.concatenate([np.arange(sample_offset[i], sample_offset[i + 1]) for i in objects]) if len(objects) \
         else np.zeros(0, np.int64)
-    result = _relative(value[rows], direct[rows], indirect[rows])
-    result["objects"] = {int(i): _relative(value[a:b], direct[a:b], indirect[a:b])
+    result = _relative(value[rows], lamps[rows], gathered[rows])
+    result["objects"] = {int(i): _relative(value[a:b], lamps[a:b], gathered[a:b])
                          for i in objects for a, b in [(sample_offset[i], sample_offset[i + 1])]}
     for entry in result["objects"].values():
         entry.pop("unestimated_share")
     return result
 
 
-def _relative(value: np.ndarray, direct: np.ndarray, indirect: np.ndarray) -> dict:
+def _relative(value: np.ndarray, lamps: np.ndarray, gathered: np.ndarray) -> dict:
     """Relative RMS errors of samples with lighting ``value`` (k, 3) and squared standard errors
-    ``direct`` and ``indirect`` (k, 3), over the samples where both are known."""
-    known = np.isfinite(direct).all(axis=1) & np.isfinite(indirect).all(axis=1)
+    ``lamps`` and ``gathered`` (k, 3), over the samples where both are known."""
+    known = np.isfinite(lamps).all(axis=1) & np.isfinite(gathered).all(axis=1)
     mean = float(np.mean(value)) if len(value) else 0.0
     if not known.any() or not mean > 0:
-        return {"total": None, "direct": None, "indirect": None,
+        return {"total": None, "lamps": None, "gathered": None,
                 "unestimated_share": float(1.0 - known.mean()) if len(known) else 1.0}
 
     def rms(variance):
         return float(np.sqrt(np.mean(variance[known])) / mean)
 
-    return {"total": rms(direct + indirect), "direct": rms(direct), "indirect": rms(indirect),
+    return {"total": rms(lamps + gathered), "lamps": rms(lamps), "gathered": rms(gathered),
             "unestimated_share": float(1.0 - known.mean())}

@@ -35,8 +35,10 @@ class LightGroup:
 @dataclass
 class Transported:
     """Per-sample irradiance of one group: direct (lamps, emitters, world) and gathered bounces,
-    and the squared standard errors of both that the bake estimated (core.transport.estimate):
-    (K, 3) float64, NaN where it has no estimate; None: none at all (read back from a cache)."""
+    and the squared standard errors the bake estimated (core.transport.estimate), (K, 3) float64,
+    NaN where it has no estimate, None where it has none at all (read back from a cache): of the
+    lamps' direct light (``direct_variance``), and of all light that came through the table
+    (``gathered_variance``: the world's and emitters' gather, and the bounces)."""
 
     direct: np.ndarray  # (K, 3) float64
     gathered: np.ndarray  # (K, 3) float64

@@ -38,7 +38,7 @@ def test_a_target_chooses_the_directions_and_relight_reuses_them(visibake, yard)
     report = _report()
     target = report["target"]
     assert target["target_error"] == pytest.approx(0.002) and target["pilot_directions"] == 64
-    # The pilot's estimate (0.41%: 0.13% direct, 0.39% gathered) is above this tight a target:
+    # The pilot's estimate (0.41%: 0.13% lamps, 0.39% gathered) is above this tight a target:
     # a second bake at more directions.
     assert target["pilot_estimate"]["total"] > 0.002
     assert target["directions"] > 64 and report["settings"]["directions"] == target["directions"]
@@ -73,6 +73,7 @@ def test_a_target_below_the_direct_light_s_error_keeps_the_pilot_and_says_why(vi
     target = _report()["target"]
     assert target["directions"] == 64 and target["met"] is False
     assert "direct light's estimated error" in target["reason"] and "alone exceeds" in target["reason"]
+    assert target["pilot_estimate"]["lamps"] > 0.0012 * 0.85
 
 
 def test_the_command_line_takes_a_target_and_keeps_given_directions(visibake, yard, tmp_path, capfd):

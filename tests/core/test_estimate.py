@@ -46,7 +46,7 @@ def test_the_gathered_light_s_estimate_matches_its_error_against_many_directions
         print(f"\n{directions} directions: measured {measured:.4f} against 2048, estimated {estimate['total']:.4f}")
         # Measured: 0.268 and 0.094 (the reference's own error in it), estimated 0.267 and 0.088.
         assert measured / 1.5 < estimate["total"] < measured * 1.5
-        assert estimate["direct"] == 0.0  # a hard spot over a flat floor: no texel's footprint is shadowed in part
+        assert estimate["lamps"] == 0.0  # a hard spot over a flat floor: no texel's footprint is shadowed in part
         assert report["objects"][0]["estimated_error"]["total"] == pytest.approx(estimate["total"], rel=1e-3)
 
 
@@ -91,6 +91,6 @@ def test_the_estimate_is_kept_with_the_cached_lighting_and_per_object(tmp_path):
     again = relight(prepare(scene, settings, cache=cache), scene.lights, scene.world).report
     assert again["cache"]["lighting_reused"] == ["all"]
     assert first["estimated_error"] == again["estimated_error"]
-    assert first["estimated_error"]["direct"] > 0 and first["estimated_error"]["indirect"] > 0
+    assert first["estimated_error"]["lamps"] > 0 and first["estimated_error"]["gathered"] > 0
     for entry in first["objects"]:
         assert entry["estimated_error"]["total"] >= 0
