@@ -307,7 +307,7 @@ class Prepared:
         s = self.settings
         emitting = np.repeat(group.emitting, np.diff(self.sample_offset))
         parts = [TRANSPORT_REVISION, self.table_key, self.bounces_needed(), s.shadows, s.shadow_regions,
-                 s.area_light_samples, s.sharp_contacts,
+                 s.area_light_samples, s.sharp_contacts, s.target_error,
                  s.emitter_samples, max(s.margin, 2), s.vertex_lookup, self.albedo, self.normal,
                  np.where(emitting[:, None], self.emission, 0.0), group.world, group.emitting,
                  np.array([m.output for m in self.meshes])]

@@ -1,7 +1,13 @@
 """The direction count a bake at a Target Error chooses from its pilot (core.pipeline.target)."""
+import numpy as np
 import pytest
 
+from core.pipeline.relight import bake
 from core.pipeline.target import AIM, DIRECTION_STEPS, GATHER_ERROR_EXPONENT, choose_directions
+from core.pipeline.transport import BOUNCE_SHARE_OF_TARGET
+from core.scene import Light, Material, Scene
+from core.settings import BakeSettings
+from core_scenes import box_interior
 
 
 def _estimate(lamps, gathered):
@@ -43,3 +49,22 @@ def test_without_an_estimate_the_pilot_is_kept():
     for estimate in (None, {"total": None, "lamps": None, "gathered": None}):
         choice = choose_directions(estimate, 96, 0.03)
         assert choice.directions == 96 and "no estimate" in choice.reason
+
+
+def test_at_a_target_the_bounces_that_add_less_than_its_share_are_not_gathered():
+    def room(target):
+        box = box_interior(size=2.0, material=Material(base_color=np.full(3, 0.5)), resolution=16)
+        lamp = Light("Lamp", "POINT", np.ones(3), 200.0, position=np.array([0.2, 0.1, 0.3]))
+        result = bake(Scene([box], [lamp]), BakeSettings(directions=64, bounces=8, target_error=target))
+        return result.objects[0].images["lighting"], result.report
+
+    every, report = room(0.0)
+    assert report["gathers"] == 8
+    fewer, report = room(0.05)
+    stop = next(s for s in report["skipped"] if "below the Target Error" in s)
+    assert 3 <= report["gathers"] < 8, stop
+    covered = every[..., 3] > 0
+    # What the bounces left out carried (albedo 0.5: each about half the one before) is within their share.
+    missing = 1.0 - fewer[covered][:, :3].mean() / every[covered][:, :3].mean()
+    print(f"\n{report['gathers']} of 8 bounces; {missing:.3%} of the light left out ({stop})")
+    assert 0.0 <= missing < 2 * BOUNCE_SHARE_OF_TARGET * 0.05
