@@ -9,7 +9,7 @@
 #   make test-core  tests/core only (no bpy, no extension build): seconds
 #   make lint     ruff (pinned in requirements.txt; config in ruff.toml)
 #   make demo     tools/visibake.py demo --out out/demo
-#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|outside|standard|bounces|full), or accuracy.py (=accuracy), volume_*.py (=volume),
+#   make bench    benchmarks/run.py (BENCH_PROFILE=smoke|quick|outside|targets|standard|bounces|full), or accuracy.py (=accuracy), volume_*.py (=volume),
 #                 brdf_vs_cycles.py (=appearance)
 #   make clean    build/test outputs;  make distclean  also .venv and wheels
 
@@ -214,7 +214,7 @@ lint: venv
 demo: venv build
 	$(PY) tools/visibake.py demo --out out/demo
 
-# BENCH_PROFILE=smoke|quick|outside|standard|bounces|full (see benchmarks/run.py); results in benchmarks/results/.
+# BENCH_PROFILE=smoke|quick|outside|targets|standard|bounces|full (see benchmarks/run.py); results in benchmarks/results/.
 # BENCH_PROFILE=accuracy: error against N per scene, one technique at a time (benchmarks/accuracy.py).
 # BENCH_PROFILE=seams: seam stitching judged on renders of the baked lighting (benchmarks/seams.py).
 # BENCH_PROFILE=volume: volume lighting against Monte Carlo and Cycles (benchmarks/volume_accuracy.py, volume_vs_cycles.py).

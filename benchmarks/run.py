@@ -5,6 +5,7 @@
     .venv/bin/python benchmarks/run.py --profile bounces          # ~10 min: 0, 1 and 4 bounces
     .venv/bin/python benchmarks/run.py --profile full             # hours: everything, 4096 spp references
     .venv/bin/python benchmarks/run.py --profile outside          # ~8 min: the atrium and the daylight exterior
+    .venv/bin/python benchmarks/run.py --profile targets          # ~30 min: Target Errors on all ten scenes
     .venv/bin/python benchmarks/run.py --profile smoke --out DIR  # seconds: what the tests run
 
 For every bench scene of ``benchmarks/scenes.py`` (the profile's, or ``--scenes``), at each
@@ -62,6 +63,14 @@ PROFILES = {
     "outside": dict(size="full", scenes=["atrium", "daylight_exterior"], resolutions=[96], bounces=[2],
                     directions=[64, 128, 256, 512], shadows=["exact", "fractions"], rotate=[False, True],
                     cycles_samples=[1, 4, 16, 64, 256], reference_samples=1024, relight_setups=[1, 4, 16],
+                    **SHORT_RUNS),
+    # Issue 52: the bakes at a Target Error beside a fixed 256 directions, on every scene (the six,
+    # the two outside ones and issue 52's two), against Cycles' sweep; no relighting setups.
+    "targets": dict(size="full", scenes=["sun_occluders", "interior_opening", "closed_room_point", "thin_geometry",
+                                         "dense_mesh", "many_objects", "atrium", "daylight_exterior",
+                                         "pergola_courtyard", "sunlit_interior"],
+                    resolutions=[64], bounces=[2], directions=[256], shadows=["exact"], rotate=[False],
+                    cycles_samples=[1, 4, 16, 64, 256], reference_samples=2048, relight_setups=[], targets=TARGETS,
                     **SHORT_RUNS),
     "standard": dict(size="full", scenes=None, resolutions=[64, 128], bounces=[2],
                      directions=[32, 64, 128, 256, 512, 1024], shadows=["exact", "fractions"], rotate=[False, True],
