@@ -7,6 +7,7 @@ every timer event, ``event_action``, which decides what each event does, ``Progr
 which the status bar reads and Esc cancels through, and ``failure_message``. The tests
 below drive them exactly as ``modal`` does, with a real bake.
 """
+import json
 import signal
 import subprocess
 import threading
@@ -206,6 +207,43 @@ def test_the_modal_bake_ticks_to_the_blocking_bake_s_images(visibake, scene):
     assert waiting > 0  # the long steps ran beside the ticks, not inside them
     assert modal.progress.percent == 100
     assert_same_light(blocking, image_pixels("VB_Ground_lighting"))
+
+
+def test_a_target_error_bake_ticks_through_its_pilot_to_the_blocking_bake_s_images(visibake, scene):
+    props = bpy.context.scene.visibake
+    props.target_error = 0.005
+    assert bpy.ops.visibake.bake() == {"FINISHED"}
+    chosen = props.chosen_directions
+    # The pilot's estimate (0.59%: lamps 0.22%, gathered 0.55%) is above the target: the bake chose more.
+    assert chosen > 64, json.loads(bpy.context.scene["visibake_report"])["target"]
+    blocking = image_pixels("VB_Ground_lighting")
+    bpy.data.images.remove(bpy.data.images["VB_Ground_lighting"])
+    props.chosen_directions = 0  # the same pilot again
+    modal = _modal(visibake, scene)
+    _tick_until_done(modal)
+    assert modal.error is None and props.chosen_directions == chosen
+    assert_same_light(blocking, image_pixels("VB_Ground_lighting"))
+
+
+def test_a_cancel_at_the_chosen_directions_leaves_the_scene_and_the_choice_as_they_were(visibake, scene):
+    props = bpy.context.scene.visibake
+    props.target_error, props.chosen_directions = 0.005, 0
+    images = set(bpy.data.images.keys())
+    progress = visibake.core.pipeline.progress.Progress()
+    seen = []
+
+    def esc_when_the_second_table_starts(name, fraction):
+        if name == "visibility" and "transport" in seen:
+            progress.cancel()
+        seen.append(name)
+        progress(name, fraction)
+
+    modal = visibake.operators.adapter.modal.ModalBake(visibake.operators.adapter.job.BakeJob(
+        bpy.context, list(scene), progress=esc_when_the_second_table_starts), progress)
+    _tick_until_done(modal)
+    assert isinstance(modal.error, visibake.core.errors.Cancelled), modal.error
+    assert set(bpy.data.images.keys()) == images and props.chosen_directions == 0
+    assert "VisiBake" not in scene[1].data.uv_layers
 
 
 @pytest.mark.parametrize("stage", ["unwrap", "visibility", "transport"])
