@@ -50,7 +50,8 @@ from .progress import Stages
 # change of the transport's formulas), so that lighting cached by an older VisiBake is not
 # reused. 2: the gathers' weights sum to pi (1 + n . n_g) / 2, not pi (speed part 18). 3: a soft
 # lamp's points over a footprint are dimensions 2 and 3 of the sampler (issue 52), and cached
-# lighting carries the bake's error estimate.
+# lighting carries the bake's error estimate, and short rays reflect the world as open as the
+# sky is at their landing points.
 TRANSPORT_REVISION = 3
 
 

@@ -18,9 +18,17 @@ from ..lights.emitters import (
     triangle_irradiance,
 )
 from ..lights.lamps import lamp_scale, lamp_shape_key, unit_lamp
-from ..transport.contacts import CONTACT_AREA_LIGHT_SAMPLES, ShortHits, contact_correction, texel_sizes
+from ..transport.contacts import (
+    CONTACT_AREA_LIGHT_SAMPLES,
+    ShortHits,
+    contact_correction,
+    landing_openness,
+    texel_sizes,
+    world_contact_correction,
+)
 from ..transport.contract import GatherSource, TransportBackend
 from ..transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
+from ..transport.gather import ambient_occlusion
 from ..transport.groups import MAX_GROUPS_PER_GATHER, LightGroup, Transported
 from ..transport.interleave import near_light, reconstruct_interleaved
 from ..visibility.cache import arrays_key
@@ -106,6 +114,7 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
     # light, so it is made before the gathers and the short hits go before the first one.
     correction = None if contacts is None else _contacts_corrected(p, contacts, reflectance, dilate, last_direct)
     emitter_contacts = None if contacts is None else contacts.emitters
+    world_contacts = None if contacts is None or contacts.openness is None else contacts
     del contacts
     if last_direct:
         p.drop_direct_inputs()  # the emitters' light below reads neither footprints nor short hits
@@ -201,6 +210,11 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
         near_correction = _emitter_contacts_corrected(p, emitter_contacts, results, groups, reflectance, dilate)
         correction = near_correction if correction is None else correction + near_correction
         del emitter_contacts, near_correction
+    if world_contacts is not None:
+        # So is the world's: the short hits reflect it as open as the sky is at their landing points.
+        sky_correction = _world_contacts_corrected(p, world_contacts, results, groups, reflectance, dilate)
+        correction = sky_correction if correction is None else correction + sky_correction
+        del world_contacts, sky_correction
     gathered = np.zeros((len(p.position), 3 * count))
     direct = wide([r.direct for r in results])
     shares = BounceShares(p.settings.target_error, direct, outputs)
@@ -384,7 +398,10 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
     triangles = emissive_triangles([mesh for mesh, emitting in zip(p.meshes, emitting_any) if emitting])
     # Back to the bake's mesh indices.
     triangles.object_index = np.nonzero(emitting_any)[0][triangles.object_index]
-    if not any(group.lights for group in groups) and not len(triangles):
+    # The world's light at the landings: groups lit by the world and no emitter (whose gather
+    # would mix the emitters' light into the world's).
+    sky_groups = [bool(np.any(np.asarray(g.world) > 0)) and not bool(np.any(g.emitting)) for g in groups]
+    if not any(group.lights for group in groups) and not len(triangles) and not any(sky_groups):
         return None
     if p.settings.shadows != "exact":
         skipped.append("sharp contacts: shadow fractions have no shadow to evaluate where short rays land")
@@ -407,11 +424,15 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
             result.shadow_rays += rays
         at_hits = at_hits[0] if len(at_hits) == 1 else np.concatenate(at_hits, axis=1)
     emitters = _emitter_contact_light(p, short, groups, triangles)
+    openness = None
+    if any(sky_groups):
+        openness = landing_openness(short, p.object_samples, p.ray_scene)
     stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
     if last_direct:
         short = replace(short, points=None)
     # A copy: the emitters' and the emitted light are added to the groups' direct light later.
-    return ContactLight(short, np.concatenate([r.direct for r in results], axis=1), at_hits, emitters)
+    return ContactLight(short, np.concatenate([r.direct for r in results], axis=1), at_hits, emitters, openness,
+                        sky_groups)
 
 
 # Short hits within this many of their target's texels of an emissive mesh's bounding box take
@@ -424,13 +445,18 @@ EMITTER_CONTACT_CELLS = 8
 @dataclass
 class ContactLight:
     """What the contacts' corrections read (:func:`_contact_light`): the short hits, (K, 3G) the
-    samples' lamp light, (m, 3G) the lamps' light at the hits (None without lamps) and the
-    emitters' (:class:`EmitterContacts`, None where no hit lands near an emitter)."""
+    samples' lamp light, (m, 3G) the lamps' light at the hits (None without lamps), the
+    emitters' (:class:`EmitterContacts`, None where no hit lands near an emitter) and the sky's
+    openness at the hits."""
 
     short: ShortHits
     lamp_direct: np.ndarray
     at_hits: np.ndarray | None
     emitters: "EmitterContacts | None"
+    # (m,) how open the sky is at each landing (core.transport.contacts.landing_openness), and
+    # per group whether its world light is corrected there; None where no group is lit by a world alone.
+    openness: np.ndarray | None = None
+    sky_groups: list | None = None
 
 
 @dataclass
@@ -512,6 +538,24 @@ def _emitter_contacts_corrected(p: Prepared, contacts: EmitterContacts, results:
             emitted[:, 3 * index:3 * index + 3] = 0.0
     return contact_correction(contacts.short, p.layout, p.lookup_atlas(reflectance * emitted, dilate),
                               contacts.at_hits, p.to_atlas(p.albedo, dilate), len(p.position))
+
+
+def _world_contacts_corrected(p: Prepared, contacts: ContactLight, results: list[Transported],
+                              groups: list[LightGroup], reflectance: np.ndarray, dilate) -> np.ndarray:
+    """(K, 3G) float64: what every bounce's gather gains where the short hits reflect the world's
+    light as open as the sky is at their landing points, instead of their target texel's mean
+    (core.transport.contacts.world_contact_correction). The world's light is each group's direct
+    light but its lamps', once the emitted gather is added to it; groups with emitters, or
+    without a world, look up nothing here (zero columns). A texel's openness is the table's
+    (core.transport.gather.ambient_occlusion), looked up as its light is."""
+    world = np.concatenate([r.direct for r in results], axis=1) - contacts.lamp_direct
+    for index, corrected in enumerate(contacts.sky_groups):
+        if not corrected:
+            world[:, 3 * index:3 * index + 3] = 0.0
+    openness = ambient_occlusion(p.table, p.frame_normal, p.gather_scale(), p.settings.threads)
+    return world_contact_correction(contacts.short, contacts.openness, p.layout,
+                                    p.lookup_atlas(reflectance * world, dilate),
+                                    p.lookup_atlas(openness[:, None], dilate), len(p.position))
 
 
 def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,
