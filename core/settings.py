@@ -182,8 +182,9 @@ SETTINGS = _table(
                  "1 since Blender 5.2.1, 0.5 in Blender 4.2 to 5.2.0; 0 puts them all at the centre)"),
     Setting("sharp_contacts", bool, True, "Sharp Contacts",
             help="Where a ray of the table lands within two texels of its target (objects resting on others, "
-                 "corners), light it at the landing point with exact shadow rays instead of reading the target's "
-                 "texels, so contact shadows are not blurred by the texel size (exact shadows only)"),
+                 "corners), light it at the landing point with exact shadow rays, and with the sky as open as it "
+                 "is there, instead of reading the target's texels, so contact shadows are not blurred by the "
+                 "texel size (exact shadows only)"),
     Setting("stitch_seams", bool, True, "Stitch Seams",
             help="Move the texels along UV seams between smooth faces, as little as possible, until both sides "
                  "of each seam read the same light under bilinear filtering, so no line shows along a seam "
