@@ -2,6 +2,7 @@
 
     NUMBA_CACHE_DIR=/tmp/nc .venv/bin/python benchmarks/error_calibration.py                 # 8 scenes, 64 + 256
     .venv/bin/python benchmarks/error_calibration.py --scenes atrium seed:10 --directions 256
+    .venv/bin/python benchmarks/error_calibration.py --summarize runs.jsonl   # the table again, and the spread
 
 Each scene (a name of ``benchmarks/scenes.py`` SCENES, or ``seed:N`` for scene N of
 ``../shared/tools/scenegen.py``) is baked at ``--resolution``^2, ``--bounces`` (2) and exact
@@ -93,7 +94,27 @@ def show(row: dict) -> None:
     ratio = "-" if row["ratio"] is None else f"{row['ratio']:.2f}"
     print(f"| {row['scene']} | {row['directions']} | {row['seconds']:.1f} s | {percent(row['measured'])} "
           f"| {percent(row['noise'])} | {percent(row['measured_denoised'])} | {percent(row['estimated'])} "
-          f"({percent(row['estimated_lamps'])} + {percent(row['estimated_gathered'])}) | {ratio} |", flush=True)
+          f"({percent(row.get('estimated_lamps', row.get('estimated_direct')))} + "
+          f"{percent(row.get('estimated_gathered', row.get('estimated_indirect')))}) | {ratio} |", flush=True)
+
+
+def summarize(paths: list[str]) -> int:
+    """Print the runs of ``paths`` (--json files) as the table, then how the estimate / measured
+    ratios spread: their median, range, and how many lie within a factor of 1.5 either way."""
+    rows = [json.loads(line) for path in paths for line in open(path) if line.strip()]
+    print(HEADER)
+    for row in rows:
+        show(row)
+    ratios = sorted(r["ratio"] for r in rows if r["ratio"] is not None)
+    if ratios:
+        within = sum(1 / 1.5 <= r <= 1.5 for r in ratios)
+        print(f"\n{len(ratios)} runs: estimate / measured median {ratios[len(ratios) // 2]:.2f}, range "
+              f"{ratios[0]:.2f}-{ratios[-1]:.2f}, {within} within a factor of 1.5")
+    return 0
+
+
+HEADER = ("| scene | directions | VisiBake | measured per texel | Cycles' noise | measured without it "
+          "| estimated (lamps + gathered) | estimated / measured |\n|---|---|---|---|---|---|---|---|")
 
 
 def main(argv=None) -> int:
@@ -107,7 +128,11 @@ def main(argv=None) -> int:
     parser.add_argument("--scenegen", default=os.path.join(os.path.dirname(ROOT), "shared", "tools", "scenegen.py"))
     parser.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "cache"))
     parser.add_argument("--json", help="append one JSON line a run to this file")
+    parser.add_argument("--summarize", nargs="+", metavar="JSONL",
+                        help="only print the table and the calibration's spread from these --json files")
     args = parser.parse_args(argv)
+    if args.summarize:
+        return summarize(args.summarize)
 
     from tools.visibake import load_extension
 
@@ -116,9 +141,7 @@ def main(argv=None) -> int:
     from benchmarks import scenes
 
     names = args.scenes or list(scenes.SCENES)
-    print("| scene | directions | VisiBake | measured per texel | Cycles' noise | measured without it "
-          "| estimated (lamps + gathered) | estimated / measured |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(HEADER)
     for name in names:
         for row in measure(name, args, job):
             if args.json:
