@@ -7,7 +7,8 @@ the bake. Else the gathered light's share of the error is what more directions l
 estimate falls as D^-GATHER_ERROR_EXPONENT, so the count that brings it within what the direct
 light's error leaves of the target is predicted from the pilot alone, and the scene is baked
 once more at that count. The direct light's error does not fall with directions (it is the
-footprint's and the lamps' points): where it alone exceeds the target, the report says so.
+footprint's and the lamps' points): where it alone exceeds the target, the gathered light is
+brought to its level, and the report says so.
 """
 from __future__ import annotations
 
@@ -71,12 +72,21 @@ def choose_directions(estimate: dict | None, pilot: int, target: float, most: in
     aim = AIM * target
     if total <= aim:
         return kept(f"the pilot's estimated error {total:.2%} is within the target {target:.2%}", total)
+    note = ""
     if direct >= aim:
-        return kept(f"the lamps' direct light's estimated error {direct:.2%} alone exceeds the target "
-                    f"{target:.2%}: more directions do not lower it (Texel Footprint Samples and the lamps' "
-                    "points do)", total)
-    # What the direct light's error leaves of the aim, for the gathered light's.
-    budget = math.sqrt(aim * aim - direct * direct)
+        # The target cannot be met by directions: the gathered light is brought to the lamps' level,
+        # beyond which more directions buy little.
+        if gathered <= direct:
+            return kept(f"the lamps' direct light's estimated error {direct:.2%} alone exceeds the target "
+                        f"{target:.2%}: more directions do not lower it (Texel Footprint Samples and the "
+                        "lamps' points do)", total)
+        budget = direct
+        note = (f"; the lamps' direct light's estimated error {direct:.2%} alone exceeds the target "
+                f"{target:.2%} (Texel Footprint Samples and the lamps' points lower it), so the gathered light "
+                "was brought to its level")
+    else:
+        # What the direct light's error leaves of the aim, for the gathered light's.
+        budget = math.sqrt(aim * aim - direct * direct)
     wanted = pilot * (gathered / budget) ** (1.0 / GATHER_ERROR_EXPONENT)
     steps = [step for step in DIRECTION_STEPS if step <= most]
     chosen = next((step for step in steps if step >= wanted), steps[-1] if steps else pilot)
@@ -87,4 +97,4 @@ def choose_directions(estimate: dict | None, pilot: int, target: float, most: in
     limited = "" if chosen >= wanted else f" (the most this bake chooses; {wanted:.0f} were wanted)"
     return DirectionChoice(target, chosen, pilot, estimate, predicted,
                            f"the pilot at {pilot} directions estimated {total:.2%} (gathered light {gathered:.2%}); "
-                           f"{chosen} directions{limited} bring it to about {predicted:.2%}")
+                           f"{chosen} directions{limited} bring it to about {predicted:.2%}{note}")

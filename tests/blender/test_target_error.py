@@ -67,11 +67,11 @@ def test_a_target_the_pilot_meets_keeps_the_pilot(visibake, yard):
     assert props.chosen_directions == 64
 
 
-def test_a_target_below_the_direct_light_s_error_keeps_the_pilot_and_says_why(visibake, yard):
-    bpy.context.scene.visibake.target_error = 0.0012  # the pilot's direct light: 0.13%
+def test_a_target_below_the_direct_light_s_error_says_so_and_brings_the_gathered_light_to_it(visibake, yard):
+    bpy.context.scene.visibake.target_error = 0.0012  # the pilot's lamps: 0.13%, its gathered light 0.39%
     assert bpy.ops.visibake.bake() == {"FINISHED"}
     target = _report()["target"]
-    assert target["directions"] == 64 and target["met"] is False
+    assert target["directions"] > 64 and target["met"] is False
     assert "direct light's estimated error" in target["reason"] and "alone exceeds" in target["reason"]
     assert target["pilot_estimate"]["lamps"] > 0.0012 * 0.85
 

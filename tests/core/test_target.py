@@ -35,8 +35,12 @@ def test_more_directions_bring_the_gathered_light_within_what_the_lamps_leave():
     assert choice.as_dict()["pilot_estimate"] is estimate
 
 
-def test_lamps_whose_error_alone_exceeds_the_target_keep_the_pilot_and_say_why():
+def test_lamps_whose_error_alone_exceeds_the_target_bring_the_gathered_light_to_their_level_and_say_why():
+    # The gathered light above the lamps' error: brought to it (64 (0.06 / 0.04)^2 = 144: 192).
     choice = choose_directions(_estimate(0.04, 0.06), 64, 0.03)
+    assert choice.directions == 192 and "alone exceeds" in choice.reason
+    # Already below it: more directions buy nothing, the pilot stays.
+    choice = choose_directions(_estimate(0.04, 0.03), 64, 0.03)
     assert choice.directions == 64 and "alone exceeds" in choice.reason
 
 
