@@ -142,11 +142,11 @@ def main(argv=None) -> int:
 
     names = args.scenes or list(scenes.SCENES)
     print(HEADER)
+    from benchmarks.scenegen_vs_cycles import append_json_line
+
     for name in names:
         for row in measure(name, args, job):
-            if args.json:
-                with open(args.json, "a") as out:
-                    out.write(json.dumps(row) + "\n")
+            append_json_line(args.json, row)
     return 0
 
 

@@ -35,6 +35,13 @@ def load_scenegen(path: str):
     return module
 
 
+def append_json_line(path: str | None, row: dict) -> None:
+    """Append ``row`` as one JSON line to ``path`` (the --json file; None: nothing)."""
+    if path:
+        with open(path, "a") as out:
+            out.write(json.dumps(row) + "\n")
+
+
 def measure(seed: int, args, job, scenegen) -> dict:
     """Bake scene ``seed`` with VisiBake and compare it with Cycles; returns the figures."""
     import bpy
@@ -119,9 +126,7 @@ def main(argv=None) -> int:
     for seed in args.seeds:
         row = measure(seed, args, job, scenegen)
         show(row)
-        if args.json:
-            with open(args.json, "a") as out:
-                out.write(json.dumps(row) + "\n")
+        append_json_line(args.json, row)
     return 0
 
 
