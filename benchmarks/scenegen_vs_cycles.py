@@ -3,6 +3,7 @@
     NUMBA_CACHE_DIR=/tmp/nc .venv/bin/python benchmarks/scenegen_vs_cycles.py --seeds 10 12
     .venv/bin/python benchmarks/scenegen_vs_cycles.py --seeds 10 --set sharp_contacts=False   # one switch
     .venv/bin/python benchmarks/scenegen_vs_cycles.py --seeds 0 1 2 --json out/scenegen.json
+    .venv/bin/python benchmarks/scenegen_vs_cycles.py --seeds $(seq 0 19) --target-error 0.03 --sweep 1 4 16 64 256
 
 Each seed's scene (rooms and exteriors with suns, skies, point, spot and area lamps of random
 radii, emissive strips, slats; nothing tuned to any method) is baked by VisiBake at
@@ -11,7 +12,11 @@ Cycles on VisiBake's UV layout (benchmarks/reference.py: two halves of ``--sampl
 cached in ``--cache``). Printed per seed: the bake's time and its slowest stages, the shadow
 rays, the errors per texel and on 4x4-texel blocks (raw, and with the reference's own noise
 taken out, sqrt(e^2 - n^2)), and each object's mean against Cycles' (over the texels both cover),
-with the reference halves' own disagreement beside it.
+with the reference halves' own disagreement beside it. ``--target-error E`` bakes at that Target Error
+(each seed choosing its directions afresh) instead of ``--directions``; ``--sweep S ...`` also times
+Cycles at those samples on the same layout and gives its time at VisiBake's error on both metrics
+(benchmarks/run.py interpolate_time_at_error), as Cycles / VisiBake; ``--summarize FILE`` prints
+the median and worst of those ratios from a --json file.
 """
 import argparse
 import ast
@@ -61,6 +66,7 @@ def measure(seed: int, args, job, scenegen) -> dict:
     props.use_cache, props.mode = False, "atlas"
     props.resolution, props.bounces, props.shadows = args.resolution, args.bounces, "exact"
     props.directions = args.directions
+    props.target_error, props.chosen_directions = args.target_error or 0.0, 0
     for assignment in args.set:
         key, value = assignment.split("=", 1)
         setattr(props, key, ast.literal_eval(value))
@@ -80,6 +86,8 @@ def measure(seed: int, args, job, scenegen) -> dict:
         a, b = halves[0][name], halves[1][name]
         per_object[name] = dict(ratio=ours[name] / max(theirs[name], 1e-12),
                                 noise=abs(a - b) / max(a + b, 1e-12), cycles_mean=theirs[name])
+    speed = cycles_speed(objects, uv_maps, args, ref, seconds, texel["relative_rmse"], blocks["block_rmse"]) \
+        if args.sweep else {}
     stages = sorted(report.get("stage_seconds", {}).items(), key=lambda item: -item[1])
     passes = sorted(((p["pass"], p["seconds"]) for p in report.get("passes", [])), key=lambda item: -item[1])
     return dict(seed=seed, description=description, seconds=seconds, stages=stages[:6], passes=passes[:6],
@@ -88,11 +96,59 @@ def measure(seed: int, args, job, scenegen) -> dict:
                 texel_rmse_denoised=blocks["texel_rmse_denoised"], block_rmse=blocks["block_rmse"],
                 block_noise=blocks["block_noise"], block_rmse_denoised=blocks["block_rmse_denoised"],
                 objects=per_object, settings=list(args.set) + [f"bounces={args.bounces}"]
-                + ([f"lights={args.lights}"] if args.lights is not None else []))
+                + ([f"lights={args.lights}"] if args.lights is not None else []),
+                target=report.get("target"), estimated_error=(report.get("estimated_error") or {}).get("total"),
+                directions=report["settings"]["directions"], **speed)
+
+
+def cycles_speed(objects, uv_maps: dict, args, ref, seconds: float, texel_error: float, block_error: float) -> dict:
+    """Cycles' sweep at ``args.sweep`` samples on the same layout, and its time at VisiBake's errors
+    (per texel and on 4x4 blocks) over VisiBake's ``seconds``: {cycles_over_visibake,
+    cycles_over_visibake_blocks, cycles_sweep}."""
+    from benchmarks import reference
+    from benchmarks.run import interpolate_time_at_error
+    from tools.cycles_bake import bake_diffuse
+
+    sweep = []
+    for samples in args.sweep:
+        started = time.perf_counter()
+        images = {}
+        for uv_map in sorted(set(uv_maps.values())):
+            group = [o for o in objects if uv_maps.get(o.name) == uv_map]
+            images.update(bake_diffuse(group, uv_map, args.resolution, args.resolution, args.bounces, samples, seed=3))
+        took = time.perf_counter() - started
+        sweep.append(dict(samples=samples, seconds=took,
+                          relative_rmse=reference.relative_errors(images, ref.images)["relative_rmse"],
+                          block_rmse=reference.block_errors(images, ref)["block_rmse"]))
+    at_texel = interpolate_time_at_error(sweep, texel_error)
+    at_blocks = interpolate_time_at_error([dict(seconds=r["seconds"], relative_rmse=r["block_rmse"]) for r in sweep],
+                                          block_error)
+    return dict(cycles_over_visibake=at_texel / seconds, cycles_over_visibake_blocks=at_blocks / seconds,
+                cycles_sweep=sweep)
+
+
+def summarize(path: str) -> int:
+    """The median and worst Cycles / VisiBake ratios of a --json file's seeds, and the worst named."""
+    import statistics
+
+    rows = [json.loads(line) for line in open(path) if line.strip()]
+    rows = [r for r in rows if "cycles_over_visibake" in r]
+    for key in ("cycles_over_visibake", "cycles_over_visibake_blocks"):
+        worst = min(rows, key=lambda r: r[key])
+        print(f"{key}: median {statistics.median(r[key] for r in rows):.2f}, worst {worst[key]:.2f} "
+              f"(seed {worst['seed']}: {worst['description']})")
+    over = [r for r in rows if r.get("target") and r["texel_rmse_denoised"] > 1.2 * r["target"]["target_error"]]
+    print(f"{len(rows)} seeds; measured error above 1.2 x the target on {len(over)}: "
+          + ", ".join(f"{r['seed']} ({100 * r['texel_rmse_denoised']:.1f}%)" for r in over))
+    return 0
 
 
 def show(row: dict) -> None:
     print(f"\nseed {row['seed']}: {row['description']} ({' '.join(row['settings']) or 'defaults'})")
+    if row.get("cycles_over_visibake") is not None:
+        print(f"  {row['directions']} directions, estimated {100 * (row['estimated_error'] or 0):.2f}%; "
+              f"Cycles / VisiBake at equal error: per texel {row['cycles_over_visibake']:.2f}, "
+              f"on blocks {row['cycles_over_visibake_blocks']:.2f}")
     print(f"  VisiBake {row['seconds']:.2f} s, shadow rays {row['shadow_rays']}; slowest passes: "
           + ", ".join(f"{name} {sec:.2f} s" for name, sec in row["passes"]))
     print(f"  per texel {100 * row['texel_rmse']:.2f}% (noise {100 * (row['texel_noise'] or 0):.2f}%, "
@@ -116,7 +172,12 @@ def main(argv=None) -> int:
     parser.add_argument("--world-strength", type=float, help="set the world's background strength")
     parser.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "cache"))
     parser.add_argument("--json", help="append one JSON line a seed to this file")
+    parser.add_argument("--target-error", type=float, help="bake at this Target Error (choosing the directions)")
+    parser.add_argument("--sweep", type=int, nargs="*", help="Cycles samples to time against (e.g. 1 4 16 64 256)")
+    parser.add_argument("--summarize", metavar="JSONL", help="only print the ratios' median and worst of a --json file")
     args = parser.parse_args(argv)
+    if args.summarize:
+        return summarize(args.summarize)
 
     from tools.visibake import load_extension
 
