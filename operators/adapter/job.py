@@ -533,9 +533,16 @@ class BakeJob:
                                     f"{error.filename or self.out_dir}); nothing was changed") from error
             raise
 
+        props = self.context.scene.visibake
+        chosen_before = props.chosen_directions
+        if self.choice is not None:
+            # The next bake at this target starts from this count, and a relight reuses it.
+            props.chosen_directions = self.choice.directions
+
         def rollback():
             written.restore()
             extracted.undo()
+            props.chosen_directions = chosen_before
 
         outcome.rollback = rollback
         if self.hold_replaced:
@@ -600,9 +607,6 @@ class BakeJob:
                                          lighting_reused=r.cache.lighting_reused if r.cache is not None else [])
                              for (name, lights, _), r in zip(lightings, reports)]
         result.report = report.to_dict()
-        if self.choice is not None:
-            # The next bake at this target starts from this count, and a relight reuses it.
-            self.context.scene.visibake.chosen_directions = self.choice.directions
         return JobResult(result=result, report=result.report, files=files)
 
     def _target_record(self, report: Report) -> dict:

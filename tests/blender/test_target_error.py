@@ -65,6 +65,13 @@ def test_a_target_the_pilot_meets_keeps_the_pilot(visibake, yard):
     assert target["directions"] == target["pilot_directions"] == 64
     assert "within the target" in target["reason"] and target["met"] is True
     assert props.chosen_directions == 64
+    # A caller's rollback (its own later step failed) puts the remembered count back too.
+    props.chosen_directions = 0
+    objects = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    outcome = visibake.operators.adapter.job.run_bake(bpy.context, objects, hold_replaced=True)
+    assert props.chosen_directions == 64
+    outcome.rollback()
+    assert props.chosen_directions == 0
 
 
 def test_a_target_below_the_direct_light_s_error_says_so_and_brings_the_gathered_light_to_it(visibake, yard):
