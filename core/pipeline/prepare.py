@@ -16,9 +16,9 @@ from ..lights.environment import has_light
 from ..sampling.samples import ObjectSamples, VertexSamples, build_samples, build_vertex_samples, dense_footprint
 from ..scene import Scene
 from ..settings import BakeSettings
-from ..transport.contacts import MIN_EXPOSED_SHARE, exposed_share, find_short_hits, lookup_scale
+from ..transport.contacts import MIN_EXPOSED_SHARE, exposed_share, find_short_hits, landing_openness, lookup_scale
 from ..transport.contract import GatherGeometry, SampleSet, Shadowing
-from ..transport.gather import AtlasLayout, gather_normalisation, open_hemisphere_weight
+from ..transport.gather import AtlasLayout, ambient_occlusion, gather_normalisation, open_hemisphere_weight
 from ..transport.groups import LightGroup, light_key_parts
 from ..transport.interleave import filter_pairs, find_near_hits
 from ..visibility.cache import (
@@ -95,6 +95,8 @@ class Prepared:
     _shadowing: Shadowing | None = None
     _frame_normal: np.ndarray | None = None
     _short_hits: object = False  # core.transport.contacts.ShortHits, None (none), False (not looked for)
+    _landing_openness: np.ndarray | None = None  # (m,) the sky's openness at the short hits
+    _openness: np.ndarray | None = None  # (K,) the samples' (the AO pass)
     _near_hits: object = False
     _filter_pairs: tuple | None = None
     _exposed: np.ndarray | None = None
@@ -159,7 +161,7 @@ class Prepared:
         """Let go of the short hits (22 MiB on the demo) once the contacts' correction is computed,
         for a preparation relit once (:attr:`relit_once`): every later gather adds that
         correction and reads no short hit. A later read of them is a bug and raises."""
-        self._short_hits = None
+        self._short_hits = self._landing_openness = None
         self._short_hits_dropped = True
 
     def _check_direct_inputs(self, what: str, shading: bool = False) -> None:
@@ -224,6 +226,22 @@ class Prepared:
             self._check_direct_inputs("the footprints the short hits are found from")
             self._short_hits = find_short_hits(self)
         return self._short_hits
+
+    def landing_openness(self) -> np.ndarray:
+        """(m,) float64 how open the sky is where each short hit lands
+        (core.transport.contacts.landing_openness), traced once per preparation: it depends on
+        geometry alone. Read before the short hits' landing points go (drop_direct_inputs)."""
+        if self._landing_openness is None:
+            self._landing_openness = landing_openness(self.short_hits(), self.object_samples, self.ray_scene)
+        return self._landing_openness
+
+    def openness(self) -> np.ndarray:
+        """(K,) float64 each sample's cosine-weighted share of open directions
+        (core.transport.gather.ambient_occlusion: the AO pass), once per preparation."""
+        if self._openness is None:
+            self._openness = ambient_occlusion(self.table, self.frame_normal, self.gather_scale(),
+                                               self.settings.threads)
+        return self._openness
 
     def sample_set(self) -> SampleSet:
         """All samples as the transport contract's :class:`SampleSet`."""

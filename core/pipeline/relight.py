@@ -24,7 +24,6 @@ from ..scene import Scene
 from ..settings import LIGHTING_PASSES, BakeSettings
 from ..transport.contract import TransportBackend
 from ..transport.cpu import CPU_BACKEND
-from ..transport.gather import ambient_occlusion
 from ..transport.groups import Transported, light_groups
 from ..visibility.rays import default_threads
 from .prepare import Prepared, prepare, read_deferred_table
@@ -192,8 +191,7 @@ def relight_many(prepared: Prepared, lightings, progress=None,
             stages.record_pass(f"accumulation of passes ({len(parts)} groups)", backend.name,
                                time.perf_counter() - started)
         if "ao" in wants:
-            occlusion = ambient_occlusion(p.table, p.frame_normal, p.gather_scale(), settings.threads)
-            per_pass["ao"] = np.repeat(occlusion[:, None], 3, axis=1)
+            per_pass["ao"] = np.repeat(p.openness()[:, None], 3, axis=1)
         per_lighting.append((per_pass, parts))
 
     images = []

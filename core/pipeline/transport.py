@@ -22,13 +22,11 @@ from ..transport.contacts import (
     CONTACT_AREA_LIGHT_SAMPLES,
     ShortHits,
     contact_correction,
-    landing_openness,
     texel_sizes,
     world_contact_correction,
 )
 from ..transport.contract import GatherSource, TransportBackend
 from ..transport.direct import SHADOW_RAY_IN_LOOKUPS, shadow_rays_per_sample
-from ..transport.gather import ambient_occlusion
 from ..transport.groups import MAX_GROUPS_PER_GATHER, LightGroup, Transported
 from ..transport.interleave import near_light, reconstruct_interleaved
 from ..visibility.cache import arrays_key
@@ -424,9 +422,7 @@ def _contact_light(p: Prepared, backend: TransportBackend, groups: list[LightGro
             result.shadow_rays += rays
         at_hits = at_hits[0] if len(at_hits) == 1 else np.concatenate(at_hits, axis=1)
     emitters = _emitter_contact_light(p, short, groups, triangles)
-    openness = None
-    if any(sky_groups):
-        openness = landing_openness(short, p.object_samples, p.ray_scene)
+    openness = p.landing_openness() if any(sky_groups) else None
     stages.record_pass(f"direct light at {len(short)} short hits", backend.name, time.perf_counter() - started)
     if last_direct:
         short = replace(short, points=None)
@@ -552,10 +548,9 @@ def _world_contacts_corrected(p: Prepared, contacts: ContactLight, results: list
     for index, corrected in enumerate(contacts.sky_groups):
         if not corrected:
             world[:, 3 * index:3 * index + 3] = 0.0
-    openness = ambient_occlusion(p.table, p.frame_normal, p.gather_scale(), p.settings.threads)
     return world_contact_correction(contacts.short, contacts.openness, p.layout,
                                     p.lookup_atlas(reflectance * world, dilate),
-                                    p.lookup_atlas(openness[:, None], dilate), len(p.position))
+                                    p.lookup_atlas(p.openness()[:, None], dilate), len(p.position))
 
 
 def transport_lamp_parts(p: Prepared, backend: TransportBackend, groups: list[LightGroup], stages: Stages,

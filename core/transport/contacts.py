@@ -42,6 +42,7 @@ from .. import kernels
 from .. import tolerances as tol
 from ..distributed.split import SplitTable
 from ..geometry import mesh_triangle_areas
+from ..lights.sampler import hash32, orthonormal_frame, sobol_points, square_to_disk
 from ..visibility.table import BACKFACE, BELOW_HORIZON, DISTANCE_VALUES, ENTRY_BYTES, RELEASE_BYTES, WORD_BITS
 from .contract import SampleSet
 
@@ -515,8 +516,6 @@ def landing_openness(short: ShortHits, object_samples, ray_scene, rays: int = CO
     landings of one cell (``cells``^2 cells a texel of the target, per side the landing faces)
     share one measurement of ``rays`` stratified cosine-distributed rays about the first
     landing's normal, each cell's set turned about the normal by an angle of its own."""
-    from ..lights.sampler import hash32, orthonormal_frame, sobol_points, square_to_disk
-
     points = short.points
     across = cells * np.array([[s.width, s.height] for s in object_samples], np.int64)
     counts = across[:, 0] * across[:, 1] * 8  # 8: the sides a landing's normal faces, one bit an axis

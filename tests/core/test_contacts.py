@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 from core import kernels
+from core.pipeline import prepare as prepare_module
 from core.pipeline import transport as pipeline_transport
-from core.pipeline.relight import bake
+from core.pipeline.prepare import prepare
+from core.pipeline.relight import bake, relight
 from core.scene import Light, Material, Scene, World
 from core.settings import BakeSettings
 from core.transport.contacts import CONTACT_AREA_LIGHT_SAMPLES, SHORT_HIT_TEXELS, texel_sizes
@@ -337,3 +339,16 @@ def test_short_rays_reflect_the_sky_as_open_as_it_is_where_they_land(monkeypatch
     # Measured: 0.089 reading the texels, 0.055 corrected (the reference's own noise is in both).
     assert error(corrected) < 0.7 * error(plain)
     assert corrected[covered][:, :3].mean() < plain[covered][:, :3].mean()  # less sky under the box's sides
+
+
+def test_the_sky_s_openness_at_the_landings_is_traced_once_per_preparation(monkeypatch):
+    calls = []
+    original = prepare_module.landing_openness
+    monkeypatch.setattr(prepare_module, "landing_openness", lambda *args: calls.append(1) or original(*args))
+    scene = _box_under_sky(8)
+    p = prepare(scene, BakeSettings(directions=64, bounces=1, passes=("indirect",)), table_needed=True)
+    once = relight(p, [], World(color=np.full(3, 1.0))).objects[1].images["indirect"]
+    twice = relight(p, [], World(color=np.full(3, 2.0))).objects[1].images["indirect"]
+    assert calls == [1]  # geometry alone: a relight with another sky traces no ray for it
+    covered = once[..., 3] > 0
+    np.testing.assert_allclose(twice[covered][:, :3], 2.0 * once[covered][:, :3], rtol=1e-5, atol=1e-7)
