@@ -196,3 +196,76 @@ def cosine_hemisphere(normal: np.ndarray, u: np.ndarray) -> np.ndarray:
     z = np.sqrt(np.clip(1.0 - np.einsum("nd,nd->n", disk, disk), 0.0, None))
     tangent, bitangent = orthonormal_frame(normal)
     return disk[:, :1] * tangent + disk[:, 1:] * bitangent + z[:, None] * normal
+
+
+def spherical_rectangle(origin: np.ndarray, corner: np.ndarray, edge_x: np.ndarray, edge_y: np.ndarray,
+                        u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of a rectangle uniform in the solid angle it subtends from each origin (Ureña,
+    Fajardo and King, "An Area-Preserving Parametrization for Spherical Rectangles", EGSR 2013;
+    Cycles samples rectangular area lamps so). Area preserving, so ``u``'s strata carry over.
+
+    Near the rectangle, uniform points on its area give irradiance estimates of unbounded
+    variance (cos / r^2 of the nearest points); uniform in solid angle, only the receiver's
+    cosine varies.
+
+    Parameters
+    ----------
+    origin : (n, 3) float64 where the rectangle is seen from
+    corner : (3,) float64 one corner; ``edge_x``, ``edge_y`` (3,) float64 the two orthogonal
+        edges from it
+    u : (n, 2) float64 points of [0, 1)^2
+
+    Returns
+    -------
+    point : (n, 3) float64 the chosen points on the rectangle
+    solid_angle : (n,) float64 the solid angle the rectangle subtends from each origin (the
+        points' density is its inverse); 0 where the origin lies in the rectangle's plane
+    usable : (n,) bool where the mapping is numerically sound (origins not in the plane, and
+        a solid angle that float64 resolves); elsewhere ``point`` is meaningless
+    """
+    length_x, length_y = float(np.linalg.norm(edge_x)), float(np.linalg.norm(edge_y))
+    axis_x, axis_y = edge_x / length_x, edge_y / length_y
+    axis_z = np.cross(axis_x, axis_y)
+    offset = corner[None, :] - origin
+    z0 = offset @ axis_z
+    # The frame's z points away from the rectangle, as the parametrization assumes.
+    flip = np.where(z0 > 0.0, -1.0, 1.0)
+    z0 = z0 * flip
+    x0, y0 = offset @ axis_x, offset @ axis_y
+    x1, y1 = x0 + length_x, y0 + length_y
+
+    def corner_vector(x, y):
+        return np.stack([x, y, z0], axis=1)
+
+    v00, v01, v10, v11 = corner_vector(x0, y0), corner_vector(x0, y1), corner_vector(x1, y0), corner_vector(x1, y1)
+
+    def unit_normal(a, b):
+        c = np.cross(a, b)
+        return c / np.maximum(np.linalg.norm(c, axis=1), 1e-300)[:, None]
+
+    n0, n1, n2, n3 = unit_normal(v00, v10), unit_normal(v10, v11), unit_normal(v11, v01), unit_normal(v01, v00)
+
+    def angle(a, b):
+        return np.arccos(np.clip(-np.einsum("nd,nd->n", a, b), -1.0, 1.0))
+
+    g0, g1, g2, g3 = angle(n0, n1), angle(n1, n2), angle(n2, n3), angle(n3, n0)
+    b0, b1 = n0[:, 2], n2[:, 2]
+    k = 2.0 * np.pi - g2 - g3
+    solid_angle = np.maximum(g0 + g1 - k, 0.0)
+    # Below ~1e-9 sr the sum of four angles near pi/2 has lost its digits to cancellation.
+    usable = (z0 < -1e-9 * max(length_x, length_y)) & (solid_angle > 1e-9)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        au = u[:, 0] * solid_angle + k
+        fu = (np.cos(au) * b0 - b1) / np.sin(au)
+        cu = np.clip(np.sign(fu) / np.sqrt(fu * fu + b0 * b0), -1.0, 1.0)
+        xu = np.clip(-(cu * z0) / np.sqrt(np.maximum(1.0 - cu * cu, 1e-300)), x0, x1)
+        d = np.sqrt(xu * xu + z0 * z0)
+        h0 = y0 / np.sqrt(d * d + y0 * y0)
+        h1 = y1 / np.sqrt(d * d + y1 * y1)
+        hv = h0 + u[:, 1] * (h1 - h0)
+        hv2 = hv * hv
+        yv = np.where(hv2 < 1.0 - 1e-6, hv * d / np.sqrt(np.maximum(1.0 - hv2, 1e-300)), y1)
+    usable &= np.isfinite(xu) & np.isfinite(yv)
+    local = np.stack([np.where(usable, xu, 0.0), np.where(usable, yv, 0.0)], axis=1)
+    point = origin + local[:, :1] * axis_x + local[:, 1:] * axis_y + (z0 * flip)[:, None] * axis_z
+    return point, np.where(usable, solid_angle, 0.0), usable

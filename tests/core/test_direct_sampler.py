@@ -97,6 +97,61 @@ def test_area_disk_through_the_sampler_is_unbiased():
     assert estimate.mean() == pytest.approx(exact, rel=2e-4)
 
 
+def _rectangle_irradiance(corners, position, normal, radiance):
+    """Lambert's closed form for a polygon wholly above the receiver's horizon: L / 2 |sum of
+    each edge's angle times n . its plane's unit normal|."""
+    v = corners - position
+    v = v / np.linalg.norm(v, axis=1)[:, None]
+    total = 0.0
+    for a, b in zip(v, np.roll(v, -1, axis=0)):
+        cross = np.cross(a, b)
+        total += np.arccos(np.clip(a @ b, -1, 1)) * (normal @ cross) / np.linalg.norm(cross)
+    return radiance / 2.0 * abs(total)
+
+
+@pytest.mark.parametrize("height", [0.01, 0.05, 0.3])
+def test_a_rectangle_lamp_near_a_receiver_is_unbiased_and_quiet(height):
+    # A 0.6 x 0.4 m lamp a centimetre to 30 cm above the receiver, seen off-centre by a tilted
+    # receiver: its points uniform in solid angle (core.lights.sampler.spherical_rectangle) give
+    # the closed form, and every sample's 16 points land within a few percent of it, where points
+    # uniform on the area (cos / r^2 blowing up under the lamp) spread far wider.
+    power, size_x, size_y = 50.0, 0.6, 0.4
+    area = Light("Area", "AREA", np.ones(3), power, position=np.array([0.1, 0.05, height]),
+                 direction=np.array([0.0, 0.0, -1.0]), area_shape="RECTANGLE", size_x=size_x, size_y=size_y)
+    normal = np.array([0.03, 0.02, 1.0]) / np.linalg.norm([0.03, 0.02, 1.0])
+    position, normals = _receivers(400, normal=normal)
+    corners = np.array([[0.1 + sx * size_x / 2, 0.05 + sy * size_y / 2, height]
+                        for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    # The part of the lamp below the tilted receiver's horizon would need clipping: the receiver
+    # sees the whole lamp at these heights only if every corner is above it.
+    assert np.all((corners - position[0]) @ normal > 0)
+    exact = _rectangle_irradiance(corners, position[0], normal, power / (np.pi * size_x * size_y))
+    estimate = _estimate(area, position, normals, 4)[:, 0]
+    assert estimate.mean() == pytest.approx(exact, rel=5e-3)
+    assert np.std(estimate) / exact < 0.05
+    # Points uniform on its area, the estimator this replaced, at the same receivers.
+    sampler = DirectSampler(16, 0)
+    scrambles = sampler.scrambles(np.arange(400))
+    uniform = np.zeros(400)
+    for j in range(16):
+        u = sampler.uniforms(j, scrambles=scrambles)[:, :2]
+        points = corners[0] + u[:, :1] * (corners[1] - corners[0]) + u[:, 1:] * (corners[3] - corners[0])
+        offset = points - position
+        r = np.linalg.norm(offset, axis=1)
+        cosines = np.clip(offset @ normal / r, 0, None) * (height / r)
+        uniform += power / (np.pi * size_x * size_y) * cosines / r ** 2 * size_x * size_y / 16
+    assert np.std(estimate) < 0.5 * np.std(uniform)
+
+
+def test_a_rectangle_seen_from_its_plane_or_behind_it_gives_nothing():
+    area = Light("Area", "AREA", np.ones(3), 50.0, position=np.array([0.0, 0.0, 1.0]),
+                 direction=np.array([0.0, 0.0, -1.0]), area_shape="SQUARE", size_x=0.5, size_y=0.5)
+    beside = _estimate(area, *_receivers(16, position=(1.0, 0.0, 1.0), normal=np.array([-1.0, 0.0, 0.0])), 4)
+    behind = _estimate(area, *_receivers(16, position=(0.1, 0.0, 1.2), normal=np.array([0.0, 0.0, -1.0])), 4)
+    assert np.all(np.isfinite(beside)) and np.all(beside == 0.0)
+    assert np.all(behind == 0.0)
+
+
 def test_footprint_offsets_move_the_receiving_points():
     point = Light("Point", "POINT", np.ones(3), 100.0, position=np.array([0.0, 0.0, 1.0]))
     position, normal = _receivers(5)
