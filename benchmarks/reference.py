@@ -33,7 +33,8 @@ import numpy as np
 from tools.blender_compat import compat
 from tools.cycles_bake import bake_diffuse
 
-__all__ = ["FORMAT_VERSION", "Reference", "scene_key", "cached_reference", "relative_errors", "block_errors"]
+__all__ = ["FORMAT_VERSION", "Reference", "scene_key", "cached_reference", "relative_errors", "block_errors",
+           "hidden_texels", "without_hidden"]
 
 # Bump when the Cycles settings in tools/cycles_bake.py, the seeds or the layout of
 # the cache file change: every cached reference then becomes a miss.
@@ -543,3 +544,122 @@ def block_errors(ours: dict[str, np.ndarray], reference: Reference, block: int =
         result["texel_noise"] = texel_noise
         result["texel_rmse_denoised"] = float(np.sqrt(max(texel_rmse ** 2 - texel_noise ** 2, 0.0)))
     return result
+
+
+# --------------------------------------------------------------------------- hidden texels
+
+
+def _texel_centres(obj, uv_map: str, resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World positions (n, 3) and unit face normals (n, 3) at the centres of the texels that
+    ``obj``'s triangles cover on ``uv_map``, and their (n, 2) int (row, column), Blender pixel order."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        triangles = len(mesh.loop_triangles)
+        loops = np.zeros(3 * triangles, np.int64)
+        mesh.loop_triangles.foreach_get("loops", loops)
+        verts = np.zeros(3 * triangles, np.int64)
+        mesh.loop_triangles.foreach_get("vertices", verts)
+        uv = np.zeros(2 * len(mesh.loops))
+        mesh.uv_layers[uv_map].data.foreach_get("uv", uv)
+        co = np.zeros(3 * len(mesh.vertices))
+        mesh.vertices.foreach_get("co", co)
+    finally:
+        evaluated.to_mesh_clear()
+    matrix = np.array(obj.matrix_world)
+    co = co.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]
+    tri_uv = uv.reshape(-1, 2)[loops.reshape(-1, 3)] * resolution - 0.5  # texel centres at integers
+    tri_co = co[verts.reshape(-1, 3)]
+    positions, normals, pixels = [], [], []
+    for corners_uv, corners in zip(tri_uv, tri_co):
+        lo = np.maximum(np.ceil(corners_uv.min(axis=0)), 0).astype(int)
+        hi = np.minimum(np.floor(corners_uv.max(axis=0)), resolution - 1).astype(int)
+        if np.any(hi < lo):
+            continue
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+        p = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+        edge = np.array([corners_uv[1] - corners_uv[0], corners_uv[2] - corners_uv[0]]).T
+        if abs(np.linalg.det(edge)) < 1e-12:
+            continue
+        w = np.linalg.solve(edge, (p - corners_uv[0]).T).T
+        inside = (w >= -1e-9).all(axis=1) & (w.sum(axis=1) <= 1 + 1e-9)
+        if not inside.any():
+            continue
+        w = w[inside]
+        positions.append(corners[0] + w[:, :1] * (corners[1] - corners[0]) + w[:, 1:] * (corners[2] - corners[0]))
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        normals.append(np.repeat((normal / max(np.linalg.norm(normal), 1e-300))[None], inside.sum(), axis=0))
+        pixels.append(p[inside][:, ::-1].astype(np.int64))
+    if not positions:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), np.int64)
+    return np.concatenate(positions), np.concatenate(normals), np.concatenate(pixels)
+
+
+def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: float = 1e-4) -> dict[str, np.ndarray]:
+    """{object name: (H, W) bool} the texels no camera can see, by the scene's geometry alone:
+    those whose centre lies inside another object's closed mesh, or on another object's
+    surface facing it (a box's bottom on the floor). Neither method's light there is seen,
+    and each fills them its own way (Cycles lights the inside of an emissive strip; VisiBake
+    fills buried texels from their neighbours), so errors are also reported without them.
+
+    ``contact`` (m): a centre this close to another surface counts as touching it."""
+    from mathutils import Vector
+    from mathutils.bvhtree import BVHTree
+
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    meshes = [o for o in objects if o.type == "MESH"]
+    trees, boxes = {}, {}
+    for o in meshes:
+        trees[o.name] = BVHTree.FromObject(o, depsgraph, deform=True)
+        corners = np.array([o.matrix_world @ Vector(c) for c in o.bound_box])
+        boxes[o.name] = (corners.min(axis=0) - contact, corners.max(axis=0) + contact)
+    inverse = {o.name: o.matrix_world.inverted() for o in meshes}
+    hidden = {}
+    for o in meshes:
+        if o.name not in uv_maps:
+            continue
+        mask = np.zeros((resolution, resolution), bool)
+        positions, normals, pixels = _texel_centres(o, uv_maps[o.name], resolution)
+        for other in meshes:
+            if other is o:
+                continue
+            lo, hi = boxes[other.name]
+            candidates = np.nonzero(np.all((positions >= lo) & (positions <= hi), axis=1))[0]
+            to_local = inverse[other.name]
+            rotation = np.array(other.matrix_world.to_3x3())
+            for i in candidates:
+                local = to_local @ Vector(positions[i])
+                nearest, normal, _, distance = trees[other.name].find_nearest(local)
+                if nearest is None:
+                    continue
+                offset = np.array(local - nearest)
+                world_normal = rotation @ np.array(normal)  # BVHTree normals are in the object's frame
+                world_normal /= max(np.linalg.norm(world_normal), 1e-300)
+                world_offset = rotation @ offset
+                if distance <= contact:
+                    if world_normal @ normals[i] < -0.9:
+                        mask[tuple(pixels[i])] = True
+                elif world_offset @ world_normal < 0:
+                    mask[tuple(pixels[i])] = True
+        hidden[o.name] = mask
+    return hidden
+
+
+def without_hidden(images: dict[str, np.ndarray], reference: Reference, hidden: dict[str, np.ndarray]
+                   ) -> tuple[dict[str, np.ndarray], Reference]:
+    """``images`` and ``reference`` (halves too) with the ``hidden`` texels uncovered (alpha 0),
+    for :func:`relative_errors` and :func:`block_errors` over the texels a camera can see."""
+    def masked(set_of_images):
+        out = {}
+        for name, image in set_of_images.items():
+            image = np.array(image, copy=True)
+            if name in hidden:
+                image[hidden[name], 3] = 0.0
+            out[name] = image
+        return out
+
+    halves = None if reference.halves is None else (masked(reference.halves[0]), masked(reference.halves[1]))
+    return masked(images), Reference(masked(reference.images), reference.seconds, reference.noise,
+                                     reference.cached, halves)

@@ -213,7 +213,8 @@ def light_contributions(light: Light, position: np.ndarray, normal: np.ndarray, 
     (``kernel/light/*.h``): a sun uniformly in its cone of half-angle ``angle / 2``, a
     sphere lamp uniformly in the cone it subtends (cosine-weighted from inside it), a
     soft-falloff point or spot over a disk of its radius facing the receiver, an area lamp
-    uniformly over its surface.
+    uniformly over its surface, or, a rectangle near the receiver, uniformly in the solid angle
+    it subtends (:func:`_area_point`).
 
     Parameters
     ----------

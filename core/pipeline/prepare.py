@@ -51,8 +51,9 @@ from .progress import Stages
 # reused. 2: the gathers' weights sum to pi (1 + n . n_g) / 2, not pi (speed part 18). 3: a soft
 # lamp's points over a footprint are dimensions 2 and 3 of the sampler (issue 52), and cached
 # lighting carries the bake's error estimate, and short rays reflect the world as open as the
-# sky is at their landing points.
-TRANSPORT_REVISION = 3
+# sky is at their landing points. 4: a rectangular area lamp's points near a receiver are
+# uniform in its solid angle (issue 52, part 3).
+TRANSPORT_REVISION = 4
 
 
 @dataclass

@@ -240,3 +240,44 @@ def test_relative_errors():
     assert errors["bias"] == pytest.approx(6.5 / 6.0 - 1.0)
     with pytest.raises(ValueError):
         reference.relative_errors({"A": ours}, {"B": ref})
+
+
+def test_hidden_texels_are_inside_or_face_to_face_with_other_geometry(clean_scene):
+    # A floor plane, a 1 m cube resting on it, and a thin post through the cube: the cube's
+    # bottom face lies on the floor, the post's middle is inside the cube; a free ball hides nothing.
+    bpy.ops.mesh.primitive_plane_add(size=6.0)
+    floor = bpy.context.active_object
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 0.0, 0.5))
+    cube = bpy.context.active_object
+    bpy.ops.mesh.primitive_cylinder_add(vertices=16, radius=0.1, depth=3.0, location=(0.0, 0.0, 1.5))
+    post = bpy.context.active_object
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.4, location=(2.0, 2.0, 1.0))
+    ball = bpy.context.active_object
+    objects = [floor, cube, post, ball]
+    uv_maps = {}
+    for obj in objects:
+        bpy.context.view_layer.objects.active = obj
+        for other in objects:
+            other.select_set(other is obj)
+        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.mesh.select_all(action="SELECT")
+        bpy.ops.uv.smart_project(island_margin=0.02)
+        bpy.ops.object.mode_set(mode="OBJECT")
+        uv_maps[obj.name] = obj.data.uv_layers.active.name
+    hidden = reference.hidden_texels(objects, uv_maps, 32)
+    covered = {}
+    for obj in objects:
+        _, _, pixels = reference._texel_centres(obj, uv_maps[obj.name], 32)
+        covered[obj.name] = len(np.unique(pixels, axis=0))
+    assert not hidden[ball.name].any()
+    # The cube: its bottom face (a sixth of its area, the post's hole aside) lies on the floor.
+    assert 0.10 < hidden[cube.name].sum() / covered[cube.name] < 0.2
+    # The post: 1 m of its 3 m side inside the cube, its bottom cap on the floor.
+    assert 0.25 < hidden[post.name].sum() / covered[post.name] < 0.4
+    # The floor: only under the cube (1 of 36 m^2) is face to face with it.
+    assert 0.0 < hidden[floor.name].sum() / covered[floor.name] < 0.05
+    ours = {obj.name: np.ones((32, 32, 4), np.float32) for obj in objects}
+    ref = reference.Reference({k: v.copy() for k, v in ours.items()}, 0.0, None, False)
+    seen, seen_ref = reference.without_hidden(ours, ref, hidden)
+    assert (seen[cube.name][..., 3] == 0).sum() == hidden[cube.name].sum()
+    assert np.all(ours[cube.name][..., 3] == 1.0)  # the inputs are left as they were
