@@ -597,12 +597,16 @@ def _texel_centres(obj, uv_map: str, resolution: int) -> tuple[np.ndarray, np.nd
     return np.concatenate(positions), np.concatenate(normals), np.concatenate(pixels)
 
 
-def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: float = 1e-4) -> dict[str, np.ndarray]:
+def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: float = 1e-4,
+                  margin: int = 2) -> dict[str, np.ndarray]:
     """{object name: (H, W) bool} the texels no camera can see, by the scene's geometry alone:
     those whose centre lies inside another object's closed mesh, or on another object's
-    surface facing it (a box's bottom on the floor). Neither method's light there is seen,
-    and each fills them its own way (Cycles lights the inside of an emissive strip; VisiBake
-    fills buried texels from their neighbours), so errors are also reported without them.
+    surface facing it (a box's bottom on the floor), and the texels within ``margin`` of one
+    in the same image (partly buried: Cycles averages the dark inside of the other object in,
+    VisiBake lights the exposed part only). Neither method's light there is seen as such, and
+    each fills them its own way (Cycles lights the inside of an emissive strip; VisiBake fills
+    buried texels from their neighbours), so errors are also reported without them, as they
+    are without the texels two away from island borders.
 
     ``contact`` (m): a centre this close to another surface counts as touching it."""
     from mathutils import Vector
@@ -643,6 +647,13 @@ def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: fl
                         mask[tuple(pixels[i])] = True
                 elif world_offset @ world_normal < 0:
                     mask[tuple(pixels[i])] = True
+        for _ in range(margin):
+            grown = mask.copy()
+            grown[1:] |= mask[:-1]
+            grown[:-1] |= mask[1:]
+            grown[:, 1:] |= mask[:, :-1]
+            grown[:, :-1] |= mask[:, 1:]
+            mask = grown
         hidden[o.name] = mask
     return hidden
 
