@@ -549,9 +549,12 @@ def block_errors(ours: dict[str, np.ndarray], reference: Reference, block: int =
 # --------------------------------------------------------------------------- hidden texels
 
 
-def _texel_centres(obj, uv_map: str, resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _texel_centres(obj, uv_map: str, resolution: int, offset: tuple[float, float] = (0.0, 0.0)
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World positions (n, 3) and unit face normals (n, 3) at the centres of the texels that
-    ``obj``'s triangles cover on ``uv_map``, and their (n, 2) int (row, column), Blender pixel order."""
+    ``obj``'s triangles cover on ``uv_map`` (moved by ``offset`` texels in u and v, in the plane of
+    the centre's triangle: 0.5, 0.5 is a corner), and their (n, 2) int (row, column), Blender
+    pixel order."""
     depsgraph = bpy.context.evaluated_depsgraph_get()
     evaluated = obj.evaluated_get(depsgraph)
     mesh = evaluated.to_mesh()
@@ -587,7 +590,7 @@ def _texel_centres(obj, uv_map: str, resolution: int) -> tuple[np.ndarray, np.nd
         inside = (w >= -1e-9).all(axis=1) & (w.sum(axis=1) <= 1 + 1e-9)
         if not inside.any():
             continue
-        w = w[inside]
+        w = np.linalg.solve(edge, (p[inside] + np.asarray(offset) - corners_uv[0]).T).T
         positions.append(corners[0] + w[:, :1] * (corners[1] - corners[0]) + w[:, 1:] * (corners[2] - corners[0]))
         normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
         normals.append(np.repeat((normal / max(np.linalg.norm(normal), 1e-300))[None], inside.sum(), axis=0))
@@ -598,17 +601,18 @@ def _texel_centres(obj, uv_map: str, resolution: int) -> tuple[np.ndarray, np.nd
 
 
 def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: float = 1e-4,
-                  margin: int = 2) -> dict[str, np.ndarray]:
-    """{object name: (H, W) bool} the texels no camera can see, by the scene's geometry alone:
-    those whose centre lies inside another object's closed mesh, or on another object's
-    surface facing it (a box's bottom on the floor), and the texels within ``margin`` of one
-    in the same image (partly buried: Cycles averages the dark inside of the other object in,
-    VisiBake lights the exposed part only). Neither method's light there is seen as such, and
-    each fills them its own way (Cycles lights the inside of an emissive strip; VisiBake fills
-    buried texels from their neighbours), so errors are also reported without them, as they
-    are without the texels two away from island borders.
+                  margin: int = 0) -> dict[str, np.ndarray]:
+    """{object name: (H, W) bool} the texels no camera sees wholly, by the scene's geometry alone:
+    those whose centre or a corner (in the plane of the centre's triangle) lies inside another
+    object's closed mesh, or on another object's surface facing it (a box's bottom on the
+    floor), and the texels within ``margin`` of one in the same image. Neither method's light
+    there is seen as such, and each fills them its own way: Cycles lights the inside of an
+    emissive strip and averages the dark inside of another object into a texel partly buried;
+    VisiBake fills buried texels from their neighbours and lights a texel's exposed part only.
+    So errors are also reported without them, as they are without the texels two away from
+    island borders.
 
-    ``contact`` (m): a centre this close to another surface counts as touching it."""
+    ``contact`` (m): a point this close to another surface counts as touching it."""
     from mathutils import Vector
     from mathutils.bvhtree import BVHTree
 
@@ -619,34 +623,17 @@ def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: fl
         trees[o.name] = BVHTree.FromObject(o, depsgraph, deform=True)
         corners = np.array([o.matrix_world @ Vector(c) for c in o.bound_box])
         boxes[o.name] = (corners.min(axis=0) - contact, corners.max(axis=0) + contact)
-    inverse = {o.name: o.matrix_world.inverted() for o in meshes}
     hidden = {}
     for o in meshes:
         if o.name not in uv_maps:
             continue
         mask = np.zeros((resolution, resolution), bool)
-        positions, normals, pixels = _texel_centres(o, uv_maps[o.name], resolution)
-        for other in meshes:
-            if other is o:
-                continue
-            lo, hi = boxes[other.name]
-            candidates = np.nonzero(np.all((positions >= lo) & (positions <= hi), axis=1))[0]
-            to_local = inverse[other.name]
-            rotation = np.array(other.matrix_world.to_3x3())
-            for i in candidates:
-                local = to_local @ Vector(positions[i])
-                nearest, normal, _, distance = trees[other.name].find_nearest(local)
-                if nearest is None:
-                    continue
-                offset = np.array(local - nearest)
-                world_normal = rotation @ np.array(normal)  # BVHTree normals are in the object's frame
-                world_normal /= max(np.linalg.norm(world_normal), 1e-300)
-                world_offset = rotation @ offset
-                if distance <= contact:
-                    if world_normal @ normals[i] < -0.9:
-                        mask[tuple(pixels[i])] = True
-                elif world_offset @ world_normal < 0:
-                    mask[tuple(pixels[i])] = True
+        for offset in ((0.0, 0.0), (-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
+            positions, normals, pixels = _texel_centres(o, uv_maps[o.name], resolution, offset)
+            for other in meshes:
+                if other is not o:
+                    _mark_hidden(mask, positions, normals, pixels, other, trees[other.name], boxes[other.name],
+                                 contact)
         for _ in range(margin):
             grown = mask.copy()
             grown[1:] |= mask[:-1]
@@ -656,6 +643,31 @@ def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: fl
             mask = grown
         hidden[o.name] = mask
     return hidden
+
+
+def _mark_hidden(mask: np.ndarray, positions: np.ndarray, normals: np.ndarray, pixels: np.ndarray, other,
+                 tree, box, contact: float) -> None:
+    """Set ``mask`` at ``pixels`` whose ``positions`` (n, 3), with face ``normals`` (n, 3), lie
+    inside ``other`` (its BVHTree ``tree`` and world bounding ``box``), or within ``contact`` of
+    its surface facing them."""
+    from mathutils import Vector
+
+    lo, hi = box
+    candidates = np.nonzero(np.all((positions >= lo) & (positions <= hi), axis=1))[0]
+    to_local = other.matrix_world.inverted()
+    rotation = np.array(other.matrix_world.to_3x3())
+    for i in candidates:
+        local = to_local @ Vector(positions[i])
+        nearest, normal, _, distance = tree.find_nearest(local)
+        if nearest is None:
+            continue
+        world_normal = rotation @ np.array(normal)  # BVHTree works in the object's frame
+        world_normal /= max(np.linalg.norm(world_normal), 1e-300)
+        if distance <= contact:
+            if world_normal @ normals[i] < -0.9:
+                mask[tuple(pixels[i])] = True
+        elif (rotation @ np.array(local - nearest)) @ world_normal < 0:
+            mask[tuple(pixels[i])] = True
 
 
 def without_hidden(images: dict[str, np.ndarray], reference: Reference, hidden: dict[str, np.ndarray]

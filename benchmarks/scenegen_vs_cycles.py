@@ -13,8 +13,8 @@ cached in ``--cache``). Printed per seed: the bake's time and its slowest stages
 rays, the errors per texel and on 4x4-texel blocks (raw, and with the reference's own noise
 taken out, sqrt(e^2 - n^2)), and each object's mean against Cycles' (over the texels both cover),
 with the reference halves' own disagreement beside it; the errors also without the texels no camera
-sees (benchmarks/reference.py hidden_texels: inside or face to face with other geometry, or
-within 2 texels of such, which each method fills its own way). ``--target-error E`` bakes at that Target Error
+sees wholly (benchmarks/reference.py hidden_texels: inside or face to face with other geometry,
+wholly or in part, which each method fills its own way). ``--target-error E`` bakes at that Target Error
 (each seed choosing its directions afresh) instead of ``--directions``; ``--sweep S ...`` also times
 Cycles at those samples on the same layout and gives its time at VisiBake's error on both metrics
 (benchmarks/run.py interpolate_time_at_error), as Cycles / VisiBake; ``--summarize FILE`` prints
@@ -171,7 +171,7 @@ def show(row: dict) -> None:
     if row.get("visible"):
         seen = row["visible"]
         print(f"  without the {seen['hidden_texels']} texels no camera sees (inside or face to face with other "
-              f"geometry, or within 2 texels of such): per texel {100 * seen['texel_rmse']:.2f}% (without the reference's noise "
+              f"geometry, wholly or in part): per texel {100 * seen['texel_rmse']:.2f}% (without the reference's noise "
               f"{100 * (seen['texel_rmse_denoised'] or 0):.2f}%), blocks {100 * seen['block_rmse']:.2f}%")
     print("  objects (VisiBake / Cycles, Cycles halves' disagreement): " + ", ".join(
         f"{name} {o['ratio']:.3f} ({o['noise']:.3f})" for name, o in row["objects"].items()))

@@ -17,6 +17,7 @@ from .. import tolerances as tol
 from ..geometry import mesh_face_normals, triangle_areas
 from ..scene import Mesh
 from .lamps import surface_to_point
+from .polygons import clip_above, polygon_form_factor
 
 GOLDEN_RATIO_FRACTION = (np.sqrt(5.0) - 1.0) / 2.0
 
@@ -248,11 +249,11 @@ def triangle_irradiance(triangles: EmissiveTriangles, positions: np.ndarray, nor
         # Most lie wholly above it; only those across it are clipped.
         across = np.nonzero(~np.all(height[receiver, triangle] > 0, axis=1))[0]
         if len(across):
-            clipped, corners_kept[across] = _clip_above(polygon[across], height[receiver[across], triangle[across]])
+            clipped, corners_kept[across] = clip_above(polygon[across], height[receiver[across], triangle[across]])
             polygon = np.concatenate([polygon, np.repeat(polygon[:, :1], 3, axis=1)], axis=1)
             polygon[across] = clipped
         del corner, height
-        form = _polygon_form_factor(polygon, normals[rows][receiver])
+        form = polygon_form_factor(polygon, normals[rows][receiver])
         lit = np.nonzero(form > 0)[0]
         receiver, triangle, polygon, corners_kept, form = (a[lit] for a in (receiver, triangle, polygon,
                                                                             corners_kept, form))
@@ -269,38 +270,3 @@ def triangle_irradiance(triangles: EmissiveTriangles, positions: np.ndarray, nor
         for channel in range(3):
             irradiance[rows, channel] += np.bincount(receiver, weights=light[:, channel], minlength=rows.stop - first)
     return irradiance
-
-
-def _clip_above(corner: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Triangles ``corner`` (..., 3, 3) clipped to where ``height`` (..., 3) is positive (one
-    plane: at most 4 corners): (..., 6, 3) polygons whose kept corners come first in order and
-    whose other slots repeat corner 0 (their edges have no length and add nothing), and the
-    number of kept corners (...,) int."""
-    inside = height > 0
-    slots, keep = [], []
-    for a in range(3):
-        b = (a + 1) % 3
-        slots.append(corner[..., a, :])
-        keep.append(inside[..., a])
-        share = height[..., a] / np.where(inside[..., a] != inside[..., b], height[..., a] - height[..., b], 1.0)
-        slots.append(corner[..., a, :] + share[..., None] * (corner[..., b, :] - corner[..., a, :]))
-        keep.append(inside[..., a] != inside[..., b])
-    slots, keep = np.stack(slots, axis=-2), np.stack(keep, axis=-1)
-    order = np.argsort(~keep, axis=-1, kind="stable")
-    polygon = np.take_along_axis(slots, order[..., None], axis=-2)
-    kept = keep.sum(axis=-1)
-    unused = np.arange(6) >= kept[..., None]
-    polygon = np.where(unused[..., None], polygon[..., :1, :], polygon)
-    return polygon, kept
-
-
-def _polygon_form_factor(polygon: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """(...,) irradiance per unit radiance, E / L, of polygons (..., V, 3) (corners relative to
-    the receiver, above its horizon) at a receiver of unit ``normal`` (broadcast to (..., 3))."""
-    unit = polygon / np.maximum(np.linalg.norm(polygon, axis=-1, keepdims=True), 1e-300)
-    following = np.roll(unit, -1, axis=-2)
-    cross = np.cross(unit, following)
-    sine = np.linalg.norm(cross, axis=-1)
-    angle = np.arctan2(sine, np.einsum("...vd,...vd->...v", unit, following))
-    towards = np.einsum("...vd,...d->...v", cross, normal) / np.maximum(sine, 1e-300)
-    return 0.5 * np.abs(np.sum(angle * towards, axis=-1))

@@ -14,8 +14,10 @@ from ..lights.lamps import (
     LightContribution,
     angular_radius,
     centre_probe,
+    is_rectangle,
     lamp_points,
     outline_probes,
+    rectangle_irradiance,
     spot_cone,
 )
 from ..sampling.terminator import lift_amount
@@ -151,15 +153,25 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
             rows = np.nonzero(pending)[0]
             lamp = lamp.subset(rows)
             adaptive = False
+        whole_lamp, closed = lamp, np.zeros(len(decided), bool)
+        if adaptive and is_rectangle(light):
+            # Wholly lit, a rectangle's light over the footprint is known in closed form: its
+            # points' noise (cos / r^2 near the lamp) goes, and so do their evaluations.
+            closed = decided & ~shadowed & ~small
+            if closed.any():
+                lamp_light[closed] = _closed_rectangle_light(light, lamp, np.nonzero(closed)[0], receives)
+                rows = np.nonzero(~closed)[0]
+                small &= ~closed
+                lamp = lamp.subset(rows)
         for index in range(lamp.count):
             if rows is not None and not len(rows):
                 break
             if adaptive and index == SMALL_LAMP_POINTS:
                 lamp_light[small] *= lamp.count / SMALL_LAMP_POINTS
-                rows = np.nonzero(~small)[0]
+                rows = np.nonzero(~small & ~closed)[0]
                 if not len(rows):
                     break
-                lamp = lamp.subset(rows)
+                lamp = whole_lamp.subset(rows)
             part = lamp.contribution(index)
             # Above the shading normal's horizon, as Cycles lights a smooth face (its shadow rays
             # then start lifted towards the smooth surface: trace_shadow_rays).
@@ -203,6 +215,25 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
             share = np.where(brightness[:, None] > 0, 3.0 * irradiance / brightness[:, None], 1.0)
         spread.append(np.sqrt(variance)[:, None] * share)
     return irradiance, shadow_rays
+
+
+def _closed_rectangle_light(light, lamp: LampPoints, rows: np.ndarray, receives: np.ndarray | None) -> np.ndarray:
+    """(len(rows), 3) float64: a rectangular lamp's unshadowed light at samples ``rows`` of
+    ``lamp`` (its LampPoints over all samples) averaged over each one's footprint points, as its
+    points would average it (core.lights.lamps.rectangle_irradiance); 0 where the lamp does not
+    light the sample (``receives`` (K,) bool, light linking, or None: everywhere)."""
+    position, normal = lamp.position[rows], lamp.normal[rows]
+    if lamp.footprint is None:
+        light_sum = rectangle_irradiance(light, position, normal)
+    else:
+        slots = lamp.footprint.shape[1]
+        receivers = (position[:, None, :] + lamp.footprint[rows].astype(np.float64)).reshape(-1, 3)
+        normals = (np.repeat(normal[:, None, :], slots, axis=1) if lamp.footprint_normals is None
+                   else lamp.footprint_normals[rows].astype(np.float64)).reshape(-1, 3)
+        light_sum = rectangle_irradiance(light, receivers, normals).reshape(len(rows), slots, 3).mean(axis=1)
+    if receives is not None:
+        light_sum *= receives[rows, None]
+    return light_sum
 
 
 def _half_difference_variance(light: np.ndarray, first_half: np.ndarray, where: np.ndarray | None = None

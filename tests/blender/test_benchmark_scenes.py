@@ -264,14 +264,15 @@ def test_hidden_texels_are_inside_or_face_to_face_with_other_geometry(clean_scen
         bpy.ops.uv.smart_project(island_margin=0.02)
         bpy.ops.object.mode_set(mode="OBJECT")
         uv_maps[obj.name] = obj.data.uv_layers.active.name
-    hidden = reference.hidden_texels(objects, uv_maps, 32, margin=0)
+    hidden = reference.hidden_texels(objects, uv_maps, 32)
     covered = {}
     for obj in objects:
         _, _, pixels = reference._texel_centres(obj, uv_maps[obj.name], 32)
         covered[obj.name] = len(np.unique(pixels, axis=0))
     assert not hidden[ball.name].any()
-    # The cube: its bottom face (a sixth of its area, the post's hole aside) lies on the floor.
-    assert 0.10 < hidden[cube.name].sum() / covered[cube.name] < 0.2
+    # The cube: its bottom face (a sixth of its area, the post's hole aside) lies on the floor,
+    # and the texels along its bottom edges are partly on it.
+    assert 0.12 < hidden[cube.name].sum() / covered[cube.name] < 0.3
     # The post: 1 m of its 3 m side inside the cube, its bottom cap on the floor.
     assert 0.25 < hidden[post.name].sum() / covered[post.name] < 0.4
     # The floor: only under the cube (1 of 36 m^2) is face to face with it.
