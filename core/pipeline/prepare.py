@@ -52,7 +52,8 @@ from .progress import Stages
 # lamp's points over a footprint are dimensions 2 and 3 of the sampler (issue 52), and cached
 # lighting carries the bake's error estimate, and short rays reflect the world as open as the
 # sky is at their landing points. 4: a rectangular area lamp's points near a receiver are
-# uniform in its solid angle (issue 52, part 3).
+# uniform in its solid angle, its wholly lit texels take its closed form, and a wide lamp's
+# probes include its first points (issue 52, part 3).
 TRANSPORT_REVISION = 4
 
 

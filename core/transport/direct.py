@@ -426,39 +426,60 @@ def _penumbra_probes(light, lamp: LampPoints, samples: SampleSet, blockers, rece
     # Each sample turns its round outline by its own scramble, so missed caps do not align.
     rotation = (lamp.scrambles[0] >> np.uint32(8)) * (2.0 * np.pi * 2.0 ** -24)
     footprint = lamp.footprint
+    # Where the lamp looks wide, an occluder narrower than it (a pergola's slat under a panel)
+    # can pass between the centre and the outline and leave every probe open: those samples also
+    # probe along the lamp's first WIDE_LAMP_CHECK_POINTS stratified points, which such a slat
+    # crosses. Without them, seed 7 of ../shared/tools/scenegen.py lit only by its area lamp was
+    # 10% too bright on 4x4 blocks. A wide lamp of fewer points than twice that traces them all.
+    wide = (np.nonzero(angular_radius(light, samples.position) > WIDE_LAMP_RADIUS)[0]
+            if not lamp.point_lamp else np.zeros(0, np.int64))
+    if len(wide) and lamp.count < 2 * WIDE_LAMP_CHECK_POINTS:
+        # Probes would cost about as many rays as the points: those samples trace every point.
+        unprobed = np.zeros(count, bool)
+        unprobed[wide] = True
+        receives = ~unprobed if receives is None else receives & ~unprobed
+        wide = wide[:0]
 
     module = kernels.compiled()
     corners_compiled = module is not None and footprint is not None and samples.footprint_corners is not None
 
     def probes():
         # One probe's arrays at a time (each (K, 3) float64, 9 MiB at the demo's 403k
-        # texels): made as they are traced, not all thirteen kept side by side.
+        # texels): made as they are traced, not all thirteen kept side by side. Each with the
+        # rows it is for (None: all).
         if not lamp.point_lamp:
-            yield from ((to_light, distance, None)
+            yield from ((to_light, distance, None, None)
                         for to_light, distance in outline_probes(light, samples.position, rotation))
         elif footprint is None:
             # A lamp without extent has no outline: its centre, from the sample or from the corners.
-            yield (*centre_probe(light, samples.position), None)
+            yield (*centre_probe(light, samples.position), None, None)
         if footprint is not None and samples.footprint_corners is not None and not corners_compiled:
             for corner in range(FOOTPRINT_PROBES):
                 moved = samples.position + samples.footprint_corners[:, corner]
-                yield (*centre_probe(light, moved), moved)
+                yield (*centre_probe(light, moved), moved, None)
+        if len(wide):
+            points = lamp.subset(wide)
+            for index in range(min(WIDE_LAMP_CHECK_POINTS, lamp.count)):
+                part = points.contribution(index)
+                yield part.to_light, part.distance, part.position, wide
 
     def requests():
-        for to_light, distance, moved in probes():
-            aimed = np.einsum("kd,kd->k", to_light, samples.normal) > 0.0
+        for to_light, distance, moved, rows in probes():
+            normal = samples.normal if rows is None else samples.normal[rows]
+            aimed = np.einsum("kd,kd->k", to_light, normal) > 0.0
             if receives is not None:
-                aimed &= receives
+                aimed &= receives if rows is None else receives[rows]
             local = np.nonzero(aimed)[0]
             if len(local):
                 # A probe carries no light: only its rays are traced.
-                yield LightContribution(None, to_light, distance, moved), local, local
+                yield (LightContribution(None, to_light, distance, moved), local,
+                       local if rows is None else rows[local])
 
     rays = 0
-    for (_, local, _), blocked in trace_shadow_rays_streamed(blockers, samples, requests()):
-        seen_blocked[local[blocked]] = True
-        seen_open[local[~blocked]] = True
-        rays += len(local)
+    for (_, _, rows), blocked in trace_shadow_rays_streamed(blockers, samples, requests()):
+        seen_blocked[rows[blocked]] = True
+        seen_open[rows[~blocked]] = True
+        rays += len(rows)
     if corners_compiled:
         for local, blocked in _corner_probes(module, light, samples, blockers, receives):
             seen_blocked[local[blocked]] = True
@@ -620,6 +641,12 @@ EDGE_BATCH_ROWS = 1 << 16
 ADAPTIVE_MIN_POINTS = 16
 # The corners of a texel's box, whose view of the lamp's centre is probed.
 FOOTPRINT_PROBES = 4
+# Seen under a larger angular radius (radians) than this a lamp is wide: occluders narrower
+# than it are common (a 4 cm slat 4 m away is as wide as 0.57 degrees), and its probes add its
+# first WIDE_LAMP_CHECK_POINTS points (_penumbra_probes). Blender's default sun (0.26 degrees)
+# is not wide.
+WIDE_LAMP_RADIUS = 0.01
+WIDE_LAMP_CHECK_POINTS = 16
 # Footprint points of a texel that a shadow edge crosses (its probes disagree). 16 points
 # leave a few percent of noise on such texels; 64 cut the error on the sun patch's edges of
 # benchmarks/scenes.py interior_opening by 3x, at 64 shadow rays for the few texels an edge crosses.
