@@ -1123,7 +1123,9 @@ def test_compiled_corner_probes_answer_as_the_numpy_probes(monkeypatch, kind, ra
     light = Light("Lamp", kind, np.array([1.0, 0.8, 0.5]), 100.0, position=offset + [0.1, 0.0, 2.5],
                   direction=direction, spot_size=2.0, spot_blend=0.0, radius=radius)
     receives = rng.uniform(size=count) < 0.9
-    lamp = lamps.LampPoints(light, position, normal, 8, None, 0, footprint, 16)
+    # A lamp with a radius looks wide from the floor (core.transport.direct.WIDE_LAMP_RADIUS): with
+    # 64 points its probes add its first 16 (with 16 it would trace them all and probe nothing).
+    lamp = lamps.LampPoints(light, position, normal, 8, None, 0, footprint, 64 if radius > 0 else 16)
     corner_calls = []
     compiled_corners = direct._corner_probes
     monkeypatch.setattr(direct, "_corner_probes", lambda *a: corner_calls.append(1) or compiled_corners(*a))
