@@ -10,6 +10,7 @@ from .. import kernels
 from .. import tolerances as tol
 from ..lights.lamps import (
     KERNEL_KINDS,
+    RECTANGLE_CHUNK,
     LampPoints,
     LightContribution,
     angular_radius,
@@ -222,15 +223,21 @@ def _closed_rectangle_light(light, lamp: LampPoints, rows: np.ndarray, receives:
     ``lamp`` (its LampPoints over all samples) averaged over each one's footprint points, as its
     points would average it (core.lights.lamps.rectangle_irradiance); 0 where the lamp does not
     light the sample (``receives`` (K,) bool, light linking, or None: everywhere)."""
-    position, normal = lamp.position[rows], lamp.normal[rows]
     if lamp.footprint is None:
-        light_sum = rectangle_irradiance(light, position, normal)
+        light_sum = rectangle_irradiance(light, lamp.position[rows], lamp.normal[rows])
     else:
         slots = lamp.footprint.shape[1]
-        receivers = (position[:, None, :] + lamp.footprint[rows].astype(np.float64)).reshape(-1, 3)
-        normals = (np.repeat(normal[:, None, :], slots, axis=1) if lamp.footprint_normals is None
-                   else lamp.footprint_normals[rows].astype(np.float64)).reshape(-1, 3)
-        light_sum = rectangle_irradiance(light, receivers, normals).reshape(len(rows), slots, 3).mean(axis=1)
+        light_sum = np.empty((len(rows), 3))
+        # By parts of RECTANGLE_CHUNK footprint points: the pass's own chunk of samples times
+        # its 16 slots would hold some 300 MB of receivers at once.
+        step = max(1, RECTANGLE_CHUNK // slots)
+        for first in range(0, len(rows), step):
+            part = rows[first:first + step]
+            receivers = (lamp.position[part][:, None, :] + lamp.footprint[part].astype(np.float64)).reshape(-1, 3)
+            normals = (np.repeat(lamp.normal[part][:, None, :], slots, axis=1) if lamp.footprint_normals is None
+                       else lamp.footprint_normals[part].astype(np.float64)).reshape(-1, 3)
+            light_sum[first:first + step] = rectangle_irradiance(light, receivers, normals).reshape(
+                len(part), slots, 3).mean(axis=1)
     if receives is not None:
         light_sum *= receives[rows, None]
     return light_sum
