@@ -549,12 +549,9 @@ def block_errors(ours: dict[str, np.ndarray], reference: Reference, block: int =
 # --------------------------------------------------------------------------- hidden texels
 
 
-def _texel_centres(obj, uv_map: str, resolution: int, offset: tuple[float, float] = (0.0, 0.0)
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World positions (n, 3) and unit face normals (n, 3) at the centres of the texels that
-    ``obj``'s triangles cover on ``uv_map`` (moved by ``offset`` texels in u and v, in the plane of
-    the centre's triangle: 0.5, 0.5 is a corner), and their (n, 2) int (row, column), Blender
-    pixel order."""
+def _uv_triangles(obj, uv_map: str, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """``obj``'s triangles as (T, 3, 2) float64 corners on ``uv_map`` in texels (texel centres
+    at integers) and (T, 3, 3) float64 world corners."""
     depsgraph = bpy.context.evaluated_depsgraph_get()
     evaluated = obj.evaluated_get(depsgraph)
     mesh = evaluated.to_mesh()
@@ -573,44 +570,55 @@ def _texel_centres(obj, uv_map: str, resolution: int, offset: tuple[float, float
         evaluated.to_mesh_clear()
     matrix = np.array(obj.matrix_world)
     co = co.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]
-    tri_uv = uv.reshape(-1, 2)[loops.reshape(-1, 3)] * resolution - 0.5  # texel centres at integers
-    tri_co = co[verts.reshape(-1, 3)]
-    positions, normals, pixels = [], [], []
+    return uv.reshape(-1, 2)[loops.reshape(-1, 3)] * resolution - 0.5, co[verts.reshape(-1, 3)]
+
+
+def _texel_points(tri_uv: np.ndarray, tri_co: np.ndarray, resolution: int,
+                  offsets: tuple[tuple[float, float], ...] = ((0.0, 0.0),)) -> tuple[list, np.ndarray, np.ndarray]:
+    """For the texels whose centres the triangles (:func:`_uv_triangles`) cover: their world
+    positions moved by each of ``offsets`` texels in u and v, in the plane of the centre's
+    triangle (0.5, 0.5 is a corner), a list of (n, 3) float64, one per offset; the unit face
+    normals (n, 3); and the (n, 2) int (row, column), Blender pixel order."""
+    positions, normals, pixels = [[] for _ in offsets], [], []
     for corners_uv, corners in zip(tri_uv, tri_co):
         lo = np.maximum(np.ceil(corners_uv.min(axis=0)), 0).astype(int)
         hi = np.minimum(np.floor(corners_uv.max(axis=0)), resolution - 1).astype(int)
         if np.any(hi < lo):
             continue
-        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
-        p = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
         edge = np.array([corners_uv[1] - corners_uv[0], corners_uv[2] - corners_uv[0]]).T
         if abs(np.linalg.det(edge)) < 1e-12:
             continue
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+        p = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
         w = np.linalg.solve(edge, (p - corners_uv[0]).T).T
         inside = (w >= -1e-9).all(axis=1) & (w.sum(axis=1) <= 1 + 1e-9)
         if not inside.any():
             continue
-        w = np.linalg.solve(edge, (p[inside] + np.asarray(offset) - corners_uv[0]).T).T
-        positions.append(corners[0] + w[:, :1] * (corners[1] - corners[0]) + w[:, 1:] * (corners[2] - corners[0]))
+        for index, offset in enumerate(offsets):
+            moved = np.linalg.solve(edge, (p[inside] + np.asarray(offset) - corners_uv[0]).T).T
+            positions[index].append(corners[0] + moved[:, :1] * (corners[1] - corners[0])
+                                    + moved[:, 1:] * (corners[2] - corners[0]))
         normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
         normals.append(np.repeat((normal / max(np.linalg.norm(normal), 1e-300))[None], inside.sum(), axis=0))
         pixels.append(p[inside][:, ::-1].astype(np.int64))
-    if not positions:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2), np.int64)
-    return np.concatenate(positions), np.concatenate(normals), np.concatenate(pixels)
+    if not normals:
+        return [np.zeros((0, 3)) for _ in offsets], np.zeros((0, 3)), np.zeros((0, 2), np.int64)
+    return [np.concatenate(part) for part in positions], np.concatenate(normals), np.concatenate(pixels)
 
 
-def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: float = 1e-4,
-                  margin: int = 0) -> dict[str, np.ndarray]:
+# A texel's centre and its four corners: where hidden_texels looks.
+_TEXEL_PROBES = ((0.0, 0.0), (-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))
+
+
+def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: float = 1e-4) -> dict[str, np.ndarray]:
     """{object name: (H, W) bool} the texels no camera sees wholly, by the scene's geometry alone:
     those whose centre or a corner (in the plane of the centre's triangle) lies inside another
     object's closed mesh, or on another object's surface facing it (a box's bottom on the
-    floor), and the texels within ``margin`` of one in the same image. Neither method's light
-    there is seen as such, and each fills them its own way: Cycles lights the inside of an
-    emissive strip and averages the dark inside of another object into a texel partly buried;
-    VisiBake fills buried texels from their neighbours and lights a texel's exposed part only.
-    So errors are also reported without them, as they are without the texels two away from
-    island borders.
+    floor). Neither method's light there is seen as such, and each fills them its own way:
+    Cycles lights the inside of an emissive strip and averages the dark inside of another
+    object into a texel partly buried; VisiBake fills buried texels from their neighbours and
+    lights a texel's exposed part only. So errors are also reported without them, as they are
+    without the texels two away from island borders.
 
     ``contact`` (m): a point this close to another surface counts as touching it."""
     from mathutils import Vector
@@ -628,19 +636,13 @@ def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: fl
         if o.name not in uv_maps:
             continue
         mask = np.zeros((resolution, resolution), bool)
-        for offset in ((0.0, 0.0), (-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
-            positions, normals, pixels = _texel_centres(o, uv_maps[o.name], resolution, offset)
+        probes, normals, pixels = _texel_points(*_uv_triangles(o, uv_maps[o.name], resolution), resolution,
+                                                _TEXEL_PROBES)
+        for positions in probes:
             for other in meshes:
                 if other is not o:
                     _mark_hidden(mask, positions, normals, pixels, other, trees[other.name], boxes[other.name],
                                  contact)
-        for _ in range(margin):
-            grown = mask.copy()
-            grown[1:] |= mask[:-1]
-            grown[:-1] |= mask[1:]
-            grown[:, 1:] |= mask[:, :-1]
-            grown[:, :-1] |= mask[:, 1:]
-            mask = grown
         hidden[o.name] = mask
     return hidden
 
@@ -648,25 +650,26 @@ def hidden_texels(objects, uv_maps: dict[str, str], resolution: int, contact: fl
 def _mark_hidden(mask: np.ndarray, positions: np.ndarray, normals: np.ndarray, pixels: np.ndarray, other,
                  tree, box, contact: float) -> None:
     """Set ``mask`` at ``pixels`` whose ``positions`` (n, 3), with face ``normals`` (n, 3), lie
-    inside ``other`` (its BVHTree ``tree`` and world bounding ``box``), or within ``contact`` of
-    its surface facing them."""
+    inside ``other`` (its BVHTree ``tree``, in its own frame, and world bounding ``box``), or
+    within ``contact`` of its surface facing them."""
     from mathutils import Vector
 
     lo, hi = box
     candidates = np.nonzero(np.all((positions >= lo) & (positions <= hi), axis=1))[0]
     to_local = other.matrix_world.inverted()
-    rotation = np.array(other.matrix_world.to_3x3())
+    linear = np.array(other.matrix_world.to_3x3())
+    normal_matrix = np.linalg.inv(linear).T  # normals of a scaled object
     for i in candidates:
         local = to_local @ Vector(positions[i])
-        nearest, normal, _, distance = tree.find_nearest(local)
+        nearest, normal, _, _ = tree.find_nearest(local)
         if nearest is None:
             continue
-        world_normal = rotation @ np.array(normal)  # BVHTree works in the object's frame
-        world_normal /= max(np.linalg.norm(world_normal), 1e-300)
-        if distance <= contact:
-            if world_normal @ normals[i] < -0.9:
+        offset = np.array(local - nearest)
+        if np.linalg.norm(linear @ offset) <= contact:
+            world_normal = normal_matrix @ np.array(normal)
+            if world_normal @ normals[i] < -0.9 * np.linalg.norm(world_normal):
                 mask[tuple(pixels[i])] = True
-        elif (rotation @ np.array(local - nearest)) @ world_normal < 0:
+        elif offset @ np.array(normal) < 0:  # behind the nearest face: inside (the sign holds in any frame)
             mask[tuple(pixels[i])] = True
 
 

@@ -177,8 +177,8 @@ def outline_probes(light: Light, position: np.ndarray, rotation: np.ndarray) -> 
             yield direction, np.full(len(position), np.inf)
         return
     if light.kind == "AREA":
-        axis_x = 0.5 * light.size_x * np.asarray(light.axis_x, np.float64)
-        axis_y = 0.5 * light.size_y * np.asarray(light.axis_y, np.float64)
+        _, edge_x, edge_y = area_edges(light)
+        axis_x, axis_y = 0.5 * edge_x, 0.5 * edge_y
         if light.area_shape in ("DISK", "ELLIPSE"):
             angles = rotation[:, None] + np.arange(8) * np.pi / 4.0
             targets = (centre + np.cos(angles[:, k:k + 1]) * axis_x + np.sin(angles[:, k:k + 1]) * axis_y
@@ -448,6 +448,13 @@ def _sampled_contribution(light: Light, position: np.ndarray, normal: np.ndarray
     return LightContribution(factor[:, None] * scale, to_light, distance)
 
 
+def area_edges(light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An area lamp's centre and its two edges along its axes, (3,) float64 each: the lamp
+    spans centre + s * edge_x + t * edge_y for s, t in [-1/2, 1/2]."""
+    return (np.asarray(light.position, np.float64), light.size_x * np.asarray(light.axis_x, np.float64),
+            light.size_y * np.asarray(light.axis_y, np.float64))
+
+
 # Within this many half-diagonals of a rectangular lamp's centre its points are drawn uniform in
 # solid angle: at 4, 1 / r^2 changes by up to about 3x over the lamp; nearer it grows without bound.
 NEAR_AREA_LAMP = 4.0
@@ -473,9 +480,7 @@ def _area_point(light: Light, position: np.ndarray, normal: np.ndarray, u: np.nd
     if area <= 0:
         return LightContribution(np.zeros((len(position), 3)), np.broadcast_to(
             -np.asarray(light.direction, np.float64), position.shape).copy(), np.zeros(len(position)))
-    edge_x = light.size_x * np.asarray(light.axis_x, np.float64)
-    edge_y = light.size_y * np.asarray(light.axis_y, np.float64)
-    centre = np.asarray(light.position, np.float64)
+    centre, edge_x, edge_y = area_edges(light)
     points = centre + unit[:, :1] * edge_x + unit[:, 1:] * edge_y
     solid = None
     if light.area_shape not in ("DISK", "ELLIPSE"):
@@ -518,9 +523,7 @@ def rectangle_irradiance(light: Light, position: np.ndarray, normal: np.ndarray)
     radiance P / (pi A) times its form factor (Lambert's polygon formula, the lamp clipped to the
     receiver's horizon; core.lights.polygons). What the lamp's points average to, without their
     noise; 0 behind the lamp, which emits on its front only."""
-    edge_x = light.size_x * np.asarray(light.axis_x, np.float64)
-    edge_y = light.size_y * np.asarray(light.axis_y, np.float64)
-    centre = np.asarray(light.position, np.float64)
+    centre, edge_x, edge_y = area_edges(light)
     corners = np.array([centre + 0.5 * (sx * edge_x + sy * edge_y) for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
     triangles = np.stack([corners[[0, 1, 2]], corners[[0, 2, 3]]])  # (2, 3, 3)
     radiance = lamp_scale(light) / (np.pi * light.size_x * light.size_y)
