@@ -270,7 +270,8 @@ def _small_lamp_samples(light, lamp: LampPoints, samples: SampleSet, decided: np
     """(K,) bool: decided samples whose first SMALL_LAMP_POINTS points stand for all of the
     lamp's: it looks small from them and their footprint is flat (``threads``: the kernels'
     thread count, 0: all cores)."""
-    small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION)
+    small = decided & (unshadowed_variation(light, samples) < SMALL_LAMP_VARIATION) \
+        & (footprint_variation(light, samples) < SMALL_FOOTPRINT_VARIATION)
     if lamp.footprint_normals is not None:
         # A curved footprint's light changes across it: it needs every point's cosine (no ray:
         # it is decided).
@@ -665,6 +666,11 @@ SMALL_LAMP_POINTS = 4
 # unshadowed_variation), four stratified points give within about 0.3% (1% at most) of
 # what 64 give, measured for suns, spheres and area lamps.
 SMALL_LAMP_VARIATION = 0.1
+# Where a lamp's unshadowed irradiance changes this little across a texel's footprint (see
+# footprint_variation), its first four points stand for all sixteen: the variation is near
+# linear there and each point stands for a quarter of the box, so they scatter by about 0.5% of
+# the light and 3% at most (at 0.3, by up to 7%: tests/core/test_direct_sampler.py).
+SMALL_FOOTPRINT_VARIATION = 0.1
 
 
 def unshadowed_variation(light, samples: SampleSet) -> np.ndarray:
@@ -681,6 +687,21 @@ def unshadowed_variation(light, samples: SampleSet) -> np.ndarray:
     lit = cosine > 0
     tangent = np.sqrt(np.clip(1.0 - cosine * cosine, 0.0, None)) / np.where(lit, cosine, 1.0)
     return np.where(lit, alpha * (1.0 + tangent), np.inf)
+
+def footprint_variation(light, samples: SampleSet) -> np.ndarray:
+    """(K,) float64: about how much (relative) a lamp's unshadowed irradiance changes across each
+    sample's footprint: 4 h / d for a footprint of half-diagonal h at distance d from the lamp
+    (over the box, about 1.4 h: twice that through 1 / d^2 and once through the cosine, whose
+    relative change across a flat footprint is at most the distance's); 0 for a sun, and where
+    the samples have no footprint. A lamp 20 cm from a 10 cm texel changes by half and more
+    across it, which four points of sixteen left 20% off Cycles (a column's top beside a point
+    lamp, issue 52)."""
+    if light.kind == "SUN" or samples.footprint_corners is None:
+        return np.zeros(len(samples.position))
+    half_diagonal = np.linalg.norm(samples.footprint_corners.astype(np.float64), axis=2).max(axis=1)
+    distance = np.linalg.norm(samples.position - np.asarray(light.position, np.float64), axis=1)
+    return 4.0 * half_diagonal / np.maximum(distance, 1e-300)
+
 
 # An exact shadow ray costs about as much as this many table lookups of a gather
 # (embree ~5 M rays/s, the numpy gather ~15 M lookups/s on 2 cores).
