@@ -100,6 +100,7 @@ class Prepared:
     _landing_openness: np.ndarray | None = None  # (m,) the sky's openness at the short hits
     _openness: np.ndarray | None = None  # (K,) the samples' (the AO pass)
     _near_hits: object = False
+    _emitter_near_hits: object = False
     _filter_pairs: tuple | None = None
     _exposed: np.ndarray | None = None
     # Light a later relight can reuse (core.pipeline.light_memo), bounded on its own.
@@ -217,6 +218,16 @@ class Prepared:
         if self._near_hits is False:
             self._near_hits = find_near_hits(self)
         return self._near_hits
+
+    def emitter_near_hits(self):
+        """The near table entries of the emitted light's gather: :meth:`near_hits`, and those
+        landing on an emissive object within core.transport.interleave.EMITTER_NEAR_FIELD_TILES
+        windows; found once per preparation (geometry and materials alone). None when there are none."""
+        if self._emitter_near_hits is False:
+            emitting = np.array([bool(np.any(self.emission[a:b] > 0))
+                                 for a, b in zip(self.sample_offset[:-1], self.sample_offset[1:])])
+            self._emitter_near_hits = find_near_hits(self, emitting) if emitting.any() else self.near_hits()
+        return self._emitter_near_hits
 
     def short_hits(self):
         """The table entries whose rays land close by (core.transport.contacts), found once

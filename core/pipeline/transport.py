@@ -183,8 +183,9 @@ def transport_groups(p: Prepared, backend: TransportBackend, groups: list[LightG
             emitted = _gather_emission(p, timed_gather, emitting_atlas, np.concatenate(worlds, axis=-1), exclude,
                                        step_progress(0), outputs if bounces == 0 else None)
             spread = []
-            emitted = reconstruct_interleaved(p, emitted, near_light(p, p.near_hits(), emitting_atlas, exclude),
-                                              scratch=True, spread=spread)
+            hits = p.emitter_near_hits()
+            emitted = reconstruct_interleaved(p, emitted, near_light(p, hits, emitting_atlas, exclude),
+                                              scratch=True, spread=spread, hits=hits)
             del emitting_atlas
             np.maximum(emitted, 0.0, out=emitted)  # the filter's subtraction may leave -1e-10
             emitted_variance = np.square(spread[0])

@@ -129,13 +129,28 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
         if adaptive:
             decided, shadowed, mixed, probe_rays = _penumbra_probes(light, lamp, samples, blockers, receives)
             shadow_rays += probe_rays
+            # A spot's cone edge across a texel is a step in its light as sharp as a shadow's.
+            mixed |= spot_edge_samples(light, samples) & ~(decided & shadowed)
             if footprint is not None and samples.dense_footprint is not None and mixed.any():
                 # A shadow edge crossing a texel is where 16 points leave visible noise: such
                 # texels take EDGE_FOOTPRINT_POINTS, and the loop below leaves them alone.
                 edges = np.nonzero(mixed)[0]
-                edge_light, edge_rays, edge_half = _edge_irradiance(light, samples, edges, shadowing, blockers,
-                                                                    receives, points[light_index])
+                edge_light, edge_rays, edge_half, edge_open = _edge_irradiance(
+                    light, samples, edges, shadowing, blockers, receives, points[light_index])
                 shadow_rays += edge_rays
+                # Where the two halves of those points still disagree by more than EDGE_RELATIVE_ERROR
+                # of the texel's unshadowed light, EDGE_MOST_POINTS more (a set of their own) join
+                # them. Both sets are kept, halves with halves: the spread of the texels left at 64
+                # points is low by their selection, that of the first 64 of those refined high.
+                noisy = _noisy_edges(edge_light, edge_half, edge_open)
+                if noisy.any():
+                    more_light, more_rays, more_half, _ = _edge_irradiance(
+                        light, samples, edges[noisy], shadowing, blockers, receives, points[light_index],
+                        EDGE_MOST_POINTS)
+                    share = EDGE_MOST_POINTS / (EDGE_MOST_POINTS + EDGE_FOOTPRINT_POINTS)
+                    edge_light[noisy] = (1.0 - share) * edge_light[noisy] + share * more_light
+                    edge_half[noisy] = (1.0 - share) * edge_half[noisy] + share * more_half
+                    shadow_rays += more_rays
                 decided[edges] = shadowed[edges] = True
         lamp_light = np.zeros_like(irradiance)
         # The light of the first half of the points, where every point is traced (the spread).
@@ -218,6 +233,33 @@ def _lamp_irradiance(samples: SampleSet, shadowing: Shadowing, lights, report=No
     return irradiance, shadow_rays
 
 
+def spot_edge_samples(light, samples: SampleSet) -> np.ndarray:
+    """(K,) bool: samples whose footprint box reaches into a spot's cone edge: some corner (or the
+    centre) is not wholly outside the cone and some is not wholly inside its blend band, each
+    widened by the lamp's angular radius there (Cycles weighs each point of a spot of some radius
+    by the cone factor of its own direction, which blurs the edge by that much). All False for
+    other lamps and without a footprint. Sixteen footprint points left such texels 5% off Cycles,
+    as a shadow edge's would (a column beside a spot, seed 11 of ../shared/tools/scenegen.py)."""
+    count = len(samples.position)
+    if light.kind != "SPOT" or samples.footprint_corners is None or not count:
+        return np.zeros(count, bool)
+    cos_half, band = spot_cone(light)
+    half = np.arccos(np.clip(cos_half, -1.0, 1.0))
+    inside = np.arccos(np.clip(cos_half + max(band, 0.0), -1.0, 1.0))  # the band's inner edge
+    alpha = angular_radius(light, samples.position)
+    some_lit = np.zeros(count, bool)
+    some_short = np.zeros(count, bool)
+    corners = samples.footprint_corners.astype(np.float64)
+    axis = np.asarray(light.direction, np.float64)
+    for offset in [np.zeros((count, 3))] + [corners[:, corner] for corner in range(corners.shape[1])]:
+        from_light = samples.position + offset - np.asarray(light.position, np.float64)
+        from_light /= np.maximum(np.linalg.norm(from_light, axis=1), 1e-300)[:, None]
+        angle = np.arccos(np.clip(from_light @ axis, -1.0, 1.0))
+        some_lit |= angle - alpha < half
+        some_short |= angle + alpha > inside
+    return some_lit & some_short
+
+
 def _closed_rectangle_light(light, lamp: LampPoints, rows: np.ndarray, receives: np.ndarray | None) -> np.ndarray:
     """(len(rows), 3) float64: a rectangular lamp's unshadowed light at samples ``rows`` of
     ``lamp`` (its LampPoints over all samples) averaged over each one's footprint points, as its
@@ -296,20 +338,33 @@ def _lit(part: LightContribution, shading: np.ndarray) -> np.ndarray:
     return (np.einsum("kd,kd->k", part.to_light, shading) > 0.0) & np.any(part.irradiance > 0, axis=1)
 
 
-def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, blockers, receives, points: int):
+def _noisy_edges(light: np.ndarray, first_half: np.ndarray, unshadowed: np.ndarray) -> np.ndarray:
+    """(k,) bool: edge samples whose light (k, 3) over their dense footprint has a standard error
+    (half the difference of its halves' means, ``first_half`` (k, 3) the first half's light; see
+    _half_difference_variance) above EDGE_RELATIVE_ERROR of its ``unshadowed`` light (k, 3): the
+    light the texel's lit neighbours have, against which its error shows."""
+    error = np.abs(2.0 * first_half - light).sum(axis=1)
+    return error > EDGE_RELATIVE_ERROR * unshadowed.sum(axis=1)
+
+
+def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, blockers, receives, points: int,
+                     count: int = 0):
     """(len(edges), 3) the lamp's irradiance at samples ``edges`` (rows of ``samples``) over their
-    dense footprints (SampleSet.dense_footprint, EDGE_FOOTPRINT_POINTS each), every point traced;
-    the rays; and (len(edges), 3) the light of the first half of the points."""
+    dense footprints (SampleSet.dense_footprint, ``count`` points each, EDGE_FOOTPRINT_POINTS where
+    0), every point traced; the rays; (len(edges), 3) the light of the first half of the points; and
+    (len(edges), 3) the light were none of them shadowed."""
+    count = count or EDGE_FOOTPRINT_POINTS
     # The dense footprint and the scramble belong to the samples' indices in the whole bake.
     ids = samples.sample_ids()[edges]
-    offsets, normals = samples.dense_footprint(ids, EDGE_FOOTPRINT_POINTS)
+    offsets, normals = samples.dense_footprint(ids, count)
     lamp = LampPoints(light, samples.position[edges], samples.normal[edges], shadowing.area_light_samples, ids,
-                      shadowing.seed, offsets, max(points, EDGE_FOOTPRINT_POINTS), normals, _threads(shadowing))
+                      shadowing.seed, offsets, max(points, count), normals, _threads(shadowing))
     module = kernels.compiled()
     if module is not None and lamp.point_lamp:
-        return _hard_edge_irradiance(module, lamp, samples, edges, blockers, receives)
+        return _hard_edge_irradiance(module, lamp, samples, edges, blockers, receives, count)
     light_sum = np.zeros((len(edges), 3))
     first_half = np.zeros((len(edges), 3))
+    unshadowed = np.zeros((len(edges), 3))
     rays = 0
     # Several points' rays in one query; their light still added point by point, in order.
     points_at_once = max(1, EDGE_BATCH_ROWS // max(len(edges), 1))
@@ -324,17 +379,18 @@ def _edge_irradiance(light, samples: SampleSet, edges: np.ndarray, shadowing, bl
         answers = iter(trace_shadow_rays_together(
             blockers, samples, [(part, local, edges[local]) for part, _, local in evaluated if len(local)]))
         for offset, (part, lit, local) in enumerate(evaluated):
+            unshadowed += part.irradiance * lit[:, None]
             if len(local):
                 lit[local[next(answers)]] = False
                 rays += len(local)
             light_sum += part.irradiance * lit[:, None]
-            if _in_first_half(first + offset, EDGE_FOOTPRINT_POINTS):
+            if _in_first_half(first + offset, count):
                 first_half += part.irradiance * lit[:, None]
-    return light_sum, rays, first_half
+    return light_sum, rays, first_half, unshadowed
 
 
-def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: np.ndarray, blockers, receives
-                          ) -> tuple[np.ndarray, int]:
+def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: np.ndarray, blockers, receives,
+                          footprint_points: int) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
     """:func:`_edge_irradiance` of a lamp without extent (``lamp``: its points over the edge
     samples' dense footprints) through the compiled kernels, bitwise the loop there: each
     batch of points and every one of their shadow rays made in one pass
@@ -353,6 +409,7 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
     geometric = np.ascontiguousarray(samples.geometric[edges], np.float64)
     light_sum = np.zeros((count, 3))
     first_half = np.zeros((count, 3))
+    unshadowed = np.zeros((count, 3))
     rays = 0
     points_at_once = max(1, EDGE_BATCH_ROWS // max(count, 1))
     for first in range(0, lamp.count, points_at_once):
@@ -368,6 +425,7 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
                     np.ascontiguousarray(lamp.normal, np.float64), geometric, terminator, cutoff,
                     np.ascontiguousarray(lamp.footprint, np.float32), point_normals, first, receiving,
                     lamp.scale / lamp.count, *_ray_constants(blockers), irradiance, lit, origins, directions, limits)
+        unshadowed += np.einsum("bkc,bk->kc", irradiance, lit)
         flat = lit.reshape(-1)
         traced = np.flatnonzero(flat)
         if len(traced):
@@ -376,10 +434,10 @@ def _hard_edge_irradiance(module, lamp: LampPoints, samples: SampleSet, edges: n
             flat[traced[blocked]] = False
             rays += len(traced)
         kernels.run(module.edge_light_add, lamp.threads, irradiance, lit, light_sum)
-        halves = np.array([_in_first_half(first + offset, EDGE_FOOTPRINT_POINTS) for offset in range(batch)])
+        halves = np.array([_in_first_half(first + offset, footprint_points) for offset in range(batch)])
         if halves.any():
             first_half += np.einsum("bkc,bk->kc", irradiance[halves], lit[halves])
-    return light_sum, rays, first_half
+    return light_sum, rays, first_half, unshadowed
 
 
 def _ray_constants(blockers) -> tuple:
@@ -659,6 +717,11 @@ WIDE_LAMP_CHECK_POINTS = 16
 # leave a few percent of noise on such texels; 64 cut the error on the sun patch's edges of
 # benchmarks/scenes.py interior_opening by 3x, at 64 shadow rays for the few texels an edge crosses.
 EDGE_FOOTPRINT_POINTS = 64
+# An edge texel whose 64 points' halves disagree by more than this share of its unshadowed light
+# takes EDGE_MOST_POINTS more: a soft spot's cone edge beside a column, its brightest texels, was
+# 5% off Cycles at 64 points and 2-3% with 256 (seed 11 of ../shared/tools/scenegen.py).
+EDGE_RELATIVE_ERROR = 0.02
+EDGE_MOST_POINTS = 256
 # Points of a soft lamp that every sample evaluates: outside penumbrae, where the lamp is
 # small (SMALL_LAMP_VARIATION), they stand for all of them.
 SMALL_LAMP_POINTS = 4

@@ -46,6 +46,14 @@ SAME_SURFACE_TEXELS = 2.0
 # Light arriving from hits within this many filter windows of the sample's texels is near
 # light, which the filter keeps as gathered.
 NEAR_FIELD_TILES = 2.0
+# Light from an emitter within this many windows is near light too. An emitter's light falls as
+# 1 / d^2 from its surface, so from a strip 10-30 cm above a column's 13 cm texels it changes by
+# half from one texel to the next: averaged with neighbours that took the strip as near (and left
+# it out of their far light) and with those that took it as far, the rows beside it were 40% too
+# dark and 30% too bright (seeds 9 and 11 of ../shared/tools/scenegen.py). The gathered
+# emitters' light is kept from that far out, the bounces' from NEAR_FIELD_TILES: a lit wall's
+# light changes slowly, and filtering it is what removes the sun patches' ray effects.
+EMITTER_NEAR_FIELD_TILES = 6.0
 # The filter's window: a tile of more rotations than this squared is averaged over this many
 # texels squared around each texel. Each window then averages 9 rotations, as a 3 x 3 tile's
 # does, while neighbouring windows hold other rotations, so what the average leaves of the
@@ -67,19 +75,22 @@ PAIR_TASK_TEXELS = 4096
 
 @dataclass
 class NearHits:
-    """Table entries that land near their sample (within NEAR_FIELD_TILES windows of its texels)
-    on an atlas object: sample (m,) int64, weight (m,) float32 (the gather's), obj (m,)
-    int64 and uv (m, 2) float32 (where it landed)."""
+    """Table entries that land near their sample (within NEAR_FIELD_TILES windows of its texels,
+    or EMITTER_NEAR_FIELD_TILES on an emitter) on an atlas object: sample (m,) int64, weight (m,)
+    float32 (the gather's), obj (m,) int64, uv (m, 2) float32 (where it landed) and direction
+    (m,) int64 (the table's)."""
 
     sample: np.ndarray
     weight: np.ndarray
     obj: np.ndarray
     uv: np.ndarray
+    direction: np.ndarray
 
 
-def find_near_hits(p) -> NearHits | None:
+def find_near_hits(p, emitting: np.ndarray | None = None) -> NearHits | None:
     """The near table entries of prepared scene ``p`` (geometry alone; None when there are none
-    or the set is not interleaved)."""
+    or the set is not interleaved); with ``emitting`` (O,) bool, also those that land on these
+    objects within EMITTER_NEAR_FIELD_TILES windows (the emitted light's near field)."""
     if p.rotations is None or p.table is None:
         return None
     window = filter_window(p)
@@ -87,9 +98,22 @@ def find_near_hits(p) -> NearHits | None:
     reach = np.repeat(NEAR_FIELD_TILES * window * sizes, np.diff(p.sample_offset)).astype(np.float32)
     atlas = np.array([np.inf if m.mode == "atlas" else 0.0 for m in p.meshes])
     entries = close_entries(p, atlas, reach)
-    if entries is None:
+    parts = [] if entries is None else [entries]
+    if emitting is not None and np.any(emitting):
+        emitter_reach = np.repeat(EMITTER_NEAR_FIELD_TILES * window * sizes, np.diff(p.sample_offset))
+        farther = close_entries(p, np.where(emitting, atlas, 0.0), emitter_reach.astype(np.float32))
+        if farther is not None and entries is not None:
+            # Those nearer than the bounces' reach are in both.
+            count = len(p.position)
+            new = ~np.isin(farther.direction * count + farther.sample, entries.direction * count + entries.sample)
+            farther = type(farther)(*(getattr(farther, f)[new] for f in
+                                      ("sample", "direction", "weight", "obj", "uv", "floor")))
+        if farther is not None:
+            parts.append(farther)
+    if not parts:
         return None
-    return NearHits(entries.sample, entries.weight, entries.obj, entries.uv)
+    return NearHits(*(np.concatenate([getattr(part, f) for part in parts])
+                      for f in ("sample", "weight", "obj", "uv", "direction")))
 
 
 def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
@@ -220,12 +244,13 @@ def _pair_dtype(p):
 
 
 def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = None, scratch: bool = False,
-                            spread: list | None = None) -> np.ndarray:
+                            spread: list | None = None, hits: NearHits | None = None) -> np.ndarray:
     """(K, C) ``values`` (gathered light) with its far part averaged over each atlas texel's
     neighbours (:func:`filter_pairs`) and its ``near`` part (K, C) kept; unchanged without
     interleaving (``p.rotations`` None) and for texels without pairs (vertex samples, buried
     texels). ``p`` is a core.pipeline.prepare.Prepared. ``scratch``: ``values`` (float64) may be
     overwritten (the caller lets it go): its far part is then worked out in its array, not a new one.
+    ``hits``: the near entries ``near`` came from (default: ``p.near_hits()``).
 
     ``spread``: a list, to which the average's standard error (K, C) float64 is appended (NaN
     where a texel has fewer than two usable pairs, or without interleaving). The neighbours of a
@@ -243,7 +268,7 @@ def reconstruct_interleaved(p, values: np.ndarray, near: np.ndarray | None = Non
     # from afar), put back with the texel's own far weight: texels whose near and far shares
     # differ (one beside a wall, one in the open) then agree wherever the light is uniform,
     # and a white furnace stays exact.
-    hits = p.near_hits()
+    hits = p.near_hits() if hits is None else hits
     near_weight = np.zeros(len(far)) if hits is None else np.bincount(hits.sample, hits.weight, minlength=len(far))
     far_weight = np.where(p.gather_scale() > 0, p.open_weight(), 0.0) - near_weight
     usable = far_weight > 1e-6 * np.pi

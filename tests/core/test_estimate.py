@@ -46,7 +46,10 @@ def test_the_gathered_light_s_estimate_matches_its_error_against_many_directions
         print(f"\n{directions} directions: measured {measured:.4f} against 2048, estimated {estimate['total']:.4f}")
         # Measured: 0.268 and 0.094 (the reference's own error in it), estimated 0.267 and 0.088.
         assert measured / 1.5 < estimate["total"] < measured * 1.5
-        assert estimate["lamps"] == 0.0  # a hard spot over a flat floor: no texel's footprint is shadowed in part
+        # A hard spot over a flat floor: no texel is shadowed in part, but its cone's edge crosses some
+        # texels, which take a dense footprint and carry its spread (core.transport.direct.spot_edge_samples).
+        # The reference has the same direct light, so the measured error holds the gathered light's alone.
+        assert 0.0 < estimate["lamps"] < 0.5 * estimate["total"]
         assert report["objects"][0]["estimated_error"]["total"] == pytest.approx(estimate["total"], rel=1e-3)
 
 
@@ -68,8 +71,11 @@ def test_the_direct_light_s_estimate_matches_the_spread_between_seeds(angle):
     measured = float(np.sqrt(np.mean(light.var(axis=0, ddof=1))))
     estimated = float(np.sqrt(np.mean(np.square([r[1] for r in runs]))))
     print(f"\nsun {angle} deg: spread between seeds {measured:.4f}, estimated {estimated:.4f}")
-    # Measured: 0.0088 / 0.0111 at 5 degrees, 0.0135 / 0.0153 at 20 (an overestimate: the
-    # halves of a stratified set are negatively correlated).
+    # Measured: 0.0081 / 0.0055 at 5 degrees, 0.0117 / 0.0083 at 20. Edge texels whose first 64
+    # points' halves disagree take 256 more (core.transport.direct.EDGE_RELATIVE_ERROR): the spread
+    # estimated for those left at 64 is low by that selection. Before, with 64 points everywhere,
+    # 0.0088 / 0.0111 and 0.0135 / 0.0153 (an overestimate: a stratified set's halves are
+    # negatively correlated).
     assert measured / 1.5 < estimated < measured * 1.5
 
 
