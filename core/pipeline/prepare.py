@@ -53,8 +53,10 @@ from .progress import Stages
 # lighting carries the bake's error estimate, and short rays reflect the world as open as the
 # sky is at their landing points. 4: a rectangular area lamp's points near a receiver are
 # uniform in its solid angle, its wholly lit texels take its closed form, and a wide lamp's
-# probes include its first points (issue 52, part 3).
-TRANSPORT_REVISION = 4
+# probes include its first points (issue 52, part 3). 5: a lamp near a texel averages all its
+# footprint points, a spot's cone edge takes a dense footprint, and the emitted light's near
+# field reaches farther (issue 52, part 4).
+TRANSPORT_REVISION = 5
 
 
 @dataclass
