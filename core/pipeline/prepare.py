@@ -20,7 +20,7 @@ from ..transport.contacts import MIN_EXPOSED_SHARE, exposed_share, find_short_hi
 from ..transport.contract import GatherGeometry, SampleSet, Shadowing
 from ..transport.gather import AtlasLayout, ambient_occlusion, gather_normalisation, open_hemisphere_weight
 from ..transport.groups import LightGroup, light_key_parts
-from ..transport.interleave import filter_pairs, find_near_hits
+from ..transport.interleave import filter_pairs, find_emitter_near_hits, find_near_hits
 from ..visibility.cache import (
     CacheFull,
     CacheStatus,
@@ -228,7 +228,7 @@ class Prepared:
         if self._emitter_near_hits is False:
             emitting = np.array([bool(np.any(self.emission[a:b] > 0))
                                  for a, b in zip(self.sample_offset[:-1], self.sample_offset[1:])])
-            self._emitter_near_hits = find_near_hits(self, emitting) if emitting.any() else self.near_hits()
+            self._emitter_near_hits = find_emitter_near_hits(self, self.near_hits(), emitting)
         return self._emitter_near_hits
 
     def short_hits(self):

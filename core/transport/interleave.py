@@ -87,33 +87,45 @@ class NearHits:
     direction: np.ndarray
 
 
-def find_near_hits(p, emitting: np.ndarray | None = None) -> NearHits | None:
+def find_near_hits(p) -> NearHits | None:
     """The near table entries of prepared scene ``p`` (geometry alone; None when there are none
-    or the set is not interleaved); with ``emitting`` (O,) bool, also those that land on these
-    objects within EMITTER_NEAR_FIELD_TILES windows (the emitted light's near field)."""
+    or the set is not interleaved)."""
     if p.rotations is None or p.table is None:
         return None
-    window = filter_window(p)
-    sizes = texel_sizes(p.meshes, p.object_samples)
-    reach = np.repeat(NEAR_FIELD_TILES * window * sizes, np.diff(p.sample_offset)).astype(np.float32)
+    reach = np.repeat(NEAR_FIELD_TILES * _window_widths(p), np.diff(p.sample_offset)).astype(np.float32)
     atlas = np.array([np.inf if m.mode == "atlas" else 0.0 for m in p.meshes])
     entries = close_entries(p, atlas, reach)
-    parts = [] if entries is None else [entries]
-    if emitting is not None and np.any(emitting):
-        emitter_reach = np.repeat(EMITTER_NEAR_FIELD_TILES * window * sizes, np.diff(p.sample_offset))
-        farther = close_entries(p, np.where(emitting, atlas, 0.0), emitter_reach.astype(np.float32))
-        if farther is not None and entries is not None:
-            # Those nearer than the bounces' reach are in both.
-            count = len(p.position)
-            new = ~np.isin(farther.direction * count + farther.sample, entries.direction * count + entries.sample)
-            farther = type(farther)(*(getattr(farther, f)[new] for f in
-                                      ("sample", "direction", "weight", "obj", "uv", "floor")))
-        if farther is not None:
-            parts.append(farther)
-    if not parts:
+    if entries is None:
         return None
-    return NearHits(*(np.concatenate([getattr(part, f) for part in parts])
-                      for f in ("sample", "weight", "obj", "uv", "direction")))
+    return NearHits(entries.sample, entries.weight, entries.obj, entries.uv, entries.direction)
+
+
+def find_emitter_near_hits(p, near: NearHits | None, emitting: np.ndarray) -> NearHits | None:
+    """``near`` (:func:`find_near_hits` of prepared scene ``p``) and the table entries that land on
+    the objects where ``emitting`` (O,) bool is set within EMITTER_NEAR_FIELD_TILES windows: the
+    emitted light's near field (None when there are none or the set is not interleaved)."""
+    if p.rotations is None or p.table is None or not np.any(emitting):
+        return near
+    reach = np.repeat(EMITTER_NEAR_FIELD_TILES * _window_widths(p), np.diff(p.sample_offset)).astype(np.float32)
+    atlas = np.array([np.inf if m.mode == "atlas" and emits else 0.0 for m, emits in zip(p.meshes, emitting)])
+    farther = close_entries(p, atlas, reach)
+    if farther is None:
+        return near
+    if near is not None:
+        # Those within the bounces' reach are in both.
+        count = len(p.position)
+        new = ~np.isin(farther.direction * count + farther.sample, near.direction * count + near.sample)
+        farther = NearHits(farther.sample[new], farther.weight[new], farther.obj[new], farther.uv[new],
+                           farther.direction[new])
+        return NearHits(*(np.concatenate([getattr(near, f), getattr(farther, f)])
+                          for f in ("sample", "weight", "obj", "uv", "direction")))
+    return NearHits(farther.sample, farther.weight, farther.obj, farther.uv, farther.direction)
+
+
+def _window_widths(p) -> np.ndarray:
+    """(O,) float64 the filter window's width on each object's surface (its texel size times the
+    window's texels across)."""
+    return filter_window(p) * texel_sizes(p.meshes, p.object_samples)
 
 
 def near_light(p, near: NearHits | None, atlas: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
