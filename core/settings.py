@@ -190,7 +190,8 @@ SETTINGS = _table(
                  "of each seam read the same light under bilinear filtering, so no line shows along a seam "
                  "(Cycles does not stitch: off matches its texels)"),
     Setting("emitter_samples", int, 16, "Emitter Samples", minimum=1, refusal=_WITHOUT_VALUE, on_scene=False,
-            help="Points per emissive object for direct sampling of small emitters"),
+            help="Points per emissive object for direct sampling of small emitters, at least one on "
+                 "each of its flat faces where it has no more faces than points"),
     # A preference (the machine's), not the scene's.
     Setting("threads", int, 0, "Threads", minimum=0, maximum=CPU_COUNT, on_scene=False,
             over_maximum=" (this machine's cores)",

@@ -730,6 +730,7 @@ def unshadowed_variation(light, samples: SampleSet) -> np.ndarray:
     tangent = np.sqrt(np.clip(1.0 - cosine * cosine, 0.0, None)) / np.where(lit, cosine, 1.0)
     return np.where(lit, alpha * (1.0 + tangent), np.inf)
 
+
 def footprint_variation(light, samples: SampleSet) -> np.ndarray:
     """(K,) float64: about how much (relative) a lamp's unshadowed irradiance changes across each
     sample's footprint: 4 h / d for a footprint of half-diagonal h at distance d from the lamp
