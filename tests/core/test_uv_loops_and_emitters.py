@@ -155,3 +155,28 @@ def test_a_strip_s_points_cover_each_of_its_faces():
     # light from two or three points, 3 to 4.5 m away).
     off = sampled[:, 0] / exact[:, 0] - 1.0
     assert abs(off.mean()) < 0.06 and np.sqrt(np.mean(off ** 2)) < 0.12 and np.abs(off).max() < 0.25
+
+
+def test_a_long_strip_s_light_is_shadowed_where_it_comes_from():
+    """A ceiling 5 cm over an 8 m glowing strip that passes through a column: one shadow ray per
+    triangle, aimed at the triangle's middle, crossed the column from the far side, and the ceiling
+    above the strip there was dark (and so the strip's top face, lit by that ceiling: seed 19 of
+    ../shared/tools/scenegen.py, 25 times too dark). Aimed at the triangle's point nearest the
+    receiver, it sees the strip below it."""
+    from core.lights.emitters import EmissiveTriangles, triangle_irradiance
+
+    strip = np.array([[-4.0, -0.06, 0.0], [4.0, -0.06, 0.0], [4.0, 0.06, 0.0], [-4.0, 0.06, 0.0]])
+    triangles = EmissiveTriangles(strip[[[0, 1, 2], [0, 2, 3]]], np.tile([0.0, 0.0, 1.0], (2, 1)),
+                                  np.full((2, 3), 5.0), np.zeros(2, np.int64))
+    s = 0.2  # a column 40 cm across, from the floor to the ceiling, around the strip at x = 0
+    column = np.array([[x, y, z] for x in (-s, s) for y in (-s, s) for z in (-3.0, 0.2)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.int32)
+    scene = RayScene([(column, faces)])
+    ceiling = np.array([[x, 0.0, 0.05] for x in (1.0, 2.0, 3.0, -2.5)])
+    down = np.tile([0.0, 0.0, -1.0], (len(ceiling), 1))
+    never = type("Never", (), {"occluded": lambda self, o, d, limit: np.zeros(len(o), bool)})()
+    open_light = triangle_irradiance(triangles, ceiling, down, ceiling, never)
+    shadowed = triangle_irradiance(triangles, ceiling, down, offset_ray_origins(ceiling, down), scene)
+    assert np.all(open_light[:, 0] > 1.0)
+    np.testing.assert_allclose(shadowed, open_light, rtol=1e-12)
