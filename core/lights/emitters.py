@@ -62,7 +62,6 @@ def find_emitters(meshes: list[Mesh], points_per_emitter: int) -> list[Emitter]:
             continue
         count = max(1, points_per_emitter)
         faces = _flat_faces(normals[triangles], material[triangles])
-        chosen, area = [], []
         if faces.max() < count:
             # Each flat face (a box's six sides) gets its own points, at least one, the rest by area.
             # Spread by area over the whole mesh, a 2 x 0.1 x 0.05 m strip's small ends, which face a
@@ -70,11 +69,9 @@ def find_emitters(meshes: list[Mesh], points_per_emitter: int) -> list[Emitter]:
             # the walls lit by them were 25% off (seed 11 of ../shared/tools/scenegen.py).
             face_area = np.bincount(faces, weights=areas)
             per_face = _apportion(face_area, count)
-            for face in np.nonzero(per_face)[0]:
-                members = np.nonzero(faces == face)[0]
-                chosen.append(members[_stratified(areas[members], per_face[face])])
-                area.append(np.full(per_face[face], face_area[face] / per_face[face]))
-            chosen, area = np.concatenate(chosen), np.concatenate(area)
+            members = [np.nonzero(faces == face)[0] for face in range(len(per_face))]
+            chosen = np.concatenate([m[_stratified(areas[m], n)] for m, n in zip(members, per_face)])
+            area = np.repeat(face_area / per_face, per_face)
         else:
             chosen, area = _stratified(areas, count), np.full(count, total / count)
         r1 = np.sqrt(np.mod((np.arange(count) + 0.5) * GOLDEN_RATIO_FRACTION, 1.0))

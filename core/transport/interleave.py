@@ -14,16 +14,14 @@ mesh, and in sight of each other: never across a wall standing between them), wh
 removes the pattern and keeps the light's shape at the window's scale. Texels
 buried inside other geometry (core.visibility.table.VisibilityTable.buried: a floor
 under a wall standing on it) neither give nor take light there: nobody sees them, and
-their dark would bleed into the visible texels beside them. Nor are neighbours averaged
-whose near field differs (:func:`near_field`: how much of what a texel sees is close by,
-within a few texels): beside a contact or in a corner, the light changes faster than the
-window, and averaging there would blur what the contact correction and the footprint made sharp.
+their dark would bleed into the visible texels beside them.
 
 Only the light that arrives from afar is filtered: the ray effects of small bright patches
 come from there, while light from within a few texels (a wall standing on the floor, the
 inside of a corner, what the contact correction and the footprint made sharp) changes
 faster than the window and is kept as it was gathered (:func:`find_near_hits`,
-:func:`near_light`). The lamps' direct light, with its shadow edges, is never filtered;
+:func:`near_light`), and so is an emitter's light from farther out
+(:func:`find_emitter_near_hits`). The lamps' direct light, with its shadow edges, is never filtered;
 texels buried inside other geometry (core.visibility.table.VisibilityTable.buried: a
 floor under a wall standing on it) neither give nor take light (nobody sees them); vertex
 samples keep the set itself and are not filtered.

@@ -161,7 +161,7 @@ def test_a_long_strip_s_light_is_shadowed_where_it_comes_from():
     """A ceiling 5 cm over an 8 m glowing strip that passes through a column: one shadow ray per
     triangle, aimed at the triangle's middle, crossed the column from the far side, and the ceiling
     above the strip there was dark (and so the strip's top face, lit by that ceiling: seed 19 of
-    ../shared/tools/scenegen.py, 25 times too dark). Aimed at the triangle's point nearest the
+    ../shared/tools/scenegen.py, 0.55 of Cycles' strip alone). Aimed at the triangle's point nearest the
     receiver, it sees the strip below it."""
     from core.lights.emitters import EmissiveTriangles, triangle_irradiance
 
